@@ -1,0 +1,79 @@
+"""The ``lightsim`` command: a click group whose sub-commands live one per module.
+
+Sub-commands are imported lazily so that ``lightsim --help`` and quick commands do not pay
+for numba, embree or Ray start-up. Errors caused by the user's input
+(:class:`lightsim.errors.LightsimError`) print one line and exit with code 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from lightsim import __version__
+from lightsim.errors import LightsimError
+
+# command name -> "module:attribute" (modules relative to lightsim.cli)
+COMMANDS: dict[str, str] = {
+    "simulate": "simulate:simulate",
+    "luminaire": "luminaire:luminaire",
+    "bench": "bench:bench",
+    "compare": "compare:compare",
+    "validate": "validate:validate",
+    "converge": "validate:converge",
+    "report": "report:report",
+    "photo": "photo:photo",
+}
+
+
+class LazyGroup(click.Group):
+    """A group that imports a sub-command's module only when it is used."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        target = COMMANDS.get(cmd_name)
+        if target is None:
+            return None
+        module_name, attr = target.split(":")
+        try:
+            module = importlib.import_module(f"lightsim.cli.{module_name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"lightsim.cli.{module_name}":
+                return None  # command not built yet
+            raise
+        return getattr(module, attr)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="lightsim")
+def cli() -> None:
+    """Simulate and check automotive headlight beam patterns with photon mapping."""
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script; maps input errors to one line and exit code 2."""
+    try:
+        cli.main(args=argv, prog_name="lightsim", standalone_mode=False)
+    except LightsimError as exc:
+        click.echo(f"lightsim: error: {exc}", err=True)
+        sys.exit(exc.exit_code)
+    except click.exceptions.Abort:
+        click.echo("lightsim: aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        click.echo("lightsim: interrupted", err=True)
+        sys.exit(130)
+    except BrokenPipeError:
+        sys.exit(0)
+    sys.exit(0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
