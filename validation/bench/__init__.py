@@ -1,0 +1,1 @@
+"""Benchmarks behind ``lightsim bench``: each returns rows (dicts) with in-run baselines."""
