@@ -1,0 +1,209 @@
+"""Materials: the table the tracer reads, and the numba kernels of surface optics.
+
+Three kinds of surface, as glTF materials map onto them (see docs/conventions.md):
+
+=============  =======================================  =========  ===========================
+kind           parameter                                unit       default
+=============  =======================================  =========  ===========================
+``diffuse``    albedo ρ (RGB, Lambertian reflectance)    –          baseColorFactor (0.5 grey
+                                                                   for a part with no material)
+``mirror``     reflectance R (RGB, specular)            –          baseColorFactor
+``dielectric`` index of refraction n                    –          1.5 (glTF default)
+``dielectric`` absorption coefficient σ (RGB)           1/m        0 (clear); −ln(c)/d from
+                                                                   KHR_materials_volume
+=============  =======================================  =========  ===========================
+
+The outside of every dielectric is air (n = 1). Fresnel reflectance is the exact
+unpolarised one; beyond the critical angle light is totally reflected. Light travelling a
+distance t inside a dielectric keeps exp(−σ t) of its flux (Beer–Lambert).
+
+The tracer runs one luminous channel unless a material is coloured (RGB albedo or
+attenuation not grey); then three channels. With one channel a material's value is its
+luminance-weighted mean (Rec. 709 weights), which is exact for grey materials.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from lightsim.errors import InputError
+
+DIFFUSE, MIRROR, DIELECTRIC = 0, 1, 2
+KIND_NAMES = {DIFFUSE: "diffuse", MIRROR: "mirror", DIELECTRIC: "dielectric"}
+LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance weights of linear RGB
+
+
+@dataclass
+class Material:
+    """One material.
+
+    Attributes
+    ----------
+    name : str
+    kind : int
+        DIFFUSE, MIRROR or DIELECTRIC.
+    rgb : (3,) array
+        Albedo (diffuse) or reflectance (mirror), linear RGB in [0, 1]; unused for
+        dielectrics.
+    ior : float
+        Index of refraction (dielectric only).
+    sigma : (3,) array
+        Absorption coefficient (1/m) per channel (dielectric only).
+    """
+
+    name: str
+    kind: int
+    rgb: np.ndarray = field(default_factory=lambda: np.ones(3))
+    ior: float = 1.5
+    sigma: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        self.rgb = np.asarray(self.rgb, dtype=np.float64).reshape(3)
+        self.sigma = np.asarray(self.sigma, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(self.rgb)) or np.any(self.rgb < 0) or np.any(self.rgb > 1):
+            raise InputError(f"material '{self.name}': colour/reflectance must lie in [0, 1], "
+                             f"got {self.rgb.tolist()}")
+        if self.kind == DIELECTRIC:
+            if not math.isfinite(self.ior) or self.ior < 1.0:
+                raise InputError(f"material '{self.name}': index of refraction must be ≥ 1, "
+                                 f"got {self.ior}")
+            if not np.all(np.isfinite(self.sigma)) or np.any(self.sigma < 0):
+                raise InputError(f"material '{self.name}': absorption must be ≥ 0 and finite")
+
+    @property
+    def coloured(self) -> bool:
+        """True if the material treats red, green and blue differently."""
+        if self.kind == DIELECTRIC:
+            return bool(np.ptp(self.sigma) > 1e-12)
+        return bool(np.ptp(self.rgb) > 1e-12)
+
+    def describe(self) -> str:
+        if self.kind == DIELECTRIC:
+            extra = f", σ={self.sigma.round(4).tolist()} 1/m" if np.any(self.sigma > 0) else ""
+            return f"dielectric n={self.ior:g}{extra}"
+        word = "albedo" if self.kind == DIFFUSE else "reflectance"
+        return f"{KIND_NAMES[self.kind]} {word}={self.rgb.round(4).tolist()}"
+
+
+def material_from_gltf(name: str, mat: dict) -> tuple[Material, bool]:
+    """Map a glTF material JSON to a :class:`Material`.
+
+    Returns
+    -------
+    material : Material
+    emissive : bool
+        True if the material has a non-zero ``emissiveFactor`` (the part is an emitter).
+    """
+    mat_name = mat.get("name") or name
+    pbr = mat.get("pbrMetallicRoughness", {})
+    base = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0]), dtype=np.float64)[:3]
+    if not mat:
+        base = np.full(3, 0.5)  # a CAD part without material: grey diffuse, not glTF's metal
+    metallic = float(pbr.get("metallicFactor", 1.0)) if mat else 0.0
+    ext = mat.get("extensions", {})
+    emissive = np.asarray(mat.get("emissiveFactor", [0.0, 0.0, 0.0]), dtype=np.float64)
+    is_emissive = bool(np.any(emissive > 0))
+    transmission = float(ext.get("KHR_materials_transmission", {}).get("transmissionFactor", 0))
+    if transmission > 0:
+        ior = float(ext.get("KHR_materials_ior", {}).get("ior", 1.5))
+        vol = ext.get("KHR_materials_volume", {})
+        sigma = np.zeros(3)
+        dist = vol.get("attenuationDistance")
+        if dist is not None:
+            dist = float(dist)
+            color = np.asarray(vol.get("attenuationColor", [1.0, 1.0, 1.0]), dtype=np.float64)
+            if dist <= 0 or np.any(color <= 0) or np.any(color > 1):
+                raise InputError(f"material '{mat_name}': KHR_materials_volume needs "
+                                 "attenuationDistance > 0 and attenuationColor in (0, 1]")
+            sigma = -np.log(color) / dist
+        return Material(mat_name, DIELECTRIC, np.ones(3), ior, sigma), is_emissive
+    if metallic >= 0.5:
+        return Material(mat_name, MIRROR, base), is_emissive
+    return Material(mat_name, DIFFUSE, base), is_emissive
+
+
+@dataclass
+class MaterialTable:
+    """Materials as flat arrays for the numba kernels.
+
+    Attributes
+    ----------
+    kind : (n,) int32
+    value : (n, C) float64
+        Albedo or reflectance per channel.
+    ior : (n,) float64
+    sigma : (n, C) float64
+        Absorption coefficient (1/m) per channel.
+    """
+
+    materials: list[Material]
+    channels: int
+    kind: np.ndarray
+    value: np.ndarray
+    ior: np.ndarray
+    sigma: np.ndarray
+
+    @classmethod
+    def build(cls, materials: list[Material], channels: int | None = None) -> MaterialTable:
+        """Flatten ``materials``; ``channels`` defaults to 3 if any is coloured, else 1."""
+        if channels is None:
+            channels = 3 if any(m.coloured for m in materials) else 1
+        n = len(materials)
+        kind = np.array([m.kind for m in materials], dtype=np.int32)
+        ior = np.array([m.ior for m in materials], dtype=np.float64)
+        rgb = np.array([m.rgb for m in materials], dtype=np.float64).reshape(n, 3)
+        sig = np.array([m.sigma for m in materials], dtype=np.float64).reshape(n, 3)
+        if channels == 1:
+            value, sigma = (rgb @ LUMA)[:, None], (sig @ LUMA)[:, None]
+        else:
+            value, sigma = rgb, sig
+        return cls(materials, channels, kind, np.ascontiguousarray(value), ior,
+                   np.ascontiguousarray(sigma))
+
+    @property
+    def coloured(self) -> bool:
+        return any(m.coloured for m in self.materials)
+
+    @property
+    def has_volume(self) -> bool:
+        return bool(np.any(self.sigma > 0))
+
+
+# --------------------------------------------------------------------------------------
+# Surface optics kernels (unit vectors; n is the normal on the side the light comes from)
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def fresnel_dielectric(cos_i: float, eta_i: float, eta_t: float) -> float:
+    """Exact unpolarised Fresnel reflectance; 1 beyond the critical angle.
+
+    Parameters
+    ----------
+    cos_i : float
+        Cosine of the angle of incidence (≥ 0).
+    eta_i, eta_t : float
+        Refractive indices of the incident and transmitted media.
+    """
+    cos_i = min(max(cos_i, 0.0), 1.0)
+    sin2_t = (eta_i / eta_t) ** 2 * (1.0 - cos_i * cos_i)
+    if sin2_t >= 1.0:
+        return 1.0
+    cos_t = math.sqrt(1.0 - sin2_t)
+    rs = (eta_i * cos_i - eta_t * cos_t) / (eta_i * cos_i + eta_t * cos_t)
+    rp = (eta_t * cos_i - eta_i * cos_t) / (eta_t * cos_i + eta_i * cos_t)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+def slab_transmittance(n: float, cos_i: float = 1.0, absorption: float = 1.0) -> float:
+    """Transmittance of a parallel slab with incoherent multiple reflections.
+
+    T = (1−R)² a / (1 − R² a²), with R the single-surface Fresnel reflectance and a the
+    internal single-pass transmittance (exp(−σ t / cos θ_t)). Without absorption this is
+    (1−R)/(1+R): 0.9231 for n = 1.5 at normal incidence.
+    """
+    r = fresnel_dielectric(cos_i, 1.0, n)
+    return (1.0 - r) ** 2 * absorption / (1.0 - r * r * absorption * absorption)

@@ -1,0 +1,215 @@
+"""Sample generation: scrambled Halton points, counter-based random numbers, and
+Selective Photon Tracing (paper section 5.1, figure 2).
+
+Every photon is a pure function of (seed, interleave set, pass, Halton index), so a lost
+client can be replayed exactly and runs are bit-identical across backends.
+
+Emission dimensions (one Halton base each):
+
+=====  =====  ==========================================================
+dim    base   use
+=====  =====  ==========================================================
+0      2      direction, first coordinate (cos θ or r² of a Lambert disk)
+1      3      direction, azimuth
+2      5      which emitter triangle (flux × area weighted)
+3      7      position on the triangle, first barycentric coordinate
+4      11     position on the triangle, second barycentric coordinate
+=====  =====  ==========================================================
+
+Each interleave set scrambles the digits of every dimension with its own random digit
+permutations (a randomised QMC point set), so the M² sets are independent, unbiased
+estimates — their spread is the error estimate of the filtered image.
+
+Selective Photon Tracing
+------------------------
+The direction square (dims 0, 1) is split into L = 2^a · 3^b cells. Halton indices
+i, i + L, i + 2L, … share their first a base-2 and first b base-3 digits, hence lie in the
+same cell (the periodicity of the Halton sequence). A *pass* shoots every cell c
+n_c times at indices c + jL, j < n_c: n_c = 1 for ordinary cells and 1 + J for cells in
+which an earlier pass found a caustic path (light that hit a specular surface and then a
+diffuse one). Within a pass each photon carries power Φ · n_pass / (L n_c), with
+n_pass = Σ_c n_c; the estimate divides by the total number of photons emitted in the set.
+Each pass therefore estimates every cell with its exact share of the flux, and because the
+refinement decision uses earlier passes only while every pass re-scrambles the digits
+below the cell level, each pass is an unbiased estimate of the whole pattern. Leading
+(cell) digits keep one scramble across passes so a cell stays the same cell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+PRIMES = np.array([2, 3, 5, 7, 11], dtype=np.int64)
+N_DIMS = 5
+# digits per base so that base**-digits < 2**-53: the scrambled tail is fully random
+DIGITS = np.array([53, 34, 23, 19, 16], dtype=np.int64)
+MAX_DIGITS = int(DIGITS.max())
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+# --------------------------------------------------------------------------------------
+# Counter-based random numbers (splitmix64 finaliser)
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def mix64(z: np.uint64) -> np.uint64:
+    """SplitMix64 finaliser: a bijective 64-bit hash."""
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True, inline="always")
+def uniform(key: np.uint64, counter: np.uint64) -> float:
+    """A uniform number in [0, 1) that depends only on (key, counter)."""
+    z = mix64(key + (counter + np.uint64(1)) * np.uint64(0x9E3779B97F4A7C15))
+    return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+def _mix64_np(z: np.ndarray) -> np.ndarray:
+    z = np.asarray(z, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return z ^ (z >> np.uint64(31))
+
+
+def photon_keys(seed: int, set_index: int, pass_index: int, indices: np.ndarray) -> np.ndarray:
+    """uint64 random-number keys of photons: a hash of (seed, set, pass, Halton index)."""
+    with np.errstate(over="ignore"):
+        base = _mix64_np(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) + _GOLDEN)
+        base = _mix64_np(base ^ np.uint64(set_index + 1))
+        base = _mix64_np(base ^ (np.uint64(pass_index + 1) * _GOLDEN))
+        return _mix64_np(base ^ np.asarray(indices, dtype=np.int64).astype(np.uint64))
+
+
+# --------------------------------------------------------------------------------------
+# Scrambled Halton points
+# --------------------------------------------------------------------------------------
+
+def digit_permutations(seed: int, set_index: int, pass_index: int | None,
+                       cell_digits: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """Random digit permutations, (N_DIMS, MAX_DIGITS, 11) int64.
+
+    Parameters
+    ----------
+    seed, set_index : int
+        The set's identity; every set has its own scramble.
+    pass_index : int or None
+        ``None``: one scramble for all photons of the set (plain sampling). Otherwise the
+        digits below the cell level are re-scrambled per pass (SPT, see module docstring).
+    cell_digits : (a, b)
+        Number of leading base-2 and base-3 digits that define an SPT cell; they keep the
+        pass-independent scramble.
+    """
+    perms = np.zeros((N_DIMS, MAX_DIGITS, 11), dtype=np.int64)
+    fixed = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, set_index, 0x5EED])
+    per_pass = (None if pass_index is None else
+                np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, set_index, 0xA55,
+                                       pass_index]))
+    for d in range(N_DIMS):
+        base = int(PRIMES[d])
+        lead = cell_digits[d] if d < 2 else 0
+        for k in range(MAX_DIGITS):
+            rng = fixed if (per_pass is None or k < lead) else per_pass
+            perms[d, k, :base] = rng.permutation(base)
+    return perms
+
+
+@njit(cache=True)
+def _radical_inverse(index: np.int64, d: int, perms: np.ndarray) -> float:
+    base = PRIMES[d]
+    inv = 1.0 / base
+    f = inv
+    x = 0.0
+    i = index
+    for k in range(DIGITS[d]):
+        digit = i % base
+        i //= base
+        x += perms[d, k, digit] * f
+        f *= inv
+    return min(x, 1.0 - 1.1102230246251565e-16)
+
+
+@njit(cache=True)
+def halton_points(indices: np.ndarray, perms: np.ndarray) -> np.ndarray:
+    """Scrambled Halton points, (n, N_DIMS) float64 in [0, 1), for int64 ``indices``."""
+    n = indices.shape[0]
+    out = np.empty((n, N_DIMS), dtype=np.float64)
+    for i in range(n):
+        for d in range(N_DIMS):
+            out[i, d] = _radical_inverse(indices[i], d, perms)
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Selective Photon Tracing: cells and passes
+# --------------------------------------------------------------------------------------
+
+class SelectiveSampler:
+    """Per-set state of Selective Photon Tracing (one instance per interleave set).
+
+    Parameters
+    ----------
+    seed, set_index : int
+        Identity of the set.
+    cell_digits : (a, b)
+        L = 2^a · 3^b cells over the direction square (default (5, 3): 864 cells).
+    pass_photons : int
+        Target number of photons per pass; the refinement count J per refined cell is
+        chosen before each pass from it (allocation never depends on the pass's own
+        photons, which keeps the pass unbiased).
+    """
+
+    def __init__(self, seed: int, set_index: int, cell_digits: tuple[int, int] = (5, 3),
+                 pass_photons: int = 4096) -> None:
+        self.seed = seed
+        self.set_index = set_index
+        self.cell_digits = cell_digits
+        self.n_cells = int(2 ** cell_digits[0] * 3 ** cell_digits[1])
+        self.pass_photons = max(int(pass_photons), self.n_cells)
+        self.refined = np.zeros(self.n_cells, dtype=np.bool_)
+        self.passes_done = 0
+
+    def next_pass(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """Indices, points and per-photon weights of the next pass.
+
+        Returns
+        -------
+        pass_index : int
+        indices : (n,) int64
+            Halton indices c + jL.
+        points : (n, N_DIMS) float64
+        weight : (n,) float64
+            Power factor n_pass / (L n_c) (multiply by the emitted flux Φ).
+        """
+        L = self.n_cells
+        n_ref = int(self.refined.sum())
+        extra = max(self.pass_photons - L, 0)
+        J = int(extra // n_ref) if n_ref else 0
+        n_c = np.where(self.refined, 1 + J, 1).astype(np.int64)
+        cells = np.repeat(np.arange(L, dtype=np.int64), n_c)
+        starts = np.cumsum(n_c) - n_c
+        j = np.arange(len(cells), dtype=np.int64) - np.repeat(starts, n_c)
+        indices = cells + j * L
+        perms = digit_permutations(self.seed, self.set_index, self.passes_done,
+                                   self.cell_digits)
+        points = halton_points(indices, perms)
+        n_pass = len(indices)
+        weight = n_pass / (L * n_c[cells].astype(np.float64))
+        p = self.passes_done
+        self.passes_done += 1
+        return p, indices, points, weight
+
+    def update(self, indices: np.ndarray, caustic: np.ndarray) -> None:
+        """Mark the cells of photons whose paths were caustic (refined from now on)."""
+        if len(indices):
+            self.refined[(indices[caustic] % self.n_cells)] = True
+
+    def state(self) -> dict:
+        return {"refined": self.refined.copy(), "passes_done": self.passes_done}
+
+    def restore(self, state: dict) -> None:
+        self.refined = np.asarray(state["refined"], dtype=np.bool_).copy()
+        self.passes_done = int(state["passes_done"])

@@ -1,0 +1,551 @@
+"""Scene: load meshes, map materials, validate input, flatten to one triangle soup.
+
+A scene is a list of named parts (one per glTF node primitive or trimesh geometry). Each
+part has a role — ``surface`` (traced: diffuse, mirror or dielectric), ``emitter``
+(photon source, not traced), ``wall`` (the measurement wall: a diffuse detector that
+records photons and ends them) — and a material. The tracer sees the flattened soup of
+all surface and wall triangles.
+
+=====================  =====  =========  ================================================
+parameter              unit   default    meaning
+=====================  =====  =========  ================================================
+``flux``               lm     from file  luminous flux of the emitters (total; overrides
+                                         ``extras.lightsim.flux_lm``)
+``emission``           –      from file  ``isotropic`` or ``lambertian`` (overrides)
+``wall_distance``      m      25         distance of the added wall (plane z = D)
+``wall_size``          m      30 × 12    width × height of the added wall, centred on H-V
+``wall_albedo``        –      0.8        albedo of the added wall (camera views only)
+``part_materials``     –      none       per part: ``mirror[:R]``, ``glass[:n]``,
+                                         ``diffuse[:ρ]``, ``wall``, ``ignore``
+=====================  =====  =========  ================================================
+
+Input problems raise :class:`~lightsim.errors.InputError` with one line: missing file,
+not a mesh, truncated GLB, NaN/inf vertices, no emitter, zero or negative flux, a wall
+that is not planar. Zero-area triangles are dropped with a warning.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lightsim.errors import InputError
+from lightsim.materials import (
+    DIELECTRIC,
+    DIFFUSE,
+    MIRROR,
+    Material,
+    MaterialTable,
+    material_from_gltf,
+)
+
+log = logging.getLogger("lightsim.scene")
+
+SURFACE, EMITTER, WALL = "surface", "emitter", "wall"
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".stl", ".ply", ".off")
+
+
+@dataclass
+class Part:
+    """A named triangle mesh in world space with one material.
+
+    Attributes
+    ----------
+    name : str
+    role : str
+        ``surface``, ``emitter`` or ``wall``.
+    vertices : (n, 3) float64
+        World positions (m).
+    faces : (m, 3) int64
+    normals : (n, 3) float64 or None
+        Unit vertex normals used as shading normals on specular surfaces.
+    material : Material
+    flux_lm : float
+        Luminous flux (lm), emitters only.
+    emission : str
+        ``isotropic`` or ``lambertian``, emitters only.
+    """
+
+    name: str
+    role: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None
+    material: Material
+    flux_lm: float = 0.0
+    emission: str = "isotropic"
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """(m, 3, 3) float64 corner positions (m)."""
+        return self.vertices[self.faces]
+
+    def transformed(self, matrix: np.ndarray) -> Part:
+        """A copy moved by the 4×4 ``matrix`` (normals by its inverse transpose)."""
+        lin, t = matrix[:3, :3], matrix[:3, 3]
+        verts = self.vertices @ lin.T + t
+        normals = None
+        if self.normals is not None:
+            nm = self.normals @ np.linalg.inv(lin)
+            normals = nm / np.maximum(np.linalg.norm(nm, axis=1, keepdims=True), 1e-300)
+        faces = self.faces[:, ::-1].copy() if np.linalg.det(lin) < 0 else self.faces
+        return replace(self, vertices=verts, normals=normals, faces=faces)
+
+
+@dataclass
+class WallFrame:
+    """The measurement wall's coordinate frame (see docs/conventions.md).
+
+    ``centre`` is the foot of the lamp reference point (the world origin) on the wall
+    plane, so (h, v) = (0, 0) is H-V; angles are h_deg = atan(h / D), v_deg = atan(v / D).
+    """
+
+    centre: np.ndarray
+    h_axis: np.ndarray
+    v_axis: np.ndarray
+    normal: np.ndarray
+    h_range_m: tuple[float, float]
+    v_range_m: tuple[float, float]
+    distance_m: float
+    resolution: tuple[int, int] = (640, 256)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "centre": [float(x) for x in self.centre],
+            "h_axis": [float(x) for x in self.h_axis],
+            "v_axis": [float(x) for x in self.v_axis],
+            "normal": [float(x) for x in self.normal],
+            "h_range_m": [float(x) for x in self.h_range_m],
+            "v_range_m": [float(x) for x in self.v_range_m],
+            "distance_m": float(self.distance_m),
+            "resolution": [int(x) for x in self.resolution],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> WallFrame:
+        return cls(np.asarray(d["centre"], float), np.asarray(d["h_axis"], float),
+                   np.asarray(d["v_axis"], float), np.asarray(d["normal"], float),
+                   tuple(d["h_range_m"]), tuple(d["v_range_m"]), float(d["distance_m"]),
+                   tuple(int(x) for x in d["resolution"]))
+
+    @property
+    def pixel_size_m(self) -> tuple[float, float]:
+        """(dh, dv): pixel width and height on the wall (m)."""
+        w, h = self.resolution
+        return ((self.h_range_m[1] - self.h_range_m[0]) / w,
+                (self.v_range_m[1] - self.v_range_m[0]) / h)
+
+    def with_resolution(self, width: int, height: int) -> WallFrame:
+        return replace(self, resolution=(int(width), int(height)))
+
+    def to_hv(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (n, 3) → wall coordinates h, v (m)."""
+        d = np.asarray(points, dtype=np.float64) - self.centre
+        return d @ self.h_axis, d @ self.v_axis
+
+    def to_world(self, h: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Wall coordinates h, v (m) → world points (…, 3)."""
+        h = np.asarray(h, dtype=np.float64)[..., None]
+        v = np.asarray(v, dtype=np.float64)[..., None]
+        return self.centre + h * self.h_axis + v * self.v_axis
+
+    def pixel_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """h (W,) and v (H,) of pixel centres: column 0 = smallest h, row 0 = largest v."""
+        w, hres = self.resolution
+        dh, dv = self.pixel_size_m
+        h = self.h_range_m[0] + (np.arange(w) + 0.5) * dh
+        v = self.v_range_m[1] - (np.arange(hres) + 0.5) * dv
+        return h, v
+
+    def degrees(self, h: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Wall metres → angles (deg): atan(h / D), atan(v / D)."""
+        return (np.degrees(np.arctan2(h, self.distance_m)),
+                np.degrees(np.arctan2(v, self.distance_m)))
+
+
+@dataclass
+class Scene:
+    """All parts of a scene plus the derived, flattened arrays the tracer reads."""
+
+    parts: list[Part]
+    wall: WallFrame | None
+    source: str = ""
+    warnings: list[str] = field(default_factory=list)
+    channels: int | None = None  # force 1 or 3; None: decided from the materials
+
+    # -- derived data (recomputed when a part changes: see `replace_part`) --------------
+    @cached_property
+    def surfaces(self) -> list[Part]:
+        """Parts the tracer sees: surfaces and the wall (emitters do not occlude)."""
+        return [p for p in self.parts if p.role in (SURFACE, WALL)]
+
+    @property
+    def emitters(self) -> list[Part]:
+        return [p for p in self.parts if p.role == EMITTER]
+
+    @cached_property
+    def materials(self) -> MaterialTable:
+        return MaterialTable.build([p.material for p in self.surfaces], self.channels)
+
+    @cached_property
+    def triangles(self) -> np.ndarray:
+        """(T, 3, 3) float64 corners of all traced triangles (m)."""
+        if not self.surfaces:
+            return np.zeros((0, 3, 3))
+        return np.concatenate([p.triangles for p in self.surfaces])
+
+    @cached_property
+    def tri_part(self) -> np.ndarray:
+        """(T,) int32 index into :attr:`surfaces` (and the material table)."""
+        return np.concatenate([np.full(len(p.faces), i, np.int32)
+                               for i, p in enumerate(self.surfaces)] or [np.zeros(0, np.int32)])
+
+    @cached_property
+    def tri_is_wall(self) -> np.ndarray:
+        roles = np.array([p.role == WALL for p in self.surfaces], dtype=np.bool_)
+        return roles[self.tri_part] if len(roles) else np.zeros(0, np.bool_)
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """(T, 3) float64 unit geometric normals (counter-clockwise = front)."""
+        tri = self.triangles
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+    @cached_property
+    def corner_normals(self) -> np.ndarray:
+        """(T, 3, 3) float64 shading normals per corner (face normal where none given)."""
+        out = []
+        for p, fn in zip(self.surfaces, np.split(self.face_normals,
+                                                 np.cumsum([len(p.faces) for p in
+                                                            self.surfaces])[:-1])):
+            if p.normals is not None and p.material.kind != DIFFUSE:
+                cn = p.normals[p.faces]
+                # a corner normal on the back of its face is a broken export: use the face
+                bad = np.einsum("tcj,tj->tc", cn, fn) <= 0.0
+                cn = np.where(bad[..., None], fn[:, None, :], cn)
+            else:
+                cn = np.repeat(fn[:, None, :], 3, axis=1)
+            out.append(cn)
+        return np.concatenate(out) if out else np.zeros((0, 3, 3))
+
+    @cached_property
+    def scale(self) -> float:
+        """Size of the luminaire (bounding-box diagonal of non-wall parts, m)."""
+        pts = [p.vertices for p in self.parts if p.role != WALL]
+        if not pts:
+            return 1.0
+        allp = np.concatenate(pts)
+        return float(max(np.linalg.norm(np.ptp(allp, axis=0)), 1e-9))
+
+    @cached_property
+    def extent(self) -> float:
+        """Largest absolute coordinate of any part (m); sets float32 offset scales."""
+        return float(max((np.abs(p.vertices).max() for p in self.parts if len(p.vertices)),
+                         default=1.0))
+
+    @property
+    def total_flux(self) -> float:
+        return float(sum(p.flux_lm for p in self.emitters))
+
+    @property
+    def n_triangles(self) -> int:
+        return len(self.triangles)
+
+    def replace_part(self, name: str, **changes: Any) -> Scene:
+        """A new scene with part ``name`` changed (e.g. ``material=…``, moved vertices)."""
+        if not any(p.name == name for p in self.parts):
+            raise InputError(f"no part named '{name}' (parts: {', '.join(self.part_names)})")
+        parts = [replace(p, **changes) if p.name == name else p for p in self.parts]
+        return Scene(parts, self.wall, self.source, list(self.warnings), self.channels)
+
+    def transform_part(self, name: str, matrix: np.ndarray) -> Scene:
+        """A new scene with part ``name`` moved by the 4×4 ``matrix``."""
+        parts = [p.transformed(matrix) if p.name == name else p for p in self.parts]
+        if parts == self.parts:
+            raise InputError(f"no part named '{name}'")
+        return Scene(parts, self.wall, self.source, list(self.warnings), self.channels)
+
+    @property
+    def part_names(self) -> list[str]:
+        return [p.name for p in self.parts]
+
+    def describe(self) -> list[str]:
+        """One line per part: role, triangles, material."""
+        lines = []
+        for p in self.parts:
+            what = (f"emitter {p.flux_lm:g} lm {p.emission}" if p.role == EMITTER
+                    else "wall (detector)" if p.role == WALL else p.material.describe())
+            lines.append(f"{p.name}: {len(p.faces)} triangles, {what}")
+        return lines
+
+
+# ------------------------------------------------------------------------------------------
+# Loading
+# ------------------------------------------------------------------------------------------
+
+def _parse_part_material(name: str, spec: str) -> tuple[str, Material | None]:
+    """``mirror[:R]``, ``glass[:n]``, ``diffuse[:ρ]``, ``wall``, ``ignore`` → role, material."""
+    kind, _, arg = spec.partition(":")
+    kind = kind.strip().lower()
+    try:
+        value = float(arg) if arg else None
+    except ValueError:
+        raise InputError(f"part material '{name}={spec}': '{arg}' is not a number") from None
+    if kind == "mirror":
+        return SURFACE, Material(name, MIRROR, np.full(3, 0.88 if value is None else value))
+    if kind in ("glass", "dielectric"):
+        return SURFACE, Material(name, DIELECTRIC, np.ones(3), 1.5 if value is None else value)
+    if kind == "diffuse":
+        return SURFACE, Material(name, DIFFUSE, np.full(3, 0.5 if value is None else value))
+    if kind == "wall":
+        return WALL, Material(name, DIFFUSE, np.full(3, 0.8 if value is None else value))
+    if kind == "ignore":
+        return "ignore", None
+    raise InputError(f"part material '{name}={spec}': kind must be mirror, glass, diffuse, "
+                     "wall or ignore")
+
+
+def _read_parts(path: Path) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None,
+                                          dict, dict]]:
+    """(name, vertices, faces, normals, material json, extras) for each mesh in ``path``."""
+    if path.suffix.lower() in (".glb", ".gltf"):
+        from lightsim.io.gltf import read_gltf
+
+        return [(p.name, p.vertices, p.faces, p.normals, p.material, p.extras)
+                for p in read_gltf(path)]
+    import trimesh
+
+    try:
+        loaded = trimesh.load(str(path), force="scene", process=False)
+    except Exception as exc:  # trimesh raises many exception types for bad files
+        raise InputError(f"{path}: cannot read mesh ({exc.__class__.__name__}: {exc})") from None
+    out = []
+    for node in loaded.graph.nodes_geometry:
+        transform, geom_name = loaded.graph[node]
+        geom = loaded.geometry[geom_name]
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue
+        verts = np.asarray(geom.vertices, dtype=np.float64) @ transform[:3, :3].T \
+            + transform[:3, 3]
+        faces = np.asarray(geom.faces, dtype=np.int64)
+        if np.linalg.det(transform[:3, :3]) < 0:
+            faces = faces[:, ::-1].copy()
+        out.append((str(node), verts, faces, None, {}, {}))
+    return out
+
+
+def _plane_frame(part: Part, resolution: tuple[int, int]) -> WallFrame:
+    """Fit the wall plane and build its frame (normal towards the origin)."""
+    pts = part.vertices[np.unique(part.faces)]
+    centroid = pts.mean(axis=0)
+    _, s, vt = np.linalg.svd(pts - centroid, full_matrices=False)
+    normal = vt[2]
+    size = max(float(s[0]), 1e-12)
+    dev = np.abs((pts - centroid) @ normal).max()
+    if dev > 1e-6 * max(float(np.ptp(pts, axis=0).max()), 1e-9) + 1e-9:
+        raise InputError(f"wall '{part.name}' is not planar (vertices {dev:.3g} m off its plane)")
+    if normal @ centroid > 0:  # face the lamp at the origin
+        normal = -normal
+    distance = float(abs(normal @ centroid))
+    if distance < 1e-9 * size:
+        raise InputError(f"wall '{part.name}' passes through the lamp reference point (origin)")
+    centre = (normal @ centroid) * normal
+    v_axis = np.array([0.0, 1.0, 0.0]) - normal[1] * normal
+    if np.linalg.norm(v_axis) < 1e-6:  # a floor or ceiling: V along world +Z
+        v_axis = np.array([0.0, 0.0, 1.0]) - normal[2] * normal
+    v_axis /= np.linalg.norm(v_axis)
+    h_axis = np.cross(v_axis, normal)
+    d = pts - centre
+    h, v = d @ h_axis, d @ v_axis
+    return WallFrame(centre, h_axis, v_axis, normal, (float(h.min()), float(h.max())),
+                     (float(v.min()), float(v.max())), distance, resolution)
+
+
+def make_wall(distance: float, size: tuple[float, float], albedo: float = 0.8,
+              resolution: tuple[int, int] = (640, 256)) -> tuple[Part, WallFrame]:
+    """A rectangular diffuse wall at z = ``distance`` facing the lamp, centred on H-V."""
+    if not (math.isfinite(distance) and distance > 0):
+        raise InputError(f"wall distance must be a positive number of metres, got {distance}")
+    w, h = size
+    if not (w > 0 and h > 0 and math.isfinite(w) and math.isfinite(h)):
+        raise InputError(f"wall size must be positive, got {w}x{h} m")
+    # H is world −X (a driver's right), V is +Y; normal −Z towards the lamp.
+    x0, x1, y0, y1 = -w / 2, w / 2, -h / 2, h / 2
+    verts = np.array([[x0, y0, distance], [x1, y0, distance], [x1, y1, distance],
+                      [x0, y1, distance]])
+    faces = np.array([[0, 2, 1], [0, 3, 2]])  # clockwise seen from the lamp → normal −Z
+    part = Part("wall", WALL, verts, faces, None, Material("wall", DIFFUSE, np.full(3, albedo)))
+    frame = WallFrame(np.array([0.0, 0.0, distance]), np.array([-1.0, 0.0, 0.0]),
+                      np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, -1.0]),
+                      (-w / 2, w / 2), (-h / 2, h / 2), distance, resolution)
+    return part, frame
+
+
+def _check_dielectric(part: Part, warnings: list[str]) -> Part:
+    """Flip a closed dielectric with inward normals; warn about open ones."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(part.vertices, part.faces, process=True, validate=False)
+    if not mesh.is_watertight:
+        warnings.append(f"dielectric '{part.name}' is not closed: inside/outside follow the "
+                        "triangle winding")
+        return part
+    if mesh.volume < 0:
+        warnings.append(f"dielectric '{part.name}' has inverted normals (negative volume): "
+                        "flipped")
+        normals = None if part.normals is None else -part.normals
+        return replace(part, faces=part.faces[:, ::-1].copy(), normals=normals)
+    return part
+
+
+def load_scene(path: str | Path, *, flux: float | None = None, emission: str | None = None,
+               filament: str | None = None, filament_at: tuple[float, float, float] | None = None,
+               filament_axis: tuple[float, float, float] = (0.0, 0.0, 1.0),
+               wall_distance: float = 25.0, wall_size: tuple[float, float] = (30.0, 12.0),
+               wall_albedo: float = 0.8, resolution: tuple[int, int] = (640, 256),
+               part_materials: dict[str, str] | None = None,
+               channels: int | None = None) -> Scene:
+    """Load a luminaire (GLB, glTF, OBJ, STL, PLY) into a validated :class:`Scene`.
+
+    See the module docstring for the parameters. A wall is added at ``wall_distance`` when
+    the file has none.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if not path.is_file():
+        raise InputError(f"{path}: not a file")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise InputError(f"{path}: not a mesh file (expected one of {', '.join(MESH_SUFFIXES)})")
+    if flux is not None and not (math.isfinite(flux) and flux > 0):
+        raise InputError(f"flux must be a positive number of lumens, got {flux}")
+    if emission is not None and emission not in ("isotropic", "lambertian"):
+        raise InputError(f"emission must be 'isotropic' or 'lambertian', got '{emission}'")
+    part_materials = dict(part_materials or {})
+    raw = _read_parts(path)
+    if not raw:
+        raise InputError(f"{path}: contains no triangle meshes")
+
+    warnings: list[str] = []
+    parts: list[Part] = []
+    names_seen: dict[str, int] = {}
+    for name, verts, faces, normals, mat_json, extras in raw:
+        # unique names: several primitives of one node become name, name#1, ...
+        k = names_seen.get(name, 0)
+        names_seen[name] = k + 1
+        pname = name if k == 0 else f"{name}#{k}"
+        if not np.all(np.isfinite(verts)):
+            bad = int((~np.isfinite(verts)).any(axis=1).sum())
+            raise InputError(f"{path}: part '{pname}' has {bad} vertices with NaN/inf coordinates")
+        if normals is not None and not np.all(np.isfinite(normals)):
+            normals = None
+            warnings.append(f"part '{pname}': invalid vertex normals ignored")
+        ls = (extras.get("lightsim") or {}) if isinstance(extras, dict) else {}
+        material, emissive = material_from_gltf(pname, mat_json)
+        role = str(ls.get("role", "")).lower() or (
+            EMITTER if emissive else WALL if name.lower() == "wall" else SURFACE)
+        if role not in (SURFACE, EMITTER, WALL, "ignore", "mirror", "dielectric", "diffuse"):
+            raise InputError(f"part '{pname}': unknown role '{role}'")
+        if role in ("mirror", "dielectric", "diffuse"):
+            kind = {"mirror": MIRROR, "dielectric": DIELECTRIC, "diffuse": DIFFUSE}[role]
+            material = replace(material, kind=kind)
+            role = SURFACE
+        for key in (pname, name):
+            if key in part_materials:
+                role, override = _parse_part_material(pname, part_materials.pop(key))
+                material = override or material
+                break
+        if role == "ignore":
+            continue
+        # drop degenerate triangles (zero area or repeated indices)
+        tri = verts[faces] if len(faces) else np.zeros((0, 3, 3))
+        area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        size = float(np.ptp(verts, axis=0).max()) if len(verts) else 0.0
+        keep = area2 > (1e-12 * size) ** 2
+        if not np.all(keep):
+            warnings.append(f"part '{pname}': dropped {int((~keep).sum())} zero-area triangles")
+            faces = faces[keep]
+        if len(faces) == 0:
+            warnings.append(f"part '{pname}': no triangles left, ignored")
+            continue
+        part = Part(pname, role, verts, faces, normals, material, extras=dict(extras))
+        if role == EMITTER:
+            part.emission = str(emission or ls.get("emission", "isotropic")).lower()
+            if part.emission not in ("isotropic", "lambertian"):
+                raise InputError(f"emitter '{pname}': emission must be isotropic or lambertian, "
+                                 f"got '{part.emission}'")
+            f = ls.get("flux_lm")
+            if f is not None:
+                try:
+                    part.flux_lm = float(f)
+                except (TypeError, ValueError):
+                    raise InputError(f"emitter '{pname}': flux_lm '{f}' is not a number") from None
+        if role == SURFACE and material.kind == DIELECTRIC:
+            part = _check_dielectric(part, warnings)
+        parts.append(part)
+    if part_materials:
+        raise InputError(f"--part-material names unknown part(s): {', '.join(part_materials)} "
+                         f"(parts: {', '.join(n for n, *_ in raw)})")
+
+    # -- emitters --------------------------------------------------------------------------
+    if filament is not None:
+        parts.append(_filament_part(filament, filament_at, filament_axis, flux, emission))
+    emitters = [p for p in parts if p.role == EMITTER]
+    if not emitters:
+        raise InputError(f"{path}: no emitter (no material with emissiveFactor); give one with "
+                         "--filament BULB --filament-at X,Y,Z")
+    if flux is not None and filament is None:
+        own = [p.flux_lm for p in emitters]
+        total = sum(f for f in own if f > 0)
+        for p in emitters:  # the total is set; shares keep the file's ratios where known
+            p.flux_lm = flux * (p.flux_lm / total if total > 0 else 1.0 / len(emitters))
+    for p in emitters:
+        if p.flux_lm == 0.0 and flux is None:
+            raise InputError(f"emitter '{p.name}' has no luminous flux: set extras "
+                             "{\"lightsim\": {\"flux_lm\": …}} in the file or give --flux")
+        if not (math.isfinite(p.flux_lm) and p.flux_lm > 0):
+            raise InputError(f"emitter '{p.name}': flux must be positive, got {p.flux_lm} lm")
+
+    # -- wall ----------------------------------------------------------------------------
+    walls = [p for p in parts if p.role == WALL]
+    if len(walls) > 1:
+        raise InputError(f"{path}: more than one wall ({', '.join(p.name for p in walls)})")
+    if walls:
+        frame = _plane_frame(walls[0], resolution)
+    else:
+        wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
+        parts.append(wall_part)
+    if not any(p.role == SURFACE for p in parts):
+        warnings.append("the scene has no surfaces besides the wall: light goes straight to it")
+    scene = Scene(parts, frame, str(path), warnings, channels)
+    for w in warnings:
+        log.warning(w)
+    return scene
+
+
+def _filament_part(bulb: str, at: tuple[float, float, float] | None,
+                   axis: tuple[float, float, float], flux: float | None,
+                   emission: str | None) -> Part:
+    """An emitter part built from a bulb preset for meshes without their own emitter."""
+    from lightsim.luminaires import bulbs, filament
+
+    if at is None:
+        raise InputError("--filament needs --filament-at X,Y,Z (m)")
+    spec = bulbs.get_bulb(bulb)
+    axis_v = np.asarray(axis, dtype=np.float64)
+    if not np.all(np.isfinite(axis_v)) or np.linalg.norm(axis_v) == 0:
+        raise InputError(f"--filament-axis must be a non-zero vector, got {axis}")
+    verts, faces = filament.filament_mesh(spec.filament_length_m, spec.filament_diameter_m,
+                                          np.asarray(at, float), axis_v / np.linalg.norm(axis_v))
+    return Part(f"filament-{spec.name}", EMITTER, np.asarray(verts, float),
+                np.asarray(faces, np.int64), None, Material("filament", DIFFUSE),
+                flux_lm=float(flux if flux is not None else spec.flux_lm),
+                emission=emission or "isotropic")
