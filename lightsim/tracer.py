@@ -180,7 +180,14 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
             continue
         t = float(tfar[i])
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-        px, py, pz = o[i, 0] + t * dx, o[i, 1] + t * dy, o[i, 2] + t * dz
+        # the hit point from barycentrics lies on the triangle (o + t·d with a float32 t
+        # can land just outside a neighbouring face at an edge and leak out of a box)
+        b1 = min(max(float(bu[i]), 0.0), 1.0)
+        b2 = min(max(float(bv[i]), 0.0), 1.0 - b1)
+        b0 = 1.0 - b1 - b2
+        px = b0 * tri_v[k, 0, 0] + b1 * tri_v[k, 1, 0] + b2 * tri_v[k, 2, 0]
+        py = b0 * tri_v[k, 0, 1] + b1 * tri_v[k, 1, 1] + b2 * tri_v[k, 2, 1]
+        pz = b0 * tri_v[k, 0, 2] + b1 * tri_v[k, 1, 2] + b2 * tri_v[k, 2, 2]
         gx, gy, gz = face_n[k, 0], face_n[k, 1], face_n[k, 2]
         cos_g = dx * gx + dy * gy + dz * gz
         front = cos_g < 0.0
@@ -477,6 +484,33 @@ class PhotonTracer:
                            np.concatenate(esc_d) if record_escaped and esc_d else None,
                            np.concatenate(esc_p) if record_escaped and esc_p else None)
 
+    def _intersect(self, o: np.ndarray, d: np.ndarray):
+        """Closest hits, skipping false self-intersections at t ≈ 0.
+
+        embree starts rays at t = 0, and an origin rounded to float32 can sit exactly on a
+        neighbouring face near an edge. A hit closer than the origin offset is false when
+        the ray moves away from that face's plane on the side where its (float64) origin
+        lies; such rays are re-cast from a little further along.
+        """
+        prim, tfar, bu, bv = self.caster.intersect(o, d)
+        t_min = 4 * 3.814697265625e-06 * (np.abs(o).max(axis=1) + self.eps_floor)
+        tri, fn = self._geom[0], self._geom[1]
+        for _ in range(3):
+            close = np.flatnonzero((prim >= 0) & (tfar < t_min))
+            if len(close) == 0:
+                break
+            k = prim[close]
+            side = np.einsum("ij,ij->i", o[close] - tri[k, 0], fn[k])
+            moving = np.einsum("ij,ij->i", d[close], fn[k])
+            close = close[side * moving > 0]
+            if len(close) == 0:
+                break
+            step = t_min[close]
+            p2, t2, u2, v2 = self.caster.intersect(o[close] + step[:, None] * d[close],
+                                                   d[close])
+            prim[close], tfar[close], bu[close], bv[close] = p2, t2 + step, u2, v2
+        return prim, tfar, bu, bv
+
     def _trace_batch(self, origins, directions, power, keys, group, n_groups, record_escaped):
         n = len(origins)
         C = self.channels
@@ -497,7 +531,7 @@ class PhotonTracer:
             m = len(o)
             if m == 0:
                 break
-            prim, tfar, bu, bv = self.caster.intersect(o, d)
+            prim, tfar, bu, bv = self._intersect(o, d)
             rays += m
             status = np.empty(m, dtype=np.int8)
             rec = np.empty(m, dtype=np.bool_)
