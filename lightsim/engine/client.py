@@ -1,0 +1,305 @@
+"""A rendering client: owns interleave sets, their photons, photon maps and counters.
+
+The paper's client (sections 3.3, 4.3, 5): every set (a, b) of the M×M interleave pattern
+has its own photons — disjoint sample indices, its own scramble — and its own photon map,
+and computes only its pixels (x mod M = a, y mod M = b) plus the shared probe points that
+give the error estimate. A client holds any number of sets (static assignment); frames
+*accumulate*: each frame adds photons to every set's map by incremental insertion.
+
+A set's state is a pure function of (scene, config, seed, set index, frames shot), so a
+lost client can be rebuilt by replaying its frames (:meth:`Client.replay`), and a run is
+bit-identical however the sets are spread over clients.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lightsim.engine.config import RunConfig
+from lightsim.engine.plan import Plan
+from lightsim.render.interleave import InterleavePattern
+from lightsim.sampling import SelectiveSampler, digit_permutations, halton_points, photon_keys
+from lightsim.scene import Scene, WallFrame
+from lightsim.tracer import LEDGER, PhotonRecords, PhotonTracer
+
+
+@dataclass
+class SetState:
+    """Accumulated state of one interleave set.
+
+    Attributes
+    ----------
+    emitted : int
+        Photons emitted so far, N_s (the estimate divides by it).
+    next_index : int
+        Next Halton index (plain sampling).
+    ledger : (len(LEDGER), C) float64
+        Bookkeeping, unnormalised (divide by ``emitted`` for lm).
+    emitted_power : (C,) float64
+        Sum of emitted photon powers (unnormalised).
+    caustic : int
+        Emitted photons whose path produced a caustic record (yield numerator).
+    """
+
+    index: int
+    channels: int
+    emitted: int = 0
+    next_index: int = 0
+    frames: int = 0
+    caustic: int = 0
+    records: int = 0
+    ledger: np.ndarray = field(default=None)  # type: ignore[assignment]
+    emitted_power: np.ndarray = field(default=None)  # type: ignore[assignment]
+    sampler: SelectiveSampler | None = None
+    photonmap: Any = None
+    bins: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.ledger is None:
+            self.ledger = np.zeros((len(LEDGER), self.channels))
+        if self.emitted_power is None:
+            self.emitted_power = np.zeros(self.channels)
+
+
+def default_min_radius(config: RunConfig, frame: WallFrame) -> float:
+    """Radius (m) of a disk with the area of the n×n box-filter window on the wall."""
+    dh, dv = frame.pixel_size_m
+    n = config.filter_n
+    return math.sqrt(n * n * dh * dv / math.pi)
+
+
+class Client:
+    """Holds a group of interleave sets and computes their part of every frame.
+
+    Parameters
+    ----------
+    scene : Scene
+    config : RunConfig
+    plan : Plan
+        Which stages run (SPT, channels, recording, camera).
+    set_indices : list of int
+        The interleave sets this client owns (static assignment).
+    probes_hv : (P, 2) array
+        Wall coordinates (h, v in m) of the probe points every set estimates.
+    """
+
+    def __init__(self, scene: Scene, config: RunConfig, plan: Plan, set_indices: list[int],
+                 probes_hv: np.ndarray) -> None:
+        self.config = config
+        self.plan = plan
+        self.set_indices = list(set_indices)
+        self.probes_hv = np.asarray(probes_hv, dtype=np.float64).reshape(-1, 2)
+        self._set_scene(scene)
+        self.reset()
+
+    # -- scene and state ------------------------------------------------------------------
+    def _set_scene(self, scene: Scene, caster=None) -> None:
+        if self.plan.channels != scene.channels:
+            scene = Scene(scene.parts, scene.wall, scene.source, scene.warnings,
+                          self.plan.channels)
+        self.scene = scene
+        self.frame = scene.wall
+        self.channels = self.plan.channels
+        self.tracer = PhotonTracer(scene, max_depth=self.config.max_depth,
+                                   record=self.plan.record, threads=self.config.threads,
+                                   caster=caster)
+        W, H = self.frame.resolution
+        self.pattern = InterleavePattern(self.config.interleave, W, H)
+        self.min_radius = (self.config.min_radius if self.config.min_radius is not None
+                           else default_min_radius(self.config, self.frame))
+        self._wall_queries: dict[int, np.ndarray] = {}
+        self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
+        self._probe_points = self.frame.to_world(self.probes_hv[:, 0], self.probes_hv[:, 1])
+
+    def reset(self) -> None:
+        """Discard all photons (interaction mode: the next frame starts afresh)."""
+        self.sets: dict[int, SetState] = {s: self._new_set(s) for s in self.set_indices}
+
+    def _new_set(self, s: int) -> SetState:
+        st = SetState(s, self.channels)
+        if self.plan.spt:
+            st.sampler = SelectiveSampler(self.config.seed, s,
+                                          pass_photons=self.config.photons_per_set)
+        if self.config.estimator == "bin":
+            W, H = self.frame.resolution
+            st.bins = np.zeros((H, W, self.channels))
+        else:
+            st.photonmap = self._new_map()
+        return st
+
+    def _new_map(self):
+        from lightsim.photonmap.density import PhotonMap
+
+        structure = "hash" if self.config.estimator == "radius" else self.config.structure
+        return PhotonMap(structure=structure, channels=self.channels)
+
+    def update(self, scene: Scene, geometry_changed: bool = True) -> None:
+        """Interaction: a changed scene discards the accumulated photons.
+
+        The embree scene is rebuilt only when geometry changed (materials alone reuse it).
+        """
+        caster = None if geometry_changed else self.tracer.caster
+        self._set_scene(scene, caster)
+        self.reset()
+
+    # -- shooting ------------------------------------------------------------------------
+    def shoot(self) -> dict[str, float]:
+        """Shoot one frame of photons for every owned set and insert them into the maps."""
+        t0 = time.perf_counter()
+        pts, keys, weights, groups, owners = [], [], [], [], []
+        for g, s in enumerate(self.set_indices):
+            st = self.sets[s]
+            if st.sampler is not None:
+                pass_index, idx, p, w = st.sampler.next_pass()
+                # key space: pass 0 is plain sampling, SPT passes are 1, 2, ...
+                k = photon_keys(self.config.seed, s, pass_index + 1, idx)
+            else:
+                n = self.config.photons_per_set
+                idx = np.arange(st.next_index, st.next_index + n, dtype=np.int64)
+                p = halton_points(idx, self._perms(s))
+                k = photon_keys(self.config.seed, s, 0, idx)
+                w = None
+                st.next_index += n
+            pts.append(p)
+            keys.append(k)
+            weights.append(np.ones(len(idx)) if w is None else w)
+            groups.append(np.full(len(idx), g, np.int64))
+            owners.append(idx)
+        points = np.concatenate(pts)
+        group = np.concatenate(groups)
+        res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
+                                       group=group, n_groups=len(self.set_indices))
+        rec = res.records
+        rec_group = group[rec.source] if len(rec) else np.zeros(0, np.int64)
+        offsets = np.cumsum([0] + [len(o) for o in owners])
+        for g, s in enumerate(self.set_indices):
+            st = self.sets[s]
+            lo, hi = offsets[g], offsets[g + 1]
+            sel = np.flatnonzero(rec_group == g)
+            # a stable order (photon index, then bounce) keeps maps identical across batching
+            sel = sel[np.argsort(rec.source[sel], kind="stable")]
+            part = PhotonRecords(rec.position[sel], rec.normal[sel], rec.power[sel],
+                                 rec.part[sel], rec.flags[sel], rec.source[sel] - lo)
+            self._insert(st, part)
+            st.emitted += hi - lo
+            st.frames += 1
+            st.ledger += res.ledger[g]
+            st.emitted_power += res.emitted[g]
+            caustic = res.caustic_source[lo:hi]
+            st.caustic += int(caustic.sum())
+            st.records += len(part)
+            if st.sampler is not None:
+                st.sampler.update(owners[g], caustic)
+        return {"photons": float(len(points)), "records": float(len(rec)),
+                "rays": float(res.rays), "seconds": time.perf_counter() - t0}
+
+    def _perms(self, s: int) -> np.ndarray:
+        cache = self.__dict__.setdefault("_perm_cache", {})
+        if s not in cache:
+            cache[s] = digit_permutations(self.config.seed, s, None)
+        return cache[s]
+
+    def _insert(self, st: SetState, rec: PhotonRecords) -> None:
+        if st.bins is not None:
+            W, H = self.frame.resolution
+            h, v = self.frame.to_hv(rec.position)
+            dh, dv = self.frame.pixel_size_m
+            col = np.floor((h - self.frame.h_range_m[0]) / dh).astype(np.int64)
+            row = np.floor((self.frame.v_range_m[1] - v) / dv).astype(np.int64)
+            ok = ((col >= 0) & (col < W) & (row >= 0) & (row < H)
+                  & np.isin(rec.part, self._wall_part_ids))
+            flat = row[ok] * W + col[ok]
+            for c in range(self.channels):
+                st.bins[..., c].reshape(-1)[:] += np.bincount(
+                    flat, weights=rec.power[ok, c].astype(np.float64), minlength=W * H)
+            return
+        if len(rec):
+            st.photonmap.add(rec.position, rec.normal, rec.power)
+
+    # -- estimates -----------------------------------------------------------------------
+    def _estimate(self, st: SetState, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Illuminance (lx) of one set at world points with the given surface normals."""
+        if st.emitted == 0:
+            return np.zeros((len(points), self.channels))
+        if st.bins is not None:
+            h, v = self.frame.to_hv(points)
+            W, H = self.frame.resolution
+            dh, dv = self.frame.pixel_size_m
+            col = np.clip(np.floor((h - self.frame.h_range_m[0]) / dh).astype(np.int64), 0, W - 1)
+            row = np.clip(np.floor((self.frame.v_range_m[1] - v) / dv).astype(np.int64), 0, H - 1)
+            return st.bins[row, col] / (st.emitted * dh * dv)
+        cfg = self.config
+        radius = cfg.max_radius
+        if cfg.estimator == "radius":
+            radius = self.min_radius if math.isinf(cfg.max_radius) else cfg.max_radius
+        res = st.photonmap.estimate(points.astype(np.float32), normals.astype(np.float32),
+                                    k=cfg.k, max_radius=radius,
+                                    min_radius=0.0 if cfg.estimator == "radius"
+                                    else self.min_radius, kernel=cfg.kernel)
+        return np.asarray(res.E, dtype=np.float64) / st.emitted
+
+    def _wall_points(self, s: int) -> np.ndarray:
+        if s not in self._wall_queries:
+            rows, cols = self.pattern.set_pixels(s)
+            h_all, v_all = self.frame.pixel_centres()
+            hh, vv = np.meshgrid(h_all[cols], v_all[rows])
+            self._wall_queries[s] = self.frame.to_world(hh, vv).reshape(-1, 3)
+        return self._wall_queries[s]
+
+    def render(self, image: bool = True, probes: bool = True,
+               full_image: bool = False) -> dict[str, Any]:
+        """Estimates of every owned set.
+
+        Returns
+        -------
+        dict with ``sub_images`` {set: (rows, cols, C) lux} (interleaved pixels only),
+        ``full_images`` {set: (H, W, C) lux} (every pixel, with ``full_image``),
+        ``probes`` {set: (P, C) lux}, ``seconds``.
+        """
+        t0 = time.perf_counter()
+        out: dict[str, Any] = {"sub_images": {}, "probes": {}, "full_images": {}}
+        normal = np.broadcast_to(self.frame.normal, (1, 3))
+        for s in self.set_indices:
+            st = self.sets[s]
+            if image:
+                pts = self._wall_points(s)
+                shape = self.pattern.sub_shape(s)
+                est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape))
+                out["sub_images"][s] = est.reshape((*shape, self.channels))
+            if full_image:
+                h_all, v_all = self.frame.pixel_centres()
+                hh, vv = np.meshgrid(h_all, v_all)
+                pts = self.frame.to_world(hh, vv).reshape(-1, 3)
+                est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape))
+                out["full_images"][s] = est.reshape((*hh.shape, self.channels))
+            if probes and len(self._probe_points):
+                out["probes"][s] = self._estimate(
+                    st, self._probe_points, np.broadcast_to(normal, self._probe_points.shape))
+        out["seconds"] = time.perf_counter() - t0
+        return out
+
+    # -- statistics, checkpoints ---------------------------------------------------------
+    def stats(self) -> dict[int, dict[str, Any]]:
+        """Per-set counters and bookkeeping (unnormalised ledger)."""
+        return {s: {"emitted": st.emitted, "frames": st.frames, "caustic": st.caustic,
+                    "records": st.records, "ledger": st.ledger.copy(),
+                    "emitted_power": st.emitted_power.copy()}
+                for s, st in self.sets.items()}
+
+    def counters(self) -> dict[int, int]:
+        """Frames shot per set: with the seed, all that is needed to replay a set."""
+        return {s: st.frames for s, st in self.sets.items()}
+
+    def replay(self, frames: dict[int, int]) -> None:
+        """Rebuild the sets' state by re-shooting ``frames`` frames (deterministic)."""
+        self.reset()
+        n = max(frames.values(), default=0)
+        if any(f != n for f in frames.values()):
+            raise ValueError("sets of one client must have shot the same number of frames")
+        for _ in range(n):
+            self.shoot()

@@ -1,0 +1,117 @@
+"""Run configuration shared by the server and every client.
+
+======================  =====  ==========  ==================================================
+parameter               unit   default     meaning
+======================  =====  ==========  ==================================================
+``seed``                –      1           every photon is a function of (seed, set, index)
+``interleave``          –      4           M: M×M interleave sets, each with its own photons
+                                           and photon map (paper section 3.3)
+``estimator``           –      ``knn``     ``knn`` (photon map, exact k nearest), ``bin``
+                                           (photons counted per wall pixel), ``radius``
+                                           (fixed-radius hashed grid, the IGI baseline)
+``k``                   –      64          photons per kNN estimate
+``max_radius``          m      ∞           largest kNN search radius (also the ``radius``
+                                           estimator's radius; default there: 2 pixels)
+``min_radius``          m      auto        smallest kNN radius; auto = the radius of a disk
+                                           with the area of the M×M filter window (finer
+                                           detail cannot survive the filter anyway); it
+                                           also caps a point focus at a finite estimate
+``kernel``              –      ``box``     ``box``, ``cone`` or ``epanechnikov`` weights
+``filter_size``         px     M           box filter window n×n (paper: 3×3 … 6×6)
+``frame_photons``       –      200 000     photons shot per frame over all sets
+``structure``           –      ``middle``  photon-map index: ``middle`` (unbalanced kd-tree,
+                                           incremental), ``median``, ``grid-lo``, ``grid-hi``
+``spt``                 –      auto        Selective Photon Tracing on/off; auto = plan
+``record``              –      auto        ``wall`` or ``all`` diffuse surfaces; auto = plan
+``max_depth``           –      32          bounces per photon
+``probe_grid``          –      64 × 32     points on the wall where every set estimates E:
+                                           their spread over the sets is the error estimate
+``channels``            –      auto        1 (luminous) or 3 (RGB); auto = plan
+======================  =====  ==========  ==================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+from lightsim.errors import InputError
+
+ESTIMATORS = ("knn", "bin", "radius")
+KERNELS = ("box", "cone", "epanechnikov")
+STRUCTURES = ("middle", "median", "grid-lo", "grid-hi")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Settings of a run (see the module docstring for units and defaults)."""
+
+    seed: int = 1
+    interleave: int = 4
+    estimator: str = "knn"
+    k: int = 64
+    max_radius: float = math.inf
+    min_radius: float | None = None
+    kernel: str = "box"
+    filter_size: int | None = None
+    frame_photons: int = 200_000
+    structure: str = "middle"
+    spt: bool | None = None
+    record: str | None = None
+    max_depth: int = 32
+    probe_grid: tuple[int, int] = (64, 32)
+    channels: int | None = None
+    threads: int | None = None
+    extra_probes: tuple[tuple[float, float], ...] = field(default_factory=tuple)
+
+    def __post_init__(self) -> None:
+        if self.estimator not in ESTIMATORS:
+            raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, "
+                             f"got '{self.estimator}'")
+        if self.kernel not in KERNELS:
+            raise InputError(f"kernel must be one of {', '.join(KERNELS)}, got '{self.kernel}'")
+        if self.structure not in STRUCTURES:
+            raise InputError(f"structure must be one of {', '.join(STRUCTURES)}, "
+                             f"got '{self.structure}'")
+        if not 1 <= self.interleave <= 16:
+            raise InputError(f"interleave M must be between 1 and 16, got {self.interleave}")
+        if self.k < 1:
+            raise InputError(f"k must be at least 1, got {self.k}")
+        if not (self.max_radius > 0):
+            raise InputError(f"max radius must be positive, got {self.max_radius}")
+        if self.min_radius is not None and not (0 <= self.min_radius < math.inf):
+            raise InputError(f"min radius must be ≥ 0 and finite, got {self.min_radius}")
+        if self.filter_size is not None and not 1 <= self.filter_size <= 32:
+            raise InputError(f"filter size must be between 1 and 32, got {self.filter_size}")
+        if self.frame_photons < self.n_sets:
+            raise InputError(f"photons per frame ({self.frame_photons}) must be at least the "
+                             f"number of interleave sets ({self.n_sets})")
+        if not 1 <= self.max_depth <= 1000:
+            raise InputError(f"max depth must be between 1 and 1000, got {self.max_depth}")
+        if self.record not in (None, "wall", "all"):
+            raise InputError(f"record must be 'wall' or 'all', got '{self.record}'")
+        if self.channels not in (None, 1, 3):
+            raise InputError(f"channels must be 1 or 3, got {self.channels}")
+
+    @property
+    def n_sets(self) -> int:
+        return self.interleave * self.interleave
+
+    @property
+    def photons_per_set(self) -> int:
+        """Photons each set shoots per frame (plain sampling; SPT passes aim at it)."""
+        return max(1, self.frame_photons // self.n_sets)
+
+    @property
+    def filter_n(self) -> int:
+        return self.filter_size or self.interleave
+
+    def with_(self, **changes: Any) -> RunConfig:
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["max_radius"] = None if math.isinf(self.max_radius) else self.max_radius
+        d["extra_probes"] = [list(p) for p in self.extra_probes]
+        return d

@@ -1,0 +1,56 @@
+"""In-process backend (``--workers 0``): the clients are plain objects in this process.
+
+No Ray is started. One client holds every set; it still uses every core, because embree
+casts each ray batch on a pool of threads and the numba kernels run in parallel.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from lightsim.engine.client import Client
+from lightsim.engine.config import RunConfig
+from lightsim.engine.plan import Plan
+from lightsim.scene import Scene
+
+
+class LocalBackend:
+    """Clients called one after the other in this process."""
+
+    def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
+                 assignment: list[list[int]], probes_hv: np.ndarray) -> None:
+        self.clients = [Client(scene, config, plan, sets, probes_hv)
+                        for sets in assignment if sets]
+
+    def shoot(self) -> list[dict[str, float]]:
+        return [c.shoot() for c in self.clients]
+
+    def render(self, **kw: Any) -> list[dict[str, Any]]:
+        return [c.render(**kw) for c in self.clients]
+
+    def update(self, scene: Scene, geometry_changed: bool) -> None:
+        for c in self.clients:
+            c.update(scene, geometry_changed)
+
+    def stats(self) -> dict[int, dict[str, Any]]:
+        out: dict[int, dict[str, Any]] = {}
+        for c in self.clients:
+            out.update(c.stats())
+        return dict(sorted(out.items()))
+
+    def counters(self) -> dict[int, int]:
+        out: dict[int, int] = {}
+        for c in self.clients:
+            out.update(c.counters())
+        return out
+
+    def replay(self, counters: dict[int, int]) -> None:
+        counters = {int(k): int(v) for k, v in counters.items()}
+        for c in self.clients:
+            c.replay({s: counters.get(s, 0) for s in c.set_indices})
+
+    def close(self) -> None:
+        for c in self.clients:
+            c.tracer.caster.close()

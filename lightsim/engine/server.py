@@ -1,0 +1,321 @@
+"""The server loop: plan, broadcast changes, run frames on the clients, assemble, log error.
+
+A :class:`Session` is the Python API of lightsim (the CLI is a thin layer over it)::
+
+    session = Session(scene, RunConfig(frame_photons=200_000))
+    session.frame()                      # interaction mode: shoot + render
+    session.update(material=("lens", {"ior": 1.55}))   # discards photons, next frame is immediate
+    session.walkthrough()                # queries only (no shooting)
+    result = session.run(photons=2_000_000, target_error=0.02)
+
+Backends (``workers``): 0 → clients in this process; N ≥ 1 → N Ray actors on a local Ray
+runtime; ``address`` → the same actors on an existing Ray cluster. Results are
+bit-identical between backends for the same seed and photon count, because every set's
+photons depend only on (seed, set, index) and the server combines sets in set order.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lightsim.engine.config import RunConfig
+from lightsim.engine.plan import Plan, make_plan
+from lightsim.errors import InputError
+from lightsim.render.frame import (
+    ProbeStats,
+    assemble_interleaved,
+    luminous,
+    pool_full_images,
+    probe_grid,
+    probe_stats,
+    relative_error,
+)
+from lightsim.render.interleave import InterleavePattern
+from lightsim.scene import Scene
+from lightsim.tracer import LEDGER
+
+
+@dataclass
+class Estimate:
+    """What the server knows after a frame.
+
+    Attributes
+    ----------
+    lux : (H, W, C) float64 or None
+        Filtered illuminance image (lx), if an image was rendered.
+    raw : (H, W, C) float64 or None
+        The assembled image before filtering.
+    probes : ProbeStats
+    rel_error : float or None
+    photons : int
+        Photons emitted over all sets so far.
+    seconds : float
+        Time since the session's clock started (s).
+    """
+
+    lux: np.ndarray | None
+    raw: np.ndarray | None
+    probes: ProbeStats | None
+    rel_error: float | None
+    photons: int
+    seconds: float
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+class Session:
+    """Distributed photon-mapping session (see the module docstring).
+
+    Parameters
+    ----------
+    scene : Scene
+    config : RunConfig
+    workers : int
+        0: in-process clients; N ≥ 1: N Ray actors.
+    address : str, optional
+        Ray cluster address (``HOST:PORT`` or ``auto``); implies Ray.
+    camera, farfield, regulation :
+        Stages the plan must include.
+    extra_probes : (n, 2) array, optional
+        More probe points (h, v in m) every set estimates, e.g. regulation test points.
+    """
+
+    def __init__(self, scene: Scene, config: RunConfig | None = None, *, workers: int = 0,
+                 address: str | None = None, camera: bool = False, farfield: bool = False,
+                 regulation: str | None = None, extra_probes: np.ndarray | None = None,
+                 plan: Plan | None = None, checkpoint: dict | None = None) -> None:
+        if scene.wall is None:
+            raise InputError("the scene has no measurement wall")
+        self.config = config or RunConfig()
+        self.scene = scene
+        self.plan = plan or make_plan(scene, self.config, camera=camera, farfield=farfield,
+                                      regulation=regulation)
+        W, H = scene.wall.resolution
+        if W < 1 or H < 1:
+            raise InputError(f"resolution must be at least 1x1, got {W}x{H}")
+        self.pattern = InterleavePattern(self.config.interleave, W, H)
+        grid = probe_grid(scene.wall.h_range_m, scene.wall.v_range_m, self.config.probe_grid)
+        extra = np.zeros((0, 2)) if extra_probes is None else np.asarray(extra_probes, float)
+        self.grid_count = len(grid)
+        self.probes_hv = np.vstack([grid, extra.reshape(-1, 2)])
+        n_clients = max(1, workers) if (workers or address) else 1
+        n_clients = min(n_clients, self.pattern.n_sets)
+        self.assignment = self.pattern.assign(n_clients)
+        if workers or address:
+            from lightsim.engine.ray_backend import RayBackend
+
+            self.backend = RayBackend(scene, self.config, self.plan, self.assignment,
+                                      self.probes_hv, address=address)
+        else:
+            from lightsim.engine.local import LocalBackend
+
+            self.backend = LocalBackend(scene, self.config, self.plan, self.assignment,
+                                        self.probes_hv)
+        self.log: list[dict[str, Any]] = []
+        self.frames = 0
+        self._t0: float | None = None
+        self._elapsed_before = 0.0
+        self.last: Estimate | None = None
+        if checkpoint is not None:
+            self._restore(checkpoint)
+
+    # -- clock ---------------------------------------------------------------------------
+    def start_clock(self) -> None:
+        if self._t0 is None:
+            self._t0 = time.perf_counter()
+
+    @property
+    def elapsed(self) -> float:
+        return self._elapsed_before + (0.0 if self._t0 is None
+                                       else time.perf_counter() - self._t0)
+
+    # -- frames --------------------------------------------------------------------------
+    def frame(self, image: bool = True, shoot: bool = True) -> Estimate:
+        """One frame: every client shoots (unless ``shoot`` is False) and renders."""
+        self.start_clock()
+        t0 = time.perf_counter()
+        timings: dict[str, float] = {}
+        if shoot:
+            self.backend.shoot()
+            timings["shoot"] = time.perf_counter() - t0
+            self.frames += 1
+        t1 = time.perf_counter()
+        full = self.config.estimator == "bin"
+        results = self.backend.render(image=image and not full, probes=True,
+                                      full_image=image and full)
+        timings["render"] = time.perf_counter() - t1
+        est = self._combine(results, image, timings)
+        self.last = est
+        if shoot:
+            self.log.append({"seconds": est.seconds, "photons": est.photons,
+                             "rel_error": est.rel_error, "frames": self.frames})
+        return est
+
+    def walkthrough(self) -> Estimate:
+        """A frame without shooting: the camera/view may change, the photons stay."""
+        return self.frame(image=True, shoot=False)
+
+    def _combine(self, results: list[dict[str, Any]], image: bool,
+                 timings: dict[str, float]) -> Estimate:
+        probes: dict[int, np.ndarray] = {}
+        subs: dict[int, np.ndarray] = {}
+        fulls: dict[int, np.ndarray] = {}
+        for r in results:
+            probes.update(r["probes"])
+            subs.update(r["sub_images"])
+            fulls.update(r["full_images"])
+        t2 = time.perf_counter()
+        emitted = self.emitted_per_set()
+        lux = raw = None
+        if image and subs:
+            lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
+        elif image and fulls:
+            lux = raw = pool_full_images(fulls, emitted)
+        timings["assemble"] = time.perf_counter() - t2
+        stats = probe_stats(probes) if probes else None
+        rel = relative_error(stats, self.grid_count) if stats is not None else None
+        return Estimate(lux, raw, stats, rel, sum(emitted.values()), self.elapsed, timings)
+
+    # -- interaction ---------------------------------------------------------------------
+    def update(self, *, scene: Scene | None = None,
+               material: tuple[str, dict[str, Any]] | None = None,
+               part_transform: tuple[str, np.ndarray] | None = None,
+               light_transform: np.ndarray | None = None) -> None:
+        """Interaction mode: change the scene and discard the accumulated photons.
+
+        ``material=(part, {"ior": 1.55})`` or ``{"reflectance": 0.8}``/``{"albedo": …}``
+        changes a material (the embree scene is kept); ``part_transform`` moves a part
+        and ``light_transform`` moves every emitter (both rebuild the embree scene).
+        """
+        from dataclasses import replace as dc_replace
+
+        new = scene or self.scene
+        geometry_changed = scene is not None
+        if material is not None:
+            name, changes = material
+            part = next((p for p in new.parts if p.name == name), None)
+            if part is None:
+                raise InputError(f"no part named '{name}'")
+            m = part.material
+            kw: dict[str, Any] = {}
+            if "ior" in changes:
+                kw["ior"] = float(changes["ior"])
+            for key in ("reflectance", "albedo", "rgb"):
+                if key in changes:
+                    kw["rgb"] = np.broadcast_to(np.asarray(changes[key], float), (3,)).copy()
+            if "sigma" in changes:
+                kw["sigma"] = np.broadcast_to(np.asarray(changes["sigma"], float), (3,)).copy()
+            new = new.replace_part(name, material=dc_replace(m, **kw))
+        if part_transform is not None:
+            new = new.transform_part(*part_transform)
+            geometry_changed = True
+        if light_transform is not None:
+            for p in new.emitters:
+                new = new.transform_part(p.name, light_transform)
+        self.scene = new
+        self.backend.update(new, geometry_changed)
+        self.frames = 0
+        self.log.append({"event": "update", "seconds": self.elapsed})
+
+    # -- accounting ----------------------------------------------------------------------
+    @property
+    def min_radius_m(self) -> float:
+        """Smallest density-estimation radius in use (m)."""
+        from lightsim.engine.client import default_min_radius
+
+        if self.config.min_radius is not None:
+            return float(self.config.min_radius)
+        return default_min_radius(self.config, self.scene.wall)
+
+    def emitted_per_set(self) -> dict[int, int]:
+        return {s: st["emitted"] for s, st in self.backend.stats().items()}
+
+    def energy(self) -> dict[str, float]:
+        """Energy bookkeeping in lm (luminous), summed over sets, normalised by photons."""
+        stats = self.backend.stats()
+        n = sum(st["emitted"] for st in stats.values())
+        if n == 0:
+            return {"emitted": 0.0, **{k: 0.0 for k in LEDGER}}
+        ledger = sum(st["ledger"] for _, st in sorted(stats.items()))
+        emitted = sum(st["emitted_power"] for _, st in sorted(stats.items()))
+        out = {"emitted": float(luminous(emitted[None, :])[0] / n)}
+        for i, k in enumerate(LEDGER):
+            out[k] = float(luminous(ledger[i][None, :])[0] / n)
+        return out
+
+    def caustic_yield(self) -> float:
+        stats = self.backend.stats()
+        n = sum(st["emitted"] for st in stats.values())
+        return sum(st["caustic"] for st in stats.values()) / n if n else 0.0
+
+    # -- the batch loop ------------------------------------------------------------------
+    def run(self, photons: int | None = None, seconds: float | None = None,
+            target_error: float | None = None, min_frames: int = 3,
+            callback: Callable[[Estimate], None] | None = None,
+            should_stop: Callable[[], bool] | None = None) -> Estimate:
+        """Shoot frames until a budget is met, then render the final image.
+
+        Stops at whichever comes first: ``photons`` emitted (total over sets),
+        ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` (after at
+        least ``min_frames`` frames). With no budget at all, one frame is shot.
+        """
+        if photons is None and seconds is None and target_error is None:
+            photons = self.config.frame_photons
+        if target_error is not None and not (0 < target_error < 1):
+            raise InputError(f"target error must lie in (0, 1), got {target_error}")
+        self.start_clock()
+        while True:
+            done = sum(self.emitted_per_set().values())
+            if photons is not None and done >= photons:
+                break
+            if seconds is not None and self.elapsed >= seconds and self.frames > 0:
+                break
+            if should_stop is not None and should_stop():
+                break
+            est = self.frame(image=False)
+            if callback is not None:
+                callback(est)
+            if (target_error is not None and est.rel_error is not None
+                    and self.frames >= min_frames and est.rel_error <= target_error):
+                break
+        final = self.frame(image=True, shoot=False)
+        if self.frames and (not self.log or self.log[-1].get("photons") != final.photons):
+            self.log.append({"seconds": final.seconds, "photons": final.photons,
+                             "rel_error": final.rel_error, "frames": self.frames})
+        return final
+
+    # -- checkpoints ---------------------------------------------------------------------
+    def checkpoint(self) -> dict[str, Any]:
+        """Everything needed to continue this run to the same result (see resume)."""
+        return {"config": self.config.to_dict(), "frames": self.frames,
+                "elapsed": self.elapsed, "log": list(self.log),
+                "counters": self.backend.counters()}
+
+    def _restore(self, ckpt: dict[str, Any]) -> None:
+        self.backend.replay(ckpt["counters"])
+        self.frames = int(ckpt["frames"])
+        self.log = list(ckpt["log"])
+        self._elapsed_before = float(ckpt["elapsed"])
+
+    def close(self) -> None:
+        self.backend.close()
+
+    def __enter__(self) -> Session:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def lux_channel(lux: np.ndarray) -> np.ndarray:
+    """(H, W, C) → (H, W) luminous illuminance (lx)."""
+    return luminous(lux)
+
+
+def finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)

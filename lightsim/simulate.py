@@ -1,0 +1,262 @@
+"""``simulate`` as an engine function: load, plan, run frames, write results, checkpoint.
+
+The command line (``lightsim simulate``) only parses options into
+:class:`SimulateOptions` and shows progress; everything else is here so that scripts
+can call :func:`run_simulation` directly.
+
+Outputs in the output folder (all written atomically):
+
+=====================  ====================================================================
+file                   content
+=====================  ====================================================================
+``wall_lux.exr``       float32 OpenEXR, channel ``Y`` = illuminance (lx); ``R``, ``G``,
+                       ``B`` too for coloured scenes; metadata: units, wall frame, photons,
+                       seed, estimator, lightsim version
+``wall_lux.png``       false colour with a lux colour bar, axes H/V in degrees
+``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings
+``error_vs_time.png``  estimated relative error against seconds and photons (log-log)
+``checkpoint.json``    only while a run is interrupted: ``--resume DIR`` continues it
+=====================  ====================================================================
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lightsim import __version__
+from lightsim.engine.config import RunConfig
+from lightsim.errors import InputError
+from lightsim.scene import Scene, load_scene
+
+CHECKPOINT = "checkpoint.json"
+
+
+@dataclass
+class SimulateOptions:
+    """Everything a simulation run depends on (stored in checkpoints for ``--resume``)."""
+
+    scene_path: str
+    out_dir: str = "lightsim-out"
+    photons: int | None = None
+    seconds: float | None = None
+    target_error: float | None = None
+    flux: float | None = None
+    emission: str | None = None
+    filament: str | None = None
+    filament_at: tuple[float, float, float] | None = None
+    filament_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    wall_distance: float = 25.0
+    wall_size: tuple[float, float] = (30.0, 12.0)
+    resolution: tuple[int, int] = (640, 256)
+    part_materials: dict[str, str] = field(default_factory=dict)
+    config: dict[str, Any] = field(default_factory=dict)
+    log_scale: bool = False
+    workers: int = 0
+    address: str | None = None
+
+    def run_config(self) -> RunConfig:
+        cfg = dict(self.config)
+        if cfg.get("max_radius") is None:
+            cfg.pop("max_radius", None)
+        if "probe_grid" in cfg:
+            cfg["probe_grid"] = tuple(cfg["probe_grid"])
+        if "extra_probes" in cfg:
+            cfg["extra_probes"] = tuple(tuple(p) for p in cfg["extra_probes"])
+        return RunConfig(**cfg)
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> SimulateOptions:
+        d = dict(d)
+        for key in ("filament_at", "filament_axis", "wall_size", "resolution"):
+            if d.get(key) is not None:
+                d[key] = tuple(d[key])
+        return cls(**d)
+
+
+@dataclass
+class SimulationResult:
+    lux: np.ndarray          # (H, W) luminous illuminance, lx
+    rgb: np.ndarray | None   # (H, W, 3) for coloured scenes
+    summary: dict[str, Any]
+    out_dir: Path
+    interrupted: bool = False
+
+
+def check_out_dir(path: str | os.PathLike) -> Path:
+    """Create the output folder and make sure files can be written there."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".lightsim-write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise InputError(f"output directory {out} is not writable "
+                         f"({exc.strerror or exc})") from None
+    return out
+
+
+def load(opts: SimulateOptions) -> Scene:
+    return load_scene(opts.scene_path, flux=opts.flux, emission=opts.emission,
+                      filament=opts.filament, filament_at=opts.filament_at,
+                      filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
+                      wall_size=opts.wall_size, resolution=opts.resolution,
+                      part_materials=opts.part_materials)
+
+
+def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,
+                   should_stop: Callable[[], bool] | None = None,
+                   on_plan: Callable[[Any], None] | None = None,
+                   resume: dict[str, Any] | None = None) -> SimulationResult:
+    """Run a simulation to its budget and write the outputs (see the module docstring).
+
+    ``should_stop`` is polled between frames; when it returns True the run writes
+    ``checkpoint.json`` instead of final outputs and returns with ``interrupted``.
+    """
+    from lightsim.engine.server import Session
+
+    out = check_out_dir(opts.out_dir)
+    if opts.photons is not None and opts.photons < 1:
+        raise InputError(f"--photons must be at least 1, got {opts.photons}")
+    if opts.seconds is not None and not (opts.seconds > 0):
+        raise InputError(f"--time must be positive, got {opts.seconds}")
+    scene = load(opts)
+    config = opts.run_config()
+    session = Session(scene, config, workers=opts.workers, address=opts.address,
+                      checkpoint=(resume or {}).get("session"))
+    try:
+        if on_plan is not None:
+            on_plan(session)
+        stopped = {"flag": False}
+
+        def stop() -> bool:
+            stopped["flag"] = bool(should_stop and should_stop())
+            return stopped["flag"]
+
+        est = session.run(photons=opts.photons, seconds=opts.seconds,
+                          target_error=opts.target_error, callback=progress, should_stop=stop)
+        if stopped["flag"]:
+            write_checkpoint(out, opts, session)
+            return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
+        result = write_outputs(out, opts, session, est)
+        ckpt = out / CHECKPOINT
+        if ckpt.exists():
+            ckpt.unlink()
+        return result
+    finally:
+        session.close()
+
+
+def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
+    from lightsim.io.summary import write_json
+
+    path = out / CHECKPOINT
+    write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
+                      "session": session.checkpoint()})
+    return path
+
+
+def read_checkpoint(out_dir: str | os.PathLike) -> tuple[SimulateOptions, dict[str, Any]]:
+    from lightsim.io.summary import read_json
+
+    path = Path(out_dir) / CHECKPOINT
+    if not path.exists():
+        raise InputError(f"{out_dir}: no {CHECKPOINT} to resume (finished or never interrupted)")
+    doc = read_json(path)
+    try:
+        opts = SimulateOptions.from_json(doc["options"])
+        session = doc["session"]
+        session["counters"] = {int(k): int(v) for k, v in session["counters"].items()}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: corrupt checkpoint ({exc})") from None
+    return opts, {"session": session}
+
+
+def _lux_stats(lux: np.ndarray, frame) -> dict[str, Any]:
+    if lux.size == 0 or not np.any(lux > 0):
+        return {"max_lx": 0.0, "max_at_deg": None, "lit_mean_lx": 0.0}
+    r, c = np.unravel_index(int(np.argmax(lux)), lux.shape)
+    h_c, v_c = frame.pixel_centres()
+    hd, vd = frame.degrees(h_c[c], v_c[r])
+    lit = lux >= 0.1 * lux.max()
+    dh, dv = frame.pixel_size_m
+    return {"max_lx": float(lux.max()), "max_at_deg": [float(hd), float(vd)],
+            "lit_mean_lx": float(lux[lit].mean()),
+            "flux_on_map_lm": float(lux.sum() * dh * dv)}
+
+
+def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationResult:
+    """Write wall_lux.exr, wall_lux.png, error_vs_time.png and summary.json."""
+    from lightsim.io.errorplot import error_vs_time_plot
+    from lightsim.io.exr import wall_metadata, write_exr
+    from lightsim.io.png import write_lux_png
+    from lightsim.io.summary import write_json
+    from lightsim.render.frame import luminous
+
+    scene = session.scene
+    frame = scene.wall
+    lux = luminous(est.lux)
+    rgb = est.lux if est.lux.shape[-1] == 3 else None
+    energy = session.energy()
+    parts = {k: v for k, v in energy.items() if k != "emitted"}
+    closure = (abs(sum(parts.values()) - energy["emitted"]) / energy["emitted"]
+               if energy["emitted"] else 0.0)
+    cfg = session.config
+    photons = int(est.photons)
+    wall = frame.to_dict()
+    summary: dict[str, Any] = {
+        "lightsim_version": __version__,
+        "scene": {"source": str(opts.scene_path), "triangles": scene.n_triangles,
+                  "parts": scene.describe(), "warnings": scene.warnings,
+                  "flux_lm": scene.total_flux},
+        "wall": wall,
+        "units": {"illuminance": "lx", "flux": "lm", "length": "m", "angle": "deg"},
+        "photons": photons,
+        "seed": cfg.seed,
+        "frames": session.frames,
+        "seconds": float(est.seconds),
+        "rel_error": est.rel_error,
+        "estimator": {"name": cfg.estimator, "k": cfg.k, "kernel": cfg.kernel,
+                      "interleave": cfg.interleave, "filter": cfg.filter_n,
+                      "structure": cfg.structure,
+                      "min_radius_m": session.min_radius_m,
+                      "max_radius_m": None if math.isinf(cfg.max_radius) else cfg.max_radius},
+        "energy_lm": {**energy, "sum_of_parts": sum(parts.values()),
+                      "closure_relative": closure},
+        "caustic_yield": session.caustic_yield(),
+        "lux": _lux_stats(lux, frame),
+        "error_vs_time": [e for e in session.log if "photons" in e],
+        "plan": session.plan.to_dict(),
+        "config": cfg.to_dict(),
+        "workers": opts.workers,
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+    }
+    meta = wall_metadata(wall, units="lx", quantity="illuminance",
+                         photons=photons, seed=int(cfg.seed), estimator=cfg.estimator,
+                         lightsim_version=__version__, source=Path(opts.scene_path).name)
+    channels = {"Y": lux.astype(np.float32)}
+    if rgb is not None:
+        for i, ch in enumerate("RGB"):
+            channels[ch] = rgb[..., i].astype(np.float32)
+    write_exr(out / "wall_lux.exr", channels, meta)
+    write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
+                  title=f"{Path(opts.scene_path).name}: {photons:,} photons")
+    error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
+    write_json(out / "summary.json", summary)
+    return SimulationResult(lux, rgb, summary, out)
+
+
+def describe_options(opts: SimulateOptions) -> str:
+    return json.dumps(opts.to_json(), default=str)
