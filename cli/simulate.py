@@ -218,9 +218,9 @@ def simulate(scene_file: str, photons: int | None, seconds: float | None,
         err = "–" if s["rel_error"] is None else f"{s['rel_error']:.2%}"
         click.echo(f"{s['photons']:,} photons in {s['seconds']:.1f} s, {s['frames']} frames; "
                    f"estimated error {err}; max {s['lux']['max_lx']:.4g} lx")
+        absorbed = e["absorbed_diffuse"] + e["absorbed_mirror"] + e["absorbed_volume"]
         click.echo(f"energy (lm): emitted {e['emitted']:.6g} = wall {e['wall']:.6g} + "
-                   f"absorbed {e['absorbed_diffuse'] + e['absorbed_mirror'] + e['absorbed_volume']:.6g}"
-                   f" + escaped {e['escaped']:.6g} + roulette {e['roulette']:.3g} + max depth "
-                   f"{e['max_depth']:.3g}")
+                   f"absorbed {absorbed:.6g} + escaped {e['escaped']:.6g} + "
+                   f"roulette {e['roulette']:.3g} + max depth {e['max_depth']:.3g}")
         click.echo(f"wrote {result.out_dir}/wall_lux.exr, wall_lux.png, error_vs_time.png, "
                    "summary.json")
