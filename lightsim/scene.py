@@ -526,8 +526,8 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
     if not any(p.role == SURFACE for p in parts):
         warnings.append("the scene has no surfaces besides the wall: light goes straight to it")
     scene = Scene(parts, frame, str(path), warnings, channels)
-    for w in warnings:
-        log.warning(w)
+    for w in warnings:  # the CLI prints scene.warnings itself
+        log.debug(w)
     return scene
 
 

@@ -132,6 +132,8 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
         raise InputError(f"--photons must be at least 1, got {opts.photons}")
     if opts.seconds is not None and not (opts.seconds > 0):
         raise InputError(f"--time must be positive, got {opts.seconds}")
+    if opts.target_error is not None and not (0 < opts.target_error < 1):
+        raise InputError(f"target error must lie in (0, 1), got {opts.target_error}")
     scene = load(opts)
     config = opts.run_config()
     session = Session(scene, config, workers=opts.workers, address=opts.address,

@@ -1,0 +1,98 @@
+"""``lightsim simulate`` end to end: outputs, units, bookkeeping, and bad input (exit 2)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from lightsim.cli.main import main
+from lightsim.io.exr import read_exr
+from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
+
+
+def _run(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    out = capsys.readouterr()
+    return exc.value.code, out.out, out.err
+
+
+@pytest.fixture(scope="module")
+def point_lamp(tmp_path_factory):
+    """An isotropic 1000 lm source 2 m from the wall, nothing else."""
+    path = tmp_path_factory.mktemp("lamp") / "point.glb"
+    ico = trimesh.creation.icosphere(1, radius=1e-4)
+    write_glb(path, [GltfPart("filament", np.asarray(ico.vertices), np.asarray(ico.faces),
+                              None, GltfMaterial("f", emissive=(1, 1, 1)),
+                              extras={"lightsim": {"flux_lm": 1000.0}})])
+    return path
+
+
+def test_simulate_writes_outputs_in_lux(point_lamp, tmp_path, capsys):
+    out = tmp_path / "run"
+    code, stdout, err = _run(["simulate", str(point_lamp), "--photons", "400000",
+                              "--wall-distance", "2", "--wall-size", "4x4",
+                              "--resolution", "40x40", "--estimator", "bin",
+                              "--frame-photons", "100000", "--out", str(out), "--quiet"], capsys)
+    assert code == 0, err
+    chans, meta = read_exr(out / "wall_lux.exr")
+    lux = chans["Y"]
+    assert lux.shape == (40, 40) and lux.dtype == np.float32
+    assert meta["units"] == "lx" and meta["photons"] == 400000 and meta["seed"] == 1
+    summary = json.loads((out / "summary.json").read_text())
+    # exact centre illuminance Φ/(4π d²), averaged over the 4 central pixels (0.1 m)
+    centre = lux[19:21, 19:21].mean()
+    assert centre == pytest.approx(1000 / (4 * np.pi * 4), rel=0.08)
+    e = summary["energy_lm"]
+    parts = sum(v for k, v in e.items() if k not in ("emitted", "sum_of_parts",
+                                                     "closure_relative"))
+    assert e["emitted"] == pytest.approx(1000.0, rel=1e-12)
+    assert abs(parts - e["emitted"]) <= 1e-6 * e["emitted"]
+    w = summary["wall"]
+    assert w["distance_m"] == 2.0 and w["resolution"] == [40, 40]
+    assert w["h_axis"] == [-1.0, 0.0, 0.0] and w["v_axis"] == [0.0, 1.0, 0.0]
+    assert len(summary["error_vs_time"]) == 4
+    assert all(s["run"] is False for s in summary["plan"]["stages"]
+               if s["stage"].startswith("selective"))
+    assert (out / "wall_lux.png").stat().st_size > 1000
+    assert (out / "error_vs_time.png").exists()
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["simulate", "missing.glb"], "no such file"),
+    (["simulate", "{lamp}", "--flux", "-3"], "flux must be a positive"),
+    (["simulate", "{lamp}", "--resolution", "0x5"], "--resolution"),
+    (["simulate", "{lamp}", "--interleave", "0"], "interleave"),
+    (["simulate", "{lamp}", "--photons", "0"], "--photons"),
+    (["simulate", "{lamp}", "--target-error", "3"], "target error"),
+    (["simulate", "{lamp}", "--filament", "H99", "--filament-at", "0,0,0"], "H99"),
+    (["simulate", "{lamp}", "--out", "{file}/sub"], "not writable"),
+])
+def test_bad_options_exit_2_with_one_line(point_lamp, tmp_path, capsys, argv, match):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    argv = [a.format(lamp=point_lamp, file=afile) for a in argv]
+    if "--out" not in argv:
+        argv += ["--out", str(tmp_path / "o")]
+    code, _, err = _run(argv + ["--quiet"], capsys)
+    assert code == 2
+    lines = [ln for ln in err.strip().splitlines() if ln]
+    assert len(lines) == 1 and lines[0].startswith("lightsim: error:"), err
+    assert match in lines[0]
+    assert "Traceback" not in err
+
+
+def test_failed_run_keeps_earlier_outputs(point_lamp, tmp_path, capsys):
+    """A run that fails on bad input leaves the previous results untouched."""
+    out = tmp_path / "run"
+    args = ["simulate", str(point_lamp), "--photons", "50000", "--frame-photons", "50000",
+            "--estimator", "bin", "--resolution", "20x20", "--wall-distance", "2",
+            "--out", str(out), "--quiet"]
+    assert _run(args, capsys)[0] == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert _run(args[:2] + ["--flux", "nan"] + args[2:], capsys)[0] == 2
+    after = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert before == after
