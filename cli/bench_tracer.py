@@ -1,0 +1,36 @@
+"""``lightsim bench tracer``: photons/s and rays/s against raw embree in the same scene."""
+
+from __future__ import annotations
+
+import click
+
+from lightsim.validation.bench.table import print_table, write_json
+
+
+def example_headlight():
+    """Path of the shipped example headlight GLB."""
+    from pathlib import Path
+
+    import lightsim.luminaires
+
+    return Path(lightsim.luminaires.__file__).parent / "examples" / "headlight.glb"
+
+
+@click.command("tracer")
+@click.argument("scene_file", required=False, type=click.Path(dir_okay=False))
+@click.option("--photons", type=int, default=500_000, show_default=True)
+@click.option("--repeats", type=int, default=3, show_default=True)
+@click.option("--threads", type=int, help="Ray-casting threads (default: all cores).")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
+def command(scene_file: str | None, photons: int, repeats: int, threads: int | None,
+            json_path: str | None) -> None:
+    """Photon tracing vs raw embree on SCENE_FILE (default: the shipped headlight)."""
+    from lightsim.scene import load_scene
+    from lightsim.validation.bench.tracer import bench_tracer
+
+    path = scene_file or str(example_headlight())
+    scene = load_scene(path)
+    rows = bench_tracer(scene, photons=photons, repeats=repeats, threads=threads)
+    print_table(f"tracer: {path} ({scene.n_triangles} triangles)", rows)
+    if json_path:
+        write_json(json_path, "tracer", rows, {"scene": path, "triangles": scene.n_triangles})
