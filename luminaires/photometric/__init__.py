@@ -1,0 +1,91 @@
+"""Photometric data: Type C candela grids, far fields from photons, IES and EULUMDAT files.
+
+* :class:`CandelaGrid` — intensity (cd) on a Type C grid. Axes: the lamp shines along +Z
+  with +Y up; γ is measured from the nadir (−Y), C about +Y counter-clockwise seen from
+  above, **C = 0°, γ = 90° is straight ahead**, C = 90° the driver's left (+X).
+* :func:`farfield_from_photons` — bin escaping photons (directions, lm) into a grid with
+  I = ΔΦ/ΔΩ; total lumens are conserved exactly.
+* :func:`read_ies` / :func:`write_ies` — IES LM-63 (reads 1986–2019, writes 2002).
+* :func:`read_ldt` / :func:`write_ldt` — EULUMDAT.
+* :func:`read_photometric` — either, by file suffix.
+* :func:`sample_directions` — a file as a point source: inverse-CDF direction sampling.
+
+Shipped sample: ``interlight-ovni-60w-5300lm.ies`` (a measured LED high-bay, 5 300 lm; see
+``SAMPLES.md`` for its source and licence).
+
+Parameters
+----------
+============  =====  ========  ==================================================
+name          unit   default   meaning
+============  =====  ========  ==================================================
+candela       cd     –         intensities, (nC, nG)
+c_deg         deg    –         C-planes in [0, 360)
+gamma_deg     deg    –         γ in [0, 180] from the nadir
+lamp_lumens   lm     None      rated lamp flux (None = absolute photometry)
+powers        lm     –         flux per escaping photon
+dc_deg        deg    1.0       far-field C step
+dgamma_deg    deg    1.0       far-field γ step
+digits        1      7         significant digits written to IES/LDT
+============  =====  ========  ==================================================
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from lightsim.errors import InputError
+
+from .candela import (
+    CandelaGrid,
+    angles_from_directions,
+    direction_from_hv,
+    directions_from_angles,
+    hv_from_directions,
+)
+from .farfield import farfield_from_photons, uniform_axes
+from .ies import read_ies, write_ies
+from .ldt import read_ldt, write_ldt
+from .sampling import sample_directions
+
+SAMPLE_DIR = Path(__file__).resolve().parent
+SAMPLE_IES = SAMPLE_DIR / "interlight-ovni-60w-5300lm.ies"
+"""A published, measured IES file shipped with lightsim (see SAMPLES.md)."""
+
+__all__ = [
+    "SAMPLE_IES",
+    "CandelaGrid",
+    "angles_from_directions",
+    "direction_from_hv",
+    "directions_from_angles",
+    "farfield_from_photons",
+    "hv_from_directions",
+    "read_ies",
+    "read_ldt",
+    "read_photometric",
+    "sample_directions",
+    "uniform_axes",
+    "write_ies",
+    "write_ldt",
+    "write_photometric",
+]
+
+
+def read_photometric(path: str | os.PathLike) -> CandelaGrid:
+    """Read an ``.ies`` or ``.ldt`` file (chosen by suffix) into a :class:`CandelaGrid`."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".ies":
+        return read_ies(path)
+    if suffix in (".ldt", ".eul"):
+        return read_ldt(path)
+    raise InputError(f"photometric file {path}: unknown suffix '{suffix}' (.ies or .ldt)")
+
+
+def write_photometric(path: str | os.PathLike, grid: CandelaGrid, **kwargs: object) -> Path:
+    """Write ``grid`` as ``.ies`` or ``.ldt`` (chosen by suffix), atomically."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".ies":
+        return write_ies(path, grid, **kwargs)  # type: ignore[arg-type]
+    if suffix in (".ldt", ".eul"):
+        return write_ldt(path, grid, **kwargs)  # type: ignore[arg-type]
+    raise InputError(f"photometric file {path}: unknown suffix '{suffix}' (.ies or .ldt)")

@@ -1,0 +1,282 @@
+"""Lighting-engineering plots (PNG, matplotlib Agg, written atomically).
+
+* :func:`isolux_plot` — iso-lux lines of the wall pattern in H/V degrees (H to the right,
+  V up, equal scale), the regulation test points coloured by verdict and labelled, zone
+  outlines, and the H-H / V-V axes.
+* :func:`road_view_plot` — bird's-eye view of the road illuminance (lx) for a lamp at a
+  given height: lateral position (m) across, distance ahead (m) up, iso-lux lines
+  (default 1, 3, 5, 10, 20 lx); physics in :mod:`lightsim.render.road`.
+
+Figures are drawn on a private :class:`matplotlib.figure.Figure` with the Agg canvas (no
+pyplot state, safe in threads) and saved through :func:`lightsim.io.atomic.atomic_path`.
+
+Parameters
+----------
+==============  =====  =========================  ===================================
+name            unit   default                    meaning
+==============  =====  =========================  ===================================
+lux             lx     –                          wall illuminance (H, W), row 0 top
+frame           –      –                          wall frame (``WallFrame`` or dict)
+results         –      None                       ``regulations.evaluate`` output
+levels          lx     auto (1-2-5 steps)         iso-lux levels of the wall plot
+road_levels     lx     (1, 3, 5, 10, 20)          iso-lux levels of the road view
+mount_height_m  m      0.65                       lamp height above the road
+x_range_m       m      (−15, 15)                  road view lateral extent
+z_range_m       m      (0, 100)                   road view distance ahead
+dpi             1/in   120                        output resolution
+==============  =====  =========================  ===================================
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from lightsim.errors import InputError
+from lightsim.io.atomic import atomic_path
+from lightsim.luminaires.regulations.units import WallFrame
+
+__all__ = ["VERDICT_COLOURS", "auto_levels", "isolux_plot", "road_view_plot"]
+
+VERDICT_COLOURS = {"pass": "#1a9850", "fail": "#d73027", "uncertain": "#f39c12"}
+"""Marker colours of the three verdicts (green, red, amber)."""
+
+
+def auto_levels(max_value: float, decades: float = 3.0) -> list[float]:
+    """1-2-5 levels from ``max_value / 10**decades`` up to ``max_value`` (empty if ≤ 0)."""
+    if not (np.isfinite(max_value) and max_value > 0):
+        return []
+    lo = max_value / 10**decades
+    out = []
+    for k in range(int(np.floor(np.log10(lo))), int(np.ceil(np.log10(max_value))) + 1):
+        for m in (1.0, 2.0, 5.0):
+            v = m * 10.0**k
+            if lo <= v < max_value:
+                out.append(float(f"{v:.6g}"))
+    return out
+
+
+def _new_figure(size: tuple[float, float]) -> Any:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Any, path: str | os.PathLike, dpi: int) -> Path:
+    p = Path(path)
+    fmt = p.suffix.lstrip(".").lower() or "png"
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, format=fmt, dpi=dpi)
+    return p
+
+
+def _levels_checked(levels: Sequence[float]) -> list[float]:
+    lv = sorted({float(x) for x in levels})
+    if any(not np.isfinite(x) or x <= 0 for x in lv):
+        raise InputError(f"iso-lux levels must be positive numbers, got {list(levels)!r}")
+    return lv
+
+
+def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
+                results: Sequence[Mapping[str, Any]] | None = None,
+                levels: Sequence[float] | None = None, *, title: str | None = None,
+                dpi: int = 120, figsize: tuple[float, float] | None = None) -> Path:
+    """Iso-lux plot of a wall lux image with regulation test points and zones.
+
+    Parameters
+    ----------
+    path : path-like
+        Output image (PNG unless the suffix says otherwise), written atomically.
+    lux : array_like, shape (H, W)
+        Wall illuminance in lx.
+    frame : WallFrame or mapping
+        The wall frame (pixel positions in H/V degrees).
+    results : sequence of dict, optional
+        From ``lightsim.luminaires.regulations.evaluate``: points (and relation
+        left-hand points) are marked and labelled in their verdict colour, zones outlined
+        (``polygon_deg``/``line_deg``); sums are listed in a text box.
+    levels : sequence of float, optional
+        Iso-lux levels in lx (default: 1-2-5 steps over three decades below the maximum).
+    title : str, optional
+        Plot title.
+    dpi : int, default 120
+        Resolution.
+    figsize : (width, height) in inches, optional
+        Default scales with the wall's angular aspect.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    from matplotlib import patheffects
+    from matplotlib.colors import LogNorm
+    from matplotlib.lines import Line2D
+
+    wf = WallFrame.from_any(frame)
+    img = np.nan_to_num(wf.check_image(lux), nan=0.0)
+    h = wf.h_deg()
+    v = wf.v_deg()
+    H, V = np.meshgrid(h, v)
+    vmax = float(img.max()) if img.size else 0.0
+    lv = _levels_checked(levels) if levels is not None else auto_levels(vmax)
+    lv = [x for x in lv if x < vmax] if vmax > 0 else []
+    span_h, span_v = float(h.max() - h.min()), float(v.max() - v.min())
+    if figsize is None:
+        figsize = (10.0, float(np.clip(10.0 * span_v / max(span_h, 1e-9) + 1.6, 3.5, 9.0)))
+    fig = _new_figure(figsize)
+    ax = fig.add_subplot(1, 1, 1)
+    if lv:
+        fill_lv = [*lv, vmax * 1.0001]
+        cf = ax.contourf(H, V, np.maximum(img, lv[0] * 1e-3), levels=fill_lv,
+                         norm=LogNorm(vmin=lv[0], vmax=fill_lv[-1]), cmap="YlOrRd",
+                         alpha=0.55, extend="neither")
+        cs = ax.contour(H, V, img, levels=lv, colors="0.15", linewidths=0.7)
+        ax.clabel(cs, fmt=lambda x: f"{x:g} lx", fontsize=7, inline=True)
+        fig.colorbar(cf, ax=ax, label="illuminance on the wall (lx)", location="bottom",
+                     shrink=0.6, aspect=40)
+    else:
+        ax.text(0.5, 0.5, "no light on the wall", transform=ax.transAxes, ha="center",
+                va="center", color="0.4")
+    ax.axhline(0.0, color="0.5", lw=0.6, ls="-")
+    ax.axvline(0.0, color="0.5", lw=0.6, ls="-")
+    halo = [patheffects.withStroke(linewidth=2.2, foreground="white")]
+    notes = []
+    used = set()
+    for r in results or ():
+        verdict = str(r.get("verdict", ""))
+        col = VERDICT_COLOURS.get(verdict, "0.3")
+        used.add(verdict)
+        poly = r.get("polygon_deg")
+        line = r.get("line_deg")
+        if poly:
+            pts = np.asarray([*poly, poly[0]], dtype=float)
+            ax.plot(pts[:, 0], pts[:, 1], color=col, lw=1.2, ls="--")
+            verts = np.asarray(poly, float)
+            top = verts[np.isclose(verts[:, 1], verts[:, 1].max())]
+            anchor = (float(np.clip(top[:, 0].mean(), h.min(), h.max())),
+                      float(np.clip(verts[:, 1].max(), v.min(), v.max())))
+            ax.annotate(f"zone {r['name']}", anchor,
+                        xytext=(0, -3), textcoords="offset points", color=col, fontsize=8,
+                        ha="center", va="top", fontweight="bold", path_effects=halo)
+        elif line:
+            pts = np.asarray(line, dtype=float)
+            ax.plot(pts[:, 0], pts[:, 1], color=col, lw=1.5, ls="--")
+        if r.get("kind") == "sum" or r.get("h_deg") is None:
+            notes.append(f"{r['name']}: {r.get('value_cd', 0):,.0f} cd — {verdict}")
+            continue
+        if r.get("kind") == "zone":
+            marker = "x"
+            label = f"{r['name']} max" if r.get("stat") == "max" else f"{r['name']} min"
+        else:
+            marker = "o"
+            label = str(r.get("lhs", r["name"])) if r.get("kind") == "relation" else str(
+                r["name"])
+        ax.plot([r["h_deg"]], [r["v_deg"]], marker=marker, ms=6, mfc=col, mec="black",
+                mew=0.6, color=col, ls="none", zorder=5)
+        ax.annotate(label, (r["h_deg"], r["v_deg"]), xytext=(4, 4),
+                    textcoords="offset points", fontsize=7, color=col, zorder=6,
+                    path_effects=halo)
+    if notes:
+        ax.text(0.01, 0.02, "\n".join(notes), transform=ax.transAxes, fontsize=7,
+                va="bottom", ha="left", bbox={"facecolor": "white", "alpha": 0.8,
+                                               "edgecolor": "0.7"})
+    handles = [Line2D([], [], marker="o", ls="none", mfc=VERDICT_COLOURS[k], mec="black",
+                      label=k) for k in ("pass", "fail", "uncertain") if k in used]
+    if handles:
+        ax.legend(handles=handles, loc="upper right", fontsize=7, title="verdict",
+                  title_fontsize=7)
+    ax.set_xlim(float(h.min()), float(h.max()))
+    ax.set_ylim(float(v.min()), float(v.max()))
+    ax.set_aspect("equal")
+    ax.set_xlabel("H (deg, right +)")
+    ax.set_ylabel("V (deg, up +)")
+    ax.set_title(title or f"Iso-lux on the wall at {wf.distance_m:g} m")
+    return _save(fig, path, dpi)
+
+
+def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame: Any = None,
+                   *, road: Any = None, mount_height_m: float = 0.65,
+                   levels: Sequence[float] = (1.0, 3.0, 5.0, 10.0, 20.0),
+                   x_range_m: tuple[float, float] = (-15.0, 15.0),
+                   z_range_m: tuple[float, float] = (0.0, 100.0), resolution_m: float = 0.25,
+                   title: str | None = None, dpi: int = 120,
+                   figsize: tuple[float, float] = (6.0, 9.0)) -> Any:
+    """Bird's-eye road view: iso-lux lines of the road illuminance (lx).
+
+    Parameters
+    ----------
+    path : path-like
+        Output image, written atomically.
+    lux, frame : array_like and WallFrame/mapping
+        Wall lux map and its frame (ignored when ``road`` is given).
+    road : RoadIlluminance, optional
+        Precomputed road illuminance (e.g. from ``road_illuminance_from`` for an IES file).
+    mount_height_m, levels, x_range_m, z_range_m, resolution_m
+        See the module's parameter table (levels in lx).
+    title : str, optional
+        Plot title.
+    dpi : int, default 120
+        Resolution.
+    figsize : (width, height) in inches, default (6, 9)
+
+    Returns
+    -------
+    RoadIlluminance
+        The road illuminance that was drawn (its ``summary()`` gives the reach per level).
+    """
+    from lightsim.render.road import road_illuminance
+
+    if road is None:
+        if lux is None or frame is None:
+            raise InputError("road_view_plot needs a wall lux map and its frame, or road=")
+        road = road_illuminance(lux, frame, mount_height_m, x_range_m, z_range_m,
+                                resolution_m)
+    lv = _levels_checked(levels)
+    X, Z = np.meshgrid(road.x_m, road.z_m)
+    data = np.ma.masked_invalid(road.lux)
+    fig = _new_figure(figsize)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.set_facecolor("0.85")  # grey = outside the measured wall (unknown)
+    finite = np.isfinite(road.lux)
+    emax = float(np.nanmax(road.lux)) if finite.any() else 0.0
+    bands = [x for x in lv if x < emax]
+    if bands:
+        from matplotlib import colormaps
+
+        edges = [0.0, *bands, max(emax, bands[-1]) * 1.0001]
+        blues = colormaps["Blues"]
+        colours = ["white"] + [blues(x) for x in np.linspace(0.3, 0.95, len(bands))]
+        cf = ax.contourf(X, Z, data, levels=edges, colors=colours, extend="neither")
+        cs = ax.contour(X, Z, data, levels=bands, colors="0.1", linewidths=0.8)
+        ax.clabel(cs, fmt=lambda x: f"{x:g} lx", fontsize=7, inline=True)
+        cb = fig.colorbar(cf, ax=ax, label="illuminance on the road (lx)", shrink=0.6,
+                          spacing="uniform")
+        cb.set_ticks(edges[:-1])
+        cb.set_ticklabels([f"{x:g}" for x in edges[:-1]])
+    else:
+        ax.text(0.5, 0.5, f"below {lv[0]:g} lx everywhere", transform=ax.transAxes,
+                ha="center", va="center", color="0.3")
+    ax.plot([0.0], [0.0], marker="^", ms=9, color="black", ls="none", clip_on=False)
+    ax.annotate(f"lamp, {road.mount_height_m:g} m high", (0.0, 0.0), xytext=(6, 4),
+                textcoords="offset points", fontsize=8)
+    ax.axvline(0.0, color="0.5", lw=0.5, ls=":")
+    ax.set_xlim(float(road.x_m[0]), float(road.x_m[-1]))
+    ax.set_ylim(0.0, float(road.z_m[-1]))
+    ax.set_aspect("equal")
+    ax.set_xlabel("lateral position (m, right +)")
+    ax.set_ylabel("distance ahead (m)")
+    reach = road.reach_m(lv[0])
+    sub = f"{lv[0]:g} lx reach: {reach:.0f} m" if reach is not None else ""
+    ax.set_title(title or f"Road illuminance, lamp at {road.mount_height_m:g} m\n{sub}",
+                 fontsize=10)
+    _save(fig, path, dpi)
+    return road

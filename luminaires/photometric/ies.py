@@ -1,0 +1,343 @@
+"""IES LM-63 photometric files (``.ies``): read (1986, 1991, 1995, 2002, 2019) and write 2002.
+
+Only **Type C** photometry (photometric type 1) is supported, the type of every road and
+automotive far-field file lightsim makes or reads; Type A/B files raise an
+:class:`~lightsim.errors.InputError`. Axes: see
+:mod:`lightsim.luminaires.photometric.candela` (C = 0°, γ = 90° is straight ahead, γ = 0°
+the nadir −Y).
+
+Reading
+    * text decoded as UTF-8, else Latin-1; keyword lines ``[KEY] value`` (``[MORE]``
+      continues the previous key) are kept in ``metadata`` (keys lower-cased);
+    * ``TILT=NONE`` / ``TILT=INCLUDE`` (its angle/factor table is skipped and recorded) /
+      ``TILT=<file>`` (recorded, not loaded): tilt factors only matter for a tilted
+      lamp, which lightsim does not model;
+    * numbers may be separated by blanks, commas or line breaks;
+    * candela = value × candela multiplier × ballast factor (and × the ballast-lamp
+      photometric factor of LM-63-1986/1991/1995 files);
+    * lateral symmetry is expanded to full C coverage: last horizontal angle 0° (axial:
+      one plane), 90° (quadrants), 180° (bilateral about C0–C180), first 90°/last 270°
+      (bilateral about C90–C270), 360° (full; the duplicate 360° plane is dropped);
+    * ``lumens per lamp`` −1 means absolute photometry (``lamp_lumens=None``), otherwise
+      ``lamp_lumens = number of lamps × lumens per lamp``.
+
+Writing (LM-63-2002)
+    Header ``IESNA:LM-63-2002``, keywords from the grid's metadata (``[TEST]``,
+    ``[TESTLAB]``, ``[ISSUEDATE]``, ``[MANUFAC]`` always present), ``TILT=NONE``, one lamp,
+    candela multiplier 1, units metres, ballast factor 1, all C-planes 0…360° (the 360° plane
+    repeats 0°; a single-plane grid is written as axially symmetric). Numbers carry
+    ``digits`` significant digits (default 7) without exponents; lines stay below 132
+    characters (LM-63-2002 allows 256).
+
+Parameters
+----------
+=============  =====  ===========  ============================================
+name           unit   default      meaning
+=============  =====  ===========  ============================================
+path           –      –            file to read or write (written atomically)
+grid           –      –            CandelaGrid to write
+digits         1      7            significant digits of written numbers
+input_watts    W      0.0          written on the ballast line
+dimensions_m   m      (0, 0, 0)    luminous opening width, length, height
+=============  =====  ===========  ============================================
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lightsim.errors import InputError
+from lightsim.io.atomic import write_bytes
+
+from .candela import CandelaGrid
+
+__all__ = ["expand_type_c_symmetry", "format_number", "read_ies", "write_ies"]
+
+_KEY_RE = re.compile(r"^\s*\[([^\]]+)\]\s*(.*?)\s*$")
+_SPLIT_RE = re.compile(r"[,\s]+")
+
+
+def format_number(x: float, digits: int = 7) -> str:
+    """``x`` with ``digits`` significant digits, positional notation, no trailing zeros."""
+    if x == 0 or not np.isfinite(x):
+        return "0"
+    s = np.format_float_positional(float(x), precision=digits, unique=False,
+                                   fractional=False, trim="-")
+    return "0" if s in ("-0", "") else s
+
+
+def _decode(raw: bytes) -> str:
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+def expand_type_c_symmetry(c_deg: NDArray, candela: NDArray, where: str = "file"
+                           ) -> tuple[NDArray, NDArray]:
+    """Expand Type C lateral symmetry to C-planes covering [0, 360).
+
+    Parameters
+    ----------
+    c_deg : ndarray, shape (nH,)
+        Horizontal angles as listed in an IES file (degrees, increasing).
+    candela : ndarray, shape (nH, nV)
+        Intensities per listed plane.
+    where : str
+        Name used in error messages.
+
+    Returns
+    -------
+    c_full, candela_full
+        C angles in [0, 360) (increasing) and their intensities; one plane if the file is
+        axially symmetric.
+    """
+    c = np.asarray(c_deg, dtype=float)
+    first, last = c[0], c[-1]
+
+    def mirrored(func: object) -> tuple[NDArray, NDArray]:
+        pairs: dict[float, NDArray] = {}
+        for ang, row in zip(c, candela):
+            for img in func(ang):  # type: ignore[operator]
+                pairs.setdefault(round(float(img) % 360.0, 9), row)
+        keys = sorted(pairs)
+        return np.array(keys), np.array([pairs[k] for k in keys])
+
+    if len(c) == 1:
+        return np.array([0.0]), candela[:1].copy()
+    if first == 0 and last == 90:
+        return mirrored(lambda a: (a, 180 - a, 180 + a, 360 - a))
+    if first == 0 and last == 180:
+        return mirrored(lambda a: (a, 360 - a))
+    if first == 90 and last == 270:
+        return mirrored(lambda a: (a, 180 - a))
+    if first >= 0 and last <= 360 and last > 180:
+        if last == 360 and first == 0:
+            c, candela = c[:-1], candela[:-1]
+        keys = np.round(c % 360.0, 9)
+        order = np.argsort(keys, kind="stable")
+        keys, rows = keys[order], candela[order]
+        uniq, idx = np.unique(keys, return_index=True)
+        return uniq, rows[idx]
+    raise InputError(f"{where}: horizontal angles {first:g}…{last:g}° are not a Type C "
+                     "symmetry LM-63 defines (0, 0–90, 0–180, 90–270, 0–360)")
+
+
+def read_ies(path: str | os.PathLike) -> CandelaGrid:
+    """Read an IES LM-63 file (Type C) into a :class:`CandelaGrid`.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.ies`` file.
+
+    Returns
+    -------
+    CandelaGrid
+        Absolute intensities in cd; ``metadata`` holds the keywords (lower-case keys),
+        ``format``, ``version``, ``tilt``, ``units``, dimensions in m, ``input_watts``.
+
+    Raises
+    ------
+    InputError
+        Missing file, malformed numbers, non-Type-C photometry or inconsistent counts.
+    """
+    p = Path(path)
+    name = p.name
+    try:
+        text = _decode(p.read_bytes())
+    except OSError as exc:
+        raise InputError(f"IES file {path}: cannot read ({exc.strerror})") from None
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    meta: dict[str, str] = {"format": "IES"}
+    i = 0
+    first = lines[0].strip() if lines else ""
+    version = "LM-63-1986"
+    if first.upper().startswith(("IESNA", "IES:")):
+        version = first.split(":", 1)[-1].strip() if ":" in first else first
+        if first.upper().startswith("IESNA91"):
+            version = "LM-63-1991"
+        i = 1
+    meta["version"] = version
+    last_key: str | None = None
+    while i < len(lines) and not lines[i].strip().upper().startswith("TILT"):
+        m = _KEY_RE.match(lines[i])
+        if m:
+            key, val = m.group(1).strip().lower(), m.group(2)
+            if key == "more" and last_key:
+                meta[last_key] = (meta[last_key] + " " + val).strip()
+            else:
+                k = key
+                n = 2
+                while k in meta:
+                    k = f"{key}_{n}"
+                    n += 1
+                meta[k] = val
+                last_key = k
+        elif lines[i].strip():
+            meta["header"] = (meta.get("header", "") + " " + lines[i].strip()).strip()
+        i += 1
+    if i >= len(lines):
+        raise InputError(f"IES file {name}: no TILT= line")
+    tilt = lines[i].split("=", 1)[1].strip() if "=" in lines[i] else ""
+    meta["tilt"] = tilt or "NONE"
+    tokens = [t for t in _SPLIT_RE.split(" ".join(lines[i + 1:])) if t]
+    pos = 0
+
+    def take(n: int, what: str) -> list[float]:
+        nonlocal pos
+        if pos + n > len(tokens):
+            raise InputError(f"IES file {name}: expected {n} number(s) for {what}, found "
+                             f"{len(tokens) - pos}")
+        try:
+            vals = [float(t) for t in tokens[pos:pos + n]]
+        except ValueError:
+            bad = next(t for t in tokens[pos:pos + n] if not _is_float(t))
+            raise InputError(f"IES file {name}: '{bad}' in {what} is not a number") from None
+        pos += n
+        return vals
+
+    if tilt.upper() == "INCLUDE":
+        geom, n_pairs = take(2, "the TILT header")
+        take(int(n_pairs) * 2, "the TILT table")
+        meta["tilt"] = f"INCLUDE (geometry {int(geom)}, {int(n_pairs)} angles; ignored)"
+    elif tilt.upper() not in ("", "NONE"):
+        meta["tilt"] = f"{tilt} (external tilt file; ignored)"
+    (n_lamps, lumens, mult, n_v, n_h, ptype, units, width, length, height) = take(
+        10, "the lamp line")
+    ballast, factor2, watts = take(3, "the ballast line")
+    n_v, n_h = int(n_v), int(n_h)
+    if int(ptype) != 1:
+        kind = {2: "B", 3: "A"}.get(int(ptype), str(int(ptype)))
+        raise InputError(f"IES file {name}: Type {kind} photometry is not supported "
+                         "(only Type C)")
+    if n_v < 2 or n_h < 1:
+        raise InputError(f"IES file {name}: needs ≥ 2 vertical and ≥ 1 horizontal angles")
+    gam = np.array(take(n_v, "the vertical angles"))
+    hor = np.array(take(n_h, "the horizontal angles"))
+    values = np.array(take(n_v * n_h, "the candela values")).reshape(n_h, n_v)
+    scale = mult * ballast
+    if version in ("LM-63-1986", "LM-63-1991", "LM-63-1995"):
+        scale *= factor2  # ballast-lamp photometric factor before LM-63-2002
+    cd = values * scale
+    if np.any(np.diff(gam) <= 0) or np.any(np.diff(hor) <= 0):
+        raise InputError(f"IES file {name}: angles must increase")
+    if gam[0] < 0 or gam[-1] > 180:
+        raise InputError(f"IES file {name}: vertical angles must lie in 0…180° (Type C)")
+    c_full, cd_full = expand_type_c_symmetry(hor, cd, where=f"IES file {name}")
+    to_m = 0.3048 if int(units) == 1 else 1.0
+    meta.update({"units": "feet" if int(units) == 1 else "metres",
+                 "width_m": format_number(width * to_m), "length_m": format_number(
+                     length * to_m), "height_m": format_number(height * to_m),
+                 "input_watts": format_number(watts), "number_of_lamps": str(int(n_lamps)),
+                 "candela_multiplier": format_number(mult),
+                 "ballast_factor": format_number(ballast)})
+    lamp_lumens = None if lumens < 0 else float(lumens) * max(int(n_lamps), 1)
+    if lamp_lumens == 0:
+        lamp_lumens = None
+    return CandelaGrid(c_full, gam, np.maximum(cd_full, 0.0), lamp_lumens, meta)
+
+
+def _is_float(t: str) -> bool:
+    try:
+        float(t)
+    except ValueError:
+        return False
+    return True
+
+
+def _wrap(values: Sequence[float], digits: int, width: int = 128) -> list[str]:
+    out: list[str] = []
+    line = ""
+    for v in values:
+        tok = format_number(v, digits)
+        if line and len(line) + 1 + len(tok) > width:
+            out.append(line)
+            line = tok
+        else:
+            line = f"{line} {tok}" if line else tok
+    if line:
+        out.append(line)
+    return out
+
+
+def _clean(text: str) -> str:
+    return " ".join(str(text).replace("\r", " ").replace("\n", " ").split())[:240]
+
+
+def write_ies(path: str | os.PathLike, grid: CandelaGrid, *, digits: int = 7,
+              input_watts: float = 0.0,
+              dimensions_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Path:
+    """Write ``grid`` as an IES LM-63-2002 file (Type C, absolute cd), atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination ``.ies`` file.
+    grid : CandelaGrid
+        Intensities in cd. Metadata keys ``test``, ``testlab``, ``issuedate``,
+        ``manufac``/``manufacturer``, ``lumcat``, ``luminaire``, ``lampcat``, ``lamp``,
+        ``other`` become keywords (defaults name lightsim); other keys go to ``[OTHER]``.
+    digits : int, default 7
+        Significant digits of angles and intensities.
+    input_watts : float, default 0
+        Input power (W) written on the ballast line.
+    dimensions_m : (width, length, height), default zeros
+        Luminous opening in metres (0, 0, 0 = point).
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    meta = {k.lower(): v for k, v in grid.metadata.items()}
+    today = _dt.date.today().isoformat()
+    kw = [
+        ("TEST", meta.get("test", "lightsim far-field simulation")),
+        ("TESTLAB", meta.get("testlab", "lightsim (simulated, not measured)")),
+        ("ISSUEDATE", meta.get("issuedate", today)),
+        ("MANUFAC", meta.get("manufac", meta.get("manufacturer", "lightsim"))),
+    ]
+    for key in ("lumcat", "luminaire", "lampcat", "lamp"):
+        if key in meta:
+            kw.append((key.upper(), meta[key]))
+    kw.append(("OTHER", "Type C axes: C=0 gamma=90 is the lamp axis (straight ahead), "
+                        "gamma=0 nadir, C=90 towards the driver's left"))
+    known = {"test", "testlab", "issuedate", "manufac", "manufacturer", "lumcat",
+             "luminaire", "lampcat", "lamp", "format", "version", "tilt", "units", "width_m",
+             "length_m", "height_m", "input_watts", "number_of_lamps", "candela_multiplier",
+             "ballast_factor"}
+    for key in sorted(set(meta) - known):
+        kw.append(("OTHER", f"{key}: {meta[key]}"))
+    lines = ["IESNA:LM-63-2002"]
+    lines += [f"[{k}] {_clean(v)}".rstrip() for k, v in kw]
+    lines.append("TILT=NONE")
+    if grid.shape[0] == 1:
+        c_out = np.array([0.0])
+        cd_out = grid.candela[:1]
+    else:
+        c_out = np.concatenate([grid.c_deg, [360.0]])
+        cd_out = np.vstack([grid.candela, grid.candela[:1]])
+        if grid.c_deg[0] != 0.0:
+            raise InputError("write_ies: a multi-plane grid must start at C = 0°")
+    lumens = "-1" if grid.lamp_lumens is None else format_number(grid.lamp_lumens, digits)
+    w, l_, h = dimensions_m
+    lines.append(f"1 {lumens} 1 {grid.shape[1]} {len(c_out)} 1 2 "
+                 f"{format_number(w, 6)} {format_number(l_, 6)} {format_number(h, 6)}")
+    lines.append(f"1 1 {format_number(input_watts, 6)}")
+    lines += _wrap(grid.gamma_deg, digits)
+    lines += _wrap(c_out, digits)
+    for row in cd_out:
+        lines += _wrap(row, digits)
+    # LM-63 files are ASCII text with CR LF line ends
+    write_bytes(path, ("\r\n".join(lines) + "\r\n").encode("ascii", errors="replace"))
+    return Path(path)

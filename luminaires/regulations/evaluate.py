@@ -1,0 +1,590 @@
+"""Test a beam against a rule set, with confidence intervals from independent estimates.
+
+The engine estimates the intensity towards every probe direction once per interleave set
+(M² independent photon maps), so each probe has S independent estimates. This module
+
+1. lists the probe directions of a rule set (:func:`probe_points`): its test points, plus
+   zones sampled on a grid of ``spacing_deg`` (aligned to H-V) inside their polygons, on
+   their edges and at their vertices, or along their lines;
+2. turns the ``(S, P)`` per-set estimates into means with Student-t intervals
+   ``mean ± t(1−α/2, S−1)·s/√S`` and verdicts (:func:`evaluate`):
+
+   * a limit is **pass** when the whole interval is on the allowed side, **fail** when the
+     whole interval is beyond it, **uncertain** when the interval straddles it;
+   * a zone limited on its maximum (``stat = "max"``) with a ``max`` limit fails if any
+     probe's interval lies entirely above it and passes if every probe's interval lies
+     entirely below (with a ``min`` limit on the maximum, *some* probe must be entirely
+     above: pass if one is, fail if all are entirely below); ``stat = "min"`` mirrors this;
+   * sums use the per-set sums; relations ``lhs op factor·rhs`` use the per-set margins
+     ``lhs − factor·rhs`` (every probe of a zone ``lhs`` must satisfy it); a zone ``rhs``
+     is reduced to its probe with the largest (``rhs_stat="max"``) mean;
+3. prints the results as a rich table (:func:`format_table`).
+
+Each probe's interval is a per-point interval (no correction for testing many points at
+once). With a single set (S = 1) no error can be estimated: intervals collapse to the value
+and results carry ``"error_estimate": False``.
+
+Parameters
+----------
+============  ======  ========  =====================================================
+name          unit    default   meaning
+============  ======  ========  =====================================================
+traffic       –       "right"   "right" or "left" (positions mirrored h → −h)
+spacing_deg   deg     0.25      zone sampling step
+values_cd     cd      –         (S, P) per-set intensity estimates, P = len(probes)
+confidence    1       0.95      two-sided confidence level of the intervals
+frame         –       None      wall frame: drop probes the wall does not cover
+============  ======  ========  =====================================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from lightsim.errors import InputError
+
+from .ruleset import Geometry, Relation, RuleSet, SumRule, _check_traffic
+from .units import WallFrame
+
+__all__ = [
+    "VERDICT_STYLES",
+    "Probes",
+    "evaluate",
+    "format_position",
+    "format_table",
+    "probe_points",
+    "unevaluated_rules",
+]
+
+VERDICT_STYLES = {"pass": "bold green", "fail": "bold red", "uncertain": "bold yellow"}
+"""Rich styles of the three verdicts."""
+
+
+@dataclass(frozen=True)
+class Probes:
+    """The directions at which a rule set needs intensity estimates.
+
+    Attributes
+    ----------
+    h_deg, v_deg : ndarray, shape (P,)
+        Angular positions in degrees (traffic mirroring already applied).
+    labels : tuple of str, length P
+        The point or zone each probe belongs to.
+    ruleset_id, traffic : str
+        What the probes were made for.
+    spacing_deg : float
+        Zone sampling step in degrees.
+    dropped : mapping of str to str
+        Points/zones without probes and why (incomplete data, outside the wall).
+    clipped : mapping of str to int
+        Zones tested only in part: how many of their samples lay outside the wall.
+    """
+
+    h_deg: NDArray
+    v_deg: NDArray
+    labels: tuple[str, ...]
+    ruleset_id: str
+    traffic: str
+    spacing_deg: float
+    dropped: Mapping[str, str] = field(default_factory=dict)
+    clipped: Mapping[str, int] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def indices(self, name: str) -> NDArray:
+        """Indices of the probes of point/zone ``name`` (empty if it has none)."""
+        return np.flatnonzero(np.asarray(self.labels, dtype=object) == name)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable form."""
+        return {"ruleset": self.ruleset_id, "traffic": self.traffic,
+                "spacing_deg": self.spacing_deg, "h_deg": self.h_deg.tolist(),
+                "v_deg": self.v_deg.tolist(), "labels": list(self.labels),
+                "dropped": dict(self.dropped), "clipped": dict(self.clipped)}
+
+
+# ---- zone sampling ---------------------------------------------------------------------
+def _on_segment(px: NDArray, py: NDArray, a: tuple[float, float], b: tuple[float, float],
+                tol: float) -> NDArray:
+    ax, ay = a
+    bx, by = b
+    dx, dy = bx - ax, by - ay
+    L2 = dx * dx + dy * dy
+    t = np.clip(((px - ax) * dx + (py - ay) * dy) / L2, 0.0, 1.0) if L2 > 0 else 0.0
+    qx, qy = ax + t * dx, ay + t * dy
+    return (px - qx) ** 2 + (py - qy) ** 2 <= tol * tol
+
+
+def _inside_polygon(px: NDArray, py: NDArray, poly: Sequence[tuple[float, float]],
+                    tol: float = 1e-9) -> NDArray:
+    """Points inside or on the boundary of ``poly`` (even-odd rule)."""
+    inside = np.zeros(px.shape, dtype=bool)
+    n = len(poly)
+    for i in range(n):
+        x1, y1 = poly[i]
+        x2, y2 = poly[(i + 1) % n]
+        crosses = (y1 > py) != (y2 > py)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xint = x1 + (py - y1) * (x2 - x1) / (y2 - y1)
+        inside ^= crosses & (px < xint)
+    for i in range(n):
+        inside |= _on_segment(px, py, poly[i], poly[(i + 1) % n], tol)
+    return inside
+
+
+def _sample_segment(a: tuple[float, float], b: tuple[float, float], spacing: float
+                    ) -> NDArray:
+    length = float(np.hypot(b[0] - a[0], b[1] - a[1]))
+    n = max(1, int(np.ceil(length / spacing - 1e-9)))
+    t = np.linspace(0.0, 1.0, n + 1)
+    return np.column_stack([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])])
+
+
+def _zone_samples(g: Geometry, spacing: float) -> NDArray:
+    if g.line:
+        return _sample_segment(g.line[0], g.line[1], spacing)
+    poly = np.asarray(g.polygon, dtype=float)
+    lo = np.floor(poly.min(axis=0) / spacing) * spacing
+    hi = np.ceil(poly.max(axis=0) / spacing) * spacing
+    hs = np.arange(round((hi[0] - lo[0]) / spacing) + 1) * spacing + lo[0]
+    vs = np.arange(round((hi[1] - lo[1]) / spacing) + 1) * spacing + lo[1]
+    H, V = np.meshgrid(hs, vs)
+    mask = _inside_polygon(H, V, g.polygon)
+    pts = [np.column_stack([H[mask], V[mask]])]
+    n = len(g.polygon)
+    for i in range(n):  # edges and vertices, so thin parts and corners are tested too
+        pts.append(_sample_segment(g.polygon[i], g.polygon[(i + 1) % n], spacing))
+    allp = np.concatenate(pts)
+    _, keep = np.unique(np.round(allp, 9), axis=0, return_index=True)
+    return allp[np.sort(keep)]
+
+
+def probe_points(ruleset: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
+                 frame: Any = None) -> Probes:
+    """Directions (deg) the engine must estimate to test ``ruleset``.
+
+    Parameters
+    ----------
+    ruleset : RuleSet
+        As loaded by :func:`~lightsim.luminaires.regulations.load_ruleset`.
+    traffic : {"right", "left"}, default "right"
+        Traffic side; positions are mirrored (h → −h) when it differs from the file's.
+    spacing_deg : float, default 0.25
+        Zone sampling step in degrees (grid aligned to H-V, plus edges and vertices).
+    frame : WallFrame or mapping, optional
+        If given, probes outside the span of the wall image's pixel centres are dropped
+        (zones keep the probes that the wall covers and are reported with
+        ``probes_outside_wall``; a point outside is dropped whole).
+
+    Returns
+    -------
+    Probes
+        Points first (file order), then zone samples.
+    """
+    traffic = _check_traffic(traffic)
+    if not (np.isfinite(spacing_deg) and spacing_deg > 0):
+        raise InputError(f"spacing_deg must be > 0, got {spacing_deg!r}")
+    rs = ruleset.for_traffic(traffic)
+    limits = None
+    if frame is not None:
+        wf = WallFrame.from_any(frame)
+        h = wf.h_deg()
+        v = wf.v_deg()
+        limits = (h.min(), h.max(), v.min(), v.max())
+    hs: list[NDArray] = []
+    vs: list[NDArray] = []
+    labels: list[str] = []
+    dropped: dict[str, str] = {}
+    clipped: dict[str, int] = {}
+    for g in rs.geometries:
+        if not g.complete:
+            dropped[g.name] = g.note or "incomplete data"
+            continue
+        pts = np.array([[g.h, g.v]]) if g.kind == "point" else _zone_samples(g, spacing_deg)
+        if limits is not None:
+            eps = 1e-9
+            ok = ((pts[:, 0] >= limits[0] - eps) & (pts[:, 0] <= limits[1] + eps)
+                  & (pts[:, 1] >= limits[2] - eps) & (pts[:, 1] <= limits[3] + eps))
+            if not ok.all():
+                ext = (f"the wall covers H {limits[0]:.2f}..{limits[1]:.2f}°, "
+                       f"V {limits[2]:.2f}..{limits[3]:.2f}°")
+                if g.kind == "point" or not ok.any():
+                    dropped[g.name] = f"outside the wall ({ext})"
+                    continue
+                clipped[g.name] = int((~ok).sum())
+            pts = pts[ok]
+        hs.append(pts[:, 0])
+        vs.append(pts[:, 1])
+        labels.extend([g.name] * len(pts))
+    h_all = np.concatenate(hs) if hs else np.zeros(0)
+    v_all = np.concatenate(vs) if vs else np.zeros(0)
+    return Probes(h_deg=h_all, v_deg=v_all, labels=tuple(labels), ruleset_id=rs.id,
+                  traffic=traffic, spacing_deg=float(spacing_deg), dropped=dropped,
+                  clipped=clipped)
+
+
+# ---- statistics -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Stats:
+    mean: NDArray
+    lo: NDArray
+    hi: NDArray
+
+
+def _t_factor(n_sets: int, confidence: float) -> float:
+    if n_sets < 2:
+        return 0.0
+    from scipy.special import stdtrit  # Student-t quantile; lighter than scipy.stats
+
+    return float(stdtrit(n_sets - 1, 0.5 + confidence / 2.0))
+
+
+def _stats(samples: NDArray, tfac: float) -> _Stats:
+    """Mean and t-interval over axis 0 of (S, ...) samples."""
+    mean = samples.mean(axis=0)
+    if samples.shape[0] < 2:
+        return _Stats(mean, mean.copy(), mean.copy())
+    half = tfac * samples.std(axis=0, ddof=1) / np.sqrt(samples.shape[0])
+    return _Stats(mean, mean - half, mean + half)
+
+
+def _limit_state(lo: float, hi: float, min_: float | None, max_: float | None
+                 ) -> list[str]:
+    states = []
+    if min_ is not None:
+        states.append("pass" if lo >= min_ else "fail" if hi < min_ else "uncertain")
+    if max_ is not None:
+        states.append("pass" if hi <= max_ else "fail" if lo > max_ else "uncertain")
+    return states
+
+
+def _combine_all(states: Iterable[str]) -> str:
+    """Every check must hold: fail if any fails, pass if all pass."""
+    s = list(states)
+    if "fail" in s:
+        return "fail"
+    return "pass" if all(x == "pass" for x in s) else "uncertain"
+
+
+def _combine_any(states: Iterable[str]) -> str:
+    """Some check must hold: pass if any passes, fail if all fail."""
+    s = list(states)
+    if "pass" in s:
+        return "pass"
+    return "fail" if s and all(x == "fail" for x in s) else "uncertain"
+
+
+def _limit_dict(min_: float | None, max_: float | None) -> dict[str, float]:
+    out = {}
+    if min_ is not None:
+        out["min"] = float(min_)
+    if max_ is not None:
+        out["max"] = float(max_)
+    return out
+
+
+def _f(x: Any) -> float:
+    return float(x)
+
+
+# ---- evaluation -------------------------------------------------------------------------
+def _base(name: str, kind: str, h: float | None, v: float | None, value: float,
+          lo: float, hi: float, limit: dict[str, float], verdict: str, rule: Any,
+          error_estimate: bool) -> dict[str, Any]:
+    return {"name": name, "h_deg": None if h is None else _f(h),
+            "v_deg": None if v is None else _f(v), "value_cd": _f(value),
+            "interval_cd": [_f(lo), _f(hi)], "limit": limit, "verdict": verdict,
+            "kind": kind, "certainty": rule.certainty, "note": rule.note,
+            "source": rule.source, "error_estimate": error_estimate}
+
+
+def _eval_point(g: Geometry, idx: NDArray, st: _Stats, h: NDArray, v: NDArray,
+                err: bool) -> dict[str, Any]:
+    i = int(idx[0])
+    verdict = _combine_all(_limit_state(st.lo[i], st.hi[i], g.min, g.max))
+    return _base(g.name, "point", h[i], v[i], st.mean[i], st.lo[i], st.hi[i],
+                 _limit_dict(g.min, g.max), verdict, g, err)
+
+
+def _eval_zone(g: Geometry, idx: NDArray, st: _Stats, h: NDArray, v: NDArray,
+               err: bool) -> dict[str, Any]:
+    means = st.mean[idx]
+    rep = idx[int(np.argmax(means) if g.stat == "max" else np.argmin(means))]
+    per_limit = []
+    for lim_min, lim_max in ((g.min, None), (None, g.max)):
+        if lim_min is None and lim_max is None:
+            continue
+        states = [_limit_state(st.lo[j], st.hi[j], lim_min, lim_max)[0] for j in idx]
+        # "every point" checks: a max limit on the maximum, a min limit on the minimum
+        every = (g.stat == "max") == (lim_max is not None)
+        per_limit.append(_combine_all(states) if every else _combine_any(states))
+    verdict = _combine_all(per_limit)
+    out = _base(g.name, "zone", h[rep], v[rep], st.mean[rep], st.lo[rep], st.hi[rep],
+                _limit_dict(g.min, g.max), verdict, g, err)
+    out["stat"] = g.stat
+    out["n_probes"] = len(idx)
+    if g.polygon:
+        out["polygon_deg"] = [[_f(a), _f(b)] for a, b in g.polygon]
+    if g.line:
+        out["line_deg"] = [[_f(a), _f(b)] for a, b in g.line]
+    return out
+
+
+def _eval_sum(s: SumRule, probes: Probes, values: NDArray, tfac: float, err: bool
+              ) -> dict[str, Any]:
+    cols = [int(probes.indices(p)[0]) for p in s.points]
+    per_set = values[:, cols].sum(axis=1)
+    st = _stats(per_set[:, None], tfac)
+    verdict = _combine_all(_limit_state(st.lo[0], st.hi[0], s.min, s.max))
+    out = _base(s.name, "sum", None, None, st.mean[0], st.lo[0], st.hi[0],
+                _limit_dict(s.min, s.max), verdict, s, err)
+    out["points"] = list(s.points)
+    return out
+
+
+def _eval_relation(r: Relation, rs: RuleSet, probes: Probes, values: NDArray, tfac: float,
+                   err: bool) -> dict[str, Any]:
+    lhs_idx = probes.indices(r.lhs)
+    rhs_idx = probes.indices(r.rhs)
+    if rs.geometry(r.rhs).kind == "zone":
+        means = values[:, rhs_idx].mean(axis=0)
+        pick = np.argmax(means) if r.rhs_stat == "max" else np.argmin(means)
+        rhs_col = int(rhs_idx[int(pick)])
+    else:
+        rhs_col = int(rhs_idx[0])
+    rhs_sets = values[:, rhs_col]
+    margin = values[:, lhs_idx] - r.factor * rhs_sets[:, None]  # (S, n_lhs)
+    mst = _stats(margin, tfac)
+    if r.op == "<=":
+        states = [_limit_state(mst.lo[k], mst.hi[k], None, 0.0)[0] for k in range(len(lhs_idx))]
+        worst = int(np.argmax(mst.mean))
+    else:
+        states = [_limit_state(mst.lo[k], mst.hi[k], 0.0, None)[0] for k in range(len(lhs_idx))]
+        worst = int(np.argmin(mst.mean))
+    verdict = _combine_all(states)
+    j = int(lhs_idx[worst])
+    lst = _stats(values[:, [j]], tfac)
+    rst = _stats(rhs_sets[:, None], tfac)
+    ref = r.factor * rst.mean[0]
+    limit = {"max": _f(ref)} if r.op == "<=" else {"min": _f(ref)}
+    out = _base(r.name, "relation", probes.h_deg[j], probes.v_deg[j], lst.mean[0],
+                lst.lo[0], lst.hi[0], limit, verdict, r, err)
+    out.update({"lhs": r.lhs, "op": r.op, "factor": _f(r.factor), "reference": r.rhs,
+                "reference_cd": _f(rst.mean[0]),
+                "reference_interval_cd": [_f(rst.lo[0]), _f(rst.hi[0])],
+                "reference_h_deg": _f(probes.h_deg[rhs_col]),
+                "reference_v_deg": _f(probes.v_deg[rhs_col]),
+                "margin_cd": _f(mst.mean[worst]),
+                "margin_interval_cd": [_f(mst.lo[worst]), _f(mst.hi[worst])]})
+    return out
+
+
+def _skip_reason(rs: RuleSet, probes: Probes, names: Iterable[str]) -> str | None:
+    for n in names:
+        if n in probes.dropped:
+            return f"'{n}': {probes.dropped[n]}"
+        if len(probes.indices(n)) == 0:
+            return f"'{n}' has no probes"
+    return None
+
+
+def unevaluated_rules(ruleset: RuleSet, probes: Probes) -> list[dict[str, str]]:
+    """Rules that :func:`evaluate` cannot test with these probes, and why.
+
+    Returns
+    -------
+    list of dict
+        ``{"name", "kind", "reason", "certainty"}`` per rule left out (incomplete data or
+        directions outside the wall).
+    """
+    rs = ruleset.for_traffic(probes.traffic)
+    out = []
+    for g in rs.geometries:
+        if g.has_limits and (reason := _skip_reason(rs, probes, [g.name])):
+            out.append({"name": g.name, "kind": g.kind, "reason": reason,
+                        "certainty": g.certainty})
+    for s in rs.sums:
+        if reason := _skip_reason(rs, probes, s.points):
+            out.append({"name": s.name, "kind": "sum", "reason": reason,
+                        "certainty": s.certainty})
+    for r in rs.relations:
+        reason = None if r.complete else (r.note or "incomplete data")
+        reason = reason or _skip_reason(rs, probes, [r.lhs, r.rhs])
+        if reason:
+            out.append({"name": r.name, "kind": "relation", "reason": reason,
+                        "certainty": r.certainty})
+    return out
+
+
+def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
+             traffic: str | None = None, confidence: float = 0.95) -> list[dict[str, Any]]:
+    """Test per-set intensity estimates against a rule set.
+
+    Parameters
+    ----------
+    ruleset : RuleSet
+        The rule set the probes were made for.
+    probes : Probes
+        From :func:`probe_points` (same rule set).
+    values_cd : array_like, shape (S, P) or (P,)
+        Intensity estimates in cd: one row per independent set (interleave set), one column
+        per probe. A 1-D array is one set (no error estimate).
+    traffic : {"right", "left"}, optional
+        Must match ``probes.traffic`` if given.
+    confidence : float, default 0.95
+        Two-sided confidence level of the Student-t intervals.
+
+    Returns
+    -------
+    list of dict
+        One JSON-serialisable dict per testable rule, in file order (points, zones, sums,
+        relations), with keys ``name, h_deg, v_deg, value_cd, interval_cd, limit, verdict``
+        (verdict ``"pass" | "fail" | "uncertain"``; limit ``{"min": cd, "max": cd}`` with
+        the present bounds) plus ``kind, certainty, note, source, error_estimate`` and
+        per kind: zones ``stat, n_probes, probes_outside_wall, polygon_deg | line_deg``
+        (value at the extreme probe; a zone partly outside the wall is tested where the
+        wall covers it); sums ``points`` (h/v are None); relations ``lhs, op, factor, reference,
+        reference_cd, reference_interval_cd, margin_cd, margin_interval_cd`` (value at the
+        lhs probe with the worst margin; limit = factor × reference). Rules that cannot be
+        tested are reported by :func:`unevaluated_rules`.
+
+    Raises
+    ------
+    InputError
+        Shape mismatch, non-finite values, traffic mismatch or a bad confidence level.
+    """
+    if probes.ruleset_id != ruleset.id:
+        raise InputError(f"probes were made for rule set '{probes.ruleset_id}', "
+                         f"not '{ruleset.id}'")
+    if traffic is not None and _check_traffic(traffic) != probes.traffic:
+        raise InputError(f"probes were made for {probes.traffic}-hand traffic, "
+                         f"not {traffic}-hand")
+    if not (0.0 < confidence < 1.0):
+        raise InputError(f"confidence must be between 0 and 1, got {confidence!r}")
+    values = np.asarray(values_cd, dtype=float)
+    if values.ndim == 1:
+        values = values[None, :]
+    if values.ndim != 2 or values.shape[1] != len(probes):
+        raise InputError(f"values_cd must have shape (sets, {len(probes)}), "
+                         f"got {np.shape(values_cd)}")
+    if values.shape[0] < 1:
+        raise InputError("values_cd has no sets")
+    bad = ~np.isfinite(values).all(axis=0)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise InputError(f"values_cd has non-finite estimates at probe {k} "
+                         f"('{probes.labels[k]}' at H {probes.h_deg[k]:.2f}°, "
+                         f"V {probes.v_deg[k]:.2f}°)")
+    rs = ruleset.for_traffic(probes.traffic)
+    n_sets = values.shape[0]
+    err = n_sets >= 2
+    tfac = _t_factor(n_sets, confidence)
+    st = _stats(values, tfac)
+    results: list[dict[str, Any]] = []
+    for kind in ("point", "zone"):
+        for g in rs.geometries:
+            if g.kind != kind or not g.has_limits or _skip_reason(rs, probes, [g.name]):
+                continue
+            idx = probes.indices(g.name)
+            fn = _eval_point if kind == "point" else _eval_zone
+            res = fn(g, idx, st, probes.h_deg, probes.v_deg, err)
+            if kind == "zone":
+                res["probes_outside_wall"] = int(probes.clipped.get(g.name, 0))
+            results.append(res)
+    for s in rs.sums:
+        if not _skip_reason(rs, probes, s.points):
+            results.append(_eval_sum(s, probes, values, tfac, err))
+    for r in rs.relations:
+        if r.complete and not _skip_reason(rs, probes, [r.lhs, r.rhs]):
+            results.append(_eval_relation(r, rs, probes, values, tfac, err))
+    for res in results:
+        res["traffic"] = probes.traffic
+        res["confidence"] = float(confidence)
+    return results
+
+
+# ---- terminal table ---------------------------------------------------------------------
+def _fmt_angle(x: float, pos: str, neg: str, zero: str) -> str:
+    if abs(x) < 5e-4:
+        return zero
+    return f"{abs(x):.4g}{pos if x > 0 else neg}"
+
+
+def format_position(h_deg: float | None, v_deg: float | None) -> str:
+    """Regulation-style position, e.g. ``"0.86D 1.72R"``, ``"H-V"``, ``""`` for none."""
+    if h_deg is None or v_deg is None:
+        return ""
+    v = _fmt_angle(v_deg, "U", "D", "H")
+    h = _fmt_angle(h_deg, "R", "L", "V")
+    return "H-V" if (v, h) == ("H", "V") else f"{v} {h}"
+
+
+def _fmt_cd(x: float) -> str:
+    return f"{x:,.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
+def format_table(results: Sequence[Mapping[str, Any]], title: str | None = None,
+                 unevaluated: Sequence[Mapping[str, str]] | None = None) -> Any:
+    """A :class:`rich.table.Table` of evaluation results with coloured verdicts.
+
+    Parameters
+    ----------
+    results : sequence of dict
+        From :func:`evaluate`.
+    title : str, optional
+        Table title.
+    unevaluated : sequence of dict, optional
+        From :func:`unevaluated_rules`; listed in the caption.
+
+    Returns
+    -------
+    rich.table.Table
+        Print it with a rich ``Console``. Verdict colours: pass green, fail red,
+        uncertain yellow; less-sure rules are marked with ``*``.
+    """
+    from rich.table import Table
+    from rich.text import Text
+
+    conf = next((r.get("confidence") for r in results if "confidence" in r), 0.95)
+    table = Table(title=title)
+    table.add_column("rule")
+    table.add_column("kind")
+    table.add_column("position")
+    table.add_column("value cd", justify="right")
+    table.add_column(f"{conf:.0%} interval cd", justify="right")
+    table.add_column("limit cd", justify="right")
+    table.add_column("verdict")
+    less = False
+    for r in results:
+        lim = r.get("limit", {})
+        parts = []
+        if "min" in lim:
+            parts.append(f"≥ {_fmt_cd(lim['min'])}")
+        if "max" in lim:
+            parts.append(f"≤ {_fmt_cd(lim['max'])}")
+        lo, hi = r["interval_cd"]
+        name = str(r["name"])
+        if r.get("certainty") == "less-sure":
+            name += " *"
+            less = True
+        if r.get("kind") == "relation":
+            parts = [f"{r['op'].replace('<=', '≤').replace('>=', '≥')} "
+                     f"{r['factor']:g}·{r['reference']} = {_fmt_cd(r['reference_cd'])}"]
+        verdict = str(r["verdict"])
+        table.add_row(name, str(r.get("kind", "")), format_position(r["h_deg"], r["v_deg"]),
+                      _fmt_cd(r["value_cd"]), f"{_fmt_cd(lo)} – {_fmt_cd(hi)}",
+                      ", ".join(parts), Text(verdict, style=VERDICT_STYLES.get(verdict, "")))
+    caption = []
+    if less:
+        caption.append("* less-sure data: verify against the regulation text")
+    for u in unevaluated or ():
+        caption.append(f"not tested: {u['name']} ({u['reason']})")
+    if caption:
+        table.caption = "\n".join(caption)
+    return table

@@ -1,0 +1,123 @@
+"""Cut-off detection (R112 annex 9 scans), sharpness, linearity, aim and re-aiming."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from lightsim.errors import InputError
+from lightsim.luminaires.regulations.units import WallFrame, lux_from_candela, wall_m_from_deg
+from lightsim.render.cutoff import TARGET_V_DEG, aim_shift, apply_shift, find_cutoff
+
+D = 25.0
+FRAME = {"distance_m": D, "h_range_m": [-wall_m_from_deg(20.0), wall_m_from_deg(20.0)],
+         "v_range_m": [-wall_m_from_deg(5.0), wall_m_from_deg(5.0)], "resolution": [640, 320]}
+WF = WallFrame.from_any(FRAME)
+HD = WF.h_deg()[None, :]
+VD = WF.v_deg()[:, None]
+
+
+def step_pattern(v0: float | np.ndarray, width: float = 0.08, decades: float = 2.0,
+                 noise: float = 0.05, seed: int = 0) -> np.ndarray:
+    """log10 E = smoothed step falling by ``decades`` at V = v0 (going up), with noise."""
+    log_e = 1.5 - 0.5 * decades * (1 + np.tanh((VD - v0) / width)) - 0.002 * HD**2
+    e = 10.0**log_e * np.ones_like(HD)
+    rng = np.random.default_rng(seed)
+    return e * (1 + noise * rng.standard_normal(e.shape))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_known_cutoff_found_within_0_05_deg(seed):
+    res = find_cutoff(step_pattern(-0.57, seed=seed), FRAME)
+    assert res.found and res.message == "ok"
+    assert res.v_cutoff_deg == pytest.approx(-0.57, abs=0.05)
+    for scan in res.scans:
+        assert scan.found and scan.v_inflection_deg == pytest.approx(-0.57, abs=0.05)
+    assert [s.h_deg for s in res.scans] == [-1.5, -2.5, -3.5]    # left of V-V
+    assert res.linear is True and res.spread_deg < 0.05
+    assert res.aim_dv_deg == pytest.approx(0.0, abs=0.05)
+    json.dumps(res.to_dict())
+
+
+def test_sharpness_matches_the_analytic_step():
+    # G = log E(v0 − 0.05) − log E(v0 + 0.05) = decades·tanh(0.05/width) for the tanh step
+    width, decades = 0.3, 1.5
+    res = find_cutoff(step_pattern(-0.3, width=width, decades=decades, noise=0.0), FRAME)
+    assert res.sharpness_g == pytest.approx(decades * np.tanh(0.05 / width), rel=0.05)
+    assert res.sharpness_ok is True                                # 0.248 in 0.13–0.40
+    sharp = find_cutoff(step_pattern(-0.3, width=0.05, noise=0.0), FRAME)
+    assert sharp.sharpness_g > 0.4 and sharp.sharpness_ok is False
+
+
+def test_aim_shift_and_apply_shift_put_the_cutoff_at_0_57_down():
+    lux = step_pattern(0.2, noise=0.03)
+    dh, dv = aim_shift(lux, FRAME)
+    assert dh == 0.0 and dv == pytest.approx(TARGET_V_DEG - 0.2, abs=0.05)
+    aimed = apply_shift(lux, FRAME, dh, dv)
+    assert find_cutoff(aimed, FRAME).v_cutoff_deg == pytest.approx(TARGET_V_DEG, abs=0.05)
+
+
+def test_linearity_fails_for_a_tilted_cutoff():
+    tilted = step_pattern(-0.57 + 0.15 * (HD + 2.5), noise=0.0)    # 0.3° over 1.5…3.5°
+    res = find_cutoff(tilted, FRAME)
+    assert res.found and res.linear is False and res.spread_deg == pytest.approx(0.3, abs=0.05)
+
+
+def test_left_hand_traffic_scans_right_of_v():
+    lux = np.where(HD > 0, step_pattern(-0.57, noise=0.0), step_pattern(0.8, noise=0.0))
+    right = find_cutoff(lux, FRAME, traffic="right")
+    left = find_cutoff(lux, FRAME, traffic="left")
+    assert [s.h_deg for s in left.scans] == [1.5, 2.5, 3.5]
+    assert left.v_cutoff_deg == pytest.approx(-0.57, abs=0.05)
+    assert right.v_cutoff_deg == pytest.approx(0.8, abs=0.05)
+
+
+@pytest.mark.parametrize("lux, fragment", [
+    (np.zeros((320, 640)), "no light"),
+    (np.full((320, 640), 5.0), "does not fall off"),
+    (np.random.default_rng(3).random((320, 640)), "contrast"),
+    (np.full((320, 640), np.nan), "no light"),
+])
+def test_no_cutoff_is_reported_not_raised(lux, fragment):
+    res = find_cutoff(lux, FRAME)
+    assert res.found is False and res.message.startswith("no cut-off found")
+    assert fragment in res.message
+    assert res.aim_dv_deg is None
+    with pytest.raises(InputError, match="cannot aim"):
+        aim_shift(lux, FRAME)
+
+
+def test_saturated_and_black_regions():
+    lux = step_pattern(-0.57, noise=0.05)
+    clipped = np.minimum(lux, np.quantile(lux, 0.9))          # clipped hot region
+    res = find_cutoff(clipped, FRAME)
+    assert res.found and res.v_cutoff_deg == pytest.approx(-0.57, abs=0.1)
+    black = np.where(VD > -0.57, 0.0, lux)                      # hard edge into pure black
+    res = find_cutoff(black, FRAME)
+    assert res.found and res.v_cutoff_deg == pytest.approx(-0.57, abs=0.05)
+    assert np.isfinite(res.sharpness_g)
+
+
+def test_apply_shift_moves_a_spot_and_round_trips():
+    hm, vm = np.meshgrid(WF.h_m(), WF.v_m())
+    spot = 10000.0 * np.exp(-((HD - 0.0) ** 2 + (VD - 0.0) ** 2) / (2 * 0.6**2))
+    lux = lux_from_candela(spot, hm, vm, D)
+    moved = apply_shift(lux, FRAME, 3.0, -1.0)
+    i, j = np.unravel_index(np.argmax(moved), moved.shape)
+    assert WF.h_deg()[j] == pytest.approx(3.0, abs=0.07)       # pixel pitch 0.0625°
+    assert WF.v_deg()[i] == pytest.approx(-1.0, abs=0.04)
+    back = apply_shift(moved, FRAME, -3.0, 1.0)
+    core = np.abs(HD) + np.abs(VD) < 3
+    assert np.allclose(back[core], lux[core], rtol=0.02, atol=0.1)
+    far = apply_shift(lux, FRAME, 30.0, 0.0)   # pixels left of 10° R look beyond 20° L
+    assert np.all(far[:, WF.h_deg() < 9.9] == 0.0)
+    assert np.all(apply_shift(lux, FRAME, 30.0, 0.0, fill=-1.0)[:, :10] == -1.0)
+
+
+def test_bad_inputs():
+    with pytest.raises(InputError, match="shape"):
+        find_cutoff(np.ones((10, 10)), FRAME)
+    with pytest.raises(InputError, match="traffic"):
+        find_cutoff(step_pattern(-0.57), FRAME, traffic="middle")
