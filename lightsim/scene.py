@@ -69,7 +69,8 @@ class Part:
     flux_lm : float
         Luminous flux (lm), emitters only.
     emission : str
-        ``isotropic`` or ``lambertian``, emitters only.
+        ``isotropic``, ``lambertian`` or ``collimated`` (every photon leaves along the face
+        normal: a distant source such as the sun), emitters only.
     """
 
     name: str
@@ -427,8 +428,9 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         raise InputError(f"{path}: not a mesh file (expected one of {', '.join(MESH_SUFFIXES)})")
     if flux is not None and not (math.isfinite(flux) and flux > 0):
         raise InputError(f"flux must be a positive number of lumens, got {flux}")
-    if emission is not None and emission not in ("isotropic", "lambertian"):
-        raise InputError(f"emission must be 'isotropic' or 'lambertian', got '{emission}'")
+    if emission is not None and emission not in ("isotropic", "lambertian", "collimated"):
+        raise InputError(f"emission must be isotropic, lambertian or collimated, "
+                         f"got '{emission}'")
     part_materials = dict(part_materials or {})
     raw = _read_parts(path)
     if not raw:
@@ -479,9 +481,9 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         part = Part(pname, role, verts, faces, normals, material, extras=dict(extras))
         if role == EMITTER:
             part.emission = str(emission or ls.get("emission", "isotropic")).lower()
-            if part.emission not in ("isotropic", "lambertian"):
-                raise InputError(f"emitter '{pname}': emission must be isotropic or lambertian, "
-                                 f"got '{part.emission}'")
+            if part.emission not in ("isotropic", "lambertian", "collimated"):
+                raise InputError(f"emitter '{pname}': emission must be isotropic, lambertian "
+                                 f"or collimated, got '{part.emission}'")
             f = ls.get("flux_lm")
             if f is not None:
                 try:

@@ -54,6 +54,8 @@ LEDGER = ("wall", "absorbed_diffuse", "absorbed_mirror", "absorbed_volume", "esc
           "roulette", "max_depth")
 L_WALL, L_ABS_DIFF, L_ABS_MIRR, L_ABS_VOL, L_ESC, L_RR, L_MAXD = range(len(LEDGER))
 
+EMISSION_MODES = ("isotropic", "lambertian", "collimated")
+
 # photon flags
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
 F_DIFFUSE = np.uint8(2)   # the path had at least one diffuse bounce (indirect light)
@@ -75,7 +77,8 @@ class EmitterTable:
     triangles : (E, 3, 3) float64
     normals : (E, 3) float64
         Outward face normals (Lambertian emission).
-    lambertian : (E,) bool
+    mode : (E,) int8
+        0 isotropic, 1 Lambertian, 2 collimated (along the face normal: a distant source).
     cdf : (E,) float64
         Cumulative probability of emitting from each triangle.
     flux : float
@@ -84,30 +87,30 @@ class EmitterTable:
 
     triangles: np.ndarray
     normals: np.ndarray
-    lambertian: np.ndarray
+    mode: np.ndarray
     cdf: np.ndarray
     flux: float
 
     @classmethod
     def from_scene(cls, scene) -> EmitterTable:
-        tris, norms, lamb, weights = [], [], [], []
+        tris, norms, modes, weights = [], [], [], []
         for p in scene.emitters:
             t = p.triangles
             n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
             area = 0.5 * np.linalg.norm(n, axis=1)
             tris.append(t)
             norms.append(n / np.maximum(2 * area[:, None], 1e-300))
-            lamb.append(np.full(len(t), p.emission == "lambertian"))
+            modes.append(np.full(len(t), EMISSION_MODES.index(p.emission), np.int8))
             weights.append(p.flux_lm * area / area.sum())
         w = np.concatenate(weights)
         cdf = np.cumsum(w) / w.sum()
         cdf[-1] = 1.0
-        return cls(np.concatenate(tris), np.concatenate(norms), np.concatenate(lamb), cdf,
+        return cls(np.concatenate(tris), np.concatenate(norms), np.concatenate(modes), cdf,
                    float(scene.total_flux))
 
 
 @njit(cache=True, parallel=True)
-def _emit_kernel(u, tris, normals, lambertian, cdf):
+def _emit_kernel(u, tris, normals, mode, cdf):
     n = u.shape[0]
     origin = np.empty((n, 3))
     direction = np.empty((n, 3))
@@ -122,7 +125,10 @@ def _emit_kernel(u, tris, normals, lambertian, cdf):
         for j in range(3):
             origin[i, j] = b0 * tris[k, 0, j] + b1 * tris[k, 1, j] + b2 * tris[k, 2, j]
         phi = 2.0 * math.pi * u[i, 1]
-        if lambertian[k]:
+        if mode[k] == 2:
+            for j in range(3):
+                direction[i, j] = normals[k, j]
+        elif mode[k] == 1:
             r = math.sqrt(u[i, 0])
             lx, ly, lz = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u[i, 0]))
             nx, ny, nz = normals[k, 0], normals[k, 1], normals[k, 2]
@@ -147,7 +153,7 @@ def _emit_kernel(u, tris, normals, lambertian, cdf):
 def emit(table: EmitterTable, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Photon origins (m) and unit directions from sample points (n, 5) in [0, 1)."""
     return _emit_kernel(np.ascontiguousarray(points, dtype=np.float64), table.triangles,
-                        table.normals, table.lambertian, table.cdf)
+                        table.normals, table.mode, table.cdf)
 
 
 # ------------------------------------------------------------------------------------------
