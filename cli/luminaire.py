@@ -1,0 +1,118 @@
+"""``lightsim luminaire …``: build luminaire scenes and list the bulb presets.
+
+Click commands only: parse, call :mod:`lightsim.luminaires`, print. Sizes on the command line
+are in millimetres (as on drawings); the library works in metres. Input problems raise
+:class:`lightsim.errors.InputError` (one line, exit code 2).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from lightsim.errors import InputError
+
+MM = 1e-3
+
+
+@click.group()
+def luminaire() -> None:
+    """Luminaires: the parametric filament headlight and the bulb presets."""
+
+
+@luminaire.command()
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--bulb", default="H4-low", show_default=True,
+              help="Bulb preset: H4-low, H4-high, H1, H3 or H7 (see `luminaire bulbs`).")
+@click.option("--focal-length", "focal_length_mm", type=float, default=25.0, show_default=True,
+              help="Paraboloid focal length in mm.")
+@click.option("--aperture", "aperture_mm", type=float, default=160.0, show_default=True,
+              help="Reflector aperture (rim) diameter in mm.")
+@click.option("--lens", type=click.Choice(["fluted", "clear", "none"], case_sensitive=False),
+              default="fluted", show_default=True,
+              help="Cover lens: vertical flutes that spread the beam sideways, clear, or none.")
+@click.option("--flute-spread", "flute_spread_deg", type=float, default=8.0, show_default=True,
+              help="Largest horizontal deflection by a flute, in degrees (fluted lens).")
+@click.option("--flux", "flux_lm", type=float, default=None,
+              help="Luminous flux of the filament in lm [default: the preset's].")
+@click.option("--emission", type=click.Choice(["isotropic", "lambertian"], case_sensitive=False),
+              default="isotropic", show_default=True, help="Angular emission of the filament.")
+@click.option("--traffic", type=click.Choice(["right", "left"], case_sensitive=False),
+              default="right", show_default=True,
+              help="Traffic side; left mirrors the passing beam's 15° step-up.")
+def headlight(
+    out: Path,
+    bulb: str,
+    focal_length_mm: float,
+    aperture_mm: float,
+    lens: str,
+    flute_spread_deg: float,
+    flux_lm: float | None,
+    emission: str,
+    traffic: str,
+) -> None:
+    """Write the parametric headlight (reflector, bulb, shield, lens, filament) to OUT.glb.
+
+    Axes: +Y up, the lamp shines along +Z, reflector vertex at the origin, focus at
+    (0, 0, f); H on the wall (the driver's right) is world −X.
+    """
+    from lightsim.luminaires.headlight import write_headlight
+
+    if out.suffix.lower() != ".glb":
+        raise InputError(f"output {out} must be a .glb file")
+    if not out.parent.exists() and str(out.parent) != "":
+        raise InputError(f"output folder {out.parent} does not exist")
+    summary = write_headlight(
+        out,
+        bulb=bulb,
+        focal_length_m=focal_length_mm * MM,
+        aperture_m=aperture_mm * MM,
+        lens=lens.lower(),
+        flux_lm=flux_lm,
+        emission=emission.lower(),
+        traffic=traffic.lower(),
+        flute_spread_deg=flute_spread_deg,
+    )
+    triangles = summary["triangles"]
+    click.echo(
+        f"wrote {out} ({summary['bytes'] / 1e6:.2f} MB): bulb {summary['bulb']}, "
+        f"{summary['flux_lm']:g} lm {emission.lower()}, f = {focal_length_mm:g} mm, "
+        f"aperture {aperture_mm:g} mm, lens {lens.lower()}, {traffic.lower()}-hand traffic"
+    )
+    width = max(len(name) for name in triangles)
+    for name, count in triangles.items():
+        click.echo(f"  {name:<{width}}  {count:>7,d} triangles")
+    click.echo(f"  {'total':<{width}}  {sum(triangles.values()):>7,d} triangles")
+
+
+@luminaire.command()
+def bulbs() -> None:
+    """List the bulb presets: flux, filament size and position, and where the flux is from.
+
+    Positions are relative to the reflector focus in mm (x, y up, z ahead along the beam).
+    Filament sizes are assumptions (UN R37 data sheets were not available).
+    """
+    from lightsim.luminaires.bulbs import BULBS
+
+    header = (
+        f"{'preset':<8} {'cat':<4} {'flux lm':>8} {'W':>4} {'filament L×Ø mm':>16} "
+        f"{'centre x,y,z mm':>17} {'axis':<5} {'cup':<4} {'tip cap':<7} {'lamp cap':<8}"
+    )
+    click.echo(header)
+    click.echo("-" * len(header))
+    for spec in BULBS.values():
+        x, y, z = (v / MM for v in spec.filament_offset_m)
+        axis = "Z" if spec.filament_axis == (0.0, 0.0, 1.0) else "X"
+        size = f"{spec.filament_length_m / MM:.2f}×{spec.filament_diameter_m / MM:.2f}"
+        click.echo(
+            f"{spec.name:<8} {spec.category:<4} {spec.flux_lm:>8.0f} {spec.power_w:>4.0f} "
+            f"{size:>16} {f'{x:+.2f},{y:+.2f},{z:+.2f}':>17} {axis:<5} "
+            f"{'yes' if spec.shield_cup else 'no':<4} "
+            f"{'yes' if spec.envelope.tip_cap else 'no':<7} {spec.cap:<8}"
+        )
+    click.echo("\nflux sources (at the 13.2 V test voltage):")
+    for spec in BULBS.values():
+        click.echo(f"  {spec.name:<8} {spec.flux_source}")
+    click.echo("cup = H4 shield cup; tip cap = opaque black cap on the dome. Filament sizes and "
+               "positions are stated assumptions (see lightsim.luminaires.bulbs).")
