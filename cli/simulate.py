@@ -99,7 +99,7 @@ class _Progress:
 
 
 @click.command()
-@click.argument("scene_file", type=click.Path(dir_okay=False))
+@click.argument("scene_file", required=False, type=click.Path(dir_okay=False))
 @click.option("--photons", "-n", type=int, help="Photons to shoot in total (default 1 frame).")
 @click.option("--time", "seconds", type=float, help="Stop after this many seconds.")
 @click.option("--target-error", type=float,
@@ -144,7 +144,7 @@ class _Progress:
               help="Continue an interrupted run from its output folder.")
 @click.option("--explain", is_flag=True, help="Print which stages run and why.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress output.")
-def simulate(scene_file: str, photons: int | None, seconds: float | None,
+def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
              target_error: float | None, seed: int, out_dir: str, resolution: str,
              wall_distance: float, wall_size: str, estimator: str, k: int,
              max_radius: float | None, min_radius: float | None, kernel: str, interleave: int,
@@ -160,7 +160,11 @@ def simulate(scene_file: str, photons: int | None, seconds: float | None,
 
     resume = None
     if resume_dir is not None:
+        if scene_file is not None:
+            raise InputError("--resume continues a run with its own scene: give no SCENE_FILE")
         opts, resume = read_checkpoint(resume_dir)
+    elif scene_file is None:
+        raise InputError("missing SCENE_FILE (or --resume DIR)")
     else:
         res = _pair(resolution, "--resolution", int)
         if workers < 0:

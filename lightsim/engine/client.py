@@ -251,18 +251,36 @@ class Client:
             self._wall_queries[s] = self.frame.to_world(hh, vv).reshape(-1, 3)
         return self._wall_queries[s]
 
-    def render(self, image: bool = True, probes: bool = True,
-               full_image: bool = False) -> dict[str, Any]:
+    def _camera_queries(self, s: int, camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Diffuse points seen by the camera's pixels of set s (cached per camera)."""
+        from lightsim.render.camera import eye_hits
+
+        cache = self.__dict__.setdefault("_camera_cache", {})
+        key = (camera, s)
+        if key not in cache:
+            if len(cache) > 4 * len(self.set_indices):  # walkthrough: forget old views
+                cache.clear()
+            W, H = camera.resolution
+            pattern = InterleavePattern(self.config.interleave, W, H)
+            rows, cols = pattern.set_pixels(s)
+            o, d = camera.rays(rows, cols)
+            cache[key] = eye_hits(self.scene, self.tracer.caster, o, d, camera.max_specular)[:3]
+        return cache[key]
+
+    def render(self, image: bool = True, probes: bool = True, full_image: bool = False,
+               camera=None) -> dict[str, Any]:
         """Estimates of every owned set.
 
         Returns
         -------
         dict with ``sub_images`` {set: (rows, cols, C) lux} (interleaved pixels only),
         ``full_images`` {set: (H, W, C) lux} (every pixel, with ``full_image``),
+        ``camera_sub_images`` {set: (rows, cols, C) cd/m²} (with ``camera``),
         ``probes`` {set: (P, C) lux}, ``seconds``.
         """
         t0 = time.perf_counter()
-        out: dict[str, Any] = {"sub_images": {}, "probes": {}, "full_images": {}}
+        out: dict[str, Any] = {"sub_images": {}, "probes": {}, "full_images": {},
+                               "camera_sub_images": {}}
         normal = np.broadcast_to(self.frame.normal, (1, 3))
         for s in self.set_indices:
             st = self.sets[s]
@@ -277,6 +295,12 @@ class Client:
                 pts = self.frame.to_world(hh, vv).reshape(-1, 3)
                 est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape))
                 out["full_images"][s] = est.reshape((*hh.shape, self.channels))
+            if camera is not None:
+                pts, nrm, weight = self._camera_queries(s, camera)
+                W, H = camera.resolution
+                shape = InterleavePattern(self.config.interleave, W, H).sub_shape(s)
+                lum = weight * self._estimate(st, pts, nrm)  # L = ρ E / π, cd/m²
+                out["camera_sub_images"][s] = lum.reshape((*shape, self.channels))
             if probes and len(self._probe_points):
                 out["probes"][s] = self._estimate(
                     st, self._probe_points, np.broadcast_to(normal, self._probe_points.shape))

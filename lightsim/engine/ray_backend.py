@@ -39,11 +39,32 @@ def _ray():
     return ray
 
 
+def _probe_address(address: str, timeout: float = 5.0) -> None:
+    """Fail fast with one line if a HOST:PORT cluster address does not answer.
+
+    ``ray.init(address=…)`` on a dead address retries for minutes; a plain TCP connect to
+    the GCS port tells within seconds.
+    """
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "://" in address:
+        return  # "auto", "ray://…": let Ray resolve them
+    try:
+        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise ClusterError(f"cannot reach a Ray cluster at {address}: {reason}") from None
+
+
 def _init_ray(address: str | None, n_actors: int) -> bool:
     """Connect to (or start) Ray; returns True if this call started it."""
     ray = _ray()
     if ray.is_initialized():
         return False
+    if address:
+        _probe_address(address)
     kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                               "configure_logging": False}
     try:
@@ -110,7 +131,6 @@ class RayBackend:
 
     # -- calls with fault recovery --------------------------------------------------------
     def _call_all(self, method: str, *args: Any, **kwargs: Any) -> list[Any]:
-        ray = _ray()
         refs = [a.call.remote(method, *args, **kwargs) for a in self.actors]
         out: list[Any] = []
         for i, ref in enumerate(refs):

@@ -66,6 +66,7 @@ class Estimate:
     photons: int
     seconds: float
     timings: dict[str, float] = field(default_factory=dict)
+    camera: np.ndarray | None = None  # (H, W, C) luminance, cd/m², with a camera view
 
 
 class Session:
@@ -135,8 +136,15 @@ class Session:
                                        else time.perf_counter() - self._t0)
 
     # -- frames --------------------------------------------------------------------------
-    def frame(self, image: bool = True, shoot: bool = True) -> Estimate:
-        """One frame: every client shoots (unless ``shoot`` is False) and renders."""
+    def frame(self, image: bool = True, shoot: bool = True, camera=None) -> Estimate:
+        """One frame: every client shoots (unless ``shoot`` is False) and renders.
+
+        ``camera`` (a :class:`~lightsim.render.camera.PinholeCamera`) adds a luminance
+        image (cd/m²) in ``Estimate.camera``; the plan must include the camera pass.
+        """
+        if camera is not None and not self.plan.camera:
+            raise InputError("this session was planned without a camera view "
+                             "(create it with camera=True)")
         self.start_clock()
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
@@ -147,28 +155,30 @@ class Session:
         t1 = time.perf_counter()
         full = self.config.estimator == "bin"
         results = self.backend.render(image=image and not full, probes=True,
-                                      full_image=image and full)
+                                      full_image=image and full, camera=camera)
         timings["render"] = time.perf_counter() - t1
-        est = self._combine(results, image, timings)
+        est = self._combine(results, image, timings, camera)
         self.last = est
         if shoot:
             self.log.append({"seconds": est.seconds, "photons": est.photons,
                              "rel_error": est.rel_error, "frames": self.frames})
         return est
 
-    def walkthrough(self) -> Estimate:
+    def walkthrough(self, camera=None) -> Estimate:
         """A frame without shooting: the camera/view may change, the photons stay."""
-        return self.frame(image=True, shoot=False)
+        return self.frame(image=True, shoot=False, camera=camera)
 
     def _combine(self, results: list[dict[str, Any]], image: bool,
-                 timings: dict[str, float]) -> Estimate:
+                 timings: dict[str, float], camera=None) -> Estimate:
         probes: dict[int, np.ndarray] = {}
         subs: dict[int, np.ndarray] = {}
         fulls: dict[int, np.ndarray] = {}
+        cams: dict[int, np.ndarray] = {}
         for r in results:
             probes.update(r["probes"])
             subs.update(r["sub_images"])
             fulls.update(r["full_images"])
+            cams.update(r.get("camera_sub_images", {}))
         t2 = time.perf_counter()
         emitted = self.emitted_per_set()
         lux = raw = None
@@ -176,10 +186,16 @@ class Session:
             lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
         elif image and fulls:
             lux = raw = pool_full_images(fulls, emitted)
+        cam_img = None
+        if camera is not None and cams:
+            W, H = camera.resolution
+            cam_img, _ = assemble_interleaved(
+                InterleavePattern(self.config.interleave, W, H), cams, self.config.filter_n)
         timings["assemble"] = time.perf_counter() - t2
         stats = probe_stats(probes) if probes else None
         rel = relative_error(stats, self.grid_count) if stats is not None else None
-        return Estimate(lux, raw, stats, rel, sum(emitted.values()), self.elapsed, timings)
+        return Estimate(lux, raw, stats, rel, sum(emitted.values()), self.elapsed, timings,
+                        camera=cam_img)
 
     # -- interaction ---------------------------------------------------------------------
     def update(self, *, scene: Scene | None = None,

@@ -1,0 +1,38 @@
+"""Run a command in a private network namespace that has only loopback.
+
+Ray here would otherwise bind to the machine's other address even when told to use
+127.0.0.1; inside the namespace only ``lo`` exists, so every test talks over loopback.
+Root uses ``unshare --net``; other users try an unprivileged user namespace
+(``unshare -rn``). Without either, the Ray tests are skipped with the reason.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+
+import pytest
+
+RAY_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
+           "PYTHONUNBUFFERED": "1"}
+
+
+def _unshare_prefix() -> list[str]:
+    if shutil.which("unshare") is None:
+        pytest.skip("unshare(1) not available: cannot isolate Ray on loopback")
+    for prefix in (["unshare", "--net"], ["unshare", "-rn"]):
+        probe = subprocess.run([*prefix, "true"], capture_output=True, timeout=20)
+        if probe.returncode == 0:
+            return prefix
+    pytest.skip("no permission for a network namespace (unshare --net / -rn)")
+    raise AssertionError  # unreachable
+
+
+def run_in_netns(script: str, timeout: float = 300, env: dict[str, str] | None = None
+                 ) -> subprocess.CompletedProcess:
+    """Run a bash ``script`` inside a loopback-only network namespace."""
+    full_env = {**os.environ, **RAY_ENV, **(env or {})}
+    full_env.pop("RAY_ADDRESS", None)
+    cmd = [*_unshare_prefix(), "bash", "-c", "ip link set lo up && " + script]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=full_env)
