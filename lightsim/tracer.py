@@ -171,16 +171,18 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
               tri_v, face_n, corner_n, tri_part, is_wall,
               mat_kind, mat_value, mat_ior, mat_sigma,
               eps_floor, rr_threshold, rr_min_depth, last_bounce, record_all,
-              status, rec, rec_pos, rec_nrm, rec_pow, rec_part, rec_flag, ledger):
+              status, rec, rec_pos, rec_nrm, rec_pow, rec_part, rec_flag, ledger, lid):
+    # ledger rows are per emitted photon (lid): summed once per batch, in photon order
     n = o.shape[0]
     C = power.shape[1]
     for i in prange(n):
+        j = lid[i]
         status[i] = ALIVE
         rec[i] = False
         k = prim[i]
         if k < 0:  # escaped to infinity
             for c in range(C):
-                ledger[i, L_ESC, c] += power[i, c]
+                ledger[j, L_ESC, c] += power[i, c]
                 power[i, c] = 0.0
             status[i] = ENDED
             continue
@@ -216,13 +218,13 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
                 rec_flag[i] = flags[i]
             if is_wall[k]:
                 for c in range(C):
-                    ledger[i, L_WALL, c] += power[i, c]
+                    ledger[j, L_WALL, c] += power[i, c]
                     power[i, c] = 0.0
                 status[i] = ENDED
                 continue
             for c in range(C):
                 rho = mat_value[m, c]
-                ledger[i, L_ABS_DIFF, c] += (1.0 - rho) * power[i, c]
+                ledger[j, L_ABS_DIFF, c] += (1.0 - rho) * power[i, c]
                 power[i, c] *= rho
             # cosine-weighted direction about the facing normal
             u1 = uniform(key, ctr + np.uint64(2))
@@ -253,7 +255,7 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
             if kind == MIRROR:
                 for c in range(C):
                     rr_ = mat_value[m, c]
-                    ledger[i, L_ABS_MIRR, c] += (1.0 - rr_) * power[i, c]
+                    ledger[j, L_ABS_MIRR, c] += (1.0 - rr_) * power[i, c]
                     power[i, c] *= rr_
                 c_i = dx * sx + dy * sy + dz * sz
                 nx_, ny_, nz_ = dx - 2 * c_i * sx, dy - 2 * c_i * sy, dz - 2 * c_i * sz
@@ -267,7 +269,7 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
                         s_ = mat_sigma[m, c]
                         if s_ > 0.0:
                             keep = math.exp(-s_ * t)
-                            ledger[i, L_ABS_VOL, c] += (1.0 - keep) * power[i, c]
+                            ledger[j, L_ABS_VOL, c] += (1.0 - keep) * power[i, c]
                             power[i, c] *= keep
                 eta_i, eta_t = (1.0, mat_ior[m]) if front else (mat_ior[m], 1.0)
                 cos_i = -(dx * sx + dy * sy + dz * sz)
@@ -316,17 +318,17 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
             q = pmax / (rr_threshold * p_ref[i])
             if uniform(key, ctr + np.uint64(1)) >= q:
                 for c in range(C):
-                    ledger[i, L_RR, c] += power[i, c]
+                    ledger[j, L_RR, c] += power[i, c]
                     power[i, c] = 0.0
                 status[i] = ENDED
                 continue
             for c in range(C):
                 boost = power[i, c] / q - power[i, c]
-                ledger[i, L_RR, c] -= boost
+                ledger[j, L_RR, c] -= boost
                 power[i, c] += boost
         if last_bounce:
             for c in range(C):
-                ledger[i, L_MAXD, c] += power[i, c]
+                ledger[j, L_MAXD, c] += power[i, c]
                 power[i, c] = 0.0
             status[i] = ENDED
 
@@ -528,8 +530,8 @@ class PhotonTracer:
         flags = np.zeros(n, dtype=np.uint8)
         keys = np.asarray(keys, dtype=np.uint64)
         idx = np.arange(n, dtype=np.int64)
-        grp = np.asarray(group, dtype=np.int64)
-        led = np.zeros((n_groups, K, C))
+        group = np.asarray(group, dtype=np.int64)
+        ledger = np.zeros((n, K, C))
         recs = []
         esc_d, esc_p = [], []
         rays = 0
@@ -546,7 +548,6 @@ class PhotonTracer:
             rec_pow = np.empty((m, C))
             rec_part = np.empty(m, dtype=np.int32)
             rec_flag = np.empty(m, dtype=np.uint8)
-            ledger = np.zeros((m, K, C))
             if record_escaped:
                 miss = prim < 0
                 esc_d.append(d[miss].astype(np.float32))
@@ -554,20 +555,21 @@ class PhotonTracer:
             _interact(o, d, pw, p_ref, flags, keys, depth, prim, tfar, bu, bv,
                       *self._geom, *self._mats, self.eps_floor, self.rr_threshold,
                       self.rr_min_depth, depth == self.max_depth - 1, self.record_all,
-                      status, rec, rec_pos, rec_nrm, rec_pow, rec_part, rec_flag, ledger)
-            for kk in range(K):
-                for c in range(C):
-                    led[:, kk, c] += np.bincount(grp, weights=ledger[:, kk, c],
-                                                 minlength=n_groups)
+                      status, rec, rec_pos, rec_nrm, rec_pow, rec_part, rec_flag,
+                      ledger, idx)
             if rec.any():
                 recs.append(PhotonRecords(rec_pos[rec].astype(np.float32),
                                           rec_nrm[rec].astype(np.float32),
                                           rec_pow[rec].astype(np.float32), rec_part[rec],
                                           rec_flag[rec], idx[rec]))
             alive = status == ALIVE
-            o, d, pw, p_ref, flags, keys, idx, grp = (
+            o, d, pw, p_ref, flags, keys, idx = (
                 o[alive], d[alive], pw[alive], p_ref[alive], flags[alive], keys[alive],
-                idx[alive], grp[alive])
+                idx[alive])
+        led = np.zeros((n_groups, K, C))
+        for kk in range(K):
+            for c in range(C):
+                led[:, kk, c] = np.bincount(group, weights=ledger[:, kk, c], minlength=n_groups)
         ed = np.concatenate(esc_d) if esc_d else np.zeros((0, 3), np.float32)
         ep = np.concatenate(esc_p) if esc_p else np.zeros((0, C))
         return PhotonRecords.concatenate(recs, C), led, rays, ed, ep

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import sys
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -32,7 +33,8 @@ def _fmt(value: Any) -> str:
 def print_table(title: str, rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = None,
                 console: Console | None = None) -> None:
     """Print ``rows`` as a table with the given column order (default: keys of row 0)."""
-    console = console or Console()
+    # a pipe or CI log is not a terminal: give wide tables room instead of 80 columns
+    console = console or Console(width=None if sys.stdout.isatty() else 200)
     if not rows:
         console.print(f"{title}: no rows")
         return
