@@ -33,7 +33,7 @@ def point_lamp(tmp_path_factory):
 
 def test_simulate_writes_outputs_in_lux(point_lamp, tmp_path, capsys):
     out = tmp_path / "run"
-    code, stdout, err = _run(["simulate", str(point_lamp), "--photons", "400000",
+    code, _, err = _run(["simulate", str(point_lamp), "--photons", "400000",
                               "--wall-distance", "2", "--wall-size", "4x4",
                               "--resolution", "40x40", "--estimator", "bin",
                               "--frame-photons", "100000", "--out", str(out), "--quiet"], capsys)

@@ -67,7 +67,7 @@ def test_default_wall_and_flux_override(tmp_path):
     scene = load_scene(_lamp(tmp_path), flux=900.0, wall_distance=20.0, wall_size=(8, 4))
     assert scene.wall.distance_m == 20.0
     assert scene.total_flux == pytest.approx(900.0)
-    wall = [p for p in scene.parts if p.role == WALL][0]
+    wall = next(p for p in scene.parts if p.role == WALL)
     # the added wall's normal faces the lamp (−Z)
     tri = wall.vertices[wall.faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
