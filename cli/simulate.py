@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import signal
+import sys
 import time
 from typing import Any
 
@@ -115,7 +116,8 @@ class _Progress:
 @click.option("--estimator", type=click.Choice(["knn", "bin", "radius"]), default="knn",
               show_default=True, help="Density estimator on the wall.")
 @click.option("-k", "k", type=int, default=64, show_default=True, help="Photons per kNN estimate.")
-@click.option("--max-radius", type=float, help="Largest kNN radius (m).")
+@click.option("--max-radius", type=float,
+              help="Largest kNN radius (m); default 2 × min radius; 'inf' = unlimited.")
 @click.option("--min-radius", type=float,
               help="Smallest kNN radius (m); default: the filter window's area.")
 @click.option("--kernel", type=click.Choice(["box", "cone", "epanechnikov"]), default="box",
@@ -136,6 +138,18 @@ class _Progress:
               help="Filament axis X,Y,Z.")
 @click.option("--part-material", multiple=True,
               help="NAME=mirror[:R]|glass[:n]|diffuse[:ρ]|wall|ignore (repeatable).")
+@click.option("--regulation", help="Rule set to check, e.g. r112-b-passing (see "
+              "`lightsim report --list-rulesets`).")
+@click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
+              show_default=True)
+@click.option("--aim", is_flag=True, help="Aim the cut-off at 0.57° D before checking.")
+@click.option("--ies", "ies_out", type=click.Path(dir_okay=False),
+              help="Write the far-field intensity as IES LM-63-2002.")
+@click.option("--ldt", "ldt_out", type=click.Path(dir_okay=False),
+              help="Write the far-field intensity as EULUMDAT.")
+@click.option("--farfield-photons", type=int, default=1_000_000, show_default=True)
+@click.option("--mount-height", type=float, default=0.65, show_default=True,
+              help="Lamp height above the road for the road view (m).")
 @click.option("--log", "log_scale", is_flag=True, help="Logarithmic colour scale in the PNG.")
 @click.option("--workers", type=int, default=0, show_default=True,
               help="0: in-process; N: N Ray actors on this machine.")
@@ -151,6 +165,8 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
              filter_size: int | None, frame_photons: int, structure: str, spt: bool | None,
              flux: float | None, emission: str | None, filament: str | None,
              filament_at: str | None, filament_axis: str, part_material: tuple[str, ...],
+             regulation: str | None, traffic: str, aim: bool, ies_out: str | None,
+             ldt_out: str | None, farfield_photons: int, mount_height: float,
              log_scale: bool, workers: int, address: str | None, resume_dir: str | None,
              explain: bool, quiet: bool) -> None:
     """Simulate SCENE_FILE (GLB/glTF/OBJ/STL/PLY) and write the wall illuminance in lux."""
@@ -182,7 +198,9 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
             wall_distance=wall_distance, wall_size=_pair(wall_size, "--wall-size"),
             resolution=res, part_materials=_part_materials(part_material), config=config,
             log_scale=log_scale, workers=workers,
-            address=address or os.environ.get("RAY_ADDRESS") or None)
+            address=address or os.environ.get("RAY_ADDRESS") or None,
+            regulation=regulation, traffic=traffic, aim=aim, ies=ies_out, ldt=ldt_out,
+            farfield_photons=farfield_photons, mount_height=mount_height)
         opts.run_config()  # validate the settings before any work
 
     stop = {"signal": None}
@@ -226,5 +244,15 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
         click.echo(f"energy (lm): emitted {e['emitted']:.6g} = wall {e['wall']:.6g} + "
                    f"absorbed {absorbed:.6g} + escaped {e['escaped']:.6g} + "
                    f"roulette {e['roulette']:.3g} + max depth {e['max_depth']:.3g}")
-        click.echo(f"wrote {result.out_dir}/wall_lux.exr, wall_lux.png, error_vs_time.png, "
-                   "summary.json")
+        if "regulation" in s:
+            from rich.console import Console
+
+            from lightsim.report import format_regulation
+
+            Console(width=None if sys.stdout.isatty() else 160).print(
+                format_regulation(s["regulation"]))
+        extra = ", probes.npz" if "regulation" in s else ""
+        click.echo(f"wrote {result.out_dir}/wall_lux.exr, wall_lux.png, isolux.png, road.png, "
+                   f"error_vs_time.png, summary.json{extra}")
+        for f in s.get("farfield", {}).get("files", []):
+            click.echo(f"wrote {f} ({s['farfield']['total_flux_lm']:.1f} lm leave the lamp)")

@@ -62,11 +62,18 @@ class SimulateOptions:
     log_scale: bool = False
     workers: int = 0
     address: str | None = None
+    regulation: str | None = None
+    traffic: str = "right"
+    aim: bool = False
+    ies: str | None = None
+    ldt: str | None = None
+    farfield_photons: int = 1_000_000
+    mount_height: float = 0.65
 
     def run_config(self) -> RunConfig:
         cfg = dict(self.config)
-        if cfg.get("max_radius") is None:
-            cfg.pop("max_radius", None)
+        if cfg.get("max_radius") == "inf":
+            cfg["max_radius"] = math.inf
         if "probe_grid" in cfg:
             cfg["probe_grid"] = tuple(cfg["probe_grid"])
         if "extra_probes" in cfg:
@@ -134,10 +141,19 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
         raise InputError(f"--time must be positive, got {opts.seconds}")
     if opts.target_error is not None and not (0 < opts.target_error < 1):
         raise InputError(f"target error must lie in (0, 1), got {opts.target_error}")
+    if opts.traffic not in ("right", "left"):
+        raise InputError(f"traffic must be 'right' or 'left', got '{opts.traffic}'")
+    if opts.regulation is not None:
+        from lightsim.luminaires.regulations import load_ruleset
+
+        load_ruleset(opts.regulation)  # an unknown rule set fails before any work
+    if opts.aim and opts.regulation is None:
+        raise InputError("--aim aims the pattern for a regulation check: give --regulation")
     scene = load(opts)
     config = opts.run_config()
     session = Session(scene, config, workers=opts.workers, address=opts.address,
-                      checkpoint=(resume or {}).get("session"))
+                      checkpoint=(resume or {}).get("session"),
+                      regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt))
     try:
         if on_plan is not None:
             on_plan(session)
@@ -233,8 +249,9 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationR
         "estimator": {"name": cfg.estimator, "k": cfg.k, "kernel": cfg.kernel,
                       "interleave": cfg.interleave, "filter": cfg.filter_n,
                       "structure": cfg.structure,
-                      "min_radius_m": session.min_radius_m,
-                      "max_radius_m": None if math.isinf(cfg.max_radius) else cfg.max_radius},
+                      "min_radius_m": session.radii_m[0],
+                      "max_radius_m": (None if math.isinf(session.radii_m[1])
+                                       else session.radii_m[1])},
         "energy_lm": {**energy, "sum_of_parts": sum(parts.values()),
                       "closure_relative": closure},
         "caustic_yield": session.caustic_yield(),
@@ -256,8 +273,46 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationR
     write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
                   title=f"{Path(opts.scene_path).name}: {photons:,} photons")
     error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
+    _engineering_outputs(out, opts, session, lux, summary)
     write_json(out / "summary.json", summary)
     return SimulationResult(lux, rgb, summary, out)
+
+
+def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndarray,
+                         summary: dict[str, Any]) -> None:
+    """Regulation check, isolux and road plots, far-field files (see lightsim.report)."""
+    from lightsim import report
+
+    frame = session.scene.wall
+    results = None
+    if opts.regulation is not None:
+        reg = report.regulation_check(session, lux, opts.regulation, opts.traffic, opts.aim)
+        report.save_probes(out, reg)
+        summary["regulation"] = report.public(reg)
+        results = reg["results"]
+    summary["cutoff"] = _cutoff(lux, frame, opts.traffic)
+    report.engineering_plots(out, lux, frame, results, opts.mount_height)
+    if opts.ies or opts.ldt:
+        from lightsim.luminaires.photometric import write_photometric
+
+        grid = report.farfield_grid(session.scene, opts.farfield_photons,
+                                    seed=session.config.seed)
+        summary["farfield"] = {"photons": opts.farfield_photons,
+                               "total_flux_lm": float(grid.total_flux()),
+                               "max_cd": float(np.max(grid.candela)), "files": []}
+        for path in (opts.ies, opts.ldt):
+            if path:
+                write_photometric(path, grid)
+                summary["farfield"]["files"].append(str(path))
+
+
+def _cutoff(lux: np.ndarray, frame, traffic: str) -> dict[str, Any]:
+    from lightsim.render.cutoff import find_cutoff
+
+    res = find_cutoff(lux, frame.to_dict(), traffic)
+    return {"found": res.found, "message": res.message, "v_cutoff_deg": res.v_cutoff_deg,
+            "sharpness_g": res.sharpness_g, "linear": res.linear,
+            "aim_dv_deg": res.aim_dv_deg}
 
 
 def describe_options(opts: SimulateOptions) -> str:

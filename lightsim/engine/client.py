@@ -73,6 +73,14 @@ def default_min_radius(config: RunConfig, frame: WallFrame) -> float:
     return math.sqrt(n * n * dh * dv / math.pi)
 
 
+def effective_radii(config: RunConfig, frame: WallFrame) -> tuple[float, float]:
+    """(min, max) density-estimation radius in m after applying the automatic defaults."""
+    r_min = (config.min_radius if config.min_radius is not None
+             else default_min_radius(config, frame))
+    r_max = config.max_radius if config.max_radius is not None else 2.0 * r_min
+    return r_min, max(r_max, r_min)
+
+
 class Client:
     """Holds a group of interleave sets and computes their part of every frame.
 
@@ -110,8 +118,7 @@ class Client:
                                    caster=caster)
         W, H = self.frame.resolution
         self.pattern = InterleavePattern(self.config.interleave, W, H)
-        self.min_radius = (self.config.min_radius if self.config.min_radius is not None
-                           else default_min_radius(self.config, self.frame))
+        self.min_radius, self.max_radius = effective_radii(self.config, self.frame)
         self._wall_queries: dict[int, np.ndarray] = {}
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._probe_points = self.frame.to_world(self.probes_hv[:, 0], self.probes_hv[:, 1])
@@ -234,13 +241,13 @@ class Client:
             row = np.clip(np.floor((self.frame.v_range_m[1] - v) / dv).astype(np.int64), 0, H - 1)
             return st.bins[row, col] / (st.emitted * dh * dv)
         cfg = self.config
-        radius = cfg.max_radius
-        if cfg.estimator == "radius":
-            radius = self.min_radius if math.isinf(cfg.max_radius) else cfg.max_radius
+        if cfg.estimator == "radius":  # the IGI baseline: one fixed radius
+            radius, floor = self.min_radius, 0.0
+        else:
+            radius, floor = self.max_radius, self.min_radius
         res = st.photonmap.estimate(points.astype(np.float32), normals.astype(np.float32),
-                                    k=cfg.k, max_radius=radius,
-                                    min_radius=0.0 if cfg.estimator == "radius"
-                                    else self.min_radius, kernel=cfg.kernel)
+                                    k=cfg.k, max_radius=radius, min_radius=floor,
+                                    kernel=cfg.kernel)
         return np.asarray(res.E, dtype=np.float64) / st.emitted
 
     def _wall_points(self, s: int) -> np.ndarray:
@@ -306,6 +313,13 @@ class Client:
                     st, self._probe_points, np.broadcast_to(normal, self._probe_points.shape))
         out["seconds"] = time.perf_counter() - t0
         return out
+
+    def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:
+        """Every owned set's illuminance (lx) at wall points (h, v in m): {set: (P, C)}."""
+        hv = np.asarray(points_hv, dtype=np.float64).reshape(-1, 2)
+        pts = self.frame.to_world(hv[:, 0], hv[:, 1])
+        normal = np.broadcast_to(self.frame.normal, pts.shape)
+        return {s: self._estimate(self.sets[s], pts, normal) for s in self.set_indices}
 
     # -- statistics, checkpoints ---------------------------------------------------------
     def stats(self) -> dict[int, dict[str, Any]]:

@@ -10,12 +10,16 @@ parameter               unit   default     meaning
                                            (photons counted per wall pixel), ``radius``
                                            (fixed-radius hashed grid, the IGI baseline)
 ``k``                   –      64          photons per kNN estimate
-``max_radius``          m      ∞           largest kNN search radius (also the ``radius``
-                                           estimator's radius; default there: 2 pixels)
 ``min_radius``          m      auto        smallest kNN radius; auto = the radius of a disk
-                                           with the area of the M×M filter window (finer
+                                           with the area of the n×n filter window (finer
                                            detail cannot survive the filter anyway); it
                                            also caps a point focus at a finite estimate
+``max_radius``          m      auto        largest kNN radius; auto = 2 × min radius, so
+                                           light is never smeared more than about one
+                                           filter window into dark regions (glare points
+                                           next to a cut-off stay honest); ``inf`` = the
+                                           paper's unlimited kNN. The ``radius``
+                                           estimator's fixed radius is the min radius
 ``kernel``              –      ``box``     ``box``, ``cone`` or ``epanechnikov`` weights
 ``filter_size``         px     M           box filter window n×n (paper: 3×3 … 6×6)
 ``frame_photons``       –      200 000     photons shot per frame over all sets
@@ -51,7 +55,7 @@ class RunConfig:
     interleave: int = 4
     estimator: str = "knn"
     k: int = 64
-    max_radius: float = math.inf
+    max_radius: float | None = None
     min_radius: float | None = None
     kernel: str = "box"
     filter_size: int | None = None
@@ -78,7 +82,7 @@ class RunConfig:
             raise InputError(f"interleave M must be between 1 and 16, got {self.interleave}")
         if self.k < 1:
             raise InputError(f"k must be at least 1, got {self.k}")
-        if not (self.max_radius > 0):
+        if self.max_radius is not None and not (self.max_radius > 0):
             raise InputError(f"max radius must be positive, got {self.max_radius}")
         if self.min_radius is not None and not (0 <= self.min_radius < math.inf):
             raise InputError(f"min radius must be ≥ 0 and finite, got {self.min_radius}")
@@ -112,6 +116,7 @@ class RunConfig:
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d["max_radius"] = None if math.isinf(self.max_radius) else self.max_radius
+        if self.max_radius is not None and math.isinf(self.max_radius):
+            d["max_radius"] = "inf"
         d["extra_probes"] = [list(p) for p in self.extra_probes]
         return d

@@ -30,6 +30,12 @@ class LocalBackend:
     def render(self, **kw: Any) -> list[dict[str, Any]]:
         return [c.render(**kw) for c in self.clients]
 
+    def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:
+        out: dict[int, np.ndarray] = {}
+        for c in self.clients:
+            out.update(c.probe(points_hv))
+        return dict(sorted(out.items()))
+
     def update(self, scene: Scene, geometry_changed: bool) -> None:
         for c in self.clients:
             c.update(scene, geometry_changed)

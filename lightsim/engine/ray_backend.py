@@ -175,6 +175,12 @@ class RayBackend:
         self.bytes_last_frame = nbytes
         return out
 
+    def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:
+        out: dict[int, np.ndarray] = {}
+        for r in self._call_all("probe", points_hv):
+            out.update(r)
+        return dict(sorted(out.items()))
+
     def update(self, scene: Scene, geometry_changed: bool) -> None:
         ray = _ray()
         self.scene_ref = ray.put(scene)

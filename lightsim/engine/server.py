@@ -197,6 +197,10 @@ class Session:
         return Estimate(lux, raw, stats, rel, sum(emitted.values()), self.elapsed, timings,
                         camera=cam_img)
 
+    def probe(self, points_hv: np.ndarray) -> ProbeStats:
+        """Estimates of every set at wall points (h, v in m): mean, standard error, values."""
+        return probe_stats(self.backend.probe(np.asarray(points_hv, dtype=np.float64)))
+
     # -- interaction ---------------------------------------------------------------------
     def update(self, *, scene: Scene | None = None,
                material: tuple[str, dict[str, Any]] | None = None,
@@ -240,13 +244,11 @@ class Session:
 
     # -- accounting ----------------------------------------------------------------------
     @property
-    def min_radius_m(self) -> float:
-        """Smallest density-estimation radius in use (m)."""
-        from lightsim.engine.client import default_min_radius
+    def radii_m(self) -> tuple[float, float]:
+        """(min, max) density-estimation radius in use (m)."""
+        from lightsim.engine.client import effective_radii
 
-        if self.config.min_radius is not None:
-            return float(self.config.min_radius)
-        return default_min_radius(self.config, self.scene.wall)
+        return effective_radii(self.config, self.scene.wall)
 
     def emitted_per_set(self) -> dict[int, int]:
         return {s: st["emitted"] for s, st in self.backend.stats().items()}
