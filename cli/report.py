@@ -1,0 +1,70 @@
+"""``lightsim report RESULT_DIR``: regenerate plots and tables from a finished run."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from lightsim.errors import InputError
+
+
+@click.command()
+@click.argument("result_dir", required=False, type=click.Path(file_okay=False))
+@click.option("--regulation", help="Re-evaluate this rule set (must match probes.npz).")
+@click.option("--confidence", type=float, default=0.95, show_default=True,
+              help="Two-sided level of the intervals.")
+@click.option("--mount-height", type=float, default=0.65, show_default=True,
+              help="Lamp height above the road for the road view (m).")
+@click.option("--log", "log_scale", is_flag=True, help="Logarithmic colour scale in the PNG.")
+@click.option("--list-rulesets", is_flag=True, help="List the available rule sets and exit.")
+def report(result_dir: str | None, regulation: str | None, confidence: float,
+           mount_height: float, log_scale: bool, list_rulesets: bool) -> None:
+    """Rebuild wall_lux.png, isolux.png, road.png, error_vs_time.png and the regulation
+    table of RESULT_DIR from its wall_lux.exr, summary.json and probes.npz."""
+    from rich.console import Console
+
+    console = Console(width=None if sys.stdout.isatty() else 160)
+    if list_rulesets:
+        from lightsim.luminaires.regulations import list_rulesets as _list
+
+        for rs in _list():
+            click.echo(f"{rs['id']:<20} {rs.get('title', '')}  [{rs.get('path', '')}]")
+        return
+    if result_dir is None:
+        raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
+    if not 0 < confidence < 1:
+        raise InputError(f"--confidence must lie in (0, 1), got {confidence}")
+    from lightsim import report as rp
+    from lightsim.io.errorplot import error_vs_time_plot
+    from lightsim.io.exr import read_exr
+    from lightsim.io.png import write_lux_png
+    from lightsim.io.summary import read_json, write_json
+
+    out = Path(result_dir)
+    summary = read_json(out / "summary.json")
+    channels, _ = read_exr(out / "wall_lux.exr")
+    if "Y" not in channels:
+        raise InputError(f"{out / 'wall_lux.exr'} has no Y (illuminance) channel")
+    lux = channels["Y"].astype(float)
+    try:
+        wall = summary["wall"]
+    except (KeyError, TypeError):
+        raise InputError(f"{out / 'summary.json'}: no wall frame (not a lightsim result?)"
+                         ) from None
+    written = [out / "wall_lux.png"]
+    write_lux_png(out / "wall_lux.png", lux, wall, log=log_scale,
+                  title=f"{Path(summary.get('scene', {}).get('source', '')).name}: "
+                        f"{summary.get('photons', 0):,} photons")
+    error_vs_time_plot(out / "error_vs_time.png", summary.get("error_vs_time", []))
+    written.append(out / "error_vs_time.png")
+    results = None
+    if regulation or (out / rp.PROBES_FILE).exists():
+        reg = rp.recheck_from_probes(out, summary, lux, regulation, confidence)
+        summary["regulation"] = reg
+        results = reg["results"]
+        console.print(rp.format_regulation(reg))
+        write_json(out / "summary.json", summary)
+    written += rp.engineering_plots(out, lux, wall, results, mount_height)
+    click.echo("wrote " + ", ".join(str(p) for p in written))
