@@ -157,8 +157,8 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
     fd = _frame_dict(frame)
     paths = [isolux_plot(Path(out) / "isolux.png", lux, fd, results=results,
                          title="iso-lux on the screen")]
-    paths.append(road_view_plot(Path(out) / "road.png", lux, fd,
-                                mount_height_m=mount_height_m))
+    road_view_plot(Path(out) / "road.png", lux, fd, mount_height_m=mount_height_m)
+    paths.append(Path(out) / "road.png")
     return paths
 
 
