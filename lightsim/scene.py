@@ -49,6 +49,7 @@ log = logging.getLogger("lightsim.scene")
 
 SURFACE, EMITTER, WALL = "surface", "emitter", "wall"
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".stl", ".ply", ".off")
+PHOTOMETRIC_SUFFIXES = (".ies", ".ldt")
 
 
 @dataclass
@@ -82,6 +83,7 @@ class Part:
     flux_lm: float = 0.0
     emission: str = "isotropic"
     extras: dict[str, Any] = field(default_factory=dict)
+    distribution: Any = None  # CandelaGrid of a goniometric point source (IES/LDT)
 
     @property
     def triangles(self) -> np.ndarray:
@@ -424,8 +426,15 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         raise InputError(f"{path}: no such file")
     if not path.is_file():
         raise InputError(f"{path}: not a file")
+    if path.suffix.lower() in PHOTOMETRIC_SUFFIXES:
+        if filament is not None:
+            raise InputError("an IES/LDT file is its own light source: --filament makes no sense")
+        parts = [goniometric_source(path, flux)]
+        wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
+        return Scene([*parts, wall_part], frame, str(path), [], channels)
     if path.suffix.lower() not in MESH_SUFFIXES:
-        raise InputError(f"{path}: not a mesh file (expected one of {', '.join(MESH_SUFFIXES)})")
+        raise InputError(f"{path}: not a mesh or photometric file (expected one of "
+                         f"{', '.join(MESH_SUFFIXES + PHOTOMETRIC_SUFFIXES)})")
     if flux is not None and not (math.isfinite(flux) and flux > 0):
         raise InputError(f"flux must be a positive number of lumens, got {flux}")
     if emission is not None and emission not in ("isotropic", "lambertian", "collimated"):
@@ -531,6 +540,32 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
     for w in warnings:  # the CLI prints scene.warnings itself
         log.debug(w)
     return scene
+
+
+def goniometric_source(path: str | Path, flux: float | None = None,
+                       position: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Part:
+    """A point source with the intensity distribution of an IES or EULUMDAT file.
+
+    Photons leave ``position`` (m) in directions distributed like the file's candela
+    grid (Type C, lamp axes: +Z ahead, +Y up); the flux is the grid's integrated flux,
+    or ``flux`` (lm) with the distribution's shape kept.
+    """
+    from lightsim.luminaires.photometric import read_photometric
+
+    grid = read_photometric(path)
+    total = float(grid.total_flux())
+    if not total > 0:
+        raise InputError(f"{path}: the intensity distribution emits no flux")
+    if flux is not None:
+        grid = type(grid)(grid.c_deg, grid.gamma_deg, grid.candela * (flux / total),
+                          grid.lamp_lumens, dict(grid.metadata))
+        total = float(flux)
+    # a tiny tetrahedron stands for the point in size and bookkeeping; it is never traced
+    p = np.asarray(position, dtype=np.float64)
+    verts = p + 1e-6 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1.0]])
+    faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    return Part(Path(path).stem, EMITTER, verts, faces, None, Material("source", DIFFUSE),
+                flux_lm=total, emission="goniometric", distribution=grid)
 
 
 def _filament_part(bulb: str, at: tuple[float, float, float] | None,

@@ -54,7 +54,7 @@ LEDGER = ("wall", "absorbed_diffuse", "absorbed_mirror", "absorbed_volume", "esc
           "roulette", "max_depth")
 L_WALL, L_ABS_DIFF, L_ABS_MIRR, L_ABS_VOL, L_ESC, L_RR, L_MAXD = range(len(LEDGER))
 
-EMISSION_MODES = ("isotropic", "lambertian", "collimated")
+EMISSION_MODES = ("isotropic", "lambertian", "collimated", "goniometric")
 
 # photon flags
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
@@ -70,19 +70,23 @@ ALIVE, ENDED = 0, 1
 
 @dataclass
 class EmitterTable:
-    """All emitter triangles as arrays, with a flux × area CDF for sampling.
+    """All emitters as arrays: mesh triangles with a flux × area CDF, and point sources
+    with an intensity distribution (IES/LDT).
 
     Attributes
     ----------
     triangles : (E, 3, 3) float64
     normals : (E, 3) float64
-        Outward face normals (Lambertian emission).
+        Outward face normals (Lambertian and collimated emission).
     mode : (E,) int8
         0 isotropic, 1 Lambertian, 2 collimated (along the face normal: a distant source).
     cdf : (E,) float64
         Cumulative probability of emitting from each triangle.
     flux : float
-        Total luminous flux Φ (lm).
+        Total luminous flux Φ (lm) of all emitters.
+    mesh_share : float
+        Fraction of Φ that mesh emitters carry; the rest comes from ``points``.
+    points : list of (position (3,), CandelaGrid, flux lm)
     """
 
     triangles: np.ndarray
@@ -90,11 +94,16 @@ class EmitterTable:
     mode: np.ndarray
     cdf: np.ndarray
     flux: float
+    mesh_share: float = 1.0
+    points: list = field(default_factory=list)
 
     @classmethod
     def from_scene(cls, scene) -> EmitterTable:
-        tris, norms, modes, weights = [], [], [], []
+        tris, norms, modes, weights, points = [], [], [], [], []
         for p in scene.emitters:
+            if p.distribution is not None:
+                points.append((p.vertices.mean(axis=0), p.distribution, p.flux_lm))
+                continue
             t = p.triangles
             n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
             area = 0.5 * np.linalg.norm(n, axis=1)
@@ -102,11 +111,16 @@ class EmitterTable:
             norms.append(n / np.maximum(2 * area[:, None], 1e-300))
             modes.append(np.full(len(t), EMISSION_MODES.index(p.emission), np.int8))
             weights.append(p.flux_lm * area / area.sum())
-        w = np.concatenate(weights)
-        cdf = np.cumsum(w) / w.sum()
-        cdf[-1] = 1.0
-        return cls(np.concatenate(tris), np.concatenate(norms), np.concatenate(modes), cdf,
-                   float(scene.total_flux))
+        total = float(scene.total_flux)
+        if tris:
+            w = np.concatenate(weights)
+            cdf = np.cumsum(w) / w.sum()
+            cdf[-1] = 1.0
+            mesh_flux = float(w.sum())
+            return cls(np.concatenate(tris), np.concatenate(norms), np.concatenate(modes), cdf,
+                       total, mesh_flux / total, points)
+        return cls(np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0),
+                   total, 0.0, points)
 
 
 @njit(cache=True, parallel=True)
@@ -151,9 +165,35 @@ def _emit_kernel(u, tris, normals, mode, cdf):
 
 
 def emit(table: EmitterTable, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Photon origins (m) and unit directions from sample points (n, 5) in [0, 1)."""
-    return _emit_kernel(np.ascontiguousarray(points, dtype=np.float64), table.triangles,
-                        table.normals, table.mode, table.cdf)
+    """Photon origins (m) and unit directions from sample points (n, 5) in [0, 1).
+
+    Dimension 2 first chooses between mesh emitters and point sources by flux, then the
+    triangle (or the point source); its remainder is reused so the choice stays
+    stratified.
+    """
+    u = np.ascontiguousarray(points, dtype=np.float64)
+    if not table.points:
+        return _emit_kernel(u, table.triangles, table.normals, table.mode, table.cdf)
+    from lightsim.luminaires.photometric import sample_directions
+
+    origin = np.empty((len(u), 3))
+    direction = np.empty((len(u), 3))
+    share = table.mesh_share
+    mesh = u[:, 2] < share
+    if np.any(mesh):
+        um = u[mesh].copy()
+        um[:, 2] = np.minimum(um[:, 2] / share, np.nextafter(1.0, 0.0))
+        origin[mesh], direction[mesh] = _emit_kernel(um, table.triangles, table.normals,
+                                                     table.mode, table.cdf)
+    fluxes = np.array([f for _, _, f in table.points])
+    edges = share + (1.0 - share) * np.concatenate([[0.0], np.cumsum(fluxes) / fluxes.sum()])
+    for k, (pos, grid, _) in enumerate(table.points):
+        sel = (~mesh) & (u[:, 2] >= edges[k]) & ((u[:, 2] < edges[k + 1])
+                                                  | (k == len(table.points) - 1))
+        if np.any(sel):
+            origin[sel] = pos
+            direction[sel] = sample_directions(grid, u[sel, 0], u[sel, 1])[0]
+    return origin, direction
 
 
 # ------------------------------------------------------------------------------------------
