@@ -186,9 +186,11 @@ class SelectiveSampler:
         """
         L = self.n_cells
         n_ref = int(self.refined.sum())
-        extra = max(self.pass_photons - L, 0)
-        J = int(extra // n_ref) if n_ref else 0
-        n_c = np.where(self.refined, 1 + J, 1).astype(np.int64)
+        if n_ref == 0:  # nothing known yet: plain stratified sampling of every cell
+            n_c = np.full(L, max(1, self.pass_photons // L), dtype=np.int64)
+        else:
+            J = max(self.pass_photons - L, 0) // n_ref
+            n_c = np.where(self.refined, 1 + J, 1).astype(np.int64)
         cells = np.repeat(np.arange(L, dtype=np.int64), n_c)
         starts = np.cumsum(n_c) - n_c
         j = np.arange(len(cells), dtype=np.int64) - np.repeat(starts, n_c)

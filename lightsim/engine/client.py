@@ -258,7 +258,8 @@ class Client:
             self._wall_queries[s] = self.frame.to_world(hh, vv).reshape(-1, 3)
         return self._wall_queries[s]
 
-    def _camera_queries(self, s: int, camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _camera_queries(self, s: int, camera
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Diffuse points seen by the camera's pixels of set s (cached per camera)."""
         from lightsim.render.camera import eye_hits
 
@@ -271,7 +272,9 @@ class Client:
             pattern = InterleavePattern(self.config.interleave, W, H)
             rows, cols = pattern.set_pixels(s)
             o, d = camera.rays(rows, cols)
-            cache[key] = eye_hits(self.scene, self.tracer.caster, o, d, camera.max_specular)[:3]
+            pts, nrm, weight, part = eye_hits(self.scene, self.tracer.caster, o, d,
+                                              camera.max_specular)
+            cache[key] = (pts, nrm, weight, part >= 0)
         return cache[key]
 
     def render(self, image: bool = True, probes: bool = True, full_image: bool = False,
@@ -303,10 +306,12 @@ class Client:
                 est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape))
                 out["full_images"][s] = est.reshape((*hh.shape, self.channels))
             if camera is not None:
-                pts, nrm, weight = self._camera_queries(s, camera)
+                pts, nrm, weight, seen = self._camera_queries(s, camera)
                 W, H = camera.resolution
                 shape = InterleavePattern(self.config.interleave, W, H).sub_shape(s)
-                lum = weight * self._estimate(st, pts, nrm)  # L = ρ E / π, cd/m²
+                lum = np.zeros((len(pts), self.channels))
+                # L = ρ E / π (cd/m²) where the pixel sees a diffuse surface, else black
+                lum[seen] = weight[seen] * self._estimate(st, pts[seen], nrm[seen])
                 out["camera_sub_images"][s] = lum.reshape((*shape, self.channels))
             if probes and len(self._probe_points):
                 out["probes"][s] = self._estimate(
