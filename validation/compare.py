@@ -1,0 +1,417 @@
+"""Compare a photograph of a beam pattern with a simulation (``lightsim compare``).
+
+The paper (section 6.3, figure 5) puts the simulated headlight pattern beside a photo of
+the real lamp's pattern; this module makes that comparison quantitative:
+
+1. **Read** the photo as linear luminance (:func:`~lightsim.validation.photo_io.read_photo`:
+   sRGB decoding for 8/16-bit files, Rec. 709 luminance, clipped pixels) and the
+   simulation's ``wall_lux.exr`` with its wall frame.
+2. **Register** the photo to the simulated view
+   (:func:`~lightsim.validation.photo_register.register`: coarse rotation × scale search
+   with masked FFT cross-correlation of log-luminance images, then coarse-to-fine
+   ZNCC maximisation for a similarity or a homography) — or use a known transform.
+3. **Resample** the photo onto the simulation's pixel grid (anti-aliased, bilinear,
+   :func:`skimage.transform.warp`) and carry the clipped mask along.
+4. **Normalise** the exposure: fit ``P = gain·E^gamma`` (gamma only with ``fit_gamma``)
+   and express the photo in lx (:mod:`~lightsim.validation.photo_metrics`).
+5. **Score** on the overlap: ZNCC, SSIM, PSNR, NMI, relative RMSE, isolux IoU at 10/30/60 %
+   of the peak, hot-spot offset and cut-off positions in degrees.
+6. **Write** ``comparison.json``, ``overlay.png``, ``difference.png``, ``contours.png``
+   (:mod:`~lightsim.validation.photo_plots`).
+
+The transform reported maps **photo pixels to simulation pixels** (x = column, y = row,
+pixel centres at integers). Registration aligns the whole pattern, so the hot-spot offset
+and the cut-off positions measure differences in the pattern's *shape* relative to the
+rest of it, not the lamp's aim — unless ``transform`` fixes the camera geometry (e.g. from
+markers on the wall) instead of registering.
+
+Parameters
+----------
+=============  ====  ==========  ==============================================================
+name           unit  default     meaning
+=============  ====  ==========  ==============================================================
+photo          –     required    PNG, JPEG, TIFF (8/16 bit sRGB) or EXR (linear) file
+sim            –     required    result folder with ``wall_lux.exr`` (lx), or the EXR itself
+out_dir        –     required    folder for the four outputs (created)
+model          –     similarity  ``"similarity"`` or ``"homography"`` (photo taken at an angle)
+fit_gamma      –     False       also fit the tone curve's exponent
+traffic        –     "right"     side of the R112 cut-off scans
+transform      –     None        3×3 photo → simulation px matrix to use instead of registering
+max_rotation   deg   15          rotations searched (±)
+scale_range    1     (0.5, 2)    scales searched, relative to "photo width = simulation width"
+credit         –     None        attribution printed on the figures and stored in the JSON
+=============  ====  ==========  ==============================================================
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from skimage.transform import ProjectiveTransform, warp
+
+from lightsim import __version__
+from lightsim.errors import InputError
+from lightsim.io.summary import read_json, write_json
+from lightsim.validation.photo_io import PhotoImage, Simulation, load_simulation, read_photo
+from lightsim.validation.photo_metrics import (
+    HIGHER_IS_BETTER,
+    LOWER_IS_BETTER,
+    METRICS,
+    Photometric,
+    compute_metrics,
+    fit_photometric,
+    to_lux,
+)
+from lightsim.validation.photo_plots import plot_contours, plot_difference, plot_overlay
+from lightsim.validation.photo_register import (
+    Registration,
+    RegistrationOptions,
+    decompose,
+    downsample,
+    level_matrix,
+    register,
+    registration_dict,
+)
+
+__all__ = [
+    "OUTPUTS",
+    "CompareOptions",
+    "Comparison",
+    "compare_images",
+    "failed_thresholds",
+    "load_transform",
+    "parse_threshold",
+    "run_compare",
+    "warp_to_sim",
+    "write_outputs",
+]
+
+#: Files written by :func:`write_outputs`.
+OUTPUTS = ("comparison.json", "overlay.png", "difference.png", "contours.png")
+
+
+@dataclass(frozen=True)
+class CompareOptions:
+    """Settings of a comparison (see the module's parameter table)."""
+
+    model: str = "similarity"
+    fit_gamma: bool = False
+    traffic: str = "right"
+    transform: NDArray | None = None
+    registration: RegistrationOptions = field(default_factory=RegistrationOptions)
+    credit: str | None = None
+
+    def registration_options(self) -> RegistrationOptions:
+        """Registration settings with this comparison's model."""
+        return replace(self.registration, model=self.model)
+
+
+@dataclass
+class Comparison:
+    """Everything a comparison produced.
+
+    Attributes
+    ----------
+    photo : PhotoImage
+        The photo as read.
+    sim : Simulation
+        The simulation.
+    matrix : ndarray, shape (3, 3)
+        Photo px → simulation px.
+    registration : Registration or None
+        Registration details (None for a given transform).
+    photometric : Photometric
+        Fitted exposure (and gamma).
+    photo_lux : ndarray
+        Photo on the simulation grid in lx, NaN outside the photo.
+    clipped : ndarray of bool
+        Simulation pixels that see clipped photo pixels.
+    overlap : ndarray of bool
+        Simulation pixels covered by the photo.
+    metrics : dict
+        Metric name → value (``photo_metrics`` table); None where undefined.
+    details : dict
+        Hot-spot positions, cut-off messages, pixel counts.
+    seconds : float
+        Wall-clock time of registration and scoring (s).
+    """
+
+    photo: PhotoImage
+    sim: Simulation
+    matrix: NDArray
+    registration: Registration | None
+    photometric: Photometric
+    photo_lux: NDArray
+    clipped: NDArray
+    overlap: NDArray
+    metrics: dict[str, Any]
+    details: dict[str, Any]
+    seconds: float
+    options: CompareOptions = field(default_factory=CompareOptions)
+
+    def transform_dict(self) -> dict[str, Any]:
+        """Decomposition and matrix of the transform (JSON-ready)."""
+        if self.registration is not None:
+            out = registration_dict(self.registration, self.photo.shape)
+        else:
+            out = decompose(self.matrix, self.photo.shape)
+            out.update(matrix=[[float(v) for v in row] for row in self.matrix / self.matrix[2, 2]],
+                       model="given")
+        out["maps"] = "photo pixels (x = column, y = row) → simulation pixels"
+        out["overlap_fraction"] = float(self.overlap.mean())
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """The content of ``comparison.json``."""
+        return {
+            "lightsim_version": __version__,
+            "photo": {"path": self.photo.path, **self.photo.info},
+            "simulation": {"path": self.sim.source,
+                           "resolution": [int(self.sim.lux.shape[1]), int(self.sim.lux.shape[0])],
+                           "peak_lx": float(np.nanmax(self.sim.lux)), "wall": self.sim.frame},
+            "transform": self.transform_dict(),
+            "photometric": self.photometric.to_dict(),
+            "metrics": self.metrics,
+            "metric_info": {"higher_is_better": list(HIGHER_IS_BETTER),
+                            "lower_is_better": list(LOWER_IS_BETTER),
+                            "units": {"psnr_db": "dB", "hotspot_offset_deg": "deg",
+                                      "hotspot_dh_deg": "deg", "hotspot_dv_deg": "deg",
+                                      "cutoff_v_photo_deg": "deg", "cutoff_v_sim_deg": "deg",
+                                      "cutoff_offset_deg": "deg"}},
+            "details": self.details,
+            "settings": {"model": self.options.model, "fit_gamma": self.options.fit_gamma,
+                         "traffic": self.options.traffic,
+                         "given_transform": self.options.transform is not None},
+            "credit": self.options.credit,
+            "seconds": self.seconds,
+        }
+
+
+# ---------------------------------------------------------------------------------------
+# steps
+# ---------------------------------------------------------------------------------------
+
+def warp_to_sim(photo: NDArray, clipped: NDArray, matrix: NDArray, sim_shape: tuple[int, int]
+                ) -> tuple[NDArray, NDArray]:
+    """Resample the photo onto the simulation grid.
+
+    The photo is first averaged down (anti-aliasing) when its pixels are finer than the
+    simulation's by more than 1.5×, then sampled bilinearly with
+    :func:`skimage.transform.warp`.
+
+    Parameters
+    ----------
+    photo : ndarray, shape (Hp, Wp)
+        Linear photo luminance (relative).
+    clipped : ndarray of bool, shape (Hp, Wp)
+        Clipped photo pixels.
+    matrix : ndarray, shape (3, 3)
+        Photo px → simulation px.
+    sim_shape : tuple of int
+        (H, W) of the simulation.
+
+    Returns
+    -------
+    values : ndarray, shape sim_shape
+        Photo luminance per simulation pixel, NaN outside the photo.
+    clipped : ndarray of bool, shape sim_shape
+        Simulation pixels touched by a clipped photo pixel.
+    """
+    scale = decompose(matrix, photo.shape)["scale"]          # sim px per photo px
+    factor = 1.0
+    if scale < 1 / 1.5:
+        factor = float(2 ** math.floor(math.log2(1 / scale)))
+    img = downsample(photo, factor)
+    clip = downsample(clipped.astype(np.float64), factor)
+    sim_to_photo = level_matrix(factor) @ np.linalg.inv(matrix)
+    tform = ProjectiveTransform(matrix=sim_to_photo / sim_to_photo[2, 2])
+    kw = {"output_shape": sim_shape, "order": 1, "mode": "constant", "clip": False,
+          "preserve_range": True}
+    values = warp(img, tform, cval=np.nan, **kw)
+    clip_w = warp(clip, tform, cval=0.0, **kw) > 0.01
+    return values, clip_w & np.isfinite(values)
+
+
+def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions | None = None
+                   ) -> Comparison:
+    """Register, normalise and score a photo against a simulation (no files written).
+
+    Parameters
+    ----------
+    photo : PhotoImage
+        Photo as linear luminance with its clipped mask.
+    sim : Simulation
+        Simulated lux map and frame.
+    options : CompareOptions, optional
+        Model, gamma fit, traffic side, fixed transform, registration settings.
+
+    Returns
+    -------
+    Comparison
+
+    Raises
+    ------
+    InputError
+        Registration finds no overlap, or the overlap has no usable pixels.
+    """
+    opts = options or CompareOptions()
+    if opts.traffic not in ("right", "left"):
+        raise InputError(f"traffic must be 'right' or 'left', got {opts.traffic!r}")
+    t0 = time.perf_counter()
+    reg = None
+    if opts.transform is not None:
+        matrix = np.asarray(opts.transform, np.float64)
+    else:
+        reg = register(photo.luminance, ~photo.clipped, sim.lux, opts.registration_options())
+        matrix = reg.matrix
+    values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
+    overlap = np.isfinite(values) & np.isfinite(sim.lux)
+    if overlap.sum() < max(25, 0.005 * overlap.size):
+        raise InputError("no overlap between the photo and the simulation after registration")
+    full_scale = 1.0 if photo.encoding.startswith("srgb") else math.inf
+    phot = fit_photometric(values, sim.lux, overlap & ~clip_w, opts.fit_gamma,
+                           full_scale=full_scale)
+    photo_lux = np.where(overlap, to_lux(np.nan_to_num(values), phot), np.nan)
+    metrics, details = compute_metrics(photo_lux, sim.lux, overlap, clip_w, sim.frame,
+                                       phot.clip_lx, opts.traffic,
+                                       reg.blur_px if reg is not None else 0.0)
+    return Comparison(photo, sim, matrix, reg, phot, photo_lux, clip_w, overlap, metrics,
+                      details, time.perf_counter() - t0, opts)
+
+
+def write_outputs(result: Comparison, out_dir: str | os.PathLike) -> dict[str, Path]:
+    """Write ``comparison.json`` and the three figures into ``out_dir`` (created).
+
+    Returns
+    -------
+    dict
+        File name → path written.
+    """
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
+    m = result.metrics
+    fmt = {k: ("–" if m.get(k) is None else f"{m[k]:.3f}") for k in ("zncc", "ssim", "iou_30")}
+    title = (f"{Path(result.photo.path).name} vs {Path(result.sim.source).parent.name or 'sim'}:"
+             f" ZNCC {fmt['zncc']}, SSIM {fmt['ssim']}, IoU30 {fmt['iou_30']}")
+    credit = result.options.credit
+    sim, frame = result.sim.lux, result.sim.frame
+    paths = {
+        "overlay.png": plot_overlay(out / "overlay.png", result.photo_lux, sim, frame, title,
+                                    credit),
+        "difference.png": plot_difference(out / "difference.png", result.photo_lux, sim,
+                                          frame, result.clipped, credit),
+        "contours.png": plot_contours(out / "contours.png", result.photo_lux, sim, frame,
+                                      credit=credit),
+    }
+    write_json(out / "comparison.json", result.to_json())
+    paths["comparison.json"] = out / "comparison.json"
+    return paths
+
+
+def run_compare(photo_path: str | os.PathLike, sim_path: str | os.PathLike,
+                out_dir: str | os.PathLike, options: CompareOptions | None = None
+                ) -> Comparison:
+    """Read the photo and the simulation, compare them and write the outputs.
+
+    Parameters
+    ----------
+    photo_path : path-like
+        The photo.
+    sim_path : path-like
+        Result folder or ``wall_lux.exr``.
+    out_dir : path-like
+        Output folder.
+    options : CompareOptions, optional
+        Comparison settings.
+
+    Returns
+    -------
+    Comparison
+    """
+    sim = load_simulation(sim_path)
+    photo = read_photo(photo_path)
+    result = compare_images(photo, sim, options)
+    write_outputs(result, out_dir)
+    return result
+
+
+# ---------------------------------------------------------------------------------------
+# helpers for scripts
+# ---------------------------------------------------------------------------------------
+
+def load_transform(path: str | os.PathLike) -> NDArray:
+    """Read a 3×3 photo → simulation matrix from JSON.
+
+    Accepts a ``comparison.json`` (``transform.matrix``), a synthetic photo's
+    ``.truth.json`` or any JSON object with ``matrix``.
+
+    Raises
+    ------
+    InputError
+        Missing file, no matrix, or not an invertible 3×3 matrix.
+    """
+    doc = read_json(path)
+    if isinstance(doc, dict) and isinstance(doc.get("transform"), dict):
+        doc = doc["transform"]
+    raw = doc.get("matrix") if isinstance(doc, dict) else None
+    try:
+        m = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        m = np.zeros(0)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-12:
+        raise InputError(f"{path}: no invertible 3×3 'matrix' (photo → simulation pixels)")
+    return m / m[2, 2]
+
+
+def parse_threshold(text: str) -> tuple[str, float]:
+    """``"zncc=0.9"`` → ``("zncc", 0.9)``; the name must be a known metric.
+
+    Raises
+    ------
+    InputError
+        Malformed text or unknown metric.
+    """
+    name, sep, value = str(text).partition("=")
+    name = name.strip()
+    if not sep or name not in METRICS:
+        raise InputError(f"expected METRIC=VALUE with METRIC one of {', '.join(METRICS)}; "
+                         f"got {text!r}")
+    try:
+        number = float(value)
+    except ValueError:
+        raise InputError(f"threshold for {name} is not a number: {value!r}") from None
+    if not math.isfinite(number):
+        raise InputError(f"threshold for {name} must be finite, got {value!r}")
+    return name, number
+
+
+def failed_thresholds(metrics: dict[str, Any], below: list[tuple[str, float]],
+                      above: list[tuple[str, float]] | None = None) -> list[str]:
+    """Messages for metrics below their ``below`` or above their ``above`` limits.
+
+    An undefined metric (None) fails its threshold.
+    """
+    fails = []
+    for name, limit in below:
+        v = metrics.get(name)
+        if v is None:
+            fails.append(f"{name} is undefined (required ≥ {limit:g})")
+        elif v < limit:
+            fails.append(f"{name} = {v:.4g} is below {limit:g}")
+    for name, limit in above or []:
+        v = metrics.get(name)
+        if v is None:
+            fails.append(f"{name} is undefined (required ≤ {limit:g})")
+        elif v > limit:
+            fails.append(f"{name} = {v:.4g} is above {limit:g}")
+    return fails

@@ -1,0 +1,483 @@
+"""A synthetic camera: "photograph" a simulated wall lux map with a known transform.
+
+:func:`render_photo` looks at the wall as a camera would and :func:`write_photo` saves the
+picture with a sidecar ``<name>.truth.json`` holding the true 3×3 transform from photo
+pixels to simulation pixels, so a registration can be checked against the truth.
+:func:`lowbeam_lux` makes a realistic synthetic passing-beam pattern (for tests and
+examples until a simulation is at hand) and :func:`write_result` saves any lux map as a
+result folder that ``lightsim compare`` and ``lightsim photo`` read.
+
+Camera model, in order
+    1. **Geometry**: the wall image is turned counter-clockwise by ``rotate_deg``,
+       magnified by ``scale`` (photo px per simulation px), moved by ``shift_px`` from the
+       photo's centre, then seen at an angle: a camera yawed by ``tilt_deg`` about the
+       vertical axis (homography ``K·R_y·K⁻¹`` with focal length ``focal_px``, re-centred so
+       the photo's centre stays put; positive tilt makes the right-hand side of the wall
+       look larger). Photo pixels outside the simulated wall see 0 lx.
+    2. **Vignetting**: × (1 − ``vignetting``·(r / r_corner)²), r from the photo's centre.
+    3. **Optics blur**: Gaussian, σ = ``blur_px`` photo px.
+    4. **Exposure**: x = E·2^``exposure_ev`` / (``saturate``·E_max), i.e. full scale at
+       ``saturate`` × the simulation's peak; without ``saturate`` full scale is 1.05·E_max
+       (nothing clips).
+    5. **Noise**: Gaussian with σ(x) = ``noise``·√(x + 0.01) (shot noise plus a read-noise
+       floor of ``noise``/10), then clipping to [0, 1].
+    6. **Tone curve**: sRGB OETF by default, or x^(1/``gamma``).
+    7. **Quantisation**: ``bits`` (8 or 16) per channel; grey written as R = G = B. EXR
+       output skips 6 and 7 and stores the linear, clipped x.
+
+Parameters
+----------
+=============  ====  ===========  ============================================================
+name           unit  default      meaning
+=============  ====  ===========  ============================================================
+rotate_deg     deg   0            camera roll: pattern turned counter-clockwise in the photo
+scale          1     1            magnification, photo px per simulation px
+shift_px       px    (0, 0)       pattern moved right/down from the photo's centre
+tilt_deg       deg   0            camera yaw about the vertical axis (perspective)
+focal_px       px    1.4·width    focal length used for the tilt
+size           px    sim size     photo size (W, H)
+blur_px        px    0            Gaussian optics blur σ
+noise          1     0            noise σ at full scale (fraction of full scale)
+vignetting     1     0            light fall-off in the corners (0–1)
+gamma          1     None (sRGB)  tone curve x^(1/gamma) instead of the sRGB curve
+exposure_ev    EV    0            exposure change (+1 = twice as bright)
+saturate       1     None         full scale at this fraction of the peak (hotspot clips)
+bits           bit   8            8 or 16 per channel (PNG/TIFF; JPEG is always 8)
+seed           –     0            noise seed
+=============  ====  ===========  ============================================================
+
+Low-beam pattern (:class:`LowBeam`, angles in degrees on the wall, lux at the wall):
+a narrow hot spot below H-V right of V-V, a wider spread and a broad foreground lobe, all
+cut by the cut-off: log10 E falls by ``cutoff_decades`` along a tanh of half-width
+``cutoff_width_deg`` centred on ``cutoff_v_deg`` left of the elbow, a line that rises at
+``step_angle_deg`` (15°) on the traffic side up to ``step_rise_deg`` higher (the dark
+region above keeps 10^−``cutoff_decades`` of the light, like scattered glare); optionally
+a smooth photon-noise-like texture (relative standard deviation ``texture``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import gaussian_filter, map_coordinates
+
+from lightsim.errors import InputError
+from lightsim.io.atomic import atomic_path
+from lightsim.io.summary import write_json
+from lightsim.luminaires.regulations.units import WallFrame, wall_m_from_deg
+from lightsim.validation.photo_io import srgb_encode
+from lightsim.validation.photo_png16 import write_png16
+from lightsim.validation.photo_register import apply_matrix, decompose
+
+__all__ = [
+    "CameraSettings",
+    "LowBeam",
+    "SyntheticPhoto",
+    "camera_matrix",
+    "lowbeam_lux",
+    "render_photo",
+    "truth_path",
+    "wall_frame",
+    "write_photo",
+    "write_result",
+]
+
+PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
+
+
+# ---------------------------------------------------------------------------------------
+# synthetic low beam
+# ---------------------------------------------------------------------------------------
+
+def wall_frame(resolution: tuple[int, int] = (400, 160), size_m: tuple[float, float] = (30.0, 12.0),
+               distance_m: float = 25.0) -> dict[str, Any]:
+    """A wall frame (``docs/conventions.md``) centred on H-V, like ``lightsim simulate``'s.
+
+    Parameters
+    ----------
+    resolution : tuple of int, default (400, 160)
+        (W, H) in pixels.
+    size_m : tuple of float, default (30, 12)
+        Wall width and height in m.
+    distance_m : float, default 25
+        Lamp → wall distance in m.
+    """
+    w, h = size_m
+    return {"centre": [0.0, 0.0, float(distance_m)], "h_axis": [-1.0, 0.0, 0.0],
+            "v_axis": [0.0, 1.0, 0.0], "normal": [0.0, 0.0, -1.0],
+            "h_range_m": [-w / 2, w / 2], "v_range_m": [-h / 2, h / 2],
+            "distance_m": float(distance_m), "resolution": [int(resolution[0]), int(resolution[1])]}
+
+
+@dataclass(frozen=True)
+class LowBeam:
+    """Shape of a synthetic passing beam (degrees on the wall; see the module docstring)."""
+
+    peak_lx: float = 40.0
+    hotspot_deg: tuple[float, float] = (1.5, -1.3)
+    hotspot_sigma_deg: tuple[float, float] = (2.5, 0.9)
+    spread_sigma_deg: tuple[float, float] = (10.0, 2.2)
+    spread_level: float = 0.35
+    foreground_sigma_deg: tuple[float, float] = (25.0, 4.0)
+    foreground_level: float = 0.08
+    cutoff_v_deg: float = -0.57
+    elbow_h_deg: float = 0.0
+    step_angle_deg: float = 15.0
+    step_rise_deg: float = 1.0
+    cutoff_width_deg: float = 0.1
+    cutoff_decades: float = 2.3
+    traffic: str = "right"
+    texture: float = 0.0
+    seed: int = 0
+
+
+def _gauss(h: NDArray, v: NDArray, centre: tuple[float, float], sigma: tuple[float, float]
+           ) -> NDArray:
+    return np.exp(-0.5 * (((h - centre[0]) / sigma[0]) ** 2 + ((v - centre[1]) / sigma[1]) ** 2))
+
+
+def lowbeam_lux(frame: Any, beam: LowBeam | None = None) -> NDArray:
+    """Synthetic passing-beam illuminance on the wall.
+
+    Parameters
+    ----------
+    frame : mapping or WallFrame
+        Wall frame (pixel grid and distance).
+    beam : LowBeam, optional
+        Pattern shape (defaults: right-hand traffic, 40 lx peak at 25 m).
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        Illuminance in lx, row 0 on top.
+    """
+    b = beam or LowBeam()
+    wf = WallFrame.from_any(frame)
+    h = wf.h_deg()[None, :] * (1.0 if b.traffic == "right" else -1.0)
+    v = wf.v_deg()[:, None]
+    core = (_gauss(h, v, b.hotspot_deg, b.hotspot_sigma_deg)
+            + b.spread_level * _gauss(h, v, (0.0, b.hotspot_deg[1] - 0.3), b.spread_sigma_deg)
+            + b.foreground_level * _gauss(h, v, (0.0, -4.0), b.foreground_sigma_deg))
+    rise = np.clip((h - b.elbow_h_deg) * math.tan(math.radians(b.step_angle_deg)),
+                   0.0, b.step_rise_deg)
+    edge = b.cutoff_v_deg + rise
+    # the shield's shadow: log E drops by ``cutoff_decades`` across the edge (a tanh in
+    # log space, as measured cut-offs look), steepest exactly at the edge
+    cut = 10.0 ** (-0.5 * b.cutoff_decades * (1.0 + np.tanh((v - edge) / b.cutoff_width_deg)))
+    intensity = core * cut
+    hm = wall_m_from_deg(wf.h_deg(), wf.distance_m)[None, :]
+    vm = wall_m_from_deg(wf.v_deg(), wf.distance_m)[:, None]
+    d = wf.distance_m
+    lux = intensity * d**3 / (d**2 + hm**2 + vm**2) ** 1.5    # E ∝ I·cos θ / r²
+    if b.texture > 0:
+        rng = np.random.default_rng(b.seed)
+        field = gaussian_filter(rng.standard_normal(lux.shape), 1.0)
+        lux = lux * np.maximum(1.0 + b.texture * field / max(field.std(), 1e-12), 0.0)
+    return lux * (b.peak_lx / lux.max())
+
+
+def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
+                 description: str = "synthetic pattern", extra: dict[str, Any] | None = None
+                 ) -> Path:
+    """Save a lux map as a result folder (``wall_lux.exr`` + ``summary.json``).
+
+    Parameters
+    ----------
+    folder : path-like
+        Output folder (created).
+    lux : ndarray, shape (H, W)
+        Illuminance in lx.
+    frame : dict
+        Wall frame (``docs/conventions.md``).
+    description : str
+        Stored as ``source`` in the EXR and ``scene.source`` in the summary.
+    extra : dict, optional
+        More summary entries (e.g. the pattern's parameters).
+
+    Returns
+    -------
+    Path
+        The folder.
+    """
+    from lightsim.io.exr import wall_metadata, write_exr
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = wall_metadata(frame, units="lx", quantity="illuminance", source=description)
+    write_exr(out / "wall_lux.exr", {"Y": np.asarray(lux, np.float32)}, meta)
+    summary = {"wall": frame, "scene": {"source": description, "synthetic": True},
+               "units": {"illuminance": "lx", "length": "m", "angle": "deg"},
+               "lux": {"max_lx": float(np.nanmax(lux))}, **(extra or {})}
+    write_json(out / "summary.json", summary)
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# camera
+# ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """How the synthetic camera sees the wall (units in the module's table)."""
+
+    rotate_deg: float = 0.0
+    scale: float = 1.0
+    shift_px: tuple[float, float] = (0.0, 0.0)
+    tilt_deg: float = 0.0
+    focal_px: float | None = None
+    size: tuple[int, int] | None = None
+    blur_px: float = 0.0
+    noise: float = 0.0
+    vignetting: float = 0.0
+    gamma: float | None = None
+    exposure_ev: float = 0.0
+    saturate: float | None = None
+    bits: int = 8
+    seed: int = 0
+
+    def check(self) -> None:
+        """Raise :class:`InputError` for impossible settings."""
+        if not (self.scale > 0 and math.isfinite(self.scale)):
+            raise InputError(f"--scale must be positive, got {self.scale}")
+        if not abs(self.tilt_deg) < 60:
+            raise InputError(f"--tilt must be within ±60°, got {self.tilt_deg}")
+        if self.blur_px < 0 or self.noise < 0:
+            raise InputError("--blur and --noise must not be negative")
+        if not 0 <= self.vignetting < 1:
+            raise InputError(f"--vignetting must be in [0, 1), got {self.vignetting}")
+        if self.gamma is not None and not self.gamma > 0:
+            raise InputError(f"--gamma must be positive, got {self.gamma}")
+        if self.saturate is not None and not 0 < self.saturate <= 1:
+            raise InputError(f"--saturate must be in (0, 1], got {self.saturate}")
+        if self.bits not in (8, 16):
+            raise InputError(f"--bits must be 8 or 16, got {self.bits}")
+        if self.size is not None and min(self.size) < 16:
+            raise InputError(f"photo size must be at least 16×16 pixels, got {self.size}")
+
+
+@dataclass
+class SyntheticPhoto:
+    """A rendered photo and its truth.
+
+    Attributes
+    ----------
+    linear : ndarray, shape (H, W)
+        Linear sensor value after noise and clipping (1 = full scale).
+    encoded : ndarray, shape (H, W)
+        Tone-mapped value in [0, 1] before quantisation (equals ``linear`` for EXR use).
+    matrix : ndarray, shape (3, 3)
+        True transform photo px → simulation px.
+    full_scale_lx : float
+        Illuminance (lx) that reaches full scale at the photo's centre.
+    settings : CameraSettings
+        The camera used.
+    """
+
+    linear: NDArray
+    encoded: NDArray
+    matrix: NDArray
+    full_scale_lx: float
+    settings: CameraSettings
+
+    def truth(self) -> dict[str, Any]:
+        """JSON-ready truth: matrix, its decomposition, exposure and camera settings."""
+        shape = self.linear.shape
+        out = decompose(self.matrix, shape)
+        out.update({"matrix": [[float(x) for x in row] for row in self.matrix / self.matrix[2, 2]],
+                    "maps": "photo pixels (x = column, y = row) → simulation pixels",
+                    "photo_size": [int(shape[1]), int(shape[0])],
+                    "full_scale_lx": self.full_scale_lx,
+                    "clipped_fraction": float((self.linear >= 1.0).mean()),
+                    "camera": asdict(self.settings)})
+        return out
+
+
+def _tilt_homography(tilt_deg: float, focal_px: float, centre: tuple[float, float]) -> NDArray:
+    """Image-to-image homography of a camera yawed by ``tilt_deg``, centre kept fixed."""
+    cx, cy = centre
+    k = np.array([[focal_px, 0, cx], [0, focal_px, cy], [0, 0, 1.0]])
+    a = math.radians(tilt_deg)
+    r = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    h = k @ r @ np.linalg.inv(k)
+    px, py = apply_matrix(h, np.array(cx), np.array(cy))
+    back = np.array([[1.0, 0, cx - float(px)], [0, 1.0, cy - float(py)], [0, 0, 1.0]])
+    return back @ h
+
+
+def camera_matrix(sim_shape: tuple[int, int], photo_shape: tuple[int, int],
+                  cam: CameraSettings) -> NDArray:
+    """True transform photo pixels → simulation pixels for ``cam``.
+
+    Parameters
+    ----------
+    sim_shape, photo_shape : tuple of int
+        (H, W) of the simulation and of the photo in pixels.
+    cam : CameraSettings
+        Geometry settings (rotate, scale, shift, tilt, focal length).
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Homogeneous matrix, normalised so that the last element is 1.
+    """
+    hs, ws = sim_shape
+    hp, wp = photo_shape
+    cs = ((ws - 1) / 2.0, (hs - 1) / 2.0)
+    cp = ((wp - 1) / 2.0, (hp - 1) / 2.0)
+    a = math.radians(cam.rotate_deg)
+    c, s = math.cos(a) * cam.scale, math.sin(a) * cam.scale
+    # counter-clockwise on screen (y down): (1, 0) → (cos, −sin)
+    sim_to_photo = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1.0]])
+    sim_to_photo = (np.array([[1.0, 0, cp[0] + cam.shift_px[0]], [0, 1.0, cp[1] + cam.shift_px[1]],
+                              [0, 0, 1.0]])
+                    @ sim_to_photo @ np.array([[1.0, 0, -cs[0]], [0, 1.0, -cs[1]], [0, 0, 1.0]]))
+    if cam.tilt_deg:
+        focal = cam.focal_px if cam.focal_px else 1.4 * wp
+        sim_to_photo = _tilt_homography(cam.tilt_deg, focal, cp) @ sim_to_photo
+    m = np.linalg.inv(sim_to_photo)
+    return m / m[2, 2]
+
+
+def _sample_wall(lux: NDArray, matrix: NDArray, photo_shape: tuple[int, int]) -> NDArray:
+    """Illuminance (lx) each photo pixel sees, anti-aliased when the wall is demagnified."""
+    hp, wp = photo_shape
+    yy, xx = np.mgrid[0:hp, 0:wp].astype(np.float64)
+    sx, sy = apply_matrix(matrix, xx, yy)
+    step = decompose(matrix, photo_shape)["scale"]            # sim px per photo px
+    src = np.nan_to_num(np.asarray(lux, np.float64), nan=0.0)
+    if step > 1.0:
+        src = gaussian_filter(src, (step - 1.0) / 2.0, mode="nearest")
+    hs, ws = src.shape
+    # the wall image covers pixel edges −0.5 … W − 0.5; beyond them the photo sees 0 lx
+    inside = (np.isfinite(sx) & np.isfinite(sy) & (sx >= -0.5) & (sx <= ws - 0.5)
+              & (sy >= -0.5) & (sy <= hs - 0.5))
+    out = map_coordinates(src, [np.where(inside, sy, 0.0), np.where(inside, sx, 0.0)],
+                          order=1, mode="nearest")
+    return np.where(inside, out, 0.0)
+
+
+def render_photo(lux: NDArray, cam: CameraSettings | None = None) -> SyntheticPhoto:
+    """Photograph a wall lux map with the synthetic camera.
+
+    Parameters
+    ----------
+    lux : ndarray, shape (Hs, Ws)
+        Simulated illuminance in lx.
+    cam : CameraSettings, optional
+        Camera (module table); default: an ideal camera, same size, sRGB, 8 bit.
+
+    Returns
+    -------
+    SyntheticPhoto
+        Linear and encoded images and the true transform.
+
+    Raises
+    ------
+    InputError
+        Impossible settings or a map without light.
+    """
+    cam = cam or CameraSettings()
+    cam.check()
+    lux = np.asarray(lux, np.float64)
+    e_max = float(np.nanmax(lux)) if np.any(np.isfinite(lux)) else 0.0
+    if not e_max > 0:
+        raise InputError("the simulation has no light to photograph")
+    photo_shape = (cam.size[1], cam.size[0]) if cam.size else lux.shape
+    m = camera_matrix(lux.shape, photo_shape, cam)
+    e = _sample_wall(lux, m, photo_shape)
+    hp, wp = photo_shape
+    if cam.vignetting:
+        yy, xx = np.mgrid[0:hp, 0:wp].astype(np.float64)
+        r2 = ((xx - (wp - 1) / 2) ** 2 + (yy - (hp - 1) / 2) ** 2) / (((wp - 1) / 2) ** 2
+                                                                    + ((hp - 1) / 2) ** 2)
+        e = e * (1.0 - cam.vignetting * r2)
+    if cam.blur_px:
+        e = gaussian_filter(e, cam.blur_px, mode="nearest")
+    full_scale = (cam.saturate if cam.saturate else 1.05) * e_max / 2.0**cam.exposure_ev
+    x = e / full_scale
+    if cam.noise:
+        rng = np.random.default_rng(cam.seed)
+        x = x + cam.noise * np.sqrt(np.maximum(x, 0.0) + 0.01) * rng.standard_normal(x.shape)
+    x = np.clip(x, 0.0, 1.0)
+    encoded = srgb_encode(x) if cam.gamma is None else x ** (1.0 / cam.gamma)
+    return SyntheticPhoto(x, encoded, m, float(full_scale), cam)
+
+
+def truth_path(photo_path: str | os.PathLike) -> Path:
+    """Sidecar of a synthetic photo: ``photo.png`` → ``photo.truth.json``."""
+    p = Path(photo_path)
+    return p.with_name(p.stem + ".truth.json")
+
+
+def _quantise(encoded: NDArray, bits: int) -> NDArray:
+    full = 255 if bits == 8 else 65535
+    codes = np.round(np.clip(encoded, 0.0, 1.0) * full).astype(np.uint8 if bits == 8 else
+                                                                np.uint16)
+    return np.repeat(codes[..., None], 3, axis=-1)
+
+
+def _write_raster(path: Path, codes: NDArray, suffix: str) -> None:
+    import imageio.v3 as iio  # a dependency of scikit-image
+
+    with atomic_path(path) as tmp:
+        if suffix in (".jpg", ".jpeg"):
+            iio.imwrite(tmp, codes, extension=suffix, quality=95)
+        else:
+            iio.imwrite(tmp, codes, extension=suffix)
+
+
+def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
+                extra: dict[str, Any] | None = None) -> tuple[Path, Path]:
+    """Write the photo (format from the suffix) and its ``.truth.json`` sidecar atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.png``, ``.jpg``/``.jpeg``, ``.tif``/``.tiff`` (sRGB-encoded, 8/16 bit RGB) or
+        ``.exr`` (linear float R, G, B).
+    photo : SyntheticPhoto
+        From :func:`render_photo`.
+    extra : dict, optional
+        More entries for the sidecar (e.g. the simulation's path).
+
+    Returns
+    -------
+    tuple of Path
+        The photo and the sidecar.
+
+    Raises
+    ------
+    InputError
+        Unknown suffix, or a 16-bit JPEG.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in PHOTO_SUFFIXES:
+        raise InputError(f"photo output must end in one of {', '.join(PHOTO_SUFFIXES)}, "
+                         f"got {p.name}")
+    bits = photo.settings.bits
+    if suffix in (".jpg", ".jpeg") and bits != 8:
+        raise InputError("JPEG photos are 8-bit; use --bits 8 or write PNG/TIFF")
+    if suffix == ".exr":
+        from lightsim.io.exr import write_exr
+
+        lin = photo.linear.astype(np.float32)
+        write_exr(p, {"R": lin, "G": lin, "B": lin}, {"units": "relative (1 = full scale)"})
+    else:
+        codes = _quantise(photo.encoded, bits)
+        if suffix == ".png" and bits == 16:
+            write_png16(p, codes)
+        else:
+            _write_raster(p, codes, suffix)
+    truth = photo.truth()
+    truth["photo"] = p.name
+    truth.update(extra or {})
+    side = truth_path(p)
+    write_json(side, truth)
+    return p, side
