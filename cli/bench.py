@@ -17,6 +17,7 @@ BENCHMARKS: dict[str, str] = {
     "filter": "bench_filter",
     "frames": "bench_frames",
     "plan": "bench_plan",
+    "spt": "bench_spt",
     "scaling": "bench_scaling",
 }
 
