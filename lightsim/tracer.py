@@ -123,6 +123,21 @@ class EmitterTable:
                    total, 0.0, points)
 
 
+@njit(cache=True, inline="always")
+def _cosine_direction(nx, ny, nz, u1, u2):
+    """Cosine-distributed unit direction about the unit normal n (Lambert)."""
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    lx, ly, lz = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
+    # orthonormal basis around n without branches on the axes (Duff et al. 2017)
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (lx * (1.0 + sign * nx * nx * a) + ly * b + lz * nx,
+            lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny,
+            lx * (-sign * nx) + ly * (-ny) + lz * nz)
+
+
 @njit(cache=True, parallel=True)
 def _emit_kernel(u, tris, normals, mode, cdf):
     n = u.shape[0]
@@ -143,18 +158,9 @@ def _emit_kernel(u, tris, normals, mode, cdf):
             for j in range(3):
                 direction[i, j] = normals[k, j]
         elif mode[k] == 1:
-            r = math.sqrt(u[i, 0])
-            lx, ly, lz = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u[i, 0]))
-            nx, ny, nz = normals[k, 0], normals[k, 1], normals[k, 2]
-            # orthonormal basis around n (Duff et al. 2017)
-            sign = 1.0 if nz >= 0.0 else -1.0
-            a = -1.0 / (sign + nz)
-            bb = nx * ny * a
-            t1 = (1.0 + sign * nx * nx * a, sign * bb, -sign * nx)
-            t2 = (bb, sign + ny * ny * a, -ny)
-            direction[i, 0] = lx * t1[0] + ly * t2[0] + lz * nx
-            direction[i, 1] = lx * t1[1] + ly * t2[1] + lz * ny
-            direction[i, 2] = lx * t1[2] + ly * t2[2] + lz * nz
+            dx, dy, dz = _cosine_direction(normals[k, 0], normals[k, 1], normals[k, 2],
+                                           u[i, 0], u[i, 1])
+            direction[i, 0], direction[i, 1], direction[i, 2] = dx, dy, dz
         else:
             z = 1.0 - 2.0 * u[i, 0]
             r = math.sqrt(max(0.0, 1.0 - z * z))
@@ -266,18 +272,8 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
                 rho = mat_value[m, c]
                 ledger[j, L_ABS_DIFF, c] += (1.0 - rho) * power[i, c]
                 power[i, c] *= rho
-            # cosine-weighted direction about the facing normal
-            u1 = uniform(key, ctr + np.uint64(2))
-            u2 = uniform(key, ctr + np.uint64(3))
-            r = math.sqrt(u1)
-            phi = 2.0 * math.pi * u2
-            lx, ly, lz = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
-            sign = 1.0 if fgz >= 0.0 else -1.0
-            a = -1.0 / (sign + fgz)
-            bb = fgx * fgy * a
-            nx_ = lx * (1.0 + sign * fgx * fgx * a) + ly * bb + lz * fgx
-            ny_ = lx * (sign * bb) + ly * (sign + fgy * fgy * a) + lz * fgy
-            nz_ = lx * (-sign * fgx) + ly * (-fgy) + lz * fgz
+            nx_, ny_, nz_ = _cosine_direction(fgx, fgy, fgz, uniform(key, ctr + np.uint64(2)),
+                                              uniform(key, ctr + np.uint64(3)))
             flags[i] |= F_DIFFUSE
             out_side = 1.0
         else:
