@@ -238,6 +238,10 @@ def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
         # can land just outside a neighbouring face at an edge and leak out of a box)
         b1 = min(max(float(bu[i]), 0.0), 1.0)
         b2 = min(max(float(bv[i]), 0.0), 1.0 - b1)
+        # pulled strictly inside the triangle: a point on an edge lies on the plane of the
+        # adjacent face too, and the normal offset alone would not clear that face
+        b1 = (b1 + 1e-6) / (1.0 + 3e-6)
+        b2 = (b2 + 1e-6) / (1.0 + 3e-6)
         b0 = 1.0 - b1 - b2
         px = b0 * tri_v[k, 0, 0] + b1 * tri_v[k, 1, 0] + b2 * tri_v[k, 2, 0]
         py = b0 * tri_v[k, 0, 1] + b1 * tri_v[k, 1, 1] + b2 * tri_v[k, 2, 1]

@@ -40,13 +40,6 @@ def test_no_photon_on_wall_with_bins():
     assert len(checks) == 5 and not _failures(checks), _failures(checks)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "engine bug: photonmap KdTree/grid/hash estimate() validates query normals "
-    "(common.query_normals) before returning zeros for an empty map, so a set that has "
-    "no wall photon yet raises InputError('query normals given but the photon map stores "
-    "no photon normals') and the whole kNN/radius Session crashes. Fix: return the empty "
-    "estimate before query_normals (has_normals is unknown for an empty map), or skip "
-    "empty maps in Client._estimate."))
 @pytest.mark.skipif(not knn_available(), reason="photon map not installed")
 @pytest.mark.parametrize("photons", [0, 32])
 def test_knn_session_without_wall_photons(photons):
@@ -68,15 +61,6 @@ def test_knn_session_without_wall_photons(photons):
         assert np.all(np.isfinite(run.lux))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "engine bug: a photon that hits a concave edge (or corner) of a closed mesh gets its "
-    "new origin on, or just behind, the adjacent face's plane: the hit point is rebuilt "
-    "on the edge and offset along the hit face's normal only. The next ray then meets "
-    "the adjacent face from behind and the diffuse bounce sends it out of the box "
-    "(8 % of photons aimed at edges, 19 % at corners; about 1 in 2 million in a normal "
-    "box run). Fix in tracer._interact: pull the hit point into the triangle before the "
-    "normal offset (clamp the barycentrics to ≥ δ ~ 1e-6, renormalised), so the origin "
-    "lies strictly inside every face plane meeting at the edge."))
 @pytest.mark.parametrize("corners", [False, True])
 def test_photons_hitting_box_edges_stay_inside(corners):
     from lightsim.sampling import photon_keys

@@ -240,6 +240,8 @@ class Client:
             col = np.clip(np.floor((h - self.frame.h_range_m[0]) / dh).astype(np.int64), 0, W - 1)
             row = np.clip(np.floor((self.frame.v_range_m[1] - v) / dv).astype(np.int64), 0, H - 1)
             return st.bins[row, col] / (st.emitted * dh * dv)
+        if len(st.photonmap) == 0:  # no photon on the wall yet (or ever)
+            return np.zeros((len(points), self.channels))
         cfg = self.config
         if cfg.estimator == "radius":  # the IGI baseline: one fixed radius
             radius, floor = self.min_radius, 0.0
