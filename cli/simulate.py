@@ -125,6 +125,10 @@ class _Progress:
 @click.option("--interleave", "-M", type=int, default=4, show_default=True,
               help="M: M×M interleave sets.")
 @click.option("--filter", "filter_size", type=int, help="Box filter size n (default M).")
+@click.option("--final", type=click.Choice(["pooled", "interleaved"]), default="pooled",
+              show_default=True,
+              help="Written lux map: every set at every pixel (full resolution, honest "
+                   "error) or the paper's interleaved + box-filtered frame (fast, blurred).")
 @click.option("--frame-photons", type=int, default=200_000, show_default=True,
               help="Photons per frame (all sets).")
 @click.option("--structure", type=click.Choice(["middle", "median", "grid-lo", "grid-hi"]),
@@ -162,7 +166,8 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
              target_error: float | None, seed: int, out_dir: str, resolution: str,
              wall_distance: float, wall_size: str, estimator: str, k: int,
              max_radius: float | None, min_radius: float | None, kernel: str, interleave: int,
-             filter_size: int | None, frame_photons: int, structure: str, spt: bool | None,
+             filter_size: int | None, final: str, frame_photons: int, structure: str,
+             spt: bool | None,
              flux: float | None, emission: str | None, filament: str | None,
              filament_at: str | None, filament_axis: str, part_material: tuple[str, ...],
              regulation: str | None, traffic: str, aim: bool, ies_out: str | None,
@@ -187,7 +192,8 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
             raise InputError(f"--workers must be ≥ 0, got {workers}")
         config: dict[str, Any] = {
             "seed": seed, "interleave": interleave, "estimator": estimator, "k": k,
-            "kernel": kernel, "filter_size": filter_size, "frame_photons": frame_photons,
+            "kernel": kernel, "filter_size": filter_size, "final": final,
+            "frame_photons": frame_photons,
             "structure": structure, "spt": spt, "min_radius": min_radius,
             "max_radius": max_radius}
         opts = SimulateOptions(

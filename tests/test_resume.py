@@ -75,7 +75,7 @@ def test_interrupt_then_resume_matches_uninterrupted(lamp, tmp_path, sig):
     assert a.max() > 0 and np.array_equal(a, b)
     sa = json.loads((out / "summary.json").read_text())
     sb = json.loads((ref / "summary.json").read_text())
-    assert sa["photons"] == sb["photons"] == 1200000
+    assert sa["photons"] == sb["photons"] >= 1200000  # SPT passes vary in size
     assert sa["energy_lm"]["wall"] == pytest.approx(sb["energy_lm"]["wall"], rel=1e-12)
 
 

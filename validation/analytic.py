@@ -302,7 +302,9 @@ def estimator_radius(case: an.AnalyticScene, config: RunConfig, photons_per_set:
     diag = math.hypot(np.ptp(frame.h_range_m), np.ptp(frame.v_range_m))
     ladder = base * 2.0 ** (np.arange(-8, 64) / 2.0)
     ladder = ladder[ladder <= 2 * diag]
-    k = float(config.k)
+    from lightsim.engine.client import set_k
+
+    k = float(set_k(config))
     rows = []
     for r in ladder:
         acc = np.zeros(hh.shape)
@@ -350,7 +352,7 @@ def expected_image(case: an.AnalyticScene, config: RunConfig, photons_per_set: f
     acc = np.zeros(hh.shape)
     for (dx, dy), wi in zip(nodes, w):
         acc += wi * efn(hh + r * dx, vv + r * dy)
-    if config.interleave > 1 and config.filter_n > 1:
+    if config.final == "interleaved" and config.interleave > 1 and config.filter_n > 1:
         acc = np.asarray(box_filter(acc, config.filter_n), dtype=np.float64)
     regime = ((rk > radii[0]) & (rk < radii[1]) if config.estimator == "knn"
               else np.zeros(hh.shape, bool))
@@ -435,7 +437,7 @@ def run_image_case(case: an.AnalyticScene, config: RunConfig, photons: int,
     union = np.zeros(hh.shape, bool)
     for m in masks:
         union |= m
-    if config.estimator != "bin" and config.interleave > 1:
+    if config.estimator != "bin" and config.final == "interleaved" and config.interleave > 1:
         # the image's box filter reaches filter_n pixels around a region: probe those too
         from scipy.ndimage import binary_dilation
 
@@ -516,7 +518,10 @@ def region_checks(run: ImageRun, name: str, regions: Sequence[tuple[str, np.ndar
     assert run.exact_px is not None
     S = run.n_sets
     q = student_q(S)
-    interleaved = run.config.estimator != "bin" and S > 1
+    # the pooled image is the mean of every set at every pixel: the plain spread of the sets'
+    # region means is its σ; the interleaved image needs the lattice-aware σ
+    interleaved = (run.config.estimator != "bin" and run.config.final == "interleaved"
+                   and S > 1)
     out = []
     for label, mask in regions:
         if not mask.any():
@@ -561,7 +566,8 @@ def _regions(case: an.AnalyticScene, config: RunConfig, photons: int,
     if config.estimator == "bin":
         return masks
     r, _ = estimator_radius(case, config, photons / config.n_sets, radii)
-    margin = 2 * r + config.filter_n * max(frame.pixel_size_m)
+    window = config.filter_n if config.final == "interleaved" else 1
+    margin = 2 * r + window * max(frame.pixel_size_m)
     inside = ((hh - margin > frame.h_range_m[0]) & (hh + margin < frame.h_range_m[1])
               & (vv - margin > frame.v_range_m[0]) & (vv + margin < frame.v_range_m[1]))
     return [(label, m & inside) for label, m in masks]
@@ -594,7 +600,9 @@ def check_image_case(case: an.AnalyticScene, config: RunConfig, photons: int
     if config.estimator != "bin":
         exp_img, regime = expected_image(case, config, run.photons / run.n_sets,
                                          (run.min_radius, run.max_radius))
-    knn_k = config.k if config.estimator == "knn" else None
+    from lightsim.engine.client import set_k
+
+    knn_k = set_k(config) if config.estimator == "knn" else None
     checks = region_checks(run, name, regions, exp_img, knn_k, regime)
     if case.name == "lambertian" and extra[0][1].any():
         # luminance from the illuminance on the axis: E_axis = π L a² / (a² + d²)

@@ -66,19 +66,32 @@ class SetState:
             self.emitted_power = np.zeros(self.channels)
 
 
-def default_min_radius(config: RunConfig, frame: WallFrame) -> float:
-    """Radius (m) of a disk with the area of the n×n box-filter window on the wall."""
+def default_min_radius(config: RunConfig, frame: WallFrame, mode: str | None = None) -> float:
+    """Radius (m) of a disk with the area of one pixel (pooled) or of the n×n filter window
+    (interleaved) on the wall."""
     dh, dv = frame.pixel_size_m
-    n = config.filter_n
+    n = 1 if (mode or config.final) == "pooled" else config.filter_n
     return math.sqrt(n * n * dh * dv / math.pi)
 
 
-def effective_radii(config: RunConfig, frame: WallFrame) -> tuple[float, float]:
-    """(min, max) density-estimation radius in m after applying the automatic defaults."""
+def effective_radii(config: RunConfig, frame: WallFrame, mode: str | None = None
+                    ) -> tuple[float, float]:
+    """(min, max) density-estimation radius in m for ``mode`` (default: the final image's)
+    after applying the automatic defaults."""
+    mode = mode or config.final
     r_min = (config.min_radius if config.min_radius is not None
-             else default_min_radius(config, frame))
-    r_max = config.max_radius if config.max_radius is not None else 2.0 * r_min
+             else default_min_radius(config, frame, mode))
+    factor = 4.0 if mode == "pooled" else 2.0
+    r_max = config.max_radius if config.max_radius is not None else factor * r_min
     return r_min, max(r_max, r_min)
+
+
+def set_k(config: RunConfig, mode: str | None = None) -> int:
+    """Photons per kNN estimate of one set: k, or ⌈k/M²⌉ when M² sets are pooled per pixel
+    (so the pooled estimate rests on about k photons)."""
+    if (mode or config.final) == "pooled":
+        return max(4, -(-config.k // config.n_sets))
+    return config.k
 
 
 class Client:
@@ -118,7 +131,8 @@ class Client:
                                    caster=caster)
         W, H = self.frame.resolution
         self.pattern = InterleavePattern(self.config.interleave, W, H)
-        self.min_radius, self.max_radius = effective_radii(self.config, self.frame)
+        self._radii = {m: effective_radii(self.config, self.frame, m)
+                       for m in ("pooled", "interleaved")}
         self._wall_queries: dict[int, np.ndarray] = {}
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._probe_points = self.frame.to_world(self.probes_hv[:, 0], self.probes_hv[:, 1])
@@ -229,8 +243,13 @@ class Client:
             st.photonmap.add(rec.position, rec.normal, rec.power)
 
     # -- estimates -----------------------------------------------------------------------
-    def _estimate(self, st: SetState, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        """Illuminance (lx) of one set at world points with the given surface normals."""
+    def _estimate(self, st: SetState, points: np.ndarray, normals: np.ndarray,
+                  mode: str | None = None) -> np.ndarray:
+        """Illuminance (lx) of one set at world points with the given surface normals.
+
+        ``mode`` ``pooled`` (every set at every pixel) or ``interleaved`` (one set per
+        pixel, box-filtered afterwards) picks the radii and k; default: the final image's.
+        """
         if st.emitted == 0:
             return np.zeros((len(points), self.channels))
         if st.bins is not None:
@@ -242,14 +261,15 @@ class Client:
             return st.bins[row, col] / (st.emitted * dh * dv)
         if len(st.photonmap) == 0:  # no photon on the wall yet (or ever)
             return np.zeros((len(points), self.channels))
-        cfg = self.config
-        if cfg.estimator == "radius":  # the IGI baseline: one fixed radius
-            radius, floor = self.min_radius, 0.0
+        mode = mode or self.config.final
+        r_min, r_max = self._radii[mode]
+        if self.config.estimator == "radius":  # the IGI baseline: one fixed radius
+            radius, floor = r_min, 0.0
         else:
-            radius, floor = self.max_radius, self.min_radius
+            radius, floor = r_max, r_min
         res = st.photonmap.estimate(points.astype(np.float32), normals.astype(np.float32),
-                                    k=cfg.k, max_radius=radius, min_radius=floor,
-                                    kernel=cfg.kernel)
+                                    k=set_k(self.config, mode), max_radius=radius,
+                                    min_radius=floor, kernel=self.config.kernel)
         return np.asarray(res.E, dtype=np.float64) / st.emitted
 
     def _wall_points(self, s: int) -> np.ndarray:
@@ -299,13 +319,14 @@ class Client:
             if image:
                 pts = self._wall_points(s)
                 shape = self.pattern.sub_shape(s)
-                est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape))
+                est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape),
+                                     "interleaved")
                 out["sub_images"][s] = est.reshape((*shape, self.channels))
             if full_image:
                 h_all, v_all = self.frame.pixel_centres()
                 hh, vv = np.meshgrid(h_all, v_all)
                 pts = self.frame.to_world(hh, vv).reshape(-1, 3)
-                est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape))
+                est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape), "pooled")
                 out["full_images"][s] = est.reshape((*hh.shape, self.channels))
             if camera is not None:
                 pts, nrm, weight, seen = self._camera_queries(s, camera)
@@ -313,7 +334,8 @@ class Client:
                 shape = InterleavePattern(self.config.interleave, W, H).sub_shape(s)
                 lum = np.zeros((len(pts), self.channels))
                 # L = ρ E / π (cd/m²) where the pixel sees a diffuse surface, else black
-                lum[seen] = weight[seen] * self._estimate(st, pts[seen], nrm[seen])
+                lum[seen] = weight[seen] * self._estimate(st, pts[seen], nrm[seen],
+                                                          "interleaved")
                 out["camera_sub_images"][s] = lum.reshape((*shape, self.channels))
             if probes and len(self._probe_points):
                 out["probes"][s] = self._estimate(

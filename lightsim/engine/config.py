@@ -11,16 +11,25 @@ parameter               unit   default     meaning
                                            (fixed-radius hashed grid, the IGI baseline)
 ``k``                   –      64          photons per kNN estimate
 ``min_radius``          m      auto        smallest kNN radius; auto = the radius of a disk
-                                           with the area of the n×n filter window (finer
-                                           detail cannot survive the filter anyway); it
-                                           also caps a point focus at a finite estimate
-``max_radius``          m      auto        largest kNN radius; auto = 2 × min radius, so
-                                           light is never smeared more than about one
-                                           filter window into dark regions (glare points
-                                           next to a cut-off stay honest); ``inf`` = the
-                                           paper's unlimited kNN. The ``radius``
-                                           estimator's fixed radius is the min radius
+                                           with the area of one pixel (pooled) or of the
+                                           n×n filter window (interleaved: finer detail
+                                           cannot survive the filter); it also caps a point
+                                           focus at a finite estimate
+``max_radius``          m      auto        largest kNN radius; auto = 4 × (pooled) or 2 ×
+                                           (interleaved) the min radius, so light is not
+                                           smeared far into dark regions (glare points next
+                                           to a cut-off stay honest); ``inf`` = the paper's
+                                           unlimited kNN. The ``radius`` estimator's fixed
+                                           radius is the min radius
 ``kernel``              –      ``box``     ``box``, ``cone`` or ``epanechnikov`` weights
+``final``               –      ``pooled``  the written lux map: ``pooled`` = every set
+                                           estimates every pixel (kNN with ⌈k/M²⌉ photons
+                                           per set, radius ≥ the pixel's own disk), the
+                                           mean is the estimate of one map of all photons
+                                           at pixel resolution and the sets' spread its
+                                           honest error; ``interleaved`` = the paper's
+                                           frame (each set its pixels, then the box
+                                           filter: M² times cheaper, blurred over n×n)
 ``filter_size``         px     M           box filter window n×n (paper: 3×3 … 6×6)
 ``frame_photons``       –      200 000     photons shot per frame over all sets
 ``structure``           –      ``middle``  photon-map index: ``middle`` (unbalanced kd-tree,
@@ -59,6 +68,7 @@ class RunConfig:
     min_radius: float | None = None
     kernel: str = "box"
     filter_size: int | None = None
+    final: str = "pooled"
     frame_photons: int = 200_000
     structure: str = "middle"
     spt: bool | None = None
@@ -86,6 +96,8 @@ class RunConfig:
             raise InputError(f"max radius must be positive, got {self.max_radius}")
         if self.min_radius is not None and not (0 <= self.min_radius < math.inf):
             raise InputError(f"min radius must be ≥ 0 and finite, got {self.min_radius}")
+        if self.final not in ("pooled", "interleaved"):
+            raise InputError(f"final must be 'pooled' or 'interleaved', got '{self.final}'")
         if self.filter_size is not None and not 1 <= self.filter_size <= 32:
             raise InputError(f"filter size must be between 1 and 32, got {self.filter_size}")
         if self.frame_photons < self.n_sets:

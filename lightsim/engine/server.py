@@ -136,12 +136,18 @@ class Session:
                                        else time.perf_counter() - self._t0)
 
     # -- frames --------------------------------------------------------------------------
-    def frame(self, image: bool = True, shoot: bool = True, camera=None) -> Estimate:
+    def frame(self, image: bool = True, shoot: bool = True, camera=None,
+              mode: str = "interleaved") -> Estimate:
         """One frame: every client shoots (unless ``shoot`` is False) and renders.
 
-        ``camera`` (a :class:`~lightsim.render.camera.PinholeCamera`) adds a luminance
+        ``mode`` ``interleaved`` is the paper's frame (each set its own pixels, then the box
+        filter); ``pooled`` asks every set for every pixel (the final, full-resolution lux
+        map; M² times the queries). The binning estimator always pools. ``camera`` (a
+        :class:`~lightsim.render.camera.PinholeCamera`) adds an interleaved luminance
         image (cd/m²) in ``Estimate.camera``; the plan must include the camera pass.
         """
+        if mode not in ("interleaved", "pooled"):
+            raise ValueError(f"mode must be 'interleaved' or 'pooled', got {mode!r}")
         if camera is not None and not self.plan.camera:
             raise InputError("this session was planned without a camera view "
                              "(create it with camera=True)")
@@ -153,7 +159,7 @@ class Session:
             timings["shoot"] = time.perf_counter() - t0
             self.frames += 1
         t1 = time.perf_counter()
-        full = self.config.estimator == "bin"
+        full = self.config.estimator == "bin" or mode == "pooled"
         results = self.backend.render(image=image and not full, probes=True,
                                       full_image=image and full, camera=camera)
         timings["render"] = time.perf_counter() - t1
@@ -301,7 +307,7 @@ class Session:
             if (target_error is not None and est.rel_error is not None
                     and self.frames >= min_frames and est.rel_error <= target_error):
                 break
-        final = self.frame(image=True, shoot=False)
+        final = self.frame(image=True, shoot=False, mode=self.config.final)
         if self.frames and (not self.log or self.log[-1].get("photons") != final.photons):
             self.log.append({"seconds": final.seconds, "photons": final.photons,
                              "rel_error": final.rel_error, "frames": self.frames})
