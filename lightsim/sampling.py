@@ -38,7 +38,7 @@ below the cell level, each pass is an unbiased estimate of the whole pattern. Le
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 PRIMES = np.array([2, 3, 5, 7, 11], dtype=np.int64)
 N_DIMS = 5
@@ -132,12 +132,12 @@ def _radical_inverse(index: np.int64, d: int, perms: np.ndarray) -> float:
     return min(x, 1.0 - 1.1102230246251565e-16)
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def halton_points(indices: np.ndarray, perms: np.ndarray) -> np.ndarray:
     """Scrambled Halton points, (n, N_DIMS) float64 in [0, 1), for int64 ``indices``."""
     n = indices.shape[0]
     out = np.empty((n, N_DIMS), dtype=np.float64)
-    for i in range(n):
+    for i in prange(n):
         for d in range(N_DIMS):
             out[i, d] = _radical_inverse(indices[i], d, perms)
     return out

@@ -471,6 +471,7 @@ class PhotonTracer:
                       scene.tri_part.astype(np.int32), scene.tri_is_wall.astype(np.bool_))
         self._mats = (mats.kind, mats.value, mats.ior, mats.sigma)
         self.eps_floor = 0.01 * scene.scale
+        self.scene_extent = scene.extent  # no ray origin lies farther out than the geometry
 
     def trace_points(self, points: np.ndarray, keys: np.ndarray, weight: np.ndarray | None = None,
                      group: np.ndarray | None = None, n_groups: int = 1,
@@ -541,7 +542,13 @@ class PhotonTracer:
         lies; such rays are re-cast from a little further along.
         """
         prim, tfar, bu, bv = self.caster.intersect(o, d)
-        t_min = 4 * 3.814697265625e-06 * (np.abs(o).max(axis=1) + self.eps_floor)
+        # a cheap global bound first: only rays that hit very close need the per-ray test
+        bound = 4 * 3.814697265625e-06 * (self.scene_extent + self.eps_floor)
+        near = np.flatnonzero((prim >= 0) & (tfar < bound))
+        if len(near) == 0:
+            return prim, tfar, bu, bv
+        t_min = np.full(len(o), -1.0)
+        t_min[near] = 4 * 3.814697265625e-06 * (np.abs(o[near]).max(axis=1) + self.eps_floor)
         tri, fn = self._geom[0], self._geom[1]
         for _ in range(3):
             close = np.flatnonzero((prim >= 0) & (tfar < t_min))
