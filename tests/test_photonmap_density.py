@@ -141,9 +141,10 @@ def test_point_focus_gives_capped_value(structure: str) -> None:
     capped = n * float(np.float32(PHI)) / (math.pi * r_min**2)  # Φ is stored as float32
     np.testing.assert_allclose(res.E[:2, 0], capped, rtol=1e-9)
     assert res.r[0] == r_min and res.count[0] == n
-    # 0.5 m away: the k nearest (all tied) lie at r_k = 0.5 m > min_radius
+    # 0.5 m away: the k nearest (all tied) lie at r_k = 0.5 m > min_radius; the k-th on the
+    # circle counts half in the box sum
     assert res.r[2] == pytest.approx(0.5, rel=1e-6) and res.count[2] == K
-    assert res.E[2, 0] == pytest.approx(K * PHI / (math.pi * 0.25), rel=1e-5)
+    assert res.E[2, 0] == pytest.approx((K - 0.5) * PHI / (math.pi * 0.25), rel=1e-5)
     # without a floor the estimate is still finite: r never drops below r_floor
     bare = pm.estimate(q[:1], qn[:1], k=K)
     floor = R_FLOOR_REL * 25.0

@@ -112,7 +112,7 @@ def test_stl_without_emitter_takes_a_filament(tmp_path):
 
 @pytest.mark.parametrize("case,match", [
     ("missing", "no such file"),
-    ("notmesh", "not a mesh file"),
+    ("notmesh", "not a mesh or photometric file"),
     ("truncated", "truncated"),
     ("garbage", "not a glTF file"),
     ("nan", "NaN/inf"),

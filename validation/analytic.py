@@ -33,12 +33,10 @@ How the allowed deviation is set
   exact region mean is the bias allowance. The radius is the expected one: r_k holds k
   photons of one set on average (the exact photon density integrated over the disk, so
   that beside a beam edge the neighbours come from the bright side), clipped to the
-  Session's [min_radius, max_radius]; the fixed min_radius for ``radius``. Where r_k exceeds
-  min_radius (and stays below max_radius) the kNN estimate counts the k-th neighbour,
-  which lies on the disk's boundary: for independent photons E[k / (π r_k²)] =
-  λ k / (k − 1), so a further E/(k − 1) is allowed there (quasi-random photons show
-  less; at min_radius or max_radius the estimate is a fixed-radius count, unbiased for
-  the disk mean).
+  Session's [min_radius, max_radius]; the fixed min_radius for ``radius``. The kNN
+  estimate counts the k-th neighbour (on the disk's boundary) half, which keeps it within
+  ±1/(2k) of the disk mean whether the photons are independent or evenly stratified; the
+  fixed-radius counts at min_radius or max_radius are unbiased for the disk mean.
 * **positions** (the ring caustic's cusp): the local shape of the nephroid: a pixel row
   of height h holds both folds of the cusp up to u = (3R/4)(h/2R)^{2/3} beyond it, so
   the row's maximum lies between R/2 and R/2 + u, ± half a pixel (plus the kernel radius
@@ -329,9 +327,8 @@ def estimator_radius(case: an.AnalyticScene, config: RunConfig, photons_per_set:
 
 
 def expected_image(case: an.AnalyticScene, config: RunConfig, photons_per_set: float,
-                   radii: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """What a density estimator measures on average, (H, W) lx, and where the kNN
-    boundary bias applies (min_radius < r_k < max_radius), (H, W) bool.
+                   radii: tuple[float, float]) -> np.ndarray:
+    """What a density estimator measures on average, (H, W) lx.
 
     E is averaged over the kernel's disk at the expected radius (288-point rule), then
     box-filtered like the image. For ``bin`` it is the exact pixel mean. ``radii`` are
@@ -342,8 +339,8 @@ def expected_image(case: an.AnalyticScene, config: RunConfig, photons_per_set: f
     frame = case.frame
     assert case.exact is not None
     if config.estimator == "bin":
-        return an.pixel_average(case.exact, frame), np.zeros(frame.resolution[::-1], bool)
-    r, rk = estimator_radius(case, config, photons_per_set, radii)
+        return an.pixel_average(case.exact, frame)
+    r, _ = estimator_radius(case, config, photons_per_set, radii)
     efn, _ = _model_functions(case)
     h, v = frame.pixel_centres()
     hh, vv = np.meshgrid(h, v)
@@ -354,9 +351,7 @@ def expected_image(case: an.AnalyticScene, config: RunConfig, photons_per_set: f
         acc += wi * efn(hh + r * dx, vv + r * dy)
     if config.final == "interleaved" and config.interleave > 1 and config.filter_n > 1:
         acc = np.asarray(box_filter(acc, config.filter_n), dtype=np.float64)
-    regime = ((rk > radii[0]) & (rk < radii[1]) if config.estimator == "knn"
-              else np.zeros(hh.shape, bool))
-    return acc, regime
+    return acc
 
 
 # ------------------------------------------------------------------------------------------
@@ -508,12 +503,9 @@ def budget_check(name: str, energy: dict[str, float]) -> Check:
 
 
 def region_checks(run: ImageRun, name: str, regions: Sequence[tuple[str, np.ndarray]],
-                  expected_img: np.ndarray | None = None, knn_k: int | None = None,
-                  knn_regime: np.ndarray | None = None) -> list[Check]:
+                  expected_img: np.ndarray | None = None) -> list[Check]:
     """One check per region: exact region mean vs the image's region mean.
 
-    ``knn_regime`` (H, W) bool marks pixels where the expected r_k exceeds min_radius
-    (there the k/(k − 1) allowance applies).
     """
     assert run.exact_px is not None
     S = run.n_sets
@@ -544,12 +536,6 @@ def region_checks(run: ImageRun, name: str, regions: Sequence[tuple[str, np.ndar
             blur = abs(float(expected_img[mask].mean()) - exact)
             bias += blur
             note += f"; blur allowance {blur:.3g} lx"
-        if knn_k is not None and knn_k > 1 and knn_regime is not None:
-            # only where r_k > min_radius: below it the estimate is a fixed-radius count
-            kb = float(np.abs(run.exact_px[mask] * knn_regime[mask]).mean()) / (knn_k - 1)
-            if kb > 0:
-                bias += kb
-                note += f"; k/(k−1) allowance {kb:.3g} lx"
         out.append(Check(name, label, exact, measured, "lx", se, q, bias, note=note,
                          details=details))
     return out
@@ -596,17 +582,14 @@ def check_image_case(case: an.AnalyticScene, config: RunConfig, photons: int
     regions = _regions(case, config, photons, session_radii(case, config))
     extra = _extra_regions(case)
     run = run_image_case(case, config, photons, [m for _, m in regions + extra])
-    exp_img = regime = None
+    exp_img = None
     if config.estimator != "bin":
-        exp_img, regime = expected_image(case, config, run.photons / run.n_sets,
-                                         (run.min_radius, run.max_radius))
-    from lightsim.engine.client import set_k
-
-    knn_k = set_k(config) if config.estimator == "knn" else None
-    checks = region_checks(run, name, regions, exp_img, knn_k, regime)
+        exp_img = expected_image(case, config, run.photons / run.n_sets,
+                                 (run.min_radius, run.max_radius))
+    checks = region_checks(run, name, regions, exp_img)
     if case.name == "lambertian" and extra[0][1].any():
         # luminance from the illuminance on the axis: E_axis = π L a² / (a² + d²)
-        rc = region_checks(run, name, extra, exp_img, knn_k, regime)[0]
+        rc = region_checks(run, name, extra, exp_img)[0]
         a, d = case.params["disk_radius_m"], case.params["distance_m"]
         L = case.extra["luminance"]
         scale = L / float(rc.expected)

@@ -87,10 +87,12 @@ def effective_radii(config: RunConfig, frame: WallFrame, mode: str | None = None
 
 
 def set_k(config: RunConfig, mode: str | None = None) -> int:
-    """Photons per kNN estimate of one set: k, or ⌈k/M²⌉ when M² sets are pooled per pixel
-    (so the pooled estimate rests on about k photons)."""
-    if (mode or config.final) == "pooled":
-        return max(4, -(-config.k // config.n_sets))
+    """Photons per kNN estimate of one set (k in both modes).
+
+    Pooling M² sets with ⌈k/M²⌉ photons each would rest on about k photons, but a kNN
+    estimate with few photons is biased by the treatment of the k-th one (±1/(2k)), so
+    every set keeps the full k; the radius bounds keep the blur in check.
+    """
     return config.k
 
 

@@ -23,11 +23,10 @@ parameter               unit   default     meaning
                                            radius is the min radius
 ``kernel``              –      ``box``     ``box``, ``cone`` or ``epanechnikov`` weights
 ``final``               –      ``pooled``  the written lux map: ``pooled`` = every set
-                                           estimates every pixel (kNN with ⌈k/M²⌉ photons
-                                           per set, radius ≥ the pixel's own disk), the
-                                           mean is the estimate of one map of all photons
-                                           at pixel resolution and the sets' spread its
-                                           honest error; ``interleaved`` = the paper's
+                                           estimates every pixel (radius ≥ the pixel's own
+                                           disk), the mean is the estimate at pixel
+                                           resolution and the sets' spread its honest
+                                           error; ``interleaved`` = the paper's
                                            frame (each set its pixels, then the box
                                            filter: M² times cheaper, blurred over n×n)
 ``filter_size``         px     M           box filter window n×n (paper: 3×3 … 6×6)

@@ -49,7 +49,10 @@ Semantics
   ``r_floor = 2⁻²⁰·max(1 m, largest |coordinate|)`` (≈ 8 float32 ulps of the positions), so
   E stays finite even for millions of coincident photons with ``min_radius = 0``.
 * **Kernels** (d = photon distance):
-  box E = ΣΦ / (πr²); cone E = ΣΦ(1 − d/r) / ((1 − 2/3)πr²);
+  box E = ΣΦ / (πr²) — when r = r_k the k-th photon, which lies on the circle, counts
+  half: counting it fully overestimates by k/(k − 1) for independent photons, leaving it
+  out underestimates by (k − 1)/k for evenly stratified (quasi-random) ones; half keeps
+  either within ±1/(2k); cone E = ΣΦ(1 − d/r) / ((1 − 2/3)πr²);
   Epanechnikov E = ΣΦ·2(1 − d²/r²) / (πr²). Sums are accumulated in float64.
 * ``hash`` — a fixed radius R = ``max_radius`` (must be finite), k and ``min_radius`` are
   ignored, r = R.
