@@ -7,38 +7,21 @@ with ``--json FILE``.
 
 from __future__ import annotations
 
-import importlib
-
 import click
 
+from lightsim.cli.main import LazyGroup
+
 BENCHMARKS: dict[str, str] = {
-    "tracer": "bench_tracer",
-    "photonmap": "bench_photonmap",
-    "filter": "bench_filter",
-    "frames": "bench_frames",
-    "plan": "bench_plan",
-    "spt": "bench_spt",
-    "scaling": "bench_scaling",
+    "tracer": "bench_tracer:command",
+    "photonmap": "bench_photonmap:command",
+    "filter": "bench_filter:command",
+    "frames": "bench_frames:command",
+    "plan": "bench_plan:command",
+    "spt": "bench_spt:command",
+    "scaling": "bench_scaling:command",
 }
 
 
-class _LazyBench(click.Group):
-    def list_commands(self, ctx: click.Context) -> list[str]:
-        return sorted(BENCHMARKS)
-
-    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        module_name = BENCHMARKS.get(cmd_name)
-        if module_name is None:
-            return None
-        try:
-            module = importlib.import_module(f"lightsim.cli.{module_name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"lightsim.cli.{module_name}":
-                return None
-            raise
-        return module.command
-
-
-@click.group(cls=_LazyBench)
+@click.group(cls=LazyGroup, lazy_commands=BENCHMARKS)
 def bench() -> None:
     """Benchmarks (paper tables) with baselines measured in the same run."""

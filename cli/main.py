@@ -29,13 +29,22 @@ COMMANDS: dict[str, str] = {
 
 
 class LazyGroup(click.Group):
-    """A group that imports a sub-command's module only when it is used."""
+    """A group that imports a sub-command's module only when it is used.
+
+    ``lazy_commands`` maps a command name to ``"module:attribute"`` (modules relative to
+    ``lightsim.cli``); a module that does not exist yet hides its command.
+    """
+
+    def __init__(self, *args: object, lazy_commands: dict[str, str] | None = None,
+                 **kwargs: object) -> None:
+        super().__init__(*args, **kwargs)
+        self.lazy_commands = dict(lazy_commands or {})
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return sorted(COMMANDS)
+        return sorted(self.lazy_commands)
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        target = COMMANDS.get(cmd_name)
+        target = self.lazy_commands.get(cmd_name)
         if target is None:
             return None
         module_name, attr = target.split(":")
@@ -48,7 +57,8 @@ class LazyGroup(click.Group):
         return getattr(module, attr)
 
 
-@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=LazyGroup, lazy_commands=COMMANDS,
+             context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="lightsim")
 def cli() -> None:
     """Simulate and check automotive headlight beam patterns with photon mapping."""
