@@ -16,9 +16,12 @@ from lightsim.validation.bench.table import print_table, write_json
 @click.option("--frames", type=int, default=5, show_default=True)
 @click.option("--resolution", default="640x256", show_default=True)
 @click.option("--address", help="Ray cluster address (default: a local Ray runtime).")
+@click.option("--threads-per-worker", type=int, default=1, show_default=True,
+              help="Threads of each worker (0 = all cores shared among the workers).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
 def command(scene_file: str | None, workers: str, frame_photons: int, accumulate: int,
-            frames: int, resolution: str, address: str | None, json_path: str | None) -> None:
+            frames: int, resolution: str, address: str | None, threads_per_worker: int,
+            json_path: str | None) -> None:
     """Interaction and walkthrough frames/s per worker count, with bytes per frame."""
     from lightsim.cli.bench_tracer import example_headlight
     from lightsim.scene import load_scene
@@ -29,7 +32,7 @@ def command(scene_file: str | None, workers: str, frame_photons: int, accumulate
     scene = load_scene(path, resolution=(w, h))
     counts = tuple(int(x) for x in workers.split(","))
     rows = bench_scaling(scene, counts, frame_photons=frame_photons, accumulate=accumulate,
-                         frames=frames, address=address)
+                         frames=frames, address=address, threads=threads_per_worker or None)
     print_table(f"scaling: {path} at {w}x{h}", rows)
     if json_path:
         write_json(json_path, "scaling", rows, {"scene": path, "resolution": [w, h]})

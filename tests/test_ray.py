@@ -45,8 +45,13 @@ def test_backends_identical_and_actor_fault_replayed(tmp_path):
                 est = s.run(photons=160_000)
                 images[workers] = est.lux
                 out[f"energy{workers}"] = s.energy()["wall"]
-        # a fault: kill one actor's process after the second frame
+        # an interaction change, then a fault: kill one actor's process after the second
+        # frame; the replacement must replay the change and the frames
+        with Session(scene(), cfg, workers=0) as s:
+            s.update(material=("reflector", {"reflectance": 0.6}))
+            images["changed"] = s.run(photons=160_000).lux
         with Session(scene(), cfg, workers=2) as s:
+            s.update(material=("reflector", {"reflectance": 0.6}))
             killed = []
             def cb(est):
                 if s.frames == 2 and not killed:
@@ -61,6 +66,8 @@ def test_backends_identical_and_actor_fault_replayed(tmp_path):
             out["bytes"] = s.backend.bytes_last_frame
         for k, img in images.items():
             out[f"same_{k}"] = bool(np.array_equal(img, images[0]))
+        out["same_fault"] = bool(np.array_equal(images["fault"], images["changed"]))
+        out["changed_differs"] = not np.array_equal(images["changed"], images[0])
         out["lit"] = float(images[0].max())
         print("RESULT " + json.dumps(out))
     """))
@@ -73,6 +80,7 @@ def test_backends_identical_and_actor_fault_replayed(tmp_path):
     assert out["energy0"] == out["energy1"] == out["energy2"]
     assert out["restarts"] >= 1 and out["killed"][0] not in out["new_pids"]
     assert out["same_fault"], "the run with a killed actor must end with the same image"
+    assert out["changed_differs"]
     assert out["bytes"] > 0
 
 

@@ -96,6 +96,46 @@ def set_k(config: RunConfig, mode: str | None = None) -> int:
     return config.k
 
 
+def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
+    """Apply interaction changes to a scene: returns (new scene, geometry changed).
+
+    Changes: ``("scene", Scene)``, ``("material", part, {"ior"|"reflectance"|"albedo"|
+    "rgb"|"sigma": value})``, ``("transform", part, 4×4)``, ``("light", 4×4)`` (moves
+    every emitter; emitters are not traced, so the embree scene stays).
+    """
+    from dataclasses import replace as dc_replace
+
+    from lightsim.errors import InputError
+
+    geometry = False
+    for change in changes:
+        kind = change[0]
+        if kind == "scene":
+            scene, geometry = change[1], True
+        elif kind == "material":
+            _, name, values = change
+            part = next((p for p in scene.parts if p.name == name), None)
+            if part is None:
+                raise InputError(f"no part named '{name}'")
+            kw: dict[str, Any] = {}
+            if "ior" in values:
+                kw["ior"] = float(values["ior"])
+            for key in ("reflectance", "albedo", "rgb"):
+                if key in values:
+                    kw["rgb"] = np.broadcast_to(np.asarray(values[key], float), (3,)).copy()
+            if "sigma" in values:
+                kw["sigma"] = np.broadcast_to(np.asarray(values["sigma"], float), (3,)).copy()
+            scene = scene.replace_part(name, material=dc_replace(part.material, **kw))
+        elif kind == "transform":
+            scene, geometry = scene.transform_part(change[1], change[2]), True
+        elif kind == "light":
+            for p in scene.emitters:
+                scene = scene.transform_part(p.name, change[1])
+        else:
+            raise ValueError(f"unknown change {kind!r}")
+    return scene, geometry
+
+
 class Client:
     """Holds a group of interleave sets and computes their part of every frame.
 
@@ -169,6 +209,11 @@ class Client:
         caster = None if geometry_changed else self.tracer.caster
         self._set_scene(scene, caster)
         self.reset()
+
+    def apply(self, changes: list[tuple]) -> None:
+        """Apply interaction changes (see :func:`apply_changes`) and discard the photons."""
+        scene, geometry = apply_changes(self.scene, changes)
+        self.update(scene, geometry)
 
     # -- shooting ------------------------------------------------------------------------
     def shoot(self) -> dict[str, float]:
@@ -342,6 +387,9 @@ class Client:
             if probes and len(self._probe_points):
                 out["probes"][s] = self._estimate(
                     st, self._probe_points, np.broadcast_to(normal, self._probe_points.shape))
+        # float32 over the wire (the lux map is float32 anyway): half the bytes per frame
+        for key in ("sub_images", "full_images", "camera_sub_images", "probes"):
+            out[key] = {s: v.astype(np.float32) for s, v in out[key].items()}
         out["seconds"] = time.perf_counter() - t0
         return out
 

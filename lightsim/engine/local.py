@@ -21,6 +21,10 @@ class LocalBackend:
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
                  assignment: list[list[int]], probes_hv: np.ndarray) -> None:
+        if config.threads:  # numba's pool is per process: honour an explicit thread count
+            import numba
+
+            numba.set_num_threads(max(1, min(config.threads, numba.config.NUMBA_NUM_THREADS)))
         self.clients = [Client(scene, config, plan, sets, probes_hv)
                         for sets in assignment if sets]
 
@@ -36,9 +40,9 @@ class LocalBackend:
             out.update(c.probe(points_hv))
         return dict(sorted(out.items()))
 
-    def update(self, scene: Scene, geometry_changed: bool) -> None:
+    def apply(self, changes: list[tuple]) -> None:
         for c in self.clients:
-            c.update(scene, geometry_changed)
+            c.apply(changes)
 
     def stats(self) -> dict[int, dict[str, Any]]:
         out: dict[int, dict[str, Any]] = {}

@@ -15,6 +15,7 @@ parameter              unit   default     meaning
 ``address``            –      none        existing cluster (``HOST:PORT``, ``auto``);
                                           none starts a local Ray runtime
 ``threads per actor``  –      cores / N   ray-casting and numba threads of each actor
+                                          (``RunConfig.threads`` when set)
 ``max_retries``        –      3           replacements of a dead actor within one call
 =====================  =====  ==========  ===============================================
 """
@@ -96,6 +97,12 @@ def _actor_class():
             self.client = Client(scene, config.with_(threads=threads), plan, sets, probes_hv)
 
         def call(self, method: str, *args: Any, **kwargs: Any) -> Any:
+            if method == "apply_refs":  # whole scenes arrive as object refs inside a list
+                import ray
+
+                changes = [("scene", ray.get(c[1])) if c[0] == "scene" else c
+                           for c in args[0]]
+                return self.client.apply(changes)
             return getattr(self.client, method)(*args, **kwargs)
 
         def pid(self) -> int:
@@ -116,17 +123,18 @@ class RayBackend:
         self.config, self.plan, self.probes_hv = config, plan, probes_hv
         self.max_retries = max_retries
         cpus = int(ray.cluster_resources().get("CPU", os.cpu_count() or 1))
-        self.threads = max(1, cpus // max(1, len(self.assignment)))
+        self.threads = config.threads or max(1, cpus // max(1, len(self.assignment)))
         self._cls = _actor_class()
-        self.scene_ref = ray.put(scene)
+        self.scene_ref = self.base_ref = ray.put(scene)  # base: where newcomers start
         self.scene_bytes = len(pickle.dumps(scene))
         self.actors = [self._spawn(sets) for sets in self.assignment]
         self.frames_shot = [0] * len(self.actors)  # per actor, for replay after a fault
+        self.changes_log: list[list[tuple]] = []  # interaction changes, replayed to newcomers
         self.bytes_last_frame = 0
         self.restarts = 0
 
     def _spawn(self, sets: list[int]):
-        return self._cls.options(num_cpus=0).remote(self.scene_ref, self.config, self.plan,
+        return self._cls.options(num_cpus=0).remote(self.base_ref, self.config, self.plan,
                                                    sets, self.probes_hv, self.threads)
 
     # -- calls with fault recovery --------------------------------------------------------
@@ -156,6 +164,8 @@ class RayBackend:
         ray = _ray()
         self.restarts += 1
         actor = self._spawn(self.assignment[i])
+        for sent in self.changes_log:  # bring the newcomer to the current scene
+            ray.get(actor.call.remote("apply_refs", sent))
         frames = {s: self.frames_shot[i] for s in self.assignment[i]}
         ray.get(actor.call.remote("replay", frames))
         self.actors[i] = actor
@@ -181,11 +191,19 @@ class RayBackend:
             out.update(r)
         return dict(sorted(out.items()))
 
-    def update(self, scene: Scene, geometry_changed: bool) -> None:
+    def apply(self, changes: list[tuple]) -> None:
+        """Send the changes to every actor; a new whole scene goes via the object store."""
         ray = _ray()
-        self.scene_ref = ray.put(scene)
-        self.scene_bytes = len(pickle.dumps(scene))
-        self._call_all("update", self.scene_ref, geometry_changed)
+        sent = []
+        for change in changes:
+            if change[0] == "scene":
+                self.scene_ref = ray.put(change[1])
+                self.scene_bytes = len(pickle.dumps(change[1]))
+                sent.append(("scene", self.scene_ref))
+            else:
+                sent.append(change)
+        self.changes_log.append(sent)
+        self._call_all("apply_refs", sent)
         self.frames_shot = [0] * len(self.actors)
 
     def stats(self) -> dict[int, dict[str, Any]]:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from lightsim.engine.client import apply_changes
 from lightsim.engine.config import RunConfig
 from lightsim.engine.plan import Plan, make_plan
 from lightsim.errors import InputError
@@ -214,37 +215,23 @@ class Session:
                light_transform: np.ndarray | None = None) -> None:
         """Interaction mode: change the scene and discard the accumulated photons.
 
-        ``material=(part, {"ior": 1.55})`` or ``{"reflectance": 0.8}``/``{"albedo": …}``
-        changes a material (the embree scene is kept); ``part_transform`` moves a part
-        and ``light_transform`` moves every emitter (both rebuild the embree scene).
+        ``material=(part, {"ior": 1.55})`` or ``{"reflectance": 0.8}``/``{"albedo": …}``/
+        ``{"sigma": …}`` changes a material; ``light_transform`` (4×4) moves every emitter —
+        both keep the embree scene; ``part_transform=(part, 4×4)`` moves a part and
+        ``scene`` replaces everything (both rebuild it). Only the change travels to the
+        clients (a whole scene goes to Ray's object store once).
         """
-        from dataclasses import replace as dc_replace
-
-        new = scene or self.scene
-        geometry_changed = scene is not None
+        changes: list[tuple] = []
+        if scene is not None:
+            changes.append(("scene", scene))
         if material is not None:
-            name, changes = material
-            part = next((p for p in new.parts if p.name == name), None)
-            if part is None:
-                raise InputError(f"no part named '{name}'")
-            m = part.material
-            kw: dict[str, Any] = {}
-            if "ior" in changes:
-                kw["ior"] = float(changes["ior"])
-            for key in ("reflectance", "albedo", "rgb"):
-                if key in changes:
-                    kw["rgb"] = np.broadcast_to(np.asarray(changes[key], float), (3,)).copy()
-            if "sigma" in changes:
-                kw["sigma"] = np.broadcast_to(np.asarray(changes["sigma"], float), (3,)).copy()
-            new = new.replace_part(name, material=dc_replace(m, **kw))
+            changes.append(("material", material[0], dict(material[1])))
         if part_transform is not None:
-            new = new.transform_part(*part_transform)
-            geometry_changed = True
+            changes.append(("transform", part_transform[0], np.asarray(part_transform[1])))
         if light_transform is not None:
-            for p in new.emitters:
-                new = new.transform_part(p.name, light_transform)
-        self.scene = new
-        self.backend.update(new, geometry_changed)
+            changes.append(("light", np.asarray(light_transform)))
+        self.scene, _ = apply_changes(self.scene, changes)  # validates before sending
+        self.backend.apply(changes)
         self.frames = 0
         self.log.append({"event": "update", "seconds": self.elapsed})
 

@@ -27,10 +27,15 @@ def _fps(fn, frames: int) -> tuple[float, float]:
 
 def bench_scaling(scene, workers=(0, 1, 2), frame_photons: int = 50_000,
                   accumulate: int = 400_000, frames: int = 5, interleave: int = 4,
-                  address: str | None = None) -> list[dict[str, Any]]:
-    """Rows per worker count (see the module docstring)."""
+                  address: str | None = None, threads: int | None = 1
+                  ) -> list[dict[str, Any]]:
+    """Rows per worker count (see the module docstring).
+
+    ``threads`` per worker (default 1, so N workers use N cores and the efficiency
+    measures distribution alone; None = all cores divided among the workers).
+    """
     rows: list[dict[str, Any]] = []
-    cfg = RunConfig(frame_photons=frame_photons, interleave=interleave)
+    cfg = RunConfig(frame_photons=frame_photons, interleave=interleave, threads=threads)
     for n in workers:
         with Session(scene, cfg, workers=n, address=address if n else None) as s:
             part = s.scene.surfaces[0].name
@@ -49,6 +54,7 @@ def bench_scaling(scene, workers=(0, 1, 2), frame_photons: int = 50_000,
             nbytes = getattr(s.backend, "bytes_last_frame", 0)
             scene_bytes = getattr(s.backend, "scene_bytes", 0)
         rows.append({"workers": n, "backend": "in-process" if n == 0 else "ray",
+                     "threads_per_worker": threads or "auto",
                      "interaction_fps": fps_i, "walkthrough_fps": fps_w,
                      "bytes_per_frame": nbytes, "scene_bytes_once": scene_bytes})
     one = next((r for r in rows if r["workers"] == 1), None)
