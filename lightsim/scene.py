@@ -183,6 +183,12 @@ class Scene:
     warnings: list[str] = field(default_factory=list)
     channels: int | None = None  # force 1 or 3; None: decided from the materials
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle only the parts, not the derived arrays (Ray ships scenes; they are
+        recomputed on first use)."""
+        keep = ("parts", "wall", "source", "warnings", "channels")
+        return {k: v for k, v in self.__dict__.items() if k in keep}
+
     # -- derived data (recomputed when a part changes: see `replace_part`) --------------
     @cached_property
     def surfaces(self) -> list[Part]:

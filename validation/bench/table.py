@@ -38,7 +38,9 @@ def print_table(title: str, rows: Sequence[dict[str, Any]], columns: Sequence[st
     if not rows:
         console.print(f"{title}: no rows")
         return
-    columns = list(columns or rows[0].keys())
+    if columns is None:  # every key of every row, in first-seen order
+        columns = list(dict.fromkeys(k for row in rows for k in row))
+    columns = list(columns)
     table = Table(title=title)
     for col in columns:
         table.add_column(col, justify="right" if isinstance(rows[0].get(col), int | float)
