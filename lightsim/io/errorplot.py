@@ -41,9 +41,19 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
                     transform=ax.transAxes)
     ax1.set_xlabel("run time (s)")
     ax2.set_xlabel("photons emitted")
+    from matplotlib.ticker import EngFormatter, FuncFormatter, LogLocator, NullFormatter
+
+    plain = FuncFormatter(lambda x, _: f"{x:g}")
     for ax in (ax1, ax2):
         ax.set_ylabel("relative error, lit region (%)")
         ax.grid(True, which="both", alpha=0.3)
+        for axis in (ax.xaxis, ax.yaxis):  # 1-2-5 labels: short runs span less than a decade
+            axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(plain)
+        ax.yaxis.set_minor_formatter(NullFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    ax1.xaxis.set_major_formatter(plain)
+    ax2.xaxis.set_major_formatter(EngFormatter())
     if title:
         fig.suptitle(title)
     fig.tight_layout()
