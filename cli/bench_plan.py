@@ -11,8 +11,10 @@ from lightsim.validation.bench.table import print_table, write_json
 @click.argument("scene_file", required=False, type=click.Path(dir_okay=False))
 @click.option("--frame-photons", type=int, default=100_000, show_default=True)
 @click.option("--frames", type=int, default=3, show_default=True)
+@click.option("--repeats", type=int, default=3, show_default=True,
+              help="Planned and forced runs alternate this many times; the best counts.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
-def command(scene_file: str | None, frame_photons: int, frames: int,
+def command(scene_file: str | None, frame_photons: int, frames: int, repeats: int,
             json_path: str | None) -> None:
     """Seconds per frame with the plan's choice vs the stage forced on (same run)."""
     from lightsim.cli.bench_tracer import example_headlight
@@ -20,7 +22,8 @@ def command(scene_file: str | None, frame_photons: int, frames: int,
     from lightsim.validation.bench.plan import bench_plan
 
     path = scene_file or str(example_headlight())
-    rows = bench_plan(load_scene(path), frame_photons=frame_photons, frames=frames)
+    rows = bench_plan(load_scene(path), frame_photons=frame_photons, frames=frames,
+                      repeats=repeats)
     print_table(f"plan: {path} (saving = forced ÷ planned seconds per frame)", rows)
     if json_path:
         write_json(json_path, "plan", rows, {"scene": path})
