@@ -61,6 +61,7 @@ __all__ = [
     "EnvelopeSpec",
     "ShieldCupSpec",
     "bulb_names",
+    "check_flux",
     "get_bulb",
 ]
 
@@ -179,13 +180,19 @@ class BulbSpec:
 
     def with_flux(self, flux_lm: float) -> BulbSpec:
         """A copy with another luminous flux (``--flux``), in lm (> 0)."""
-        try:
-            flux = float(flux_lm)
-        except (TypeError, ValueError):
-            flux = math.nan
-        if not (math.isfinite(flux) and flux > 0):
-            raise InputError(f"luminous flux must be > 0 lm, got {flux_lm!r}")
-        return replace(self, flux_lm=flux, flux_source="given by the user (--flux)")
+        return replace(self, flux_lm=check_flux(flux_lm),
+                       flux_source="given by the user (--flux)")
+
+
+def check_flux(flux_lm: float) -> float:
+    """``flux_lm`` as a float luminous flux in lm; :class:`InputError` unless finite and > 0."""
+    try:
+        flux = float(flux_lm)
+    except (TypeError, ValueError):
+        flux = math.nan
+    if not (math.isfinite(flux) and flux > 0):
+        raise InputError(f"luminous flux must be > 0 lm, got {flux_lm!r}")
+    return flux
 
 
 _AXIAL = (0.0, 0.0, 1.0)
@@ -218,6 +225,27 @@ _FLUX_H4 = (
     "commonly cited H4 value (1 650 lm driving / 1 000 lm passing at 13.2 V); "
     "not verified against the UN R37 data sheet"
 )
+
+
+def _h4(name: str, flux_lm: float, power_w: float, length_m: float,
+        offset_m: tuple[float, float, float]) -> BulbSpec:
+    """One filament of the H4 bulb; both share the envelope and the shield cup (the same
+    bulb: the passing beam's cup stays in place for the driving beam)."""
+    return BulbSpec(
+        name=name,
+        category="H4",
+        flux_lm=flux_lm,
+        flux_source=_FLUX_H4,
+        power_w=power_w,
+        test_voltage_v=13.2,
+        filament_length_m=length_m,
+        filament_diameter_m=_H4_DIAMETER,
+        filament_offset_m=offset_m,
+        filament_axis=_AXIAL,
+        envelope=_H4_ENVELOPE,
+        shield=_H4_SHIELD,
+        cap="P43t",
+    )
 
 
 def _single(
@@ -266,36 +294,9 @@ BULBS: dict[str, BulbSpec] = {
         "H3", 1450.0, "UN R37: 1 450 lm ±15 % at 13.2 V",
         5.0, 1.4, _TRANSVERSE, tip_cap=False, cap="PK22s",
     ),
-    "H4-high": BulbSpec(
-        name="H4-high",
-        category="H4",
-        flux_lm=1650.0,
-        flux_source=_FLUX_H4,
-        power_w=60.0,
-        test_voltage_v=13.2,
-        filament_length_m=_H4_DRIVING_LENGTH,
-        filament_diameter_m=_H4_DIAMETER,
-        filament_offset_m=(0.0, 0.0, _H4_DRIVING_Z),
-        filament_axis=_AXIAL,
-        envelope=_H4_ENVELOPE,
-        shield=_H4_SHIELD,  # the same bulb: the passing beam's cup stays in place
-        cap="P43t",
-    ),
-    "H4-low": BulbSpec(
-        name="H4-low",
-        category="H4",
-        flux_lm=1000.0,
-        flux_source=_FLUX_H4,
-        power_w=55.0,
-        test_voltage_v=13.2,
-        filament_length_m=_H4_PASSING_LENGTH,
-        filament_diameter_m=_H4_DIAMETER,
-        filament_offset_m=(0.0, _H4_PASSING_Y, _H4_PASSING_Z),
-        filament_axis=_AXIAL,
-        envelope=_H4_ENVELOPE,
-        shield=_H4_SHIELD,
-        cap="P43t",
-    ),
+    "H4-high": _h4("H4-high", 1650.0, 60.0, _H4_DRIVING_LENGTH, (0.0, 0.0, _H4_DRIVING_Z)),
+    "H4-low": _h4("H4-low", 1000.0, 55.0, _H4_PASSING_LENGTH,
+                  (0.0, _H4_PASSING_Y, _H4_PASSING_Z)),
     "H7": _single(
         "H7", 1500.0,
         "1 500 lm at 13.2 V as set in issue 2; published values disagree (1 350–1 500 lm)",

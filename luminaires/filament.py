@@ -22,7 +22,7 @@ import numpy as np
 
 from lightsim.errors import InputError
 
-from .bulbs import BulbSpec
+from .bulbs import BulbSpec, check_flux
 from .gltf_writer import GltfMaterial, GltfPart
 
 __all__ = [
@@ -204,12 +204,7 @@ def filament_part(
         Closed mesh, no vertex normals (flat facets are the envelope), emissive material,
         extras ``{"lightsim": {"flux_lm", "emission", "bulb", "filament"}}``.
     """
-    try:
-        flux = float(flux_lm)
-    except (TypeError, ValueError):
-        flux = math.nan
-    if not (math.isfinite(flux) and flux > 0):
-        raise InputError(f"luminous flux must be > 0 lm, got {flux_lm!r}")
+    flux = check_flux(flux_lm)
     if emission not in EMISSION_MODES:
         raise InputError(f"unknown emission {emission!r} (isotropic or lambertian)")
     vertices, faces = filament_mesh(

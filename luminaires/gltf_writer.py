@@ -317,44 +317,32 @@ def glb_bytes(
         blob.extend(raw)
         return len(buffer_views) - 1
 
+    def add_accessor(data: np.ndarray, target: int, component_type: int, kind: str,
+                     **bounds: list[float]) -> int:
+        accessors.append(
+            pygltflib.Accessor(
+                bufferView=add_view(data, target),
+                componentType=component_type,
+                count=len(data),
+                type=kind,
+                **bounds,
+            )
+        )
+        return len(accessors) - 1
+
     materials: list[GltfMaterial] = []
     meshes: list[pygltflib.Mesh] = []
     nodes: list[pygltflib.Node] = []
     for part in parts:
         v32, n32, idx = _prepare_part(part)
-        pos_acc = len(accessors)
-        accessors.append(
-            pygltflib.Accessor(
-                bufferView=add_view(v32, _ARRAY_BUFFER),
-                componentType=_FLOAT,
-                count=len(v32),
-                type="VEC3",
-                # glTF requires POSITION bounds; float32 values widen exactly to float64
-                min=[float(x) for x in v32.min(axis=0)],
-                max=[float(x) for x in v32.max(axis=0)],
-            )
-        )
+        # glTF requires POSITION bounds; float32 values widen exactly to float64
+        pos_acc = add_accessor(v32, _ARRAY_BUFFER, _FLOAT, "VEC3",
+                               min=[float(x) for x in v32.min(axis=0)],
+                               max=[float(x) for x in v32.max(axis=0)])
         attributes = pygltflib.Attributes(POSITION=pos_acc)
         if n32 is not None:
-            attributes.NORMAL = len(accessors)
-            accessors.append(
-                pygltflib.Accessor(
-                    bufferView=add_view(n32, _ARRAY_BUFFER),
-                    componentType=_FLOAT,
-                    count=len(n32),
-                    type="VEC3",
-                )
-            )
-        idx_acc = len(accessors)
-        flat = idx.reshape(-1)
-        accessors.append(
-            pygltflib.Accessor(
-                bufferView=add_view(flat, _ELEMENT_ARRAY_BUFFER),
-                componentType=_UNSIGNED_INT,
-                count=int(flat.size),
-                type="SCALAR",
-            )
-        )
+            attributes.NORMAL = add_accessor(n32, _ARRAY_BUFFER, _FLOAT, "VEC3")
+        idx_acc = add_accessor(idx.reshape(-1), _ELEMENT_ARRAY_BUFFER, _UNSIGNED_INT, "SCALAR")
         if part.material in materials:
             mat_index = materials.index(part.material)
         else:

@@ -7,17 +7,10 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from helpers import run_cli as _run
 
-from lightsim.cli.main import main
 from lightsim.io.exr import read_exr
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
-
-
-def _run(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    return exc.value.code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli as _run
 from scipy.ndimage import map_coordinates
 
-from lightsim.cli.main import main
 from lightsim.errors import InputError
 from lightsim.validation.compare import (
     CompareOptions,
@@ -48,13 +48,6 @@ LAMP_B = LowBeam(hotspot_deg=(3.0, -2.0), hotspot_sigma_deg=(4.0, 1.3),
                  spread_sigma_deg=(14.0, 3.0), cutoff_v_deg=-1.0, cutoff_width_deg=0.2,
                  texture=0.02, seed=3)
 REAL_PHOTO = Path("/work/shared/data/photos/zoe-lowbeam-garage-door.jpg")
-
-
-def _run(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    return exc.value.code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

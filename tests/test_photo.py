@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 import pytest
+from helpers import run_cli as _run
 
-from lightsim.cli.main import main
 from lightsim.errors import InputError
 from lightsim.luminaires.regulations.units import WallFrame
 from lightsim.render.cutoff import find_cutoff
@@ -32,13 +32,6 @@ from lightsim.validation.synthetic_photo import (
 )
 
 FRAME = wall_frame((200, 80))
-
-
-def _run(argv, capsys):
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    return exc.value.code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

@@ -69,8 +69,17 @@ def _save(fig: Figure, path: str | os.PathLike, dpi: int, credit: str | None) ->
     return p
 
 
-def _edges(frame: dict[str, Any], shape: tuple[int, int]) -> tuple[NDArray, NDArray]:
-    return wall_angles(frame, shape[1], shape[0])
+def _axes(frame: dict[str, Any], sim: NDArray) -> tuple[NDArray, NDArray, float, float]:
+    """Pixel edges H, V (°) of the wall image, the simulation's peak (lx) and the
+    image's aspect (H extent / V extent)."""
+    he, ve = wall_angles(frame, sim.shape[1], sim.shape[0])
+    return he, ve, float(np.nanmax(sim)), (he[-1] - he[0]) / (ve[0] - ve[-1])
+
+
+def _single_panel(aspect: float) -> tuple[Figure, Any]:
+    """A 9-inch-wide figure with one axes for an image of ``aspect``."""
+    fig = _figure((9.0, 9.0 / aspect + 1.4))
+    return fig, fig.add_subplot()
 
 
 def _label(ax: Any, title: str) -> None:
@@ -101,12 +110,10 @@ def plot_overlay(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
     Path
         The file written.
     """
-    he, ve = _edges(frame, sim.shape)
-    peak = float(np.nanmax(sim))
+    he, ve, peak, aspect = _axes(frame, sim)
     inside = np.isfinite(photo_lux)
     p, s = _display(photo_lux, peak), _display(sim, peak)
     blend = np.stack([p, s, p], axis=-1)
-    aspect = (he[-1] - he[0]) / (ve[0] - ve[-1])
     fig = _figure((11.0, 1.5 * 11.0 / aspect + 1.6))
     grid = fig.add_gridspec(2, 2, height_ratios=[1, 2])
     axes = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1]),
@@ -133,15 +140,12 @@ def plot_difference(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
     Path
         The file written.
     """
-    he, ve = _edges(frame, sim.shape)
-    peak = float(np.nanmax(sim))
+    he, ve, peak, aspect = _axes(frame, sim)
     diff = np.where(clipped, np.nan, 100.0 * (photo_lux - sim) / peak)
     finite = diff[np.isfinite(diff)]
     lim = float(np.percentile(np.abs(finite), 99.5)) if finite.size else 1.0
     lim = max(lim, 1e-3)
-    aspect = (he[-1] - he[0]) / (ve[0] - ve[-1])
-    fig = _figure((9.0, 9.0 / aspect + 1.4))
-    ax = fig.add_subplot()
+    fig, ax = _single_panel(aspect)
     ax.set_facecolor("0.75")
     mesh = ax.pcolormesh(he, ve, np.ma.masked_invalid(diff), cmap="RdBu_r", vmin=-lim,
                          vmax=lim)
@@ -163,12 +167,9 @@ def plot_contours(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
     Path
         The file written.
     """
-    he, ve = _edges(frame, sim.shape)
+    he, ve, peak, aspect = _axes(frame, sim)
     wf = WallFrame.from_any(frame)
-    peak = float(np.nanmax(sim))
-    aspect = (he[-1] - he[0]) / (ve[0] - ve[-1])
-    fig = _figure((9.0, 9.0 / aspect + 1.4))
-    ax = fig.add_subplot()
+    fig, ax = _single_panel(aspect)
     ax.pcolormesh(he, ve, _display(sim, peak), cmap="gray", vmin=0, vmax=1.6)
     lux_levels = [lv * peak for lv in levels]
     colours = ["tab:blue", "tab:orange", "tab:red"][: len(levels)]

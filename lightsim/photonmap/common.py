@@ -9,7 +9,7 @@ once divided by the number of emitted photons, which the caller does).
 
 Numba's on-disk cache (``cache=True``) is invalidated only by changes to a kernel's own
 file: after editing a kernel here or in :mod:`~lightsim.photonmap.select` that others
-inline (``scan_knn``, ``finish_*``, ``hint_bound``), delete
+inline (``scan_knn``, ``finish_*``, ``hint_bound``, ``query_*``), delete
 ``lightsim/photonmap/__pycache__/*.nb[ic]`` or the callers keep the old code.
 
 Density kernels (``r`` = radius used, ``d`` = photon distance, ``k_c = 1`` for the cone)
@@ -30,10 +30,10 @@ import types
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, parallel_chunksize
 
 from lightsim.errors import InputError
-from lightsim.photonmap.select import select_k, sort_k
+from lightsim.photonmap.select import CAND_FACTOR, select_k, sort_k
 
 #: kernel name -> integer code used inside the numba kernels
 KERNELS: dict[str, int] = {"box": 0, "cone": 1, "epanechnikov": 2}
@@ -475,20 +475,233 @@ def finish_estimate(cd: np.ndarray, cs: np.ndarray, n: int, k: int, max_r2: floa
 
 
 @njit(cache=True, inline="always")
-def hint_bound(qx: float, qy: float, qz: float, px: float, py: float, pz: float,
+def hint_bound(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, q: int, q0: int,
                prev_rk2: float, max_r2: float) -> float:
-    """Initial squared search bound (m²) from the previous query's r_k (−1: none).
+    """Initial squared search bound (m²) of query ``q`` in a block starting at ``q0``.
 
-    The previous query's k photons lie within r_prev + |q − q_prev| of q (triangle
-    inequality), so that radius bounds r_k(q) and prunes from the first node on. Used only
-    when the previous query is within r_prev (coherent queries) and both share the same
-    normal; inflated by 1e-9 relative against rounding.
+    The previous query's k photons (its r_k² = ``prev_rk2``, −1: none) lie within
+    r_prev + |q − q_prev| of q (triangle inequality), so that radius bounds r_k(q) and
+    prunes from the first node on. Used only when the previous query is in the same
+    block, within r_prev (coherent queries) and, with the normal filter, has the same
+    normal; inflated by 1e-9 relative against rounding. Otherwise ``max_r2``.
     """
+    p = q - 1
+    if q == q0 or (use_nrm and not (qnrm[q, 0] == qnrm[p, 0] and qnrm[q, 1] == qnrm[p, 1]
+                                    and qnrm[q, 2] == qnrm[p, 2])):
+        return max_r2
     if prev_rk2 < 0.0:
         return max_r2
-    dd = math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)
+    dd = math.sqrt((queries[q, 0] - queries[p, 0]) ** 2 + (queries[q, 1] - queries[p, 1]) ** 2
+                   + (queries[q, 2] - queries[p, 2]) ** 2)
     r_prev = math.sqrt(prev_rk2)
     if dd > r_prev:
         return max_r2
     b = ((r_prev + dd) * (1.0 + 1e-9)) ** 2
     return b if b < max_r2 else max_r2
+
+
+@njit(cache=True, inline="always")
+def query_outputs(nq: int, k: int, fused: bool, channels: int,
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Result arrays of a kNN query (d², idx: (nq, k)) or, ``fused``, of a density
+    estimate (E (nq, channels), r, count); the other kind gets empty arrays."""
+    kq = 0 if fused else k
+    nf = nq if fused else 0
+    out_d = np.empty((nq, kq), np.float32)  # every row is written in full (padded)
+    out_i = np.empty((nq, kq), np.int64)
+    out_e = np.zeros((nf, channels if fused else 0), np.float64)
+    out_r = np.zeros(nf, np.float64)
+    out_n = np.zeros(nf, np.int64)
+    return out_d, out_i, out_e, out_r, out_n
+
+
+@njit(cache=True, inline="always")
+def query_scratch(k: int, channels: int,
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-block scratch of a kNN search: candidate d² and slots (:data:`CAND_FACTOR`·k),
+    the stack of :func:`~lightsim.photonmap.select.sort_k` and the min-radius sums."""
+    cd = np.empty(CAND_FACTOR * k, np.float64)
+    cs = np.empty(CAND_FACTOR * k, np.int64)
+    sort_stack = np.empty(128, np.int64)
+    acc = np.zeros(channels, np.float64)
+    return cd, cs, sort_stack, acc
+
+
+@njit(cache=True, inline="always")
+def finish_query(q: int, fused: bool, cd: np.ndarray, cs: np.ndarray, n: int, k: int,
+                 max_r2: float, rlo: float, kernel: int, pw: np.ndarray, acc: np.ndarray,
+                 cnt_lo: int, perm: np.ndarray, sort_stack: np.ndarray, out_d: np.ndarray,
+                 out_i: np.ndarray, out_e: np.ndarray, out_r: np.ndarray,
+                 out_n: np.ndarray) -> float:
+    """Write query ``q``'s result (:func:`finish_estimate` when ``fused``, else
+    :func:`finish_knn`) into the arrays of :func:`query_outputs`; return r_k² or −1."""
+    if fused:
+        r, used, rk2 = finish_estimate(cd, cs, n, k, max_r2, rlo, kernel, pw, acc, cnt_lo,
+                                       out_e[q])
+        out_r[q] = r
+        out_n[q] = used
+        return rk2
+    return finish_knn(cd, cs, n, k, perm, out_d[q], out_i[q], sort_stack)
+
+
+# --------------------------------------------------------------------------- front end
+class PhotonIndex:
+    """Photon storage and the query front end shared by the kd-trees and the grids.
+
+    A structure stores its photons reordered by slot (``_pts`` float32 positions in m,
+    ``_nrm`` unit normals, ``_pw`` powers, ``_perm``: slot → insertion index) and
+    implements ``_build`` (from photons in insertion order), ``bounds`` and the kernel
+    calls :meth:`_knn` and :meth:`_radius`. This class checks the arguments, answers
+    for an empty map, and runs the parallel kernels under the dynamic schedule of
+    :data:`QUERY_CHUNK`. ``_finite_radius``: :meth:`query_radius` rejects an infinite
+    radius.
+    """
+
+    _finite_radius = False
+
+    def __init__(self, channels: int) -> None:
+        if int(channels) != channels or channels < 0:
+            raise InputError(f"channels must be a non-negative integer, got {channels!r}")
+        self.n_channels = int(channels)
+        self._has_normals: bool | None = None  # fixed by the first non-empty batch
+        self._pts = np.zeros((0, 3), np.float32)
+        self._nrm = np.zeros((0, 3), np.float32)
+        self._pw = np.zeros((0, self.n_channels), np.float32)
+        self._perm = np.zeros(0, np.int64)
+
+    # ----------------------------------------------------------------- input
+    def _prepare(self, positions: np.ndarray, normals: np.ndarray | None,
+                 powers: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Check a batch: (positions float32, unit normals or (0, 3), powers (n, C))."""
+        pts = as_positions(positions)
+        n = pts.shape[0]
+        if n and self._has_normals is None and len(self) == 0:
+            self._has_normals = normals is not None
+        if normals is not None and self._has_normals is False:
+            raise InputError("photon normals given for a map built without normals")
+        if normals is None and self._has_normals and n:
+            raise InputError("photon normals missing: this map stores normals for every photon")
+        nrm = (as_unit_normals(normals, n) if normals is not None and n
+               else np.zeros((0, 3), np.float32))
+        return pts, nrm, as_powers(powers, n, self.n_channels)
+
+    def _insertion_order(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stored photons (positions, normals, powers) back in insertion order."""
+        inv = np.empty_like(self._perm)
+        inv[self._perm] = np.arange(self._perm.size)
+        nrm = self._nrm[inv] if self._has_normals else self._nrm
+        return self._pts[inv], nrm, self._pw[inv]
+
+    def _add_rebuild(self, positions: np.ndarray, normals: np.ndarray | None,
+                     powers: np.ndarray | None) -> None:
+        """Append a batch (indices continue) and rebuild from all photons."""
+        pts, nrm, pw = self._prepare(positions, normals, powers)
+        if pts.shape[0] == 0:
+            return
+        if len(self):
+            old_pts, old_nrm, old_pw = self._insertion_order()
+            pts = np.concatenate([old_pts, pts])
+            nrm = np.concatenate([old_nrm, nrm]) if self._has_normals else nrm
+            pw = np.concatenate([old_pw, pw])
+        self._build(pts, nrm, pw)
+
+    # ----------------------------------------------------------------- info
+    def __len__(self) -> int:
+        return int(self._pts.shape[0])
+
+    @property
+    def has_normals(self) -> bool:
+        """Whether photon normals are stored (needed by the normal filter)."""
+        return bool(self._has_normals)
+
+    # ----------------------------------------------------------------- kernels
+    def _knn(self, q: np.ndarray, qn: np.ndarray, use_nrm: bool, ncos: float, k: int,
+             max_r2: float, rlo: float, kernel: int, fused: bool,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The structure's kNN kernel: (d², idx) or, ``fused``, (E, r, count) — the
+        arrays of :func:`query_outputs`."""
+        raise NotImplementedError
+
+    def _radius(self, q: np.ndarray, qn: np.ndarray, use_nrm: bool, ncos: float, r: float,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The structure's fixed-radius kernel: CSR (offsets, indices, d²) for radius r (m)."""
+        raise NotImplementedError
+
+    # ----------------------------------------------------------------- queries
+    def query(self, points: np.ndarray, k: int, *, max_radius: float = np.inf,
+              normals: np.ndarray | None = None, normal_cos: float = 0.5,
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """Exact k nearest photons of each query point.
+
+        Parameters
+        ----------
+        points : (Q, 3) array_like
+            Query points (m).
+        k : int
+            Neighbours per query; more than stored photons is fine (rows are padded).
+        max_radius : float
+            Only photons with distance ≤ max_radius (m) are returned.
+        normals : (Q, 3) array_like, optional
+            Query normals; when given, photons whose stored normal n has
+            n·normal < ``normal_cos`` are skipped (they take no neighbour slot).
+        normal_cos : float
+            Cosine threshold of the normal filter (dimensionless).
+
+        Returns
+        -------
+        d2 : (Q, k) float32
+            Squared distances (m²), ascending, ``inf`` where fewer than k were found.
+        idx : (Q, k) int64
+            Insertion-order photon indices, −1 where fewer than k were found.
+        """
+        q = as_queries(points)
+        k = check_k(k)
+        max_r = check_radius(max_radius)
+        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
+        if k == 0 or len(self) == 0:
+            return (np.full((q.shape[0], k), np.inf, np.float32),
+                    np.full((q.shape[0], k), -1, np.int64))
+        with parallel_chunksize(QUERY_CHUNK):
+            d2, idx, _, _, _ = self._knn(q, qn, use_nrm, float(normal_cos), k, max_r * max_r,
+                                         -1.0, 0, False)
+        return d2, idx
+
+    def query_radius(self, points: np.ndarray, radius: float, *,
+                     normals: np.ndarray | None = None, normal_cos: float = 0.5,
+                     ) -> RadiusNeighbours:
+        """All photons within ``radius`` (m, inclusive) of each query point (CSR result).
+
+        The normal filter works as in :meth:`query`.
+        """
+        q = as_queries(points)
+        r = check_radius(radius, "radius", allow_inf=not self._finite_radius)
+        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
+        if len(self) == 0:
+            return RadiusNeighbours(np.zeros(q.shape[0] + 1, np.int64), np.zeros(0, np.int64),
+                                    np.zeros(0, np.float32))
+        return RadiusNeighbours(*self._radius(q, qn, use_nrm, float(normal_cos), r))
+
+    def estimate(self, points: np.ndarray, normals: np.ndarray | None = None, *, k: int = 64,
+                 max_radius: float = np.inf, min_radius: float = 0.0, kernel: str = "box",
+                 normal_cos: float = 0.5) -> Estimate:
+        """Fused kNN density estimate (see :mod:`lightsim.photonmap.density` for semantics)."""
+        q = as_queries(points)
+        k = check_k(k)
+        if k < 1:
+            raise InputError("k must be ≥ 1 for a density estimate")
+        max_r = check_radius(max_radius)
+        min_r = check_radius(min_radius, "min_radius", allow_inf=False)
+        if min_r > max_r:
+            raise InputError(f"min_radius ({min_r} m) exceeds max_radius ({max_r} m)")
+        code = kernel_code(kernel)
+        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
+        nq = q.shape[0]
+        if len(self) == 0:
+            return Estimate(np.zeros((nq, self.n_channels)),
+                            np.full(nq, max_r if max_r < np.inf else 0.0),
+                            np.zeros(nq, np.int64))
+        rlo = min(max(min_r, r_floor(*self.bounds)), max_r)
+        with parallel_chunksize(QUERY_CHUNK):
+            _, _, E, r, count = self._knn(q, qn, use_nrm, float(normal_cos), k, max_r * max_r,
+                                          rlo, code, True)
+        return Estimate(E, r, count)

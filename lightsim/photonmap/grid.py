@@ -51,27 +51,22 @@ from lightsim.errors import InputError
 from lightsim.photonmap.common import (
     QUERY_CHUNK,
     Estimate,
-    RadiusNeighbours,
-    as_positions,
-    as_powers,
+    PhotonIndex,
     as_queries,
-    as_unit_normals,
     block_size,
-    check_k,
     check_radius,
     counting_sort,
-    finish_estimate,
-    finish_knn,
+    finish_query,
     hint_bound,
     kernel_code,
     kernel_norm,
     query_normals,
-    r_floor,
+    query_outputs,
+    query_scratch,
     scan_knn,
     scan_radius,
     take_rows,
 )
-from lightsim.photonmap.select import CAND_FACTOR
 
 #: photons per cell of the paper's two grid presets (Table 5: "grid lo", "grid hi")
 GRID_PRESETS: dict[str, float] = {"lo": 32.0, "hi": 4.0}
@@ -166,6 +161,14 @@ def _axis_gap(g: float, i: int, h: float) -> float:
     return 0.0
 
 
+@njit(cache=True, inline="always")
+def _grid_frame(qx: float, qy: float, qz: float, origin: np.ndarray, ax: np.ndarray,
+                ) -> tuple[float, float, float]:
+    """The query's coordinates along the grid axes (longest last), from the origin (m)."""
+    q3 = (qx, qy, qz)
+    return q3[ax[0]] - origin[0], q3[ax[1]] - origin[1], q3[ax[2]] - origin[2]
+
+
 @njit(cache=True)
 def _row_ranges(i0: int, i1: int, t0: int, t1: int, dims: np.ndarray, hashed: bool,
                 mask: int, start: np.ndarray) -> tuple[int, int, int, int, int, int]:
@@ -203,10 +206,7 @@ def _grid_knn_one(qx: float, qy: float, qz: float, qnx: float, qny: float, qnz: 
     n = 0
     cnt_lo = 0
     rlo2 = rlo * rlo if rlo > 0.0 else -1.0
-    q3 = (qx, qy, qz)
-    g0 = q3[ax[0]] - origin[0]
-    g1 = q3[ax[1]] - origin[1]
-    g2 = q3[ax[2]] - origin[2]
+    g0, g1, g2 = _grid_frame(qx, qy, qz, origin, ax)
     inv_h = 1.0 / h
     c0 = _cell_unclamped(g0, 0.0, inv_h)
     c1 = _cell_unclamped(g1, 0.0, inv_h)
@@ -272,18 +272,11 @@ def _grid_knn_one(qx: float, qy: float, qz: float, qnx: float, qny: float, qnz: 
         # radius of the ball around the query that the searched block covers: photons
         # beyond a face of the block are at least that far; clipped faces hide nothing
         cov = np.inf
-        if c0 - m > 0:
-            cov = min(cov, g0 - (c0 - m) * h)
-        if c0 + m < n0 - 1:
-            cov = min(cov, (c0 + m + 1) * h - g0)
-        if c1 - m > 0:
-            cov = min(cov, g1 - (c1 - m) * h)
-        if c1 + m < n1 - 1:
-            cov = min(cov, (c1 + m + 1) * h - g1)
-        if c2 - m > 0:
-            cov = min(cov, g2 - (c2 - m) * h)
-        if c2 + m < n2 - 1:
-            cov = min(cov, (c2 + m + 1) * h - g2)
+        for g, c, nn in ((g0, c0, n0), (g1, c1, n1), (g2, c2, n2)):
+            if c - m > 0:
+                cov = min(cov, g - (c - m) * h)
+            if c + m < nn - 1:
+                cov = min(cov, (c + m + 1) * h - g)
         lim = bound if bound > rlo2 else rlo2
         if cov == np.inf or cov * cov > lim:
             return n, cnt_lo
@@ -299,36 +292,21 @@ def _grid_query_block(q0: int, q1: int, queries: np.ndarray, qnrm: np.ndarray,
                       pw: np.ndarray, perm: np.ndarray, out_d: np.ndarray, out_i: np.ndarray,
                       out_e: np.ndarray, out_r: np.ndarray, out_n: np.ndarray) -> None:
     """Queries q0 … q1-1 of :func:`_grid_query` (as ``kdtree._tree_query_block``)."""
-    cd = np.empty(CAND_FACTOR * k, np.float64)
-    cs = np.empty(CAND_FACTOR * k, np.int64)
-    sort_stack = np.empty(128, np.int64)
-    acc = np.zeros(out_e.shape[1], np.float64)
+    cd, cs, sort_stack, acc = query_scratch(k, out_e.shape[1])
     prev_rk2 = -1.0
     for q in range(q0, q1):
-        qx = queries[q, 0]
-        qy = queries[q, 1]
-        qz = queries[q, 2]
-        bound = max_r2
-        if q > q0 and (not use_nrm or (qnrm[q, 0] == qnrm[q - 1, 0]
-                                       and qnrm[q, 1] == qnrm[q - 1, 1]
-                                       and qnrm[q, 2] == qnrm[q - 1, 2])):
-            bound = hint_bound(qx, qy, qz, queries[q - 1, 0], queries[q - 1, 1],
-                               queries[q - 1, 2], prev_rk2, max_r2)
+        bound = hint_bound(queries, qnrm, use_nrm, q, q0, prev_rk2, max_r2)
         while True:
             acc[:] = 0.0
-            n, cnt_lo = _grid_knn_one(qx, qy, qz, qnrm[q, 0], qnrm[q, 1], qnrm[q, 2], origin,
-                                      h, dims, ax, hashed, mask, start, keys, pts, nrm,
-                                      use_nrm, ncos, k, cd, cs, bound, rlo, kernel, pw, acc)
+            n, cnt_lo = _grid_knn_one(queries[q, 0], queries[q, 1], queries[q, 2], qnrm[q, 0],
+                                      qnrm[q, 1], qnrm[q, 2], origin, h, dims, ax, hashed,
+                                      mask, start, keys, pts, nrm, use_nrm, ncos, k, cd, cs,
+                                      bound, rlo, kernel, pw, acc)
             if n >= k or bound >= max_r2:
                 break
             bound = max_r2
-        if fused:
-            r, used, prev_rk2 = finish_estimate(cd, cs, n, k, max_r2, rlo, kernel, pw, acc,
-                                                cnt_lo, out_e[q])
-            out_r[q] = r
-            out_n[q] = used
-        else:
-            prev_rk2 = finish_knn(cd, cs, n, k, perm, out_d[q], out_i[q], sort_stack)
+        prev_rk2 = finish_query(q, fused, cd, cs, n, k, max_r2, rlo, kernel, pw, acc, cnt_lo,
+                                perm, sort_stack, out_d, out_i, out_e, out_r, out_n)
 
 
 @njit(parallel=True, cache=True)
@@ -340,13 +318,7 @@ def _grid_query(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, ncos: floa
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """kNN or fused density estimate of every query (as ``kdtree._tree_query``)."""
     nq = queries.shape[0]
-    kq = 0 if fused else k
-    nf = nq if fused else 0
-    out_d = np.empty((nq, kq), np.float32)  # every row is written in full (padded)
-    out_i = np.empty((nq, kq), np.int64)
-    out_e = np.zeros((nf, pw.shape[1] if fused else 0), np.float64)
-    out_r = np.zeros(nf, np.float64)
-    out_n = np.zeros(nf, np.int64)
+    out_d, out_i, out_e, out_r, out_n = query_outputs(nq, k, fused, pw.shape[1])
     n_blocks = (nq + block - 1) // block
     for b in prange(n_blocks):
         _grid_query_block(b * block, min(nq, (b + 1) * block), queries, qnrm, use_nrm, ncos,
@@ -363,10 +335,7 @@ def _grid_radius_one(qx: float, qy: float, qz: float, qnx: float, qny: float, qn
                      r: float, out_i: np.ndarray, out_d: np.ndarray, pos: int, write: bool,
                      kernel: int, pw: np.ndarray, acc: np.ndarray) -> int:
     """All photons within radius r (m) of one query: count/write them, sum into ``acc``."""
-    q3 = (qx, qy, qz)
-    g0 = q3[ax[0]] - origin[0]
-    g1 = q3[ax[1]] - origin[1]
-    g2 = q3[ax[2]] - origin[2]
+    g0, g1, g2 = _grid_frame(qx, qy, qz, origin, ax)
     inv_h = 1.0 / h
     r2 = r * r
     lo0 = max(_cell_unclamped(g0 - r, 0.0, inv_h), 0)
@@ -460,13 +429,16 @@ def _grid_radius_estimate(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, 
 
 
 # =========================================================================== class
-class UniformGrid:
+class UniformGrid(PhotonIndex):
     """Uniform (or hashed) grid photon map with exact kNN and fixed-radius queries.
 
     See the module docstring for the parameters. The grid is rebuilt by :meth:`add`
     (indices continue after the photons already stored), as a grid has no cheap
-    incremental form that keeps its cell-ordered layout.
+    incremental form that keeps its cell-ordered layout. Queries and kNN density
+    estimates: :class:`~lightsim.photonmap.common.PhotonIndex`.
     """
+
+    _finite_radius = True
 
     def __init__(self, positions: np.ndarray | None = None, normals: np.ndarray | None = None,
                  powers: np.ndarray | None = None, *, photons_per_cell: float = 4.0,
@@ -478,22 +450,10 @@ class UniformGrid:
             raise InputError(f"cell_size must be a finite length > 0 m, got {cell_size!r}")
         if int(max_cells) != max_cells or max_cells < 0:
             raise InputError(f"max_cells must be a non-negative integer, got {max_cells!r}")
-        if int(channels) != channels or channels < 0:
-            raise InputError(f"channels must be a non-negative integer, got {channels!r}")
+        super().__init__(channels)
         self.photons_per_cell = float(photons_per_cell)
         self.fixed_cell_size = None if cell_size is None else float(cell_size)
         self.max_cells = int(max_cells)
-        self.n_channels = int(channels)
-        self._has_normals: bool | None = None
-        self._set_empty()
-        if positions is not None:
-            self.add(positions, normals, powers)
-
-    def _set_empty(self) -> None:
-        self._pts = np.zeros((0, 3), np.float32)
-        self._nrm = np.zeros((0, 3), np.float32)
-        self._pw = np.zeros((0, self.n_channels), np.float32)
-        self._perm = np.zeros(0, np.int64)
         self._keys = np.zeros(0, np.int64)
         self._start = np.zeros(2, np.int32)
         self._origin = np.zeros(3, np.float64)
@@ -504,6 +464,8 @@ class UniformGrid:
         self._mask = 0
         self._lo = np.zeros(3, np.float32)
         self._hi = np.zeros(3, np.float32)
+        if positions is not None:
+            self.add(positions, normals, powers)
 
     # ----------------------------------------------------------------- build
     def add(self, positions: np.ndarray, normals: np.ndarray | None = None,
@@ -512,26 +474,7 @@ class UniformGrid:
 
         Parameters are as for :meth:`lightsim.photonmap.kdtree.KdTree.add`.
         """
-        pts = as_positions(positions)
-        n = pts.shape[0]
-        if n and self._has_normals is None and len(self) == 0:
-            self._has_normals = normals is not None
-        if normals is not None and self._has_normals is False:
-            raise InputError("photon normals given for a map built without normals")
-        if normals is None and self._has_normals and n:
-            raise InputError("photon normals missing: this map stores normals for every photon")
-        nrm = (as_unit_normals(normals, n) if normals is not None and n
-               else np.zeros((0, 3), np.float32))
-        pw = as_powers(powers, n, self.n_channels)
-        if n == 0:
-            return
-        if len(self):
-            inv = np.empty_like(self._perm)
-            inv[self._perm] = np.arange(self._perm.size)
-            pts = np.concatenate([self._pts[inv], pts])
-            nrm = np.concatenate([self._nrm[inv], nrm]) if self._has_normals else nrm
-            pw = np.concatenate([self._pw[inv], pw])
-        self._build(pts, nrm, pw)
+        self._add_rebuild(positions, normals, powers)
 
     def _build(self, pts: np.ndarray, nrm: np.ndarray, pw: np.ndarray) -> None:
         n = pts.shape[0]
@@ -576,9 +519,6 @@ class UniformGrid:
         self._hi = hi
 
     # ----------------------------------------------------------------- info
-    def __len__(self) -> int:
-        return int(self._pts.shape[0])
-
     @property
     def cell_size(self) -> float:
         """Cell edge length h (m)."""
@@ -600,81 +540,28 @@ class UniformGrid:
         return int(self._start.nbytes)
 
     @property
-    def has_normals(self) -> bool:
-        """Whether photon normals are stored (needed by the normal filter)."""
-        return bool(self._has_normals)
-
-    @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box (lo, hi) of the stored photons (m)."""
         return self._lo.copy(), self._hi.copy()
 
+    # ----------------------------------------------------------------- kernels
     def _grid_args(self) -> tuple:
         return (self._origin, self._h, self._dims, self._ax, self._hashed, self._mask,
                 self._start, self._keys)
 
+    def _knn(self, q: np.ndarray, qn: np.ndarray, use_nrm: bool, ncos: float, k: int,
+             max_r2: float, rlo: float, kernel: int, fused: bool,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return _grid_query(q, qn, use_nrm, ncos, k, max_r2, rlo, kernel, fused,
+                           *self._grid_args(), self._pts, self._nrm, self._pw, self._perm,
+                           block_size(q.shape[0]))
+
+    def _radius(self, q: np.ndarray, qn: np.ndarray, use_nrm: bool, ncos: float, r: float,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return _grid_radius(q, qn, use_nrm, ncos, r, *self._grid_args(), self._pts,
+                            self._nrm, self._pw, self._perm)
+
     # ----------------------------------------------------------------- queries
-    def query(self, points: np.ndarray, k: int, *, max_radius: float = np.inf,
-              normals: np.ndarray | None = None, normal_cos: float = 0.5,
-              ) -> tuple[np.ndarray, np.ndarray]:
-        """Exact k nearest photons; same contract as :meth:`KdTree.query
-        <lightsim.photonmap.kdtree._BoxTree.query>`."""
-        q = as_queries(points)
-        k = check_k(k)
-        max_r = check_radius(max_radius)
-        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
-        if k == 0 or len(self) == 0:
-            return (np.full((q.shape[0], k), np.inf, np.float32),
-                    np.full((q.shape[0], k), -1, np.int64))
-        with parallel_chunksize(QUERY_CHUNK):
-            d2, idx, _, _, _ = _grid_query(q, qn, use_nrm, float(normal_cos), k, max_r * max_r,
-                                           -1.0, 0, False, *self._grid_args(), self._pts,
-                                           self._nrm, self._pw, self._perm,
-                                           block_size(q.shape[0]))
-        return d2, idx
-
-    def query_radius(self, points: np.ndarray, radius: float, *,
-                     normals: np.ndarray | None = None, normal_cos: float = 0.5,
-                     ) -> RadiusNeighbours:
-        """All photons within ``radius`` (m, inclusive) of each query point (CSR result)."""
-        q = as_queries(points)
-        r = check_radius(radius, "radius", allow_inf=False)
-        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
-        if len(self) == 0:
-            return RadiusNeighbours(np.zeros(q.shape[0] + 1, np.int64), np.zeros(0, np.int64),
-                                    np.zeros(0, np.float32))
-        offsets, idx, d2 = _grid_radius(q, qn, use_nrm, float(normal_cos), r,
-                                        *self._grid_args(), self._pts, self._nrm, self._pw,
-                                        self._perm)
-        return RadiusNeighbours(offsets, idx, d2)
-
-    def estimate(self, points: np.ndarray, normals: np.ndarray | None = None, *, k: int = 64,
-                 max_radius: float = np.inf, min_radius: float = 0.0, kernel: str = "box",
-                 normal_cos: float = 0.5) -> Estimate:
-        """Fused kNN density estimate (semantics in :mod:`lightsim.photonmap.density`)."""
-        q = as_queries(points)
-        k = check_k(k)
-        if k < 1:
-            raise InputError("k must be ≥ 1 for a density estimate")
-        max_r = check_radius(max_radius)
-        min_r = check_radius(min_radius, "min_radius", allow_inf=False)
-        if min_r > max_r:
-            raise InputError(f"min_radius ({min_r} m) exceeds max_radius ({max_r} m)")
-        code = kernel_code(kernel)
-        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
-        nq = q.shape[0]
-        if len(self) == 0:
-            return Estimate(np.zeros((nq, self.n_channels)),
-                            np.full(nq, max_r if max_r < np.inf else 0.0),
-                            np.zeros(nq, np.int64))
-        rlo = min(max(min_r, r_floor(*self.bounds)), max_r)
-        with parallel_chunksize(QUERY_CHUNK):
-            _, _, E, r, count = _grid_query(q, qn, use_nrm, float(normal_cos), k,
-                                            max_r * max_r, rlo, code, True,
-                                            *self._grid_args(), self._pts, self._nrm,
-                                            self._pw, self._perm, block_size(nq))
-        return Estimate(E, r, count)
-
     def estimate_radius(self, points: np.ndarray, normals: np.ndarray | None = None, *,
                         radius: float, kernel: str = "box", normal_cos: float = 0.5,
                         ) -> Estimate:

@@ -44,34 +44,24 @@ name             unit   default   meaning
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, parallel_chunksize, prange
+from numba import njit, prange
 
 from lightsim.errors import InputError
 from lightsim.photonmap.common import (
     _EMPTY_KEYS,
-    QUERY_CHUNK,
     SERIAL_BELOW,
-    Estimate,
-    RadiusNeighbours,
-    as_positions,
-    as_powers,
-    as_queries,
-    as_unit_normals,
+    PhotonIndex,
     block_size,
-    check_k,
-    check_radius,
-    finish_estimate,
-    finish_knn,
+    finish_query,
     hint_bound,
-    kernel_code,
     kernel_weight,
-    query_normals,
-    r_floor,
+    query_outputs,
+    query_scratch,
     scan_radius,
     serial_twin,
     take_rows,
 )
-from lightsim.photonmap.select import CAND_FACTOR, select_k
+from lightsim.photonmap.select import median_of_three, select_k
 
 DEFAULT_LEAF_SIZE = 10
 #: at most this many top levels are split at the middle of the *voxel* in one counting
@@ -142,15 +132,7 @@ def _select_median(pts: np.ndarray, idx: np.ndarray, s: int, e: int, a: int, m: 
     lo_ = s
     hi_ = e - 1
     while hi_ > lo_:
-        x0 = pts[lo_, a]
-        x1 = pts[(lo_ + hi_) >> 1, a]
-        x2 = pts[hi_, a]
-        # median of three as the pivot value (always present in the range: no run-off)
-        if x0 > x1:
-            x0, x1 = x1, x0
-        if x1 > x2:
-            x1 = x2
-        pivot = x1 if x1 > x0 else x0
+        pivot = median_of_three(pts[lo_, a], pts[(lo_ + hi_) >> 1, a], pts[hi_, a])
         i = lo_
         j = hi_
         while i <= j:
@@ -488,30 +470,19 @@ def _tree_knn_one(qx: float, qy: float, qz: float, qnx: float, qny: float, qnz: 
         dl = _box_d2(box, c, qx, qy, qz)
         dr = _box_d2(box, c + 1, qx, qy, qz)
         if dl <= dr:
-            if dr <= lim:
-                stack_n[sp] = c + 1
-                stack_d[sp] = dr
-                sp += 1
-            if dl <= lim:
-                stack_n[sp] = c
-                stack_d[sp] = dl
-                sp += 1
+            near, d_near, far, d_far = c, dl, c + 1, dr
         else:
-            if dl <= lim:
-                stack_n[sp] = c
-                stack_d[sp] = dl
-                sp += 1
-            if dr <= lim:
-                stack_n[sp] = c + 1
-                stack_d[sp] = dr
-                sp += 1
+            near, d_near, far, d_far = c + 1, dr, c, dl
+        # the far child goes on the stack first: the near one is searched first
+        if d_far <= lim:
+            stack_n[sp] = far
+            stack_d[sp] = d_far
+            sp += 1
+        if d_near <= lim:
+            stack_n[sp] = near
+            stack_d[sp] = d_near
+            sp += 1
     return n, cnt_lo
-
-
-@njit(cache=True, inline="always")
-def _same_normal(qnrm: np.ndarray, q: int, p: int) -> bool:
-    return (qnrm[q, 0] == qnrm[p, 0] and qnrm[q, 1] == qnrm[p, 1]
-            and qnrm[q, 2] == qnrm[p, 2])
 
 
 @njit(cache=True)
@@ -530,36 +501,23 @@ def _tree_query_block(q0: int, q1: int, queries: np.ndarray, qnrm: np.ndarray,
     a numba call with array arguments costs atomic reference-count updates, which
     measured 30–40 % of the query time when made per query or per leaf.
     """
-    cd = np.empty(CAND_FACTOR * k, np.float64)
-    cs = np.empty(CAND_FACTOR * k, np.int64)
+    cd, cs, sort_stack, acc = query_scratch(k, out_e.shape[1])
     stack_n = np.empty(stack_size, np.int64)
     stack_d = np.empty(stack_size, np.float64)
-    sort_stack = np.empty(128, np.int64)
-    acc = np.zeros(out_e.shape[1], np.float64)
     prev_rk2 = -1.0
     for q in range(q0, q1):
-        qx = queries[q, 0]
-        qy = queries[q, 1]
-        qz = queries[q, 2]
-        bound = max_r2
-        if q > q0 and (not use_nrm or _same_normal(qnrm, q, q - 1)):
-            bound = hint_bound(qx, qy, qz, queries[q - 1, 0], queries[q - 1, 1],
-                               queries[q - 1, 2], prev_rk2, max_r2)
+        bound = hint_bound(queries, qnrm, use_nrm, q, q0, prev_rk2, max_r2)
         while True:
             acc[:] = 0.0
-            n, cnt_lo = _tree_knn_one(qx, qy, qz, qnrm[q, 0], qnrm[q, 1], qnrm[q, 2], box,
-                                      child, start, end, stack_n, stack_d, pts, nrm, use_nrm,
-                                      ncos, k, cd, cs, bound, rlo, kernel, pw, acc)
+            n, cnt_lo = _tree_knn_one(queries[q, 0], queries[q, 1], queries[q, 2], qnrm[q, 0],
+                                      qnrm[q, 1], qnrm[q, 2], box, child, start, end, stack_n,
+                                      stack_d, pts, nrm, use_nrm, ncos, k, cd, cs, bound, rlo,
+                                      kernel, pw, acc)
             if n >= k or bound >= max_r2:
                 break
             bound = max_r2  # the hint was too tight (rounding): search again
-        if fused:
-            r, used, prev_rk2 = finish_estimate(cd, cs, n, k, max_r2, rlo, kernel, pw, acc,
-                                                cnt_lo, out_e[q])
-            out_r[q] = r
-            out_n[q] = used
-        else:
-            prev_rk2 = finish_knn(cd, cs, n, k, perm, out_d[q], out_i[q], sort_stack)
+        prev_rk2 = finish_query(q, fused, cd, cs, n, k, max_r2, rlo, kernel, pw, acc, cnt_lo,
+                                perm, sort_stack, out_d, out_i, out_e, out_r, out_n)
 
 
 @njit(parallel=True, cache=True)
@@ -576,13 +534,7 @@ def _tree_query(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, ncos: floa
     ``parallel_chunksize``); its body is one call, which keeps numba's compile time down.
     """
     nq = queries.shape[0]
-    kq = 0 if fused else k
-    nf = nq if fused else 0
-    out_d = np.empty((nq, kq), np.float32)  # every row is written in full (padded)
-    out_i = np.empty((nq, kq), np.int64)
-    out_e = np.zeros((nf, pw.shape[1] if fused else 0), np.float64)
-    out_r = np.zeros(nf, np.float64)
-    out_n = np.zeros(nf, np.int64)
+    out_d, out_i, out_e, out_r, out_n = query_outputs(nq, k, fused, pw.shape[1])
     n_blocks = (nq + block - 1) // block
     for b in prange(n_blocks):
         _tree_query_block(b * block, min(nq, (b + 1) * block), queries, qnrm, use_nrm, ncos,
@@ -655,8 +607,9 @@ def _tree_radius(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, ncos: flo
 
 
 # =========================================================================== classes
-class _BoxTree:
-    """Node storage, queries and density estimates shared by the middle and median trees."""
+class _BoxTree(PhotonIndex):
+    """Node storage and kernels shared by the middle and median trees (queries and
+    density estimates: :class:`~lightsim.photonmap.common.PhotonIndex`)."""
 
     _median = False
 
@@ -665,15 +618,8 @@ class _BoxTree:
                  channels: int = 1) -> None:
         if int(leaf_size) != leaf_size or leaf_size < 1:
             raise InputError(f"leaf_size must be a positive integer, got {leaf_size!r}")
-        if int(channels) != channels or channels < 0:
-            raise InputError(f"channels must be a non-negative integer, got {channels!r}")
+        super().__init__(channels)
         self.leaf_size = int(leaf_size)
-        self.n_channels = int(channels)
-        self._has_normals: bool | None = None  # fixed by the first non-empty batch
-        self._pts = np.zeros((0, 3), np.float32)
-        self._nrm = np.zeros((0, 3), np.float32)
-        self._pw = np.zeros((0, self.n_channels), np.float32)
-        self._perm = np.zeros(0, np.int64)
         self._alloc_nodes(0)
         if positions is not None:
             self.add(positions, normals, powers)
@@ -824,32 +770,7 @@ class _BoxTree:
         self._split_nodes(leaves[counts > self.leaf_size], need_box=False)
         _refit(self._n_nodes, self._child, self._start, self._end, self._box)
 
-    # ----------------------------------------------------------------- input
-    def _prepare(self, positions: np.ndarray, normals: np.ndarray | None,
-                 powers: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        pts = as_positions(positions)
-        n = pts.shape[0]
-        if n and self._has_normals is None and len(self) == 0:
-            self._has_normals = normals is not None
-        if normals is not None and self._has_normals is False:
-            raise InputError("photon normals given for a map built without normals")
-        if normals is None and self._has_normals and n:
-            raise InputError("photon normals missing: this map stores normals for every photon")
-        nrm = (as_unit_normals(normals, n) if normals is not None and n
-               else np.zeros((0, 3), np.float32))
-        return pts, nrm, as_powers(powers, n, self.n_channels)
-
-    def _insertion_order(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Stored photons (positions, normals, powers) back in insertion order."""
-        inv = np.empty_like(self._perm)
-        inv[self._perm] = np.arange(self._perm.size)
-        nrm = self._nrm[inv] if self._has_normals else self._nrm
-        return self._pts[inv], nrm, self._pw[inv]
-
     # ----------------------------------------------------------------- info
-    def __len__(self) -> int:
-        return int(self._pts.shape[0])
-
     @property
     def n_nodes(self) -> int:
         """Number of nodes (inner + leaves)."""
@@ -861,106 +782,27 @@ class _BoxTree:
         return self._depth
 
     @property
-    def has_normals(self) -> bool:
-        """Whether photon normals are stored (needed by the normal filter)."""
-        return bool(self._has_normals)
-
-    @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box (lo, hi) of the stored photons (m); zeros when empty."""
         if not self._n_nodes:
             return np.zeros(3, np.float32), np.zeros(3, np.float32)
         return self._box[0, :3].copy(), self._box[0, 3:].copy()
 
+    # ----------------------------------------------------------------- kernels
     def _args_nodes(self) -> tuple[np.ndarray, ...]:
         return self._box, self._child, self._start, self._end
 
-    # ----------------------------------------------------------------- queries
-    def query(self, points: np.ndarray, k: int, *, max_radius: float = np.inf,
-              normals: np.ndarray | None = None, normal_cos: float = 0.5,
-              ) -> tuple[np.ndarray, np.ndarray]:
-        """Exact k nearest photons of each query point.
+    def _knn(self, q: np.ndarray, qn: np.ndarray, use_nrm: bool, ncos: float, k: int,
+             max_r2: float, rlo: float, kernel: int, fused: bool,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return _tree_query(q, qn, use_nrm, ncos, k, max_r2, rlo, kernel, fused, self._pts,
+                           self._nrm, self._pw, self._perm, *self._args_nodes(),
+                           self._depth + 2, block_size(q.shape[0]))
 
-        Parameters
-        ----------
-        points : (Q, 3) array_like
-            Query points (m).
-        k : int
-            Neighbours per query; more than stored photons is fine (rows are padded).
-        max_radius : float
-            Only photons with distance ≤ max_radius (m) are returned.
-        normals : (Q, 3) array_like, optional
-            Query normals; when given, photons whose stored normal n has
-            n·normal < ``normal_cos`` are skipped (they take no neighbour slot).
-        normal_cos : float
-            Cosine threshold of the normal filter (dimensionless).
-
-        Returns
-        -------
-        d2 : (Q, k) float32
-            Squared distances (m²), ascending, ``inf`` where fewer than k were found.
-        idx : (Q, k) int64
-            Insertion-order photon indices, −1 where fewer than k were found.
-        """
-        q = as_queries(points)
-        k = check_k(k)
-        max_r = check_radius(max_radius)
-        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
-        if k == 0 or len(self) == 0:
-            return (np.full((q.shape[0], k), np.inf, np.float32),
-                    np.full((q.shape[0], k), -1, np.int64))
-        with parallel_chunksize(QUERY_CHUNK):
-            d2, idx, _, _, _ = _tree_query(q, qn, use_nrm, float(normal_cos), k, max_r * max_r,
-                                           -1.0, 0, False, self._pts, self._nrm, self._pw,
-                                           self._perm, *self._args_nodes(), self._depth + 2,
-                                           block_size(q.shape[0]))
-        return d2, idx
-
-    def query_radius(self, points: np.ndarray, radius: float, *,
-                     normals: np.ndarray | None = None, normal_cos: float = 0.5,
-                     ) -> RadiusNeighbours:
-        """All photons within ``radius`` (m, inclusive) of each query point (CSR result).
-
-        The normal filter works as in :meth:`query`.
-        """
-        q = as_queries(points)
-        r = check_radius(radius, "radius")
-        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
-        if len(self) == 0:
-            return RadiusNeighbours(np.zeros(q.shape[0] + 1, np.int64), np.zeros(0, np.int64),
-                                    np.zeros(0, np.float32))
-        offsets, idx, d2 = _tree_radius(q, qn, use_nrm, float(normal_cos), r * r, self._pts,
-                                        self._nrm, self._pw, self._perm, *self._args_nodes(),
-                                        self._depth + 2)
-        return RadiusNeighbours(offsets, idx, d2)
-
-    def estimate(self, points: np.ndarray, normals: np.ndarray | None = None, *, k: int = 64,
-                 max_radius: float = np.inf, min_radius: float = 0.0, kernel: str = "box",
-                 normal_cos: float = 0.5) -> Estimate:
-        """Fused kNN density estimate (see :mod:`lightsim.photonmap.density` for semantics)."""
-        q = as_queries(points)
-        k = check_k(k)
-        if k < 1:
-            raise InputError("k must be ≥ 1 for a density estimate")
-        max_r = check_radius(max_radius)
-        min_r = check_radius(min_radius, "min_radius", allow_inf=False)
-        if min_r > max_r:
-            raise InputError(f"min_radius ({min_r} m) exceeds max_radius ({max_r} m)")
-        code = kernel_code(kernel)
-        qn, use_nrm = query_normals(normals, q.shape[0], self.has_normals)
-        nq = q.shape[0]
-        if len(self) == 0:
-            return Estimate(np.zeros((nq, self.n_channels)),
-                            np.full(nq, max_r if max_r < np.inf else 0.0),
-                            np.zeros(nq, np.int64))
-        rlo = min(max(min_r, r_floor(*self.bounds)), max_r)
-        with parallel_chunksize(QUERY_CHUNK):
-            _, _, E, r, count = _tree_query(q, qn, use_nrm, float(normal_cos), k,
-                                            max_r * max_r, rlo, code, True, self._pts,
-                                            self._nrm, self._pw, self._perm,
-                                            *self._args_nodes(), self._depth + 2,
-                                            block_size(nq))
-        return Estimate(E, r, count)
+    def _radius(self, q: np.ndarray, qn: np.ndarray, use_nrm: bool, ncos: float, r: float,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return _tree_radius(q, qn, use_nrm, ncos, r * r, self._pts, self._nrm, self._pw,
+                            self._perm, *self._args_nodes(), self._depth + 2)
 
 
 class KdTree(_BoxTree):

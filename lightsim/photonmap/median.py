@@ -41,12 +41,4 @@ class MedianKdTree(_BoxTree):
     def add(self, positions: np.ndarray, normals: np.ndarray | None = None,
             powers: np.ndarray | None = None) -> None:
         """Append a batch (indices continue) and rebuild the whole balanced tree."""
-        pts, nrm, pw = self._prepare(positions, normals, powers)
-        if pts.shape[0] == 0:
-            return
-        if len(self):
-            old_pts, old_nrm, old_pw = self._insertion_order()
-            pts = np.concatenate([old_pts, pts])
-            nrm = np.concatenate([old_nrm, nrm]) if self._has_normals else nrm
-            pw = np.concatenate([old_pw, pw])
-        self._build(pts, nrm, pw)
+        self._add_rebuild(positions, normals, powers)

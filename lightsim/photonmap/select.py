@@ -20,6 +20,43 @@ from numba import njit
 CAND_FACTOR = 2
 
 
+@njit(cache=True, inline="always")
+def median_of_three(x0: float, x1: float, x2: float) -> float:
+    """Median of three values: a pivot that is a value of the range (no run-off)."""
+    if x0 > x1:
+        x0, x1 = x1, x0
+    if x1 > x2:
+        x1 = x2
+    return x1 if x1 > x0 else x0
+
+
+@njit(cache=True, inline="always")
+def _partition(cd: np.ndarray, cs: np.ndarray, lo: int, hi: int) -> tuple[int, int]:
+    """Hoare partition of ``cd[lo:hi+1]`` (and ``cs``) around the median of three.
+
+    Returns (i, j) with ``cd[lo:j+1] ≤ pivot ≤ cd[i:hi+1]``; slots strictly between j
+    and i hold the pivot value.
+    """
+    pivot = median_of_three(cd[lo], cd[(lo + hi) >> 1], cd[hi])
+    i = lo
+    j = hi
+    while i <= j:
+        while cd[i] < pivot:
+            i += 1
+        while cd[j] > pivot:
+            j -= 1
+        if i <= j:
+            d = cd[i]
+            cd[i] = cd[j]
+            cd[j] = d
+            s = cs[i]
+            cs[i] = cs[j]
+            cs[j] = s
+            i += 1
+            j -= 1
+    return i, j
+
+
 @njit(cache=True)
 def select_k(cd: np.ndarray, cs: np.ndarray, n: int, k: int) -> float:
     """Reorder ``cd[:n]`` (and ``cs``) so the k smallest come first; return the k-th (m²).
@@ -30,30 +67,7 @@ def select_k(cd: np.ndarray, cs: np.ndarray, n: int, k: int) -> float:
     hi = n - 1
     t = k - 1
     while hi > lo:
-        x0 = cd[lo]
-        x1 = cd[(lo + hi) >> 1]
-        x2 = cd[hi]
-        if x0 > x1:
-            x0, x1 = x1, x0
-        if x1 > x2:
-            x1 = x2
-        pivot = x1 if x1 > x0 else x0  # median of three: a value of the range
-        i = lo
-        j = hi
-        while i <= j:
-            while cd[i] < pivot:
-                i += 1
-            while cd[j] > pivot:
-                j -= 1
-            if i <= j:
-                d = cd[i]
-                cd[i] = cd[j]
-                cd[j] = d
-                s = cs[i]
-                cs[i] = cs[j]
-                cs[j] = s
-                i += 1
-                j -= 1
+        i, j = _partition(cd, cs, lo, hi)
         if t <= j:
             hi = j
         elif t >= i:
@@ -96,30 +110,7 @@ def sort_k(cd: np.ndarray, cs: np.ndarray, n: int, stack: np.ndarray) -> None:
             lo = stack[sp]
             hi = stack[sp + 1]
             continue
-        x0 = cd[lo]
-        x1 = cd[(lo + hi) >> 1]
-        x2 = cd[hi]
-        if x0 > x1:
-            x0, x1 = x1, x0
-        if x1 > x2:
-            x1 = x2
-        pivot = x1 if x1 > x0 else x0
-        i = lo
-        j = hi
-        while i <= j:
-            while cd[i] < pivot:
-                i += 1
-            while cd[j] > pivot:
-                j -= 1
-            if i <= j:
-                d = cd[i]
-                cd[i] = cd[j]
-                cd[j] = d
-                s = cs[i]
-                cs[i] = cs[j]
-                cs[j] = s
-                i += 1
-                j -= 1
+        i, j = _partition(cd, cs, lo, hi)
         # continue with the smaller side, push the larger
         if j - lo < hi - i:
             stack[sp] = i

@@ -82,6 +82,18 @@ def _decode(raw: bytes) -> str:
         return raw.decode("latin-1")
 
 
+def _read_lines(path: str | os.PathLike, kind: str) -> list[str]:
+    """Lines of a photometric text file (UTF-8, else Latin-1; any line ends).
+
+    ``kind`` names the format in the error (``"IES"``, ``"LDT"``).
+    """
+    try:
+        text = _decode(Path(path).read_bytes())
+    except OSError as exc:
+        raise InputError(f"{kind} file {path}: cannot read ({exc.strerror})") from None
+    return text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+
+
 def expand_type_c_symmetry(c_deg: NDArray, candela: NDArray, where: str = "file"
                            ) -> tuple[NDArray, NDArray]:
     """Expand Type C lateral symmetry to C-planes covering [0, 360).
@@ -151,13 +163,8 @@ def read_ies(path: str | os.PathLike) -> CandelaGrid:
     InputError
         Missing file, malformed numbers, non-Type-C photometry or inconsistent counts.
     """
-    p = Path(path)
-    name = p.name
-    try:
-        text = _decode(p.read_bytes())
-    except OSError as exc:
-        raise InputError(f"IES file {path}: cannot read ({exc.strerror})") from None
-    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    name = Path(path).name
+    lines = _read_lines(path, "IES")
     meta: dict[str, str] = {"format": "IES"}
     i = 0
     first = lines[0].strip() if lines else ""

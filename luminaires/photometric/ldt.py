@@ -54,7 +54,7 @@ from lightsim.errors import InputError
 from lightsim.io.atomic import write_bytes
 
 from .candela import CandelaGrid
-from .ies import _decode, format_number
+from .ies import _read_lines, format_number
 
 __all__ = ["read_ldt", "write_ldt"]
 
@@ -85,13 +85,8 @@ def read_ldt(path: str | os.PathLike) -> CandelaGrid:
     InputError
         Missing file, malformed numbers or inconsistent counts.
     """
-    p = Path(path)
-    name = p.name
-    try:
-        text = _decode(p.read_bytes())
-    except OSError as exc:
-        raise InputError(f"LDT file {path}: cannot read ({exc.strerror})") from None
-    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    name = Path(path).name
+    lines = _read_lines(path, "LDT")
     pos = 0
 
     def line(what: str) -> str:

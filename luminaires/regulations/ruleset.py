@@ -322,6 +322,30 @@ def _certainty(ctx: _Ctx, where: str, t: Mapping[str, Any]) -> str:
     return c
 
 
+def _head(ctx: _Ctx, kind: str, i: int, t: Mapping[str, Any], allowed: set[str]
+          ) -> tuple[str, str]:
+    """Check table ``i`` of ``kind`` for unknown keys; return (its name, where)."""
+    where = f"{kind} #{i + 1}"
+    _keys(ctx, where, t, allowed)
+    name = _str(ctx, where, "name", t.get("name"))
+    return name, f"{kind} '{name}'"
+
+
+def _about(ctx: _Ctx, where: str, t: Mapping[str, Any], default_source: str
+           ) -> dict[str, str]:
+    """The ``certainty``, ``note`` and ``source`` every rule carries (checked in that order)."""
+    return {"certainty": _certainty(ctx, where, t),
+            "note": _str(ctx, where, "note", t.get("note"), ""),
+            "source": _str(ctx, where, "source", t.get("source"), default_source)}
+
+
+def _complete(ctx: _Ctx, where: str, t: Mapping[str, Any]) -> bool:
+    complete = t.get("complete", True)
+    if not isinstance(complete, bool):
+        raise ctx.fail(f"{where}: 'complete' must be true or false")
+    return complete
+
+
 def _vertices(ctx: _Ctx, where: str, key: str, value: Any, n_min: int
               ) -> tuple[tuple[float, float], ...]:
     if not isinstance(value, list) or len(value) < n_min:
@@ -339,29 +363,19 @@ def _vertices(ctx: _Ctx, where: str, key: str, value: Any, n_min: int
 
 
 def _parse_point(ctx: _Ctx, i: int, t: Mapping[str, Any], default_source: str) -> Geometry:
-    where = f"point #{i + 1}"
-    _keys(ctx, where, t, _POINT_KEYS)
-    name = _str(ctx, where, "name", t.get("name"))
-    where = f"point '{name}'"
+    name, where = _head(ctx, "point", i, t, _POINT_KEYS)
     h = _num(ctx, where, "h", t.get("h"))
     v = _num(ctx, where, "v", t.get("v"))
     if abs(h) >= 90 or abs(v) >= 90:
         raise ctx.fail(f"{where}: position must lie within ±90°")
     lo, hi = _limits(ctx, where, t)
     return Geometry(name=name, kind="point", h=h, v=v, min=lo, max=hi,
-                    certainty=_certainty(ctx, where, t), note=_str(ctx, where, "note",
-                                                                   t.get("note"), ""),
-                    source=_str(ctx, where, "source", t.get("source"), default_source))
+                    **_about(ctx, where, t, default_source))
 
 
 def _parse_zone(ctx: _Ctx, i: int, t: Mapping[str, Any], default_source: str) -> Geometry:
-    where = f"zone #{i + 1}"
-    _keys(ctx, where, t, _ZONE_KEYS)
-    name = _str(ctx, where, "name", t.get("name"))
-    where = f"zone '{name}'"
-    complete = t.get("complete", True)
-    if not isinstance(complete, bool):
-        raise ctx.fail(f"{where}: 'complete' must be true or false")
+    name, where = _head(ctx, "zone", i, t, _ZONE_KEYS)
+    complete = _complete(ctx, where, t)
     polygon: tuple[tuple[float, float], ...] = ()
     line: tuple[tuple[float, float], ...] = ()
     if "polygon" in t and "line" in t:
@@ -387,17 +401,12 @@ def _parse_zone(ctx: _Ctx, i: int, t: Mapping[str, Any], default_source: str) ->
     if not complete and not note:
         raise ctx.fail(f"{where}: an incomplete zone needs a 'note' saying what is missing")
     return Geometry(name=name, kind="zone", polygon=polygon, line=line, min=lo, max=hi,
-                    stat=stat, complete=complete, certainty=_certainty(ctx, where, t),
-                    note=note,
-                    source=_str(ctx, where, "source", t.get("source"), default_source))
+                    stat=stat, complete=complete, **_about(ctx, where, t, default_source))
 
 
 def _parse_sum(ctx: _Ctx, i: int, t: Mapping[str, Any], default_source: str,
                kinds: Mapping[str, str]) -> SumRule:
-    where = f"sum #{i + 1}"
-    _keys(ctx, where, t, _SUM_KEYS)
-    name = _str(ctx, where, "name", t.get("name"))
-    where = f"sum '{name}'"
+    name, where = _head(ctx, "sum", i, t, _SUM_KEYS)
     pts = t.get("points")
     if not isinstance(pts, list) or len(pts) < 2 or not all(isinstance(p, str) for p in pts):
         raise ctx.fail(f"{where}: 'points' must list at least two point names")
@@ -408,17 +417,12 @@ def _parse_sum(ctx: _Ctx, i: int, t: Mapping[str, Any], default_source: str,
     if lo is None and hi is None:
         raise ctx.fail(f"{where}: needs 'min' and/or 'max'")
     return SumRule(name=name, points=tuple(pts), min=lo, max=hi,
-                   certainty=_certainty(ctx, where, t),
-                   note=_str(ctx, where, "note", t.get("note"), ""),
-                   source=_str(ctx, where, "source", t.get("source"), default_source))
+                   **_about(ctx, where, t, default_source))
 
 
 def _parse_relation(ctx: _Ctx, i: int, t: Mapping[str, Any], default_source: str,
                     kinds: Mapping[str, str]) -> Relation:
-    where = f"relation #{i + 1}"
-    _keys(ctx, where, t, _REL_KEYS)
-    name = _str(ctx, where, "name", t.get("name"))
-    where = f"relation '{name}'"
+    name, where = _head(ctx, "relation", i, t, _REL_KEYS)
     lhs = _str(ctx, where, "lhs", t.get("lhs"))
     rhs = _str(ctx, where, "rhs", t.get("rhs"))
     for ref in (lhs, rhs):
@@ -433,13 +437,9 @@ def _parse_relation(ctx: _Ctx, i: int, t: Mapping[str, Any], default_source: str
     rhs_stat = t.get("rhs_stat", "max")
     if rhs_stat not in ("max", "min"):
         raise ctx.fail(f"{where}: 'rhs_stat' must be \"max\" or \"min\"")
-    complete = t.get("complete", True)
-    if not isinstance(complete, bool):
-        raise ctx.fail(f"{where}: 'complete' must be true or false")
+    complete = _complete(ctx, where, t)
     return Relation(name=name, lhs=lhs, op=op, factor=factor, rhs=rhs, rhs_stat=rhs_stat,
-                    complete=complete, certainty=_certainty(ctx, where, t),
-                    note=_str(ctx, where, "note", t.get("note"), ""),
-                    source=_str(ctx, where, "source", t.get("source"), default_source))
+                    complete=complete, **_about(ctx, where, t, default_source))
 
 
 def _read_doc(path: Path) -> dict[str, Any]:
