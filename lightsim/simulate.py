@@ -246,6 +246,8 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationR
         "frames": session.frames,
         "seconds": float(est.seconds),
         "rel_error": est.rel_error,
+        "rel_noise": None if est.error is None else est.error.noise,
+        "rel_bias": None if est.error is None else est.error.bias,
         "estimator": {"name": cfg.estimator, "k": cfg.k, "kernel": cfg.kernel,
                       "interleave": cfg.interleave, "filter": cfg.filter_n,
                       "structure": cfg.structure,

@@ -58,6 +58,7 @@ class SetState:
     sampler: SelectiveSampler | None = None
     photonmap: Any = None
     bins: np.ndarray | None = None
+    windows: np.ndarray | None = None  # (G, C) power in the pixel window of each grid probe
 
     def __post_init__(self) -> None:
         if self.ledger is None:
@@ -178,6 +179,7 @@ class Client:
         self._wall_queries: dict[int, np.ndarray] = {}
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._probe_points = self.frame.to_world(self.probes_hv[:, 0], self.probes_hv[:, 1])
+        self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
 
     def reset(self) -> None:
         """Discard all photons (interaction mode: the next frame starts afresh)."""
@@ -193,6 +195,8 @@ class Client:
             st.bins = np.zeros((H, W, self.channels))
         else:
             st.photonmap = self._new_map()
+            nh, nv = self._grid_shape
+            st.windows = np.zeros((nh * nv, self.channels))
         return st
 
     def _new_map(self):
@@ -288,6 +292,39 @@ class Client:
             return
         if len(rec):
             st.photonmap.add(rec.position, rec.normal, rec.power)
+            self._add_to_windows(st, rec)
+
+    def _add_to_windows(self, st: SetState, rec: PhotonRecords) -> None:
+        """Add the wall photons to the pixel-sized windows centred on the grid probes.
+
+        The probe grid (:func:`~lightsim.render.frame.probe_grid`) has cell pitch Δ; a
+        window is one pixel (dh × dv, half-open) around a cell centre. Windows overlap only
+        when pixels are coarser than the grid, hence the loop over neighbouring cells.
+        """
+        on_wall = np.isin(rec.part, self._wall_part_ids)
+        if not on_wall.any():
+            return
+        h, v = self.frame.to_hv(rec.position[on_wall])
+        power = rec.power[on_wall].astype(np.float64)
+        (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
+        nh, nv = self._grid_shape
+        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
+        dh, dv = self.frame.pixel_size_m
+        uh, uv = (h - h0) / pitch_h - 0.5, (v - v0) / pitch_v - 0.5  # in cell-centre units
+        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        for i in range(int(np.floor(-reach_h)), int(np.ceil(reach_h)) + 1):
+            ci = np.round(uh).astype(np.int64) + i
+            oh = (uh - ci) * pitch_h  # offset from the window centre (m), half-open
+            in_h = (ci >= 0) & (ci < nh) & (oh >= -0.5 * dh) & (oh < 0.5 * dh)
+            for j in range(int(np.floor(-reach_v)), int(np.ceil(reach_v)) + 1):
+                cj = np.round(uv).astype(np.int64) + j
+                ov = (uv - cj) * pitch_v
+                ok = in_h & (cj >= 0) & (cj < nv) & (ov >= -0.5 * dv) & (ov < 0.5 * dv)
+                if ok.any():
+                    flat = cj[ok] * nh + ci[ok]
+                    for c in range(self.channels):
+                        st.windows[:, c] += np.bincount(flat, weights=power[ok, c],
+                                                        minlength=nh * nv)
 
     # -- estimates -----------------------------------------------------------------------
     def _estimate(self, st: SetState, points: np.ndarray, normals: np.ndarray,
@@ -355,11 +392,12 @@ class Client:
         dict with ``sub_images`` {set: (rows, cols, C) lux} (interleaved pixels only),
         ``full_images`` {set: (H, W, C) lux} (every pixel, with ``full_image``),
         ``camera_sub_images`` {set: (rows, cols, C) cd/m²} (with ``camera``),
-        ``probes`` {set: (P, C) lux}, ``seconds``.
+        ``probes`` {set: (P, C) lux}, ``windows`` {set: (G, C) lux} (pixel-window counts at
+        the grid probes, for the blur-bias estimate), ``seconds``.
         """
         t0 = time.perf_counter()
         out: dict[str, Any] = {"sub_images": {}, "probes": {}, "full_images": {},
-                               "camera_sub_images": {}}
+                               "camera_sub_images": {}, "windows": {}}
         normal = np.broadcast_to(self.frame.normal, (1, 3))
         for s in self.set_indices:
             st = self.sets[s]
@@ -387,8 +425,11 @@ class Client:
             if probes and len(self._probe_points):
                 out["probes"][s] = self._estimate(
                     st, self._probe_points, np.broadcast_to(normal, self._probe_points.shape))
+                if st.windows is not None and st.emitted:
+                    dh, dv = self.frame.pixel_size_m
+                    out["windows"][s] = st.windows / (st.emitted * dh * dv)
         # float32 over the wire (the lux map is float32 anyway): half the bytes per frame
-        for key in ("sub_images", "full_images", "camera_sub_images", "probes"):
+        for key in ("sub_images", "full_images", "camera_sub_images", "probes", "windows"):
             out[key] = {s: v.astype(np.float32) for s, v in out[key].items()}
         out["seconds"] = time.perf_counter() - t0
         return out

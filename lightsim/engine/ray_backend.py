@@ -180,7 +180,7 @@ class RayBackend:
         out = self._call_all("render", **kw)
         nbytes = 0
         for r in out:
-            for key in ("sub_images", "probes", "full_images"):
+            for key in ("sub_images", "probes", "full_images", "windows"):
                 nbytes += sum(np.asarray(v).nbytes for v in r[key].values())
         self.bytes_last_frame = nbytes
         return out

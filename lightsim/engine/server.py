@@ -29,13 +29,14 @@ from lightsim.engine.config import RunConfig
 from lightsim.engine.plan import Plan, make_plan
 from lightsim.errors import InputError
 from lightsim.render.frame import (
+    ErrorEstimate,
     ProbeStats,
     assemble_interleaved,
+    estimate_error,
     luminous,
     pool_full_images,
     probe_grid,
     probe_stats,
-    relative_error,
 )
 from lightsim.render.interleave import InterleavePattern
 from lightsim.scene import Scene
@@ -54,6 +55,8 @@ class Estimate:
         The assembled image before filtering.
     probes : ProbeStats
     rel_error : float or None
+        Estimated relative error over the lit region: √(noise² + blur bias²) (see
+        :mod:`lightsim.render.frame`); None when it cannot be estimated.
     photons : int
         Photons emitted over all sets so far.
     seconds : float
@@ -68,6 +71,14 @@ class Estimate:
     seconds: float
     timings: dict[str, float] = field(default_factory=dict)
     camera: np.ndarray | None = None  # (H, W, C) luminance, cd/m², with a camera view
+    error: ErrorEstimate | None = None  # rel_error's parts: noise and blur bias
+
+    def error_entry(self) -> dict[str, Any]:
+        """The error-vs-time log entry of this estimate (fractions, s)."""
+        e = self.error
+        return {"seconds": self.seconds, "photons": self.photons, "rel_error": self.rel_error,
+                "rel_noise": None if e is None else e.noise,
+                "rel_bias": None if e is None else e.bias}
 
 
 class Session:
@@ -167,8 +178,7 @@ class Session:
         est = self._combine(results, image, timings, camera)
         self.last = est
         if shoot:
-            self.log.append({"seconds": est.seconds, "photons": est.photons,
-                             "rel_error": est.rel_error, "frames": self.frames})
+            self.log.append({**est.error_entry(), "frames": self.frames})
         return est
 
     def walkthrough(self, camera=None) -> Estimate:
@@ -199,10 +209,14 @@ class Session:
             cam_img, _ = assemble_interleaved(
                 InterleavePattern(self.config.interleave, W, H), cams, self.config.filter_n)
         timings["assemble"] = time.perf_counter() - t2
-        stats = probe_stats(probes) if probes else None
-        rel = relative_error(stats, self.grid_count) if stats is not None else None
-        return Estimate(lux, raw, stats, rel, sum(emitted.values()), self.elapsed, timings,
-                        camera=cam_img)
+        windows: dict[int, np.ndarray] = {}
+        for r in results:
+            windows.update(r.get("windows", {}))
+        stats = probe_stats(probes, windows) if probes else None
+        err = estimate_error(stats, self.grid_count) if stats is not None else None
+        return Estimate(lux, raw, stats, None if err is None else err.total,
+                        sum(emitted.values()), self.elapsed, timings, camera=cam_img,
+                        error=err)
 
     def probe(self, points_hv: np.ndarray) -> ProbeStats:
         """Estimates of every set at wall points (h, v in m): mean, standard error, values."""
@@ -296,8 +310,7 @@ class Session:
                 break
         final = self.frame(image=True, shoot=False, mode=self.config.final)
         if self.frames and (not self.log or self.log[-1].get("photons") != final.photons):
-            self.log.append({"seconds": final.seconds, "photons": final.photons,
-                             "rel_error": final.rel_error, "frames": self.frames})
+            self.log.append({**final.error_entry(), "frames": self.frames})
         return final
 
     # -- checkpoints ---------------------------------------------------------------------

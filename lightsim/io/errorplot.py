@@ -2,7 +2,8 @@
 
 The left panel shows the relative error estimated from the interleave sets against
 seconds, the right one against photons with a 1/√N reference through the last point —
-noise-limited estimates follow it.
+noise-limited estimates follow it — each with its two parts, noise and blur, where the
+log has them.
 """
 
 from __future__ import annotations
@@ -30,10 +31,19 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
     ax1, ax2 = fig.subplots(1, 2)
     if pts:
         t, n, err = (np.asarray(x, dtype=np.float64) for x in zip(*pts, strict=True))
-        ax1.loglog(t, err * 100, "o-", ms=3)
-        ax2.loglog(n, err * 100, "o-", ms=3, label="estimated")
+        ax1.loglog(t, err * 100, "o-", ms=3, label="estimated error")
+        ax2.loglog(n, err * 100, "o-", ms=3, label="estimated error")
+        # its two parts, where the log has them (noise from the sets, blur from the windows)
+        for key, style, label in (("rel_noise", ":", "noise"), ("rel_bias", "-.", "blur")):
+            part = [(e["seconds"], e["photons"], e[key]) for e in log
+                    if e.get(key) and e.get("rel_error") is not None and e.get("photons")]
+            if part:
+                tp, n_p, vp = (np.asarray(x, dtype=np.float64) for x in zip(*part, strict=True))
+                ax1.loglog(tp, vp * 100, style, lw=1, label=label)
+                ax2.loglog(n_p, vp * 100, style, lw=1, label=label)
         ref = err[-1] * np.sqrt(n[-1] / n)
         ax2.loglog(n, ref * 100, "--", color="grey", label="∝ 1/√N")
+        ax1.legend(loc="upper right", fontsize=8)
         ax2.legend(loc="upper right", fontsize=8)
     else:
         for ax in (ax1, ax2):

@@ -9,8 +9,19 @@ every set). The **relative error over the lit region** is
 
     rel_error = √(mean over lit probes of se²) / mean over lit probes of Ē,
 
-with *lit* = Ē ≥ 10 % of the brightest probe. It covers noise, not the blur bias of the
-density estimate (``lightsim converge`` measures that against exact answers).
+with *lit* = Ē ≥ 10 % of the brightest probe (Ē of the pixel windows below, where
+measured, as the blur spreads light beyond a bright edge). That is the noise. A kNN (or
+fixed-radius) estimate also has a **blur bias**: it averages E over a disk of radius r_k,
+not over the pixel. Every set therefore also counts its photons in a pixel-sized *window* centred on
+each grid probe — an unbiased estimate B of the pixel mean, noisier than the kNN value K.
+Per set the difference D = K − B has expectation b (the bias) and the sets' spread gives
+its standard error se_D, so
+
+    rel_bias² = max(0, mean over lit probes of (D̄² − se_D²)) / (mean over lit probes of Ē)²
+
+is an unbiased estimate of the mean squared bias (noise subtracted). The reported error is
+rel_error = √(rel_noise² + rel_bias²); ``lightsim converge`` checks it against exact
+answers (the ratio estimated / actual).
 
 =====================  =====  ========  =================================================
 parameter              unit   default   meaning
@@ -77,11 +88,15 @@ class ProbeStats:
         Standard error of the mean over sets (lx).
     values : (S, P, C) float64
         The per-set estimates.
+    windows : (S, G, C) float64 or None
+        Per-set photon counts in a pixel-sized window at each of the G grid probes, as
+        illuminance (lx): the unbiased reference for the blur bias (None for binning).
     """
 
     mean: np.ndarray
     se: np.ndarray
     values: np.ndarray
+    windows: np.ndarray | None = None
 
     @property
     def n_sets(self) -> int:
@@ -97,8 +112,12 @@ class ProbeStats:
         return self.mean - half, self.mean + half
 
 
-def probe_stats(probes: dict[int, np.ndarray]) -> ProbeStats:
-    """Mean and standard error over sets of the probe estimates {set: (P, C)}."""
+def probe_stats(probes: dict[int, np.ndarray],
+                windows: dict[int, np.ndarray] | None = None) -> ProbeStats:
+    """Mean and standard error over sets of the probe estimates {set: (P, C)}.
+
+    ``windows`` {set: (G, C)}: the sets' pixel-window estimates at the grid probes.
+    """
     values = np.stack([np.asarray(probes[s], dtype=np.float64) for s in sorted(probes)])
     S = values.shape[0]
     mean = values.mean(axis=0)
@@ -106,28 +125,65 @@ def probe_stats(probes: dict[int, np.ndarray]) -> ProbeStats:
         se = values.std(axis=0, ddof=1) / math.sqrt(S)
     else:
         se = np.full_like(mean, np.inf)
-    return ProbeStats(mean, se, values)
+    win = None
+    if windows and sorted(windows) == sorted(probes):
+        win = np.stack([np.asarray(windows[s], dtype=np.float64) for s in sorted(windows)])
+    return ProbeStats(mean, se, values, win)
 
 
-def relative_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1
-                   ) -> float | None:
-    """Relative standard error over the lit probes of the grid (see module docstring).
+@dataclass(frozen=True)
+class ErrorEstimate:
+    """Relative error of an image over the lit region (dimensionless fractions).
+
+    ``total`` = √(noise² + bias²); ``bias`` is None where it is not measured (binning,
+    whose pixel means carry no blur, or a single set).
+    """
+
+    total: float
+    noise: float
+    bias: float | None
+
+
+def _mean_over_sets(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(S, G) → mean and standard error of the mean over the S sets, (G,) each."""
+    return values.mean(axis=0), values.std(axis=0, ddof=1) / math.sqrt(values.shape[0])
+
+
+def estimate_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1
+                   ) -> ErrorEstimate | None:
+    """Noise and blur bias over the lit probes of the grid (see module docstring).
 
     Only the first ``grid_count`` probes (the regular grid) count; extra probes (test
-    points) would bias the average. ``None`` when nothing is lit.
+    points) would bias the average. ``None`` when nothing is lit or with one set.
     """
-    m = luminous(stats.mean[:grid_count])
-    # the luminous standard error of RGB: propagate through the (linear) weights
-    if stats.values.shape[-1] == 1:
-        se = stats.se[:grid_count, 0]
-    else:
-        y = luminous(stats.values[:, :grid_count])
-        se = y.std(axis=0, ddof=1) / math.sqrt(y.shape[0])
-    if len(m) == 0 or not np.any(m > 0):
+    if stats.n_sets < 2:
         return None
-    lit = m >= lit_fraction * m.max()
-    value = math.sqrt(float(np.mean(se[lit] ** 2))) / float(np.mean(m[lit]))
-    return value if math.isfinite(value) else None
+    y = luminous(stats.values[:, :grid_count])  # (S, G), luminous: linear in the channels
+    if y.shape[1] == 0:
+        return None
+    m, se = _mean_over_sets(y)
+    if not np.any(m > 0):
+        return None
+    windows = (luminous(stats.windows) if stats.windows is not None
+               and stats.windows.shape[1] == grid_count else None)
+    # lit: by the unbiased window means where there are any, as the blur spreads the
+    # estimate beyond a bright edge onto probes the truth leaves dark
+    lit = (m if windows is None else windows.mean(axis=0)) >= lit_fraction * m.max()
+    if not lit.any():
+        return None
+    mean_lit = float(np.mean(m[lit]))
+    noise = math.sqrt(float(np.mean(se[lit] ** 2))) / mean_lit
+    if not math.isfinite(noise):
+        return None
+    bias = None
+    if windows is not None:
+        d_mean, d_se = _mean_over_sets(y - windows)
+        b2 = float(np.mean(d_mean[lit] ** 2 - d_se[lit] ** 2))
+        bias = math.sqrt(max(b2, 0.0)) / mean_lit
+        if not math.isfinite(bias):
+            bias = None
+    total = math.hypot(noise, bias or 0.0)
+    return ErrorEstimate(total, noise, bias)
 
 
 def probe_grid(h_range: tuple[float, float], v_range: tuple[float, float],
