@@ -71,6 +71,13 @@ class SimulateOptions:
     mount_height: float = 0.65
 
     def run_config(self) -> RunConfig:
+        """The engine settings (validated); also checks the photometric output names, so
+        a misspelt option fails before the run rather than after it."""
+        for opt, path, suffixes in (("--ies", self.ies, (".ies",)),
+                                    ("--ldt", self.ldt, (".ldt", ".eul"))):
+            if path is not None and Path(path).suffix.lower() not in suffixes:
+                raise InputError(f"{opt} {path}: the file name must end in "
+                                 f"{' or '.join(suffixes)}")
         cfg = dict(self.config)
         if cfg.get("max_radius") == "inf":
             cfg["max_radius"] = math.inf

@@ -63,6 +63,8 @@ def test_simulate_writes_outputs_in_lux(point_lamp, tmp_path, capsys):
     (["simulate", "{lamp}", "--target-error", "3"], "target error"),
     (["simulate", "{lamp}", "--filament", "H99", "--filament-at", "0,0,0"], "H99"),
     (["simulate", "{lamp}", "--out", "{file}/sub"], "not writable"),
+    (["simulate", "{lamp}", "--ies", "--ldt"], "must end in .ies"),  # checked before the run
+    (["simulate", "{lamp}", "--ldt", "beam.txt"], "must end in .ldt"),
 ])
 def test_bad_options_exit_2_with_one_line(point_lamp, tmp_path, capsys, argv, match):
     afile = tmp_path / "afile"
@@ -76,6 +78,8 @@ def test_bad_options_exit_2_with_one_line(point_lamp, tmp_path, capsys, argv, ma
     assert len(lines) == 1 and lines[0].startswith("lightsim: error:"), err
     assert match in lines[0]
     assert "Traceback" not in err
+    out = tmp_path / "o"  # nothing written: bad options fail before the run
+    assert not out.exists() or not any(out.iterdir())
 
 
 def test_failed_run_keeps_earlier_outputs(point_lamp, tmp_path, capsys):

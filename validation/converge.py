@@ -20,9 +20,10 @@ the same rule as the tool's own error estimate):
 
 * ``rmse`` (lx) and ``rel_rmse`` = rmse / mean E;
 * ``rel_l1`` = Σ |E − E_exact| / Σ E_exact;
-* ``est_rel_error``: what the tool itself estimated (:attr:`Estimate.rel_error`, from the
-  spread of the interleave sets; none with a single set). It measures noise only, so the
-  ratio estimated / actual shows whether the estimate is honest (≈ 1) or misses bias (< 1).
+* ``est_rel_error``: what the tool itself estimated (:attr:`Estimate.rel_error`: the
+  spread of the interleave sets plus the blur bias measured against their pixel windows;
+  none with a single set). The ratio estimated / actual shows whether the estimate is
+  honest (≈ 1), misses error (< 1) or is too cautious (> 1).
 
 The time to reach 5 %, 2 % and 1 % (of ``rel_rmse``; ``rel_l1`` in the JSON) is
 interpolated log-log between the first budget that reaches it and the one before.
