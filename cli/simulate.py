@@ -243,9 +243,7 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
     if not quiet:
         s = result.summary
         e = s["energy_lm"]
-        err = "–" if s["rel_error"] is None else f"{s['rel_error']:.2%}"
-        if s["rel_error"] is not None and s.get("rel_bias") is not None:
-            err += f" (noise {s['rel_noise']:.2%}, blur {s['rel_bias']:.2%})"
+        err = s.get("error_text") or "–"
         click.echo(f"{s['photons']:,} photons in {s['seconds']:.1f} s, {s['frames']} frames; "
                    f"estimated error {err}; max {s['lux']['max_lx']:.4g} lx")
         absorbed = e["absorbed_diffuse"] + e["absorbed_mirror"] + e["absorbed_volume"]

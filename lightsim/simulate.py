@@ -255,6 +255,8 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationR
         "rel_error": est.rel_error,
         "rel_noise": None if est.error is None else est.error.noise,
         "rel_bias": None if est.error is None else est.error.bias,
+        "rel_bias_upper": None if est.error is None else est.error.bias_upper,
+        "error_text": None if est.error is None else est.error.describe(),
         "estimator": {"name": cfg.estimator, "k": cfg.k, "kernel": cfg.kernel,
                       "interleave": cfg.interleave, "filter": cfg.filter_n,
                       "structure": cfg.structure,

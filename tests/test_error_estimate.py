@@ -87,3 +87,16 @@ def test_windows_measure_the_pixel_mean():
     outer = np.hypot(hv[:, 0], hv[:, 1]) > 2.0
     ratio = mean[inner].mean() / mean[outer].mean()
     assert ratio == pytest.approx(exact[inner].mean() / exact[outer].mean(), rel=0.05)
+
+
+def test_unresolved_blur_is_reported_as_a_bound():
+    """Windows much noisier than the bias: the point estimate may read 0, the bound not."""
+    G, S = 600, 16
+    truth = np.full(G, 100.0)
+    err = estimate_error(probe_stats(_sets(truth, 1.0, 5.0, S, 5),
+                                     _sets(truth, 0.0, 150.0, S, 6)), G)
+    assert err.bias_upper > 0.05  # 150 % window noise: blur below ~5 % is invisible
+    assert not err.bias_resolved and "not resolved" in err.describe()
+    clear = estimate_error(probe_stats(_sets(truth, 10.0, 5.0, S, 7),
+                                       _sets(truth, 0.0, 20.0, S, 8)), G)
+    assert clear.bias_resolved and "blur 9." in clear.describe()  # 10 lx of 110 lx

@@ -78,7 +78,8 @@ class Estimate:
         e = self.error
         return {"seconds": self.seconds, "photons": self.photons, "rel_error": self.rel_error,
                 "rel_noise": None if e is None else e.noise,
-                "rel_bias": None if e is None else e.bias}
+                "rel_bias": None if e is None else e.bias,
+                "rel_bias_upper": None if e is None else e.bias_upper}
 
 
 class Session:
@@ -286,7 +287,8 @@ class Session:
         """Shoot frames until a budget is met, then render the final image.
 
         Stops at whichever comes first: ``photons`` emitted (total over sets),
-        ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` (after at
+        ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — with the
+        blur at its upper bound, so an unresolved blur cannot stop a run early (after at
         least ``min_frames`` frames). With no budget at all, one frame is shot.
         """
         if photons is None and seconds is None and target_error is None:
@@ -305,8 +307,8 @@ class Session:
             est = self.frame(image=False)
             if callback is not None:
                 callback(est)
-            if (target_error is not None and est.rel_error is not None
-                    and self.frames >= min_frames and est.rel_error <= target_error):
+            if (target_error is not None and est.error is not None
+                    and self.frames >= min_frames and est.error.upper <= target_error):
                 break
         final = self.frame(image=True, shoot=False, mode=self.config.final)
         if self.frames and (not self.log or self.log[-1].get("photons") != final.photons):

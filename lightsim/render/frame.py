@@ -21,7 +21,9 @@ its standard error se_D, so
 
 is an unbiased estimate of the mean squared bias (noise subtracted). The reported error is
 rel_error = √(rel_noise² + rel_bias²); ``lightsim converge`` checks it against exact
-answers (the ratio estimated / actual).
+answers (the ratio estimated / actual). With few photons per pixel window the bias
+estimate scatters; ``rel_bias_upper`` (the estimate plus two standard errors of the mean
+over the lit probes) says how much blur could hide in it.
 
 =====================  =====  ========  =================================================
 parameter              unit   default   meaning
@@ -136,12 +138,35 @@ class ErrorEstimate:
     """Relative error of an image over the lit region (dimensionless fractions).
 
     ``total`` = √(noise² + bias²); ``bias`` is None where it is not measured (binning,
-    whose pixel means carry no blur, or a single set).
+    whose pixel means carry no blur, or a single set). ``bias_upper``: the bias estimate
+    plus two of its standard errors (in the square) — with few photons per pixel window
+    the blur cannot be resolved below it, which a bias of 0 would hide.
     """
 
     total: float
     noise: float
     bias: float | None
+    bias_upper: float | None = None
+
+    @property
+    def upper(self) -> float:
+        """√(noise² + bias_upper²): the error the blur could still hide (for stopping rules)."""
+        return math.hypot(self.noise, self.bias_upper or 0.0)
+
+    @property
+    def bias_resolved(self) -> bool:
+        """Whether the blur estimate stands out of its own scatter (≥ 2 standard errors)."""
+        return (self.bias is not None and self.bias_upper is not None
+                and self.bias**2 >= 0.5 * self.bias_upper**2)
+
+    def describe(self) -> str:
+        """'4.2% (noise 3.1%, blur 2.8%)', with 'blur ≤ x%' where it is not resolved."""
+        text = f"{self.total:.2%}"
+        if self.bias is None:
+            return text
+        blur = (f"blur {self.bias:.2%}" if self.bias_resolved or self.bias_upper is None
+                else f"blur ≤ {self.bias_upper:.2%}, not resolved")
+        return f"{text} (noise {self.noise:.2%}, {blur})"
 
 
 def _mean_over_sets(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -175,15 +200,18 @@ def estimate_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1
     noise = math.sqrt(float(np.mean(se[lit] ** 2))) / mean_lit
     if not math.isfinite(noise):
         return None
-    bias = None
+    bias = upper = None
     if windows is not None:
         d_mean, d_se = _mean_over_sets(y - windows)
-        b2 = float(np.mean(d_mean[lit] ** 2 - d_se[lit] ** 2))
+        terms = d_mean[lit] ** 2 - d_se[lit] ** 2  # each an unbiased estimate of b²
+        b2 = float(np.mean(terms))
+        se_b2 = float(np.std(terms, ddof=1) / math.sqrt(terms.size)) if terms.size > 1 else 0.0
         bias = math.sqrt(max(b2, 0.0)) / mean_lit
-        if not math.isfinite(bias):
-            bias = None
+        upper = math.sqrt(max(b2 + 2.0 * se_b2, 0.0)) / mean_lit
+        if not (math.isfinite(bias) and math.isfinite(upper)):
+            bias = upper = None
     total = math.hypot(noise, bias or 0.0)
-    return ErrorEstimate(total, noise, bias)
+    return ErrorEstimate(total, noise, bias, upper)
 
 
 def probe_grid(h_range: tuple[float, float], v_range: tuple[float, float],
