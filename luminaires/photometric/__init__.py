@@ -44,6 +44,7 @@ from .candela import (
     hv_from_directions,
 )
 from .farfield import farfield_from_photons, uniform_axes
+from .hvgrid import HVGrid, hv_directions
 from .ies import read_ies, write_ies
 from .ldt import read_ldt, write_ldt
 from .sampling import sample_directions
@@ -55,10 +56,12 @@ SAMPLE_IES = SAMPLE_DIR / "interlight-ovni-60w-5300lm.ies"
 __all__ = [
     "SAMPLE_IES",
     "CandelaGrid",
+    "HVGrid",
     "angles_from_directions",
     "direction_from_hv",
     "directions_from_angles",
     "farfield_from_photons",
+    "hv_directions",
     "hv_from_directions",
     "read_ies",
     "read_ldt",
@@ -71,13 +74,20 @@ __all__ = [
 ]
 
 
-def read_photometric(path: str | os.PathLike) -> CandelaGrid:
-    """Read an ``.ies`` or ``.ldt`` file (chosen by suffix) into a :class:`CandelaGrid`."""
+def read_photometric(path: str | os.PathLike, *, lamp_set: int | None = None
+                     ) -> CandelaGrid | HVGrid:
+    """Read an ``.ies`` (Types A, B, C) or ``.ldt`` file (chosen by suffix) into a grid.
+
+    ``lamp_set`` (1-based) chooses the lamp set of a EULUMDAT file with several; it makes no
+    sense for IES files.
+    """
     suffix = Path(path).suffix.lower()
     if suffix == ".ies":
+        if lamp_set is not None:
+            raise InputError(f"--lamp-set applies to EULUMDAT (.ldt) files, not {path}")
         return read_ies(path)
     if suffix in (".ldt", ".eul"):
-        return read_ldt(path)
+        return read_ldt(path, lamp_set=lamp_set)
     raise InputError(f"photometric file {path}: unknown suffix '{suffix}' (.ies or .ldt)")
 
 
