@@ -45,7 +45,7 @@ from .candela import (
 )
 from .farfield import farfield_from_photons, uniform_axes
 from .hvgrid import HVGrid, hv_directions
-from .ies import read_ies, write_ies
+from .ies import IES_TYPES, read_ies, resolve_ies_type, write_ies
 from .ldt import read_ldt, write_ldt
 from .sampling import sample_directions
 
@@ -54,6 +54,7 @@ SAMPLE_IES = SAMPLE_DIR / "interlight-ovni-60w-5300lm.ies"
 """A published, measured IES file shipped with lightsim (see SAMPLES.md)."""
 
 __all__ = [
+    "IES_TYPES",
     "SAMPLE_IES",
     "CandelaGrid",
     "HVGrid",
@@ -66,6 +67,7 @@ __all__ = [
     "read_ies",
     "read_ldt",
     "read_photometric",
+    "resolve_ies_type",
     "sample_directions",
     "uniform_axes",
     "write_ies",

@@ -61,8 +61,8 @@ from .candela import CandelaGrid
 from .checks import MAX_COUNT, check_angles, check_count, check_number, check_values
 from .hvgrid import HVGrid
 
-__all__ = ["expand_type_ab_symmetry", "expand_type_c_symmetry", "format_number", "read_ies",
-           "write_ies"]
+__all__ = ["IES_TYPES", "expand_type_ab_symmetry", "expand_type_c_symmetry", "format_number",
+           "read_ies", "resolve_ies_type", "write_ies"]
 
 _KEY_RE = re.compile(r"^\s*\[([^\]]+)\]\s*(.*?)\s*$")
 _SPLIT_RE = re.compile(r"[,\s]+")
@@ -326,6 +326,23 @@ def expand_type_ab_symmetry(h_deg: NDArray, candela: NDArray, where: str,
         warns.append(f"{where}: horizontal angles {h[0]:g}…{h[-1]:g}° cover part of the "
                      "hemisphere; intensity outside is 0")
     return h, candela
+
+
+IES_TYPES = ("auto", "A", "C")
+
+
+def resolve_ies_type(requested: str, source_type: str | None) -> str:
+    """The photometric type ("A" or "C") of a written far-field IES file.
+
+    ``requested`` is ``--ies-type``: "A", "C" or "auto". Auto writes **Type A** for vehicle
+    lamps — a lamp model (``source_type`` None: a GLB/mesh scene) or a Type A file — and Type C
+    for a general luminaire (a Type B/C IES or an LDT file as the scene).
+    """
+    if requested not in IES_TYPES:
+        raise InputError(f"--ies-type must be one of {', '.join(IES_TYPES)}, got {requested!r}")
+    if requested != "auto":
+        return requested
+    return "A" if source_type in (None, "A") else "C"
 
 
 def _is_float(t: str) -> bool:
