@@ -1,14 +1,21 @@
-"""Photometric data: Type C candela grids, far fields from photons, IES and EULUMDAT files.
+"""Photometric data: goniometer grids, far fields from photons, IES and EULUMDAT files.
 
 * :class:`CandelaGrid` — intensity (cd) on a Type C grid. Axes: the lamp shines along +Z
   with +Y up; γ is measured from the nadir (−Y), C about +Y counter-clockwise seen from
   above, **C = 0°, γ = 90° is straight ahead**, C = 90° the driver's left (+X).
-* :func:`farfield_from_photons` — bin escaping photons (directions, lm) into a grid with
-  I = ΔΦ/ΔΩ; total lumens are conserved exactly.
-* :func:`read_ies` / :func:`write_ies` — IES LM-63 (reads 1986–2019, writes 2002).
-* :func:`read_ldt` / :func:`write_ldt` — EULUMDAT.
+* :class:`HVGrid` — intensity on a Type A (vehicle lamps: H right, V up, H = V = 0° ahead)
+  or Type B grid (module ``hvgrid``).
+* Both are **bilinear** between nodes; ``total_flux()`` is the interpolant's exact integral
+  and ``intensity``/``intensity_towards``/``intensity_hv`` return the interpolant itself
+  (module ``bilinear``).
+* :func:`farfield_from_photons` — deposit escaping photons (directions, lm) on a Type C or
+  Type A grid with bilinear weights; total lumens are conserved exactly.
+* :func:`read_ies` / :func:`write_ies` — IES LM-63 Types A, B, C (reads 1986–2019, writes
+  2002); :func:`resolve_ies_type` — which type ``--ies`` writes.
+* :func:`read_ldt` / :func:`write_ldt` — EULUMDAT (uneven C angles, lamp sets).
 * :func:`read_photometric` — either, by file suffix.
-* :func:`sample_directions` — a file as a point source: inverse-CDF direction sampling.
+* :func:`sample_directions` — a file as a point source: directions drawn exactly from the
+  interpolated intensity.
 
 Shipped sample: ``interlight-ovni-60w-5300lm.ies`` (a measured LED high-bay, 5 300 lm; see
 ``SAMPLES.md`` for its source and licence).

@@ -1,10 +1,11 @@
 """IES LM-63 photometric files (``.ies``): read (1986, 1991, 1995, 2002, 2019) and write 2002.
 
-Only **Type C** photometry (photometric type 1) is supported, the type of every road and
-automotive far-field file lightsim makes or reads; Type A/B files raise an
-:class:`~lightsim.errors.InputError`. Axes: see
-:mod:`lightsim.luminaires.photometric.candela` (C = 0°, γ = 90° is straight ahead, γ = 0°
-the nadir −Y).
+Photometric types 1 (**Type C**, → :class:`CandelaGrid`), 2 (**Type B**) and 3 (**Type A**,
+vehicle lamps; both → :class:`HVGrid`). Axes: :mod:`~lightsim.luminaires.photometric.candela`
+(Type C: C = 0°, γ = 90° straight ahead, γ = 0° the nadir −Y) and
+:mod:`~lightsim.luminaires.photometric.hvgrid` (Type A: H = V = 0° straight ahead, H > 0
+right, V > 0 up; Type B: H = V = 0° down, H = 0°, V = 90° ahead), from LM-63-2002's
+definitions (see ``docs/conventions.md``).
 
 Reading
     * text decoded as UTF-8, else Latin-1; keyword lines ``[KEY] value`` (``[MORE]``
@@ -15,17 +16,24 @@ Reading
     * numbers may be separated by blanks, commas or line breaks;
     * candela = value × candela multiplier × ballast factor (and × the ballast-lamp
       photometric factor of LM-63-1986/1991/1995 files);
-    * lateral symmetry is expanded to full C coverage: last horizontal angle 0° (axial:
-      one plane), 90° (quadrants), 180° (bilateral about C0–C180), first 90°/last 270°
-      (bilateral about C90–C270), 360° (full; the duplicate 360° plane is dropped);
+    * every header number is checked (finite, in range, whole counts, counts that fit the
+      file) before use: one :class:`~lightsim.errors.InputError` line otherwise; repairs
+      (negative candela set to 0, numbers after the table, 0 lumens) become ``warnings``;
+    * Type C lateral symmetry is expanded to full C coverage: last horizontal angle 0°
+      (axial: one plane), 90° (quadrants), 180° (bilateral about C0–C180), first 90°/last
+      270° (bilateral about C90–C270), 360° (full; the duplicate 360° plane is dropped);
+    * Type A/B: first horizontal angle 0° = laterally symmetric (mirrored to −H), −90° =
+      full; other ranges within ±90° are read as listed (zero outside, with a warning);
+    * a warning when the intensities integrate to more than 1.05 × the rated lamp lumens;
     * ``lumens per lamp`` −1 means absolute photometry (``lamp_lumens=None``), otherwise
       ``lamp_lumens = number of lamps × lumens per lamp``.
 
 Writing (LM-63-2002)
     Header ``IESNA:LM-63-2002``, keywords from the grid's metadata (``[TEST]``,
     ``[TESTLAB]``, ``[ISSUEDATE]``, ``[MANUFAC]`` always present), ``TILT=NONE``, one lamp,
-    candela multiplier 1, units metres, ballast factor 1, all C-planes 0…360° (the 360° plane
-    repeats 0°; a single-plane grid is written as axially symmetric). Numbers carry
+    candela multiplier 1, units metres, ballast factor 1; Type C with all C-planes 0…360°
+    (the 360° plane repeats 0°; a single-plane grid is written as axially symmetric), an
+    :class:`HVGrid` as Type A or B with its own H and V angles. Numbers carry
     ``digits`` significant digits (default 7) without exponents; lines stay below 132
     characters (LM-63-2002 allows 256).
 
@@ -35,7 +43,7 @@ Parameters
 name           unit   default      meaning
 =============  =====  ===========  ============================================
 path           –      –            file to read or write (written atomically)
-grid           –      –            CandelaGrid to write
+grid           –      –            CandelaGrid or HVGrid to write
 digits         1      7            significant digits of written numbers
 input_watts    W      0.0          written on the ballast line
 dimensions_m   m      (0, 0, 0)    luminous opening width, length, height
