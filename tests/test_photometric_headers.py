@@ -21,7 +21,7 @@ def g_profile(g):
 def f_sym3(c):
     """Symmetric about the C90–C270 plane: f(C) = f(180° − C)."""
     c = np.radians(np.asarray(c))
-    return 2.0 + np.sin(c) + 0.5 * np.cos(2 * c)
+    return np.exp(2.5 * np.sin(c)) + 0.5 + 0.4 * np.cos(2 * c)
 
 
 def ldt_lines(isym: int, c_all, stored_rows, *, dc: float = 0.0, sets=((1, 1000.0),),
@@ -72,7 +72,18 @@ def test_ldt_symmetry_3_uneven_c_angles(tmp_path):
     # reading the stored planes as evenly spaced (270 + 22.5°·k), as before, is wrong
     even = (270.0 + 360.0 / 16 * np.arange(9)) % 360.0
     rows = g.candela[[C_ALL.index(c) for c in FRONT]]
-    assert not np.allclose(np.sort(even), np.sort(FRONT))
+    pairs = {}
+    for ang, row in zip(even, rows):
+        for img in (ang, 180.0 - ang):
+            pairs.setdefault(round(img % 360.0, 9), row)
+    old = CandelaGrid(sorted(pairs), GAMMA, [pairs[k] for k in sorted(pairs)], 1000.0)
+    flux_err = old.total_flux() / exact.total_flux() - 1
+    shape_err = np.max(np.abs(old.intensity(np.array(C_ALL)[:, None], np.array(GAMMA)[None])
+                              - exact.candela)) / exact.max_candela()
+    print(f"\nLDT Isym 3, uneven C: flux {g.total_flux():.6g} lm (exact "
+          f"{exact.total_flux():.6g}); even-spacing reading: flux {100 * flux_err:+.1f} %, "
+          f"shape off by up to {100 * shape_err:.0f} % of the peak")
+    assert abs(flux_err) > 0.05 and shape_err > 0.05
     pyldt = pytest.importorskip("pyldt")
     raw = pyldt.LdtReader.read(p, expand_symmetry=False)     # eulumdat-py's parse
     assert raw.header.isym == 3 and raw.header.c_angles == C_ALL

@@ -129,6 +129,8 @@ def test_type_a_file_comes_back_with_its_header_flux(tmp_path):
     assert grid.warnings == () or all("part of the hemisphere" in w for w in grid.warnings)
     assert grid.lamp_lumens == pytest.approx(phi, rel=1e-12)
     assert grid.total_flux() == pytest.approx(phi, rel=1e-8)   # 9 written digits
+    print(f"\nType A round trip: header {phi:.9g} lm, read back {grid.total_flux():.9g} lm "
+          f"({grid.total_flux() / phi - 1:+.1e})")
     assert grid.node_solid_angles().sum() == pytest.approx(
         np.radians(120) * 2 * np.sin(np.radians(20)), rel=1e-12)
     # the sampler's photons carry Φ/n each: the far field they make holds that flux
@@ -194,6 +196,8 @@ def test_sampling_chi_square(kind):
         v = np.linspace(-15, 15, 21)
         grid = HVGrid(h, v, beam_a(h, v), kind)
     p, dof = chi_square_p(grid)
+    print(f"\nType {kind} sampler vs interpolant: chi2 p = {p:.3f} ({dof} dof, 400 000 "
+          "photons, 2x2 sub-cells)")
     assert dof > 400
     assert p > 1e-4, f"sampled directions do not follow the interpolant (p = {p:.2g})"
 
@@ -213,7 +217,8 @@ def test_chi_square_rejects_a_constant_per_cell_sampler():
     ci, vi = np.unravel_index(cell, w.shape)
     hh = hc[ci] + rng.random(n) * (hc[ci + 1] - hc[ci])
     vv = np.degrees(np.arcsin(sv[vi] + rng.random(n) * (sv[vi + 1] - sv[vi])))
-    p, _ = chi_square_p(grid, dirs=hv_directions(hh, vv, "A"))
+    p, dof = chi_square_p(grid, dirs=hv_directions(hh, vv, "A"))
+    print(f"\nconstant-per-cell sampler: chi2 p = {p:.2g} ({dof} dof)")
     assert p < 1e-6
 
 
@@ -252,6 +257,8 @@ def test_asymmetric_type_a_lamp_lands_on_the_right(tmp_path, capsys):
     right = col[h_c > 0].sum()
     assert right > 0.999 * col.sum()                      # all on the driver's right
     centre_h = np.degrees(np.arctan(np.sum(col * h_c) / col.sum() / 25.0))
+    print(f"\nType A lamp lit at H +4…+12°: {100 * right / col.sum():.3f} % of the wall lux at "
+          f"h > 0, centroid H = {centre_h:+.2f}°")
     assert 4.0 < centre_h < 12.0
     rows = lux.sum(axis=1)                                # row 0 is the top
     v_m = np.linspace(wall["v_range_m"][1], wall["v_range_m"][0], lux.shape[0] + 1)
