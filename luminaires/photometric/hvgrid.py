@@ -8,8 +8,8 @@ LM-63-2002 (§3, definitions) fixes the two systems; both list horizontal angles
   *photometric zero* (straight down) H = 0°, V = −90°. So H is the azimuth of the vertical
   plane, V the elevation within it: in lightsim's axes (+Z ahead, +Y up, the driver's right
   −X) ``d = (−cos V sin H, sin V, cos V cos H)`` — **H > 0 to the right, V > 0 up**, and
-  dΩ = cos V dV dH. Type A (H, V) is Type C with C = −H mod 360°, γ = 90° + V: a real
-  601 × 127 low-beam file reproduced its header flux with this rule (docs/conventions.md).
+  dΩ = cos V dV dH. Type A (H, V) is Type C with C = −H mod 360°, γ = 90° + V (a project
+  measurement on a real low-beam file agrees, see docs/conventions.md).
 * **Type B** (floodlights): "the planes share a common horizontal axis"; photometric zero
   (straight down) is H = 0°, V = 0° and photometric horizontal H = 0°, V = 90°. So V is the
   angle of the plane about the horizontal (lateral) axis, from the nadir towards ahead, and

@@ -304,7 +304,11 @@ def read_ies(path: str | os.PathLike) -> CandelaGrid | HVGrid:
         check_angles(hor, where, f"the horizontal angles (Type {kind})", -90.0, 90.0)
         h_full, cd_full = expand_type_ab_symmetry(hor, cd, where, warns)
         grid = HVGrid(h_full, gam, cd_full, kind, lamp_lumens, meta)
-    flux = grid.total_flux()
+    with np.errstate(over="ignore", invalid="ignore"):
+        flux = grid.total_flux()
+    if not np.isfinite(flux):
+        raise InputError(f"{where}: the intensities are too large to integrate "
+                         f"(peak {grid.max_candela():.3g} cd)")
     if lamp_lumens is not None and flux > 1.05 * lamp_lumens:
         warns.append(f"{where}: the intensities integrate to {flux:.6g} lm, more than the "
                      f"rated lamp flux {lamp_lumens:.6g} lm (an efficiency above 100 %); the "

@@ -222,7 +222,11 @@ def read_ldt(path: str | os.PathLike, *, lamp_set: int | None = None) -> Candela
                  "dc_deg": format_number(dc), "dg_deg": format_number(dg),
                  "input_watts": format_number(watts)})
     grid = CandelaGrid(c_full, gam, cd_full, flux, meta)
-    total = grid.total_flux()
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = grid.total_flux()
+    if not np.isfinite(total):
+        raise InputError(f"{where}: the intensities are too large to integrate "
+                         f"(peak {grid.max_candela():.3g} cd)")
     stated = flux * lorl / 100.0
     if lorl > 0 and abs(total - stated) > 0.05 * stated:
         warns.append(f"{where}: the intensities integrate to {total:.6g} lm, the header says "
