@@ -292,6 +292,13 @@ def test_type_a_far_field_written_and_read(tmp_path):
         hat = np.sum(w * g.intensity(h0 + X, v0 + Y)) / np.sum(w)
         assert back.intensity(h0, v0) == pytest.approx(hat, rel=0.04)
     assert back.intensity(-30.0, 10.0) < 0.01 * g.max_candela()
+    photompy = pytest.importorskip("photompy")     # a maintained reader parses our Type A
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        phot = photompy.IESFile.read(text).photometry
+    assert int(phot.photometric_type) == 3
+    assert np.allclose(phot.phis, back.h_deg) and np.allclose(phot.thetas, back.v_deg)
+    assert np.allclose(phot.values, back.candela)
 
 
 @pytest.mark.parametrize("text, fragment", [
