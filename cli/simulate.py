@@ -151,7 +151,8 @@ class _Progress:
               help="Write the far-field intensity as IES LM-63-2002.")
 @click.option("--ldt", "ldt_out", type=click.Path(dir_okay=False),
               help="Write the far-field intensity as EULUMDAT.")
-@click.option("--ies-type", default="auto", show_default=True, metavar="auto|A|C", help="Photometric type of --ies: A (vehicle lamps: H right, "
+@click.option("--ies-type", default="auto", show_default=True, metavar="auto|A|C",
+              help="Photometric type of --ies: A (vehicle lamps: H right, "
               "V up), C; auto = A for lamp models and Type A inputs, else C.")
 @click.option("--lamp-set", default=None, metavar="N",
               help="EULUMDAT scene file: which lamp set (1-based) scales the intensities "
