@@ -3,6 +3,8 @@ IES/LDT headers: one clear line, exit 2, never a traceback."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from helpers import run_cli as _run
@@ -252,3 +254,55 @@ def test_cli_lamp_set_and_warning_line(tmp_path, capsys):
     code, _, err = _run(["simulate", str(p), "--photons", "20000", "--resolution", "16x8",
                          "--lamp-set", "5", "--out", str(tmp_path / "r2"), "--quiet"], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1
+
+
+def _mutations(text: str, rng, n: int):
+    """Seeded edits of a photometric file: numbers replaced, lines cut/duplicated, bytes."""
+    specials = ["inf", "-inf", "nan", "1e400", "-1", "0", "1e9", "2.5", "-0", "x", "", "1e-320"]
+    lines = text.split("\n")
+    for _ in range(n):
+        kind = rng.integers(4)
+        ls = list(lines)
+        k = int(rng.integers(len(ls)))
+        if kind == 0:                                   # one token → a special value
+            toks = ls[k].split(" ")
+            toks[int(rng.integers(len(toks)))] = specials[int(rng.integers(len(specials)))]
+            ls[k] = " ".join(toks)
+        elif kind == 1:                                 # truncate
+            ls = ls[:k]
+        elif kind == 2:                                 # duplicate a line
+            ls.insert(k, ls[k])
+        else:                                           # flip a byte
+            b = bytearray("\n".join(ls).encode("latin-1", "replace"))
+            if b:
+                b[int(rng.integers(len(b)))] ^= 1 << int(rng.integers(7))
+            yield b
+            continue
+        yield "\n".join(ls).encode("latin-1", "replace")
+
+
+@pytest.mark.parametrize("kind", ["ies", "ldt"])
+def test_seeded_mutation_corpus(tmp_path, kind):
+    """Every mutant reads cleanly or fails with one InputError line; no numpy warning."""
+    if kind == "ies":
+        text = IES_OK
+        reader = read_ies
+    else:
+        text = "\n".join(_base_ldt(tmp_path))
+        reader = read_ldt
+    rng = np.random.default_rng(13)
+    outcome = {"ok": 0, "error": 0}
+    for k, data in enumerate(_mutations(text, rng, 60)):
+        p = tmp_path / f"m{k}.{kind}"
+        p.write_bytes(bytes(data))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")              # a leaked RuntimeWarning fails
+            try:
+                g = reader(p)
+            except InputError as exc:
+                assert "\n" not in str(exc)
+                outcome["error"] += 1
+                continue
+        assert np.isfinite(g.total_flux()) and np.all(np.isfinite(g.candela))
+        outcome["ok"] += 1
+    assert outcome["ok"] + outcome["error"] == 60 and outcome["error"] > 0
