@@ -237,14 +237,25 @@ def test_pdf_is_the_interpolated_intensity():
 
 
 # ---- lightsim simulate: the light goes where the file says -----------------------------
-def test_asymmetric_type_a_lamp_lands_on_the_right(tmp_path, capsys):
-    """Light only at H = +4…+12° (right of the axis), V = −3…−1°: the wall's right side."""
+@pytest.mark.parametrize("kind", ["A", "C"])
+def test_asymmetric_type_a_lamp_lands_on_the_right(tmp_path, capsys, kind):
+    """Light only at H = +4…+12° (right of the axis), V = −3…−1°: the wall's right side.
+
+    Type C: the same lamp as C = 348…356° (C = −H), γ = 87…89° (γ = 90° + V).
+    """
     h = np.array([-20.0, 3.0, 4.0, 12.0, 13.0, 20.0])
     v = np.array([-10.0, -4.0, -3.0, -1.0, 0.0, 10.0])
     cd = np.zeros((6, 6))
     cd[2:4, 2:4] = 10000.0
     p = tmp_path / "right.ies"
-    p.write_text(type_a_text(h, v, cd, lumens=-1))
+    if kind == "A":
+        p.write_text(type_a_text(h, v, cd, lumens=-1))
+    else:
+        c = np.array([0.0, 340.0, 347.0, 348.0, 356.0, 357.0])
+        gam = np.array([0.0, 86.0, 87.0, 89.0, 90.0, 180.0])
+        cdc = np.zeros((6, 6))
+        cdc[3:5, 2:4] = 10000.0
+        write_ies(p, CandelaGrid(c, gam, cdc))
     out = tmp_path / "run"
     code, _, err = _run(["simulate", str(p), "--photons", "60000", "--wall-distance", "25",
                          "--wall-size", "24x8", "--resolution", "48x16", "--estimator", "bin",
@@ -259,8 +270,8 @@ def test_asymmetric_type_a_lamp_lands_on_the_right(tmp_path, capsys):
     right = col[h_c > 0].sum()
     assert right > 0.999 * col.sum()                      # all on the driver's right
     centre_h = np.degrees(np.arctan(np.sum(col * h_c) / col.sum() / 25.0))
-    print(f"\nType A lamp lit at H +4…+12°: {100 * right / col.sum():.3f} % of the wall lux at "
-          f"h > 0, centroid H = {centre_h:+.2f}°")
+    print(f"\nType {kind} lamp lit at H +4…+12°: {100 * right / col.sum():.3f} % of the wall "
+          f"lux at h > 0, centroid H = {centre_h:+.2f}°")
     assert 4.0 < centre_h < 12.0
     rows = lux.sum(axis=1)                                # row 0 is the top
     v_m = np.linspace(wall["v_range_m"][1], wall["v_range_m"][0], lux.shape[0] + 1)
