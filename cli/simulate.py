@@ -151,6 +151,12 @@ class _Progress:
               help="Write the far-field intensity as IES LM-63-2002.")
 @click.option("--ldt", "ldt_out", type=click.Path(dir_okay=False),
               help="Write the far-field intensity as EULUMDAT.")
+@click.option("--ies-type", default="auto", show_default=True, metavar="auto|A|C",
+              help="Photometric type of --ies: A (vehicle lamps: H right, "
+              "V up), C; auto = A for lamp models and Type A inputs, else C.")
+@click.option("--lamp-set", default=None, metavar="N",
+              help="EULUMDAT scene file: which lamp set (1-based) scales the intensities "
+              "(default: the first, with a warning when there are several).")
 @click.option("--farfield-photons", type=int, default=1_000_000, show_default=True)
 @click.option("--mount-height", type=float, default=0.65, show_default=True,
               help="Lamp height above the road for the road view (m).")
@@ -171,7 +177,8 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
              flux: float | None, emission: str | None, filament: str | None,
              filament_at: str | None, filament_axis: str, part_material: tuple[str, ...],
              regulation: str | None, traffic: str, aim: bool, ies_out: str | None,
-             ldt_out: str | None, farfield_photons: int, mount_height: float,
+             ldt_out: str | None, ies_type: str, lamp_set: str | None,
+             farfield_photons: int, mount_height: float,
              log_scale: bool, workers: int, address: str | None, resume_dir: str | None,
              explain: bool, quiet: bool) -> None:
     """Simulate SCENE_FILE (GLB/glTF/OBJ/STL/PLY) and write the wall illuminance in lux."""
@@ -206,7 +213,8 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
             log_scale=log_scale, workers=workers,
             address=address or os.environ.get("RAY_ADDRESS") or None,
             regulation=regulation, traffic=traffic, aim=aim, ies=ies_out, ldt=ldt_out,
-            farfield_photons=farfield_photons, mount_height=mount_height)
+            farfield_photons=farfield_photons, mount_height=mount_height, ies_type=ies_type,
+            lamp_set=_lamp_set(lamp_set))
         opts.run_config()  # validate the settings before any work
 
     stop = {"signal": None}
@@ -262,3 +270,16 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
                    f"error_vs_time.png, summary.json{extra}")
         for f in s.get("farfield", {}).get("files", []):
             click.echo(f"wrote {f} ({s['farfield']['total_flux_lm']:.1f} lm leave the lamp)")
+
+
+def _lamp_set(text: str | None) -> int | None:
+    """``--lamp-set N`` as a positive int (one error line otherwise)."""
+    if text is None:
+        return None
+    try:
+        n = int(text)
+    except ValueError:
+        raise InputError(f"--lamp-set must be a whole number ≥ 1, got '{text}'") from None
+    if n < 1:
+        raise InputError(f"--lamp-set must be a whole number ≥ 1, got {n}")
+    return n

@@ -163,12 +163,20 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
 
 
 def farfield_grid(scene, photons: int = 1_000_000, seed: int = 1, step_deg: float = 1.0,
-                  threads: int | None = None):
-    """Far-field intensity (Type C grid, cd) from photons leaving the lamp (no wall).
+                  threads: int | None = None, photometric_type: str = "C"):
+    """Far-field intensity (Type C grid, or Type A with ``photometric_type="A"``; cd) from
+    photons leaving the lamp (no wall).
 
     Photons are traced through the luminaire alone; those escaping to infinity are
     binned by direction (I = ΔΦ/ΔΩ).
     """
+    return farfield_grids(scene, photons, seed, step_deg, threads,
+                          (photometric_type,))[photometric_type]
+
+
+def farfield_grids(scene, photons: int = 1_000_000, seed: int = 1, step_deg: float = 1.0,
+                   threads: int | None = None, photometric_types: tuple[str, ...] = ("C",)):
+    """:func:`farfield_grid` for several photometric types from one set of traced photons."""
     from lightsim.luminaires.photometric import farfield_from_photons
     from lightsim.sampling import digit_permutations, halton_points, photon_keys
     from lightsim.scene import WALL, Scene
@@ -190,11 +198,13 @@ def farfield_grid(scene, photons: int = 1_000_000, seed: int = 1, step_deg: floa
         dirs.append(res.escaped_dir)
         power.append(res.escaped_power[:, 0] / photons)  # lm per photon
     tracer.caster.close()
-    return farfield_from_photons(np.concatenate(dirs), np.concatenate(power), photons,
-                                 dc_deg=step_deg, dgamma_deg=step_deg,
-                                 lamp_lumens=scene.total_flux,
-                                 metadata={"luminaire": Path(scene.source).name or "lightsim",
-                                           "test": f"lightsim far field, {photons} photons"})
+    d, pw = np.concatenate(dirs), np.concatenate(power)
+    meta = {"luminaire": Path(scene.source).name or "lightsim",
+            "test": f"lightsim far field, {photons} photons"}
+    return {t: farfield_from_photons(d, pw, photons, dc_deg=step_deg, dgamma_deg=step_deg,
+                                     lamp_lumens=scene.total_flux, metadata=meta,
+                                     photometric_type=t)
+            for t in photometric_types}
 
 
 def format_regulation(reg: dict[str, Any]):

@@ -421,8 +421,11 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                wall_distance: float = 25.0, wall_size: tuple[float, float] = (30.0, 12.0),
                wall_albedo: float = 0.8, resolution: tuple[int, int] = (640, 256),
                part_materials: dict[str, str] | None = None,
-               channels: int | None = None) -> Scene:
+               channels: int | None = None, lamp_set: int | None = None) -> Scene:
     """Load a luminaire (GLB, glTF, OBJ, STL, PLY) into a validated :class:`Scene`.
+
+    An IES/LDT file becomes a goniometric point source (``lamp_set``: the EULUMDAT lamp set
+    to use, 1-based; the reader's warnings become scene warnings).
 
     See the module docstring for the parameters. A wall is added at ``wall_distance`` when
     the file has none.
@@ -435,9 +438,12 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
     if path.suffix.lower() in PHOTOMETRIC_SUFFIXES:
         if filament is not None:
             raise InputError("an IES/LDT file is its own light source: --filament makes no sense")
-        parts = [goniometric_source(path, flux)]
+        parts = [goniometric_source(path, flux, lamp_set=lamp_set)]
         wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
-        return Scene([*parts, wall_part], frame, str(path), [], channels)
+        return Scene([*parts, wall_part], frame, str(path),
+                     list(parts[0].distribution.warnings), channels)
+    if lamp_set is not None:
+        raise InputError("--lamp-set applies to EULUMDAT (.ldt) files only")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{path}: not a mesh or photometric file (expected one of "
                          f"{', '.join(MESH_SUFFIXES + PHOTOMETRIC_SUFFIXES)})")
@@ -549,22 +555,24 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
 
 
 def goniometric_source(path: str | Path, flux: float | None = None,
-                       position: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Part:
+                       position: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                       lamp_set: int | None = None) -> Part:
     """A point source with the intensity distribution of an IES or EULUMDAT file.
 
-    Photons leave ``position`` (m) in directions distributed like the file's candela
-    grid (Type C, lamp axes: +Z ahead, +Y up); the flux is the grid's integrated flux,
-    or ``flux`` (lm) with the distribution's shape kept.
+    Photons leave ``position`` (m) in directions drawn from the file's interpolated
+    intensity (IES Types A, B, C or EULUMDAT; lamp axes +Z ahead, +Y up); the flux is the
+    interpolant's integral, or ``flux`` (lm) with the distribution's shape kept.
     """
     from lightsim.luminaires.photometric import read_photometric
 
-    grid = read_photometric(path)
+    if flux is not None and not (math.isfinite(flux) and flux > 0):
+        raise InputError(f"flux must be a positive number of lumens, got {flux}")
+    grid = read_photometric(path, lamp_set=lamp_set)
     total = float(grid.total_flux())
     if not total > 0:
         raise InputError(f"{path}: the intensity distribution emits no flux")
     if flux is not None:
-        grid = type(grid)(grid.c_deg, grid.gamma_deg, grid.candela * (flux / total),
-                          grid.lamp_lumens, dict(grid.metadata))
+        grid = grid.scaled(flux / total)
         total = float(flux)
     # a tiny tetrahedron stands for the point in size and bookkeeping; it is never traced
     p = np.asarray(position, dtype=np.float64)

@@ -69,6 +69,8 @@ class SimulateOptions:
     ldt: str | None = None
     farfield_photons: int = 1_000_000
     mount_height: float = 0.65
+    ies_type: str = "auto"
+    lamp_set: int | None = None
 
     def run_config(self) -> RunConfig:
         """The engine settings (validated); also checks the photometric output names, so
@@ -78,6 +80,11 @@ class SimulateOptions:
             if path is not None and Path(path).suffix.lower() not in suffixes:
                 raise InputError(f"{opt} {path}: the file name must end in "
                                  f"{' or '.join(suffixes)}")
+        from lightsim.luminaires.photometric import resolve_ies_type
+
+        resolve_ies_type(self.ies_type, None)  # a misspelt --ies-type fails here
+        if self.lamp_set is not None and not self.lamp_set >= 1:
+            raise InputError(f"--lamp-set must be ≥ 1, got {self.lamp_set}")
         cfg = dict(self.config)
         if cfg.get("max_radius") == "inf":
             cfg["max_radius"] = math.inf
@@ -127,7 +134,7 @@ def load(opts: SimulateOptions) -> Scene:
                       filament=opts.filament, filament_at=opts.filament_at,
                       filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
                       wall_size=opts.wall_size, resolution=opts.resolution,
-                      part_materials=opts.part_materials)
+                      part_materials=opts.part_materials, lamp_set=opts.lamp_set)
 
 
 def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,
@@ -304,17 +311,29 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
     summary["cutoff"] = _cutoff(lux, frame, opts.traffic)
     report.engineering_plots(out, lux, frame, results, opts.mount_height)
     if opts.ies or opts.ldt:
-        from lightsim.luminaires.photometric import write_photometric
+        from lightsim.luminaires.photometric import resolve_ies_type, write_photometric
 
-        grid = report.farfield_grid(session.scene, opts.farfield_photons,
-                                    seed=session.config.seed)
+        src = next((p.distribution for p in session.scene.parts
+                    if p.distribution is not None), None)
+        ies_type = resolve_ies_type(opts.ies_type, None if src is None
+                                    else src.photometric_type)
+        wanted = {path: (ies_type if path == opts.ies else "C")
+                  for path in (opts.ies, opts.ldt) if path}
+        grids = report.farfield_grids(session.scene, opts.farfield_photons,
+                                      seed=session.config.seed,
+                                      photometric_types=tuple(sorted(set(wanted.values()))))
+        grid = grids["C"] if "C" in grids else grids["A"]
         summary["farfield"] = {"photons": opts.farfield_photons,
                                "total_flux_lm": float(grid.total_flux()),
-                               "max_cd": float(np.max(grid.candela)), "files": []}
-        for path in (opts.ies, opts.ldt):
-            if path:
-                write_photometric(path, grid)
-                summary["farfield"]["files"].append(str(path))
+                               "max_cd": float(np.max(grid.candela)), "files": [],
+                               "ies_type": ies_type if opts.ies else None}
+        if "A" in grids:
+            out_a = float(grids["A"].metadata.get("flux_outside_lm", 0.0))
+            summary["farfield"]["type_a_flux_lm"] = float(grids["A"].total_flux())
+            summary["farfield"]["type_a_outside_lm"] = out_a
+        for path, kind in wanted.items():
+            write_photometric(path, grids[kind])
+            summary["farfield"]["files"].append(str(path))
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str) -> dict[str, Any]:

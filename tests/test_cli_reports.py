@@ -62,11 +62,15 @@ def test_far_field_files_hold_the_escaping_flux(result):
     # flux that leaves the lamp = what reached the wall + what missed it (main run)
     e = s["energy_lm"]
     assert leaving == pytest.approx(e["wall"] + e["escaped"], rel=0.03)
-    assert ies.total_flux() == pytest.approx(leaving, rel=1e-4)
+    # a headlamp's --ies is Type A (front hemisphere): it holds the flux heading forwards
+    ff = s["farfield"]
+    assert ff["ies_type"] == "A" and ies.photometric_type == "A"
+    assert ies.total_flux() == pytest.approx(ff["type_a_flux_lm"], rel=1e-4)
+    assert ff["type_a_flux_lm"] + ff["type_a_outside_lm"] == pytest.approx(leaving, rel=1e-9)
     assert ldt.total_flux() == pytest.approx(leaving, rel=1e-3)
-    # straight ahead (C = 0°, γ = 90°) is bright; straight up is dark
-    i_ahead = ies.intensity(np.array([0.0]), np.array([90.0]))[0]
-    i_up = ies.intensity(np.array([0.0]), np.array([180.0]))[0]
+    # straight ahead (H = V = 0°) is bright; straight up is dark
+    i_ahead = float(ies.intensity_hv(0.0, 0.0))
+    i_up = float(ies.intensity_towards(np.array([0.0, 1.0, 0.0])))
     assert i_ahead > 100 * max(i_up, 1e-9)
 
 

@@ -1,14 +1,21 @@
-"""Photometric data: Type C candela grids, far fields from photons, IES and EULUMDAT files.
+"""Photometric data: goniometer grids, far fields from photons, IES and EULUMDAT files.
 
 * :class:`CandelaGrid` — intensity (cd) on a Type C grid. Axes: the lamp shines along +Z
   with +Y up; γ is measured from the nadir (−Y), C about +Y counter-clockwise seen from
   above, **C = 0°, γ = 90° is straight ahead**, C = 90° the driver's left (+X).
-* :func:`farfield_from_photons` — bin escaping photons (directions, lm) into a grid with
-  I = ΔΦ/ΔΩ; total lumens are conserved exactly.
-* :func:`read_ies` / :func:`write_ies` — IES LM-63 (reads 1986–2019, writes 2002).
-* :func:`read_ldt` / :func:`write_ldt` — EULUMDAT.
+* :class:`HVGrid` — intensity on a Type A (vehicle lamps: H right, V up, H = V = 0° ahead)
+  or Type B grid (module ``hvgrid``).
+* Both are **bilinear** between nodes; ``total_flux()`` is the interpolant's exact integral
+  and ``intensity``/``intensity_towards``/``intensity_hv`` return the interpolant itself
+  (module ``bilinear``).
+* :func:`farfield_from_photons` — deposit escaping photons (directions, lm) on a Type C or
+  Type A grid with bilinear weights; total lumens are conserved exactly.
+* :func:`read_ies` / :func:`write_ies` — IES LM-63 Types A, B, C (reads 1986–2019, writes
+  2002); :func:`resolve_ies_type` — which type ``--ies`` writes.
+* :func:`read_ldt` / :func:`write_ldt` — EULUMDAT (uneven C angles, lamp sets).
 * :func:`read_photometric` — either, by file suffix.
-* :func:`sample_directions` — a file as a point source: inverse-CDF direction sampling.
+* :func:`sample_directions` — a file as a point source: directions drawn exactly from the
+  interpolated intensity.
 
 Shipped sample: ``interlight-ovni-60w-5300lm.ies`` (a measured LED high-bay, 5 300 lm; see
 ``SAMPLES.md`` for its source and licence).
@@ -44,7 +51,8 @@ from .candela import (
     hv_from_directions,
 )
 from .farfield import farfield_from_photons, uniform_axes
-from .ies import read_ies, write_ies
+from .hvgrid import HVGrid, hv_directions
+from .ies import IES_TYPES, read_ies, resolve_ies_type, write_ies
 from .ldt import read_ldt, write_ldt
 from .sampling import sample_directions
 
@@ -53,16 +61,20 @@ SAMPLE_IES = SAMPLE_DIR / "interlight-ovni-60w-5300lm.ies"
 """A published, measured IES file shipped with lightsim (see SAMPLES.md)."""
 
 __all__ = [
+    "IES_TYPES",
     "SAMPLE_IES",
     "CandelaGrid",
+    "HVGrid",
     "angles_from_directions",
     "direction_from_hv",
     "directions_from_angles",
     "farfield_from_photons",
+    "hv_directions",
     "hv_from_directions",
     "read_ies",
     "read_ldt",
     "read_photometric",
+    "resolve_ies_type",
     "sample_directions",
     "uniform_axes",
     "write_ies",
@@ -71,13 +83,20 @@ __all__ = [
 ]
 
 
-def read_photometric(path: str | os.PathLike) -> CandelaGrid:
-    """Read an ``.ies`` or ``.ldt`` file (chosen by suffix) into a :class:`CandelaGrid`."""
+def read_photometric(path: str | os.PathLike, *, lamp_set: int | None = None
+                     ) -> CandelaGrid | HVGrid:
+    """Read an ``.ies`` (Types A, B, C) or ``.ldt`` file (chosen by suffix) into a grid.
+
+    ``lamp_set`` (1-based) chooses the lamp set of a EULUMDAT file with several; it makes no
+    sense for IES files.
+    """
     suffix = Path(path).suffix.lower()
     if suffix == ".ies":
+        if lamp_set is not None:
+            raise InputError(f"--lamp-set applies to EULUMDAT (.ldt) files, not {path}")
         return read_ies(path)
     if suffix in (".ldt", ".eul"):
-        return read_ldt(path)
+        return read_ldt(path, lamp_set=lamp_set)
     raise InputError(f"photometric file {path}: unknown suffix '{suffix}' (.ies or .ldt)")
 
 

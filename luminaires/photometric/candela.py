@@ -14,14 +14,15 @@ So the unit direction of (C, γ) is ``(sin γ·sin C, −cos γ, sin γ·cos C)`
 ahead (H-V) is C = 0°, γ = 90°. A wall position (h_deg, v_deg) is the direction
 ``(−tan h, tan v, 1)/‖·‖`` (see :func:`direction_from_hv`).
 
-Cells. Every grid node (C_j, γ_i) stands for the cell bounded halfway to its neighbours
-(C periodic; γ clipped to the first/last listed angle, so a 0…180° grid has polar caps of
-half width). The intensity is taken constant over a cell for integration
-(:meth:`CandelaGrid.total_flux`), for binning photons
-(:func:`~lightsim.luminaires.photometric.farfield.farfield_from_photons`) and for sampling
-(:func:`~lightsim.luminaires.photometric.sampling.sample_directions`), so the three agree
-exactly; :meth:`CandelaGrid.intensity` interpolates bilinearly between nodes for display
-and wall maps.
+Interpolation. Between nodes the intensity is **bilinear in (C, γ)** (C periodic), zero
+outside [γ_first, γ_last]: :meth:`CandelaGrid.intensity` (and ``intensity_towards`` /
+``intensity_hv``) return exactly that interpolant, :meth:`CandelaGrid.total_flux` is its
+exact integral and :func:`~lightsim.luminaires.photometric.sampling.sample_directions` draws
+directions from it (see :mod:`~lightsim.luminaires.photometric.bilinear`), so the far field
+of a simulated point source converges to ``intensity`` itself. :meth:`node_solid_angles`
+gives each node's share Ω (sr) of that integral, ``total_flux = Σ I·Ω``. The older cells
+halfway between nodes (:meth:`solid_angles`, :meth:`cell_flux`) remain for reference: the
+midpoint rule other tools (e.g. photompy's ``total_optical_power``) use.
 
 Parameters
 ----------
@@ -41,12 +42,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from lightsim.errors import InputError
+
+from .bilinear import PolarTable
 
 __all__ = [
     "CandelaGrid",
@@ -134,6 +138,8 @@ class CandelaGrid:
         Rated lamp flux in lm (None for absolute photometry).
     metadata : mapping of str to str
         Descriptive fields (``manufacturer``, ``luminaire``, ``test``, ``lamp``, …).
+    warnings : tuple of str
+        What the reader repaired or noticed (one line each; shown by the CLI).
     """
 
     c_deg: NDArray
@@ -141,6 +147,9 @@ class CandelaGrid:
     candela: NDArray
     lamp_lumens: float | None = None
     metadata: Mapping[str, str] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+    photometric_type = "C"
 
     def __post_init__(self) -> None:
         c = np.array(self.c_deg, dtype=float).reshape(-1)  # copies: we freeze them below
@@ -168,6 +177,14 @@ class CandelaGrid:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "metadata", {str(k): str(v) for k, v in
                                               dict(self.metadata).items()})
+        object.__setattr__(self, "warnings", tuple(str(w) for w in self.warnings))
+
+    @cached_property
+    def table(self) -> PolarTable:
+        """The grid as a polar web: pole −Y (γ = 0), C = 0° → +Z, C = 90° → +X."""
+        return PolarTable(self.c_deg, self.gamma_deg, self.candela, True,
+                          np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0]),
+                          np.array([1.0, 0.0, 0.0]))
 
     # ---- cells and integrals -----------------------------------------------------------
     @property
@@ -183,28 +200,32 @@ class CandelaGrid:
         """γ cell edges in degrees, shape (nG + 1,), from γ_first to γ_last."""
         return _gamma_edges(self.gamma_deg)
 
+    def node_solid_angles(self) -> NDArray:
+        """Each node's share Ω (sr) of the interpolant's integral, shape (nC, nG):
+        ``total_flux() == Σ candela·Ω``; Ω sums to the covered band."""
+        return self.table.node_weights()
+
+    def cell_flux(self) -> float:
+        """Σ I·ΔΩ over the midpoint cells (lm): the rule of photompy's total_optical_power."""
+        return float(np.sum(self.candela * self.solid_angles()))
+
     def solid_angles(self) -> NDArray:
-        """Solid angle of every cell in sr, shape (nC, nG); sums to the covered band."""
+        """Solid angle of every midpoint cell in sr, shape (nC, nG); sums to the band."""
         dc = np.radians(np.diff(self.c_edges_deg()))
         ge = np.radians(self.gamma_edges_deg())
         band = np.cos(ge[:-1]) - np.cos(ge[1:])
         return dc[:, None] * band[None, :]
 
     def total_flux(self) -> float:
-        """Luminous flux (lm) leaving the luminaire: Σ I·ΔΩ over the cells."""
-        return float(np.sum(self.candela * self.solid_angles()))
+        """Luminous flux (lm) leaving the luminaire: the exact ∫ I dΩ of the interpolant."""
+        return self.table.total_flux()
 
     def downward_flux_fraction(self) -> float:
         """Share (0…1) of the flux going below the horizontal (γ < 90°)."""
         total = self.total_flux()
         if total <= 0:
             return 0.0
-        ge = self.gamma_edges_deg()
-        lo = np.clip(ge[:-1], 0, 90)
-        hi = np.clip(ge[1:], 0, 90)
-        band = np.cos(np.radians(lo)) - np.cos(np.radians(hi))
-        dc = np.radians(np.diff(self.c_edges_deg()))
-        return float(np.sum(self.candela * dc[:, None] * band[None, :]) / total)
+        return float(self.table.flux_below(90.0) / total)
 
     def max_candela(self) -> float:
         """Peak intensity in cd."""
@@ -214,7 +235,7 @@ class CandelaGrid:
         """A copy with intensities (and lamp lumens) multiplied by ``factor``."""
         lm = None if self.lamp_lumens is None else self.lamp_lumens * factor
         return CandelaGrid(self.c_deg, self.gamma_deg, self.candela * factor, lm,
-                           dict(self.metadata))
+                           dict(self.metadata), self.warnings)
 
     # ---- evaluation -------------------------------------------------------------------
     def intensity(self, c_deg: ArrayLike, gamma_deg: ArrayLike) -> NDArray:
@@ -222,31 +243,11 @@ class CandelaGrid:
 
         Outside [γ_first, γ_last] the intensity is 0.
         """
-        c = np.asarray(c_deg, dtype=float) % 360.0
-        g = np.asarray(gamma_deg, dtype=float)
-        c, g = np.broadcast_arrays(c, g)
-        gam = self.gamma_deg
-        gi = np.clip(np.searchsorted(gam, g, side="right") - 1, 0, len(gam) - 2)
-        tg = np.clip((g - gam[gi]) / (gam[gi + 1] - gam[gi]), 0.0, 1.0)
-        if len(self.c_deg) == 1:
-            row = self.candela[0]
-            val = row[gi] * (1 - tg) + row[gi + 1] * tg
-        else:
-            cs = np.concatenate([self.c_deg, [self.c_deg[0] + 360.0]])
-            cc = np.where(c < cs[0], c + 360.0, c)
-            ci = np.clip(np.searchsorted(cs, cc, side="right") - 1, 0, len(cs) - 2)
-            tc = (cc - cs[ci]) / (cs[ci + 1] - cs[ci])
-            cj = (ci + 1) % len(self.c_deg)
-            a = self.candela[ci, gi] * (1 - tg) + self.candela[ci, gi + 1] * tg
-            b = self.candela[cj, gi] * (1 - tg) + self.candela[cj, gi + 1] * tg
-            val = a * (1 - tc) + b * tc
-        inside = (g >= gam[0] - 1e-9) & (g <= gam[-1] + 1e-9)
-        return np.where(inside, val, 0.0)
+        return self.table.evaluate(c_deg, gamma_deg)
 
     def intensity_towards(self, directions: ArrayLike) -> NDArray:
         """Intensity (cd) towards world directions (…, 3)."""
-        c, g = angles_from_directions(directions)
-        return self.intensity(c, g)
+        return self.table.evaluate_towards(directions)
 
     def intensity_hv(self, h_deg: ArrayLike, v_deg: ArrayLike) -> NDArray:
         """Intensity (cd) towards wall angles (h_deg, v_deg) in degrees."""
@@ -274,7 +275,8 @@ class CandelaGrid:
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready description: grid size, peak cd, flux (lm), lamp lumens, metadata."""
-        return {"c_planes": int(self.shape[0]), "gamma_angles": int(self.shape[1]),
+        return {"photometric_type": "C",
+                "c_planes": int(self.shape[0]), "gamma_angles": int(self.shape[1]),
                 "gamma_range_deg": [float(self.gamma_deg[0]), float(self.gamma_deg[-1])],
                 "max_cd": self.max_candela(), "total_flux_lm": self.total_flux(),
                 "lamp_lumens": self.lamp_lumens, "metadata": dict(self.metadata)}

@@ -1,15 +1,19 @@
 """Far-field intensity (cd) of a lamp from the photons that leave it.
 
-Every photon that escapes the lamp carries a flux ΔΦ (lm) in a direction; binned on a
-Type C grid the intensity of a cell is ``I = ΣΔΦ / ΔΩ`` (cd). The cells are those of
-:class:`~lightsim.luminaires.photometric.candela.CandelaGrid` (halfway between nodes, polar
-caps at γ = 0° and 180°), so the grid's :meth:`total_flux` equals the escaped flux exactly.
-The two polar caps are split among the C-planes in the binning but reported with one
-intensity (their cap's flux over the cap's solid angle) for every C, as a nodal grid needs.
+Every photon that escapes the lamp carries a flux ΔΦ (lm) in a direction. It is deposited
+on the four grid nodes around its direction with its bilinear weights ("cloud in cell"),
+and a node's intensity is ``I = Σ w·ΔΦ / Ω`` (cd) with Ω the node's share of the solid angle
+(:meth:`~lightsim.luminaires.photometric.bilinear.PolarTable.node_weights`). Because the
+weights of every direction sum to 1 and ``total_flux = Σ I·Ω`` is the exact integral of the
+grid's bilinear interpolant, the grid's :meth:`total_flux` equals the binned flux exactly.
+A pole node (γ = 0°/180°, or V = ±90° in Type A) is one direction: it gets one value for
+every plane (the pooled flux over the pooled Ω). Grids: Type C (default) over the whole
+sphere, or Type A (H, V from −90° to 90°) over the front hemisphere — photons heading
+backwards are then reported as ``metadata["flux_outside_lm"]``.
 
 Statistical error: the emitted photons are independent samples, photon k adding
-``X_k = ΔΦ_k`` to the cell it lands in (0 if it is absorbed or lands elsewhere); the standard
-error of a cell's flux is ``sqrt(n/(n−1)·(ΣX² − (ΣX)²/n))`` with ``n = n_emitted``.
+``X_k = w_k·ΔΦ_k`` to a node (0 if it is absorbed or lands elsewhere); the standard error of
+a node's flux is ``sqrt(n/(n−1)·(ΣX² − (ΣX)²/n))`` with ``n = n_emitted``.
 
 Parameters
 ----------
@@ -20,11 +24,13 @@ directions    1      –           (n, 3) world directions of the escaping photo
 powers        lm     –           (n,) flux carried by each photon (Σ over all emitted =
                                  lamp flux)
 n_emitted     1      –           number of photons emitted to produce these records
-dc_deg        deg    1.0         C step (C from 0 to 360 − dc) when c_deg is not given
-dgamma_deg    deg    1.0         γ step (γ from 0 to 180) when gamma_deg is not given
-c_deg         deg    None        explicit C-plane angles
-gamma_deg     deg    None        explicit γ angles (must run from 0 to 180)
+dc_deg        deg    1.0         C step (C from 0 to 360 − dc; Type A: the H step)
+dgamma_deg    deg    1.0         γ step (γ from 0 to 180; Type A: the V step)
+c_deg         deg    None        explicit C-plane angles (Type A: H angles)
+gamma_deg     deg    None        explicit γ angles from 0 to 180 (Type A: V angles)
 lamp_lumens   lm     None        rated lamp flux to record in the grid
+photometric_  –      "C"         "C" or "A" (headlamps)
+type
 ============  =====  ==========  ======================================================
 """
 
@@ -37,7 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from lightsim.errors import InputError
 
-from .candela import CandelaGrid, angles_from_directions
+from .candela import CandelaGrid
+from .hvgrid import HVGrid
 
 __all__ = ["farfield_from_photons", "uniform_axes"]
 
@@ -59,8 +66,8 @@ def farfield_from_photons(directions: ArrayLike, powers: ArrayLike, n_emitted: i
                           c_deg: ArrayLike | None = None, gamma_deg: ArrayLike | None = None,
                           lamp_lumens: float | None = None,
                           metadata: Mapping[str, str] | None = None,
-                          return_error: bool = False
-                          ) -> CandelaGrid | tuple[CandelaGrid, NDArray]:
+                          return_error: bool = False, photometric_type: str = "C"
+                          ) -> CandelaGrid | HVGrid | tuple[CandelaGrid | HVGrid, NDArray]:
     """Bin escaping photons into a Type C far-field intensity grid (cd).
 
     Parameters
@@ -81,12 +88,17 @@ def farfield_from_photons(directions: ArrayLike, powers: ArrayLike, n_emitted: i
     metadata : mapping, optional
         Descriptive fields stored in the grid.
     return_error : bool, default False
-        Also return the standard error (cd) of every cell.
+        Also return the standard error (cd) of every node.
+    photometric_type : {"C", "A"}, default "C"
+        "A": a Type A (H, V) grid, H and V from −90° to 90° in steps ``dc_deg`` and
+        ``dgamma_deg`` (or the nodes ``c_deg``/``gamma_deg`` as H/V); photons heading
+        backwards (outside H = ±90°) are not in it (``metadata["flux_outside_lm"]``).
 
     Returns
     -------
-    CandelaGrid
-        With ``total_flux()`` equal to ``sum(powers)``; or ``(grid, stderr_cd)``.
+    CandelaGrid or HVGrid
+        With ``total_flux()`` equal to ``sum(powers)`` of the photons inside the grid; or
+        ``(grid, stderr_cd)``.
     """
     d = np.asarray(directions, dtype=float)
     p = np.asarray(powers, dtype=float).reshape(-1)
@@ -101,30 +113,47 @@ def farfield_from_photons(directions: ArrayLike, powers: ArrayLike, n_emitted: i
     if n_emitted < max(1, len(p)):
         raise InputError(f"farfield: n_emitted ({n_emitted}) is smaller than the number of "
                          f"escaping photons ({len(p)})")
-    if c_deg is None or gamma_deg is None:
-        cu, gu = uniform_axes(dc_deg, dgamma_deg)
-        c_nodes = cu if c_deg is None else np.asarray(c_deg, dtype=float)
-        g_nodes = gu if gamma_deg is None else np.asarray(gamma_deg, dtype=float)
+    if photometric_type not in ("C", "A"):
+        raise InputError(f"farfield: photometric type must be 'C' or 'A', got "
+                         f"{photometric_type!r}")
+    if photometric_type == "A":
+        step_h, step_v = dc_deg, dgamma_deg
+        h_nodes = (np.asarray(c_deg, dtype=float) if c_deg is not None
+                   else _symmetric_axis(step_h, "H"))
+        v_nodes = (np.asarray(gamma_deg, dtype=float) if gamma_deg is not None
+                   else _symmetric_axis(step_v, "V"))
+        shell: CandelaGrid | HVGrid = HVGrid(h_nodes, v_nodes,
+                                             np.zeros((h_nodes.size, v_nodes.size)), "A")
     else:
-        c_nodes = np.asarray(c_deg, dtype=float)
-        g_nodes = np.asarray(gamma_deg, dtype=float)
-    if g_nodes.size < 2 or abs(g_nodes[0]) > 1e-9 or abs(g_nodes[-1] - 180.0) > 1e-9:
-        raise InputError("farfield: gamma_deg must run from 0 to 180 degrees")
-    shell = CandelaGrid(c_nodes, g_nodes, np.zeros((c_nodes.size, g_nodes.size)))
-    ce = shell.c_edges_deg()
-    ge = shell.gamma_edges_deg()
-    nc, ng = shell.shape
+        if c_deg is None or gamma_deg is None:
+            cu, gu = uniform_axes(dc_deg, dgamma_deg)
+            c_nodes = cu if c_deg is None else np.asarray(c_deg, dtype=float)
+            g_nodes = gu if gamma_deg is None else np.asarray(gamma_deg, dtype=float)
+        else:
+            c_nodes = np.asarray(c_deg, dtype=float)
+            g_nodes = np.asarray(gamma_deg, dtype=float)
+        if g_nodes.size < 2 or abs(g_nodes[0]) > 1e-9 or abs(g_nodes[-1] - 180.0) > 1e-9:
+            raise InputError("farfield: gamma_deg must run from 0 to 180 degrees")
+        shell = CandelaGrid(c_nodes, g_nodes, np.zeros((c_nodes.size, g_nodes.size)))
+    table = shell.table
+    n_phi, n_theta = table.candela.shape
 
-    c, g = angles_from_directions(d)
-    gi = np.clip(np.searchsorted(ge, g, side="right") - 1, 0, ng - 1)
-    rel = (c - ce[0]) % 360.0
-    ci = np.clip(np.searchsorted(ce - ce[0], rel, side="right") - 1, 0, nc - 1)
-    flat = ci * ng + gi
-    flux = np.bincount(flat, weights=p, minlength=nc * ng).reshape(nc, ng)
-    flux2 = np.bincount(flat, weights=p * p, minlength=nc * ng).reshape(nc, ng)
-
-    omega = shell.solid_angles()
-    for k in (0, ng - 1):  # polar caps: one value for every C-plane
+    j, jn, s_, i, t = table.locate(*table.angles(d))
+    inside = j >= 0
+    outside_lm = float(p[~inside].sum())
+    j, jn, s_, i, t, pin = j[inside], jn[inside], s_[inside], i[inside], t[inside], p[inside]
+    flux = np.zeros(n_phi * n_theta)
+    flux2 = np.zeros(n_phi * n_theta)
+    for rows, ws in ((j, 1 - s_), (jn, s_)):  # bilinear ("cloud in cell") deposit
+        for cols, wt in ((i, 1 - t), (i + 1, t)):
+            w = ws * wt * pin
+            np.add.at(flux, rows * n_theta + cols, w)
+            np.add.at(flux2, rows * n_theta + cols, w * w)
+    flux = flux.reshape(n_phi, n_theta)
+    flux2 = flux2.reshape(n_phi, n_theta)
+    omega = table.node_weights()
+    pooled = [k for k in (0, n_theta - 1) if table.theta_deg[k] in (0.0, 180.0)]
+    for k in pooled:  # a pole is one direction: one value for every plane
         flux[:, k] = flux[:, k].sum() * omega[:, k] / omega[:, k].sum()
         flux2[:, k] = flux2[:, k].sum() * omega[:, k] / omega[:, k].sum()
     candela = flux / omega
@@ -132,9 +161,23 @@ def farfield_from_photons(directions: ArrayLike, powers: ArrayLike, n_emitted: i
     meta = dict(metadata or {})
     meta.setdefault("photons_emitted", str(n_emitted))
     meta.setdefault("photons_escaped", str(len(p)))
-    grid = CandelaGrid(c_nodes, g_nodes, candela, lamp_lumens, meta)
+    meta.setdefault("flux_outside_lm", format(outside_lm, ".9g"))
+    if photometric_type == "A":
+        grid: CandelaGrid | HVGrid = HVGrid(h_nodes, v_nodes, candela, "A", lamp_lumens, meta)
+    else:
+        grid = CandelaGrid(c_nodes, g_nodes, candela, lamp_lumens, meta)
     if not return_error:
         return grid
     n = float(n_emitted)
     var = np.maximum(flux2 - flux * flux / n, 0.0) * (n / max(n - 1.0, 1.0))
     return grid, np.sqrt(var) / omega
+
+
+def _symmetric_axis(step: float, name: str) -> NDArray:
+    """Angles −90, −90 + step, …, 90 in degrees (step must divide 180°)."""
+    if not step > 0:
+        raise InputError(f"far-field {name} step must be > 0 degrees")
+    n = round(180.0 / step)
+    if abs(n * step - 180.0) > 1e-6:
+        raise InputError(f"far-field {name} step must divide 180°, got {step}°")
+    return np.linspace(-90.0, 90.0, n + 1)
