@@ -69,6 +69,8 @@ class SimulateOptions:
     ldt: str | None = None
     farfield_photons: int = 1_000_000
     mount_height: float = 0.65
+    aperture: float = 0.15
+    spt_points: bool = False
 
     def run_config(self) -> RunConfig:
         """The engine settings (validated); also checks the photometric output names, so
@@ -158,6 +160,11 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
         raise InputError("--aim aims the pattern for a regulation check: give --regulation")
     scene = load(opts)
     config = opts.run_config()
+    if opts.regulation is not None:  # test points counted in detector apertures
+        from lightsim.report import aperture_config
+
+        config = aperture_config(config, opts.regulation, opts.traffic, scene.wall,
+                                 opts.aperture, opts.aim, opts.spt_points)
     session = Session(scene, config, workers=opts.workers, address=opts.address,
                       checkpoint=(resume or {}).get("session"),
                       regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt))

@@ -423,7 +423,8 @@ def unevaluated_rules(ruleset: RuleSet, probes: Probes) -> list[dict[str, str]]:
 
 
 def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
-             traffic: str | None = None, confidence: float = 0.95) -> list[dict[str, Any]]:
+             traffic: str | None = None, confidence: float = 0.95,
+             intervals_cd: ArrayLike | None = None) -> list[dict[str, Any]]:
     """Test per-set intensity estimates against a rule set.
 
     Parameters
@@ -439,6 +440,11 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
         Must match ``probes.traffic`` if given.
     confidence : float, default 0.95
         Two-sided confidence level of the Student-t intervals.
+    intervals_cd : array_like, shape (P, 2), optional
+        Probe intervals (cd) that replace the Student-t ones where both bounds are finite
+        (e.g. photon-count intervals of apertures that caught too few photons for the
+        sets' spread to mean anything); points and zones use them, sums and relations
+        keep the per-set statistics.
 
     Returns
     -------
@@ -486,6 +492,13 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
     err = n_sets >= 2
     tfac = _t_factor(n_sets, confidence)
     st = _stats(values, tfac)
+    if intervals_cd is not None:
+        ov = np.asarray(intervals_cd, dtype=float)
+        if ov.shape != (len(probes), 2):
+            raise InputError(f"intervals_cd must have shape ({len(probes)}, 2), "
+                             f"got {ov.shape}")
+        use = np.isfinite(ov).all(axis=1)
+        st = _Stats(st.mean, np.where(use, ov[:, 0], st.lo), np.where(use, ov[:, 1], st.hi))
     results: list[dict[str, Any]] = []
     for kind in ("point", "zone"):
         for g in rs.geometries:
