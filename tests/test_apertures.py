@@ -91,6 +91,7 @@ def test_strip_shift_equals_a_moved_aperture():
     for c in (a, b):
         c.add(*_wall(h, v), np.ones((len(h), 1)))
     k, applied = lay.quantize_shift(0.33)
+    assert k == 11
     assert applied == pytest.approx(0.33)
     ia = intensities(a.counts[None], [1], lay, 0.33)
     ib = intensities(b.counts[None], [1], moved, 0.0)
