@@ -58,6 +58,8 @@ DEFAULT_APERTURE_DEG = 0.15
 AIM_REACH_DEG = 1.5
 AIM_SUBSTEPS = 5
 IMAX_RASTER_DEG = (-20.0, 20.0, -6.0, 4.0)
+MEASURE_NAMES = {"HV": "HV", "Imax": "Imax"}
+"""Names of the reported rows (suffixed when a rule set has rules of that name)."""
 SPARSE_PHOTONS_PER_SET = 1.0
 """Below this many counted photons per set an aperture's interval is the photon-count
 (Garwood) one instead of Student-t over the sets."""
@@ -211,14 +213,14 @@ def measure_rows(ap: dict[str, Any], dv_deg: float, confidence: float) -> list[d
     Imax is the raster tile with the largest mean over the sets; its interval is that
     tile's (the maximum of noisy tiles is biased upwards by about the tiles' noise).
     """
-    rows = [_stat_row("HV", 0.0, 0.0, ap["cd"][:, -1], confidence,
+    rows = [_stat_row(MEASURE_NAMES["HV"], 0.0, 0.0, ap["cd"][:, -1], confidence,
                       "intensity towards H-V (aperture count)", ap["intervals_cd"][-1])]
     tiles = ap["tiles"]
     if tiles.size:
         mean = tiles.mean(axis=0)
         i, k = np.unravel_index(int(np.argmax(mean)), mean.shape)
-        rows.append(_stat_row("Imax", ap["tile_h_deg"][i], ap["tile_v_deg"][k] + dv_deg,
-                              tiles[:, i, k], confidence,
+        rows.append(_stat_row(MEASURE_NAMES["Imax"], ap["tile_h_deg"][i],
+                              ap["tile_v_deg"][k] + dv_deg, tiles[:, i, k], confidence,
                               "largest aperture-tile mean over the raster"))
     return rows
 
@@ -243,7 +245,9 @@ def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "rig
             aim_info["aperture_dv_deg"] = -ap["shift_deg"]
         cd = ap["cd"][:, :-1]
         values = lux_equivalent(cd, hv, frame.distance_m)
-        extra = measure_rows(ap, -ap["shift_deg"], confidence)
+        taken = {g.name for g in rs.geometries}
+        extra = [r if r["name"] not in taken else {**r, "name": f"{r['name']} (measured)"}
+                 for r in measure_rows(ap, -ap["shift_deg"], confidence)]
         method = {"name": "aperture", **ap["layout"].to_dict(),
                   "spt_targets": len(cfg.aperture_targets)}
     else:
@@ -379,6 +383,9 @@ def format_regulation(reg: dict[str, Any]):
 
     aim = reg.get("aim", {})
     note = f", aimed {aim['dv_deg']:+.2f}° V" if aim.get("applied") else ""
+    ci = aim.get("cutoff_interval_deg")
+    if aim.get("applied") and ci:
+        note += f" (cut-off found at {0.5 * (ci[0] + ci[1]):+.3f}° ± {0.5 * (ci[1] - ci[0]):.3f}°)"
     return format_table(reg["results"], title=f"{reg['ruleset']} ({reg['traffic']}-hand "
                         f"traffic{note}; {int(reg['confidence'] * 100)}% intervals)",
                         unevaluated=reg.get("unevaluated"))

@@ -216,7 +216,14 @@ class SelectiveSampler:
         return p, indices, points, weight
 
     def update(self, indices: np.ndarray, caustic: np.ndarray) -> None:
-        """Mark the cells of photons whose paths were caustic (refined from now on)."""
+        """Mark the cells of photons whose paths were caustic (refined from now on).
+
+        With a ``refine_share`` (SPT aimed at test points) the refined cells are those of
+        the last pass's triggering photons only, so a point that has enough photons
+        stops drawing the refinement.
+        """
+        if self.refine_share is not None:
+            self.refined[:] = False
         if len(indices):
             self.refined[(indices[caustic] % self.n_cells)] = True
 

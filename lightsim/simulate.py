@@ -308,7 +308,10 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
         report.save_probes(out, reg)
         summary["regulation"] = report.public(reg)
         results = reg["results"]
-    summary["cutoff"] = _cutoff(lux, frame, opts.traffic)
+    summary["cutoff"] = _cutoff(lux, frame, opts.traffic, session)
+    if results is not None and summary["regulation"].get("aim", {}).get("applied"):
+        summary["regulation"]["aim"]["cutoff_interval_deg"] = summary["cutoff"].get(
+            "v_cutoff_interval_deg")
     report.engineering_plots(out, lux, frame, results, opts.mount_height)
     if opts.ies or opts.ldt:
         from lightsim.luminaires.photometric import write_photometric
@@ -324,13 +327,24 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
                 summary["farfield"]["files"].append(str(path))
 
 
-def _cutoff(lux: np.ndarray, frame, traffic: str) -> dict[str, Any]:
-    from lightsim.render.cutoff import find_cutoff
+def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:
+    from lightsim.render.cutoff import cutoff_interval, find_cutoff, scan_sample_points
 
     res = find_cutoff(lux, frame.to_dict(), traffic)
-    return {"found": res.found, "message": res.message, "v_cutoff_deg": res.v_cutoff_deg,
-            "sharpness_g": res.sharpness_g, "linear": res.linear,
-            "aim_dv_deg": res.aim_dv_deg}
+    out = {"found": res.found, "message": res.message, "v_cutoff_deg": res.v_cutoff_deg,
+           "sharpness_g": res.sharpness_g, "linear": res.linear,
+           "aim_dv_deg": res.aim_dv_deg}
+    if res.found and session is not None and session.config.n_sets > 1:
+        # every set scans its own estimate: their spread is the position's interval
+        hv, _, _ = scan_sample_points(frame.to_dict(), traffic)
+        from lightsim.render.frame import luminous
+
+        ci = cutoff_interval(luminous(session.probe(hv).values), frame.to_dict(),
+                             res.v_cutoff_deg, traffic)
+        out["v_cutoff_interval_deg"] = (None if ci.interval_deg is None
+                                        else list(ci.interval_deg))
+        out["interval"] = ci.to_dict()
+    return out
 
 
 def describe_options(opts: SimulateOptions) -> str:

@@ -309,3 +309,62 @@ def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: f
                           int(cov.sum()), float(abs(b_all[k])), str(names[k]),
                           float(per_point[worst_pt]["mean_bias_halfwidths"]), worst_pt,
                           time.perf_counter() - t0, per_point)
+
+
+GLARE_POINTS = ("B50L", "1", "2", "3", "4", "5", "6", "7", "8")
+"""The dim points above the cut-off where few photons land (SPT's target)."""
+
+
+@dataclass
+class SptGain:
+    """Interval widths with and without test-point SPT for the same photons (and time)."""
+
+    lamps: int
+    photons: int
+    width_plain: dict[str, float]  # mean relative 95 % width (hi − lo)/truth per point
+    width_spt: dict[str, float]
+    seconds_plain: float
+    seconds_spt: float
+    coverage_plain: float
+    coverage_spt: float
+
+    def glare_ratio(self) -> float:
+        """Mean over the glare points of width(plain) / width(SPT): > 1 means SPT pays."""
+        r = [self.width_plain[p] / self.width_spt[p] for p in GLARE_POINTS
+             if p in self.width_plain and self.width_spt.get(p, 0) > 0]
+        return float(np.mean(r)) if r else float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"lamps": self.lamps, "photons": self.photons,
+                "width_plain": self.width_plain, "width_spt": self.width_spt,
+                "seconds_plain": self.seconds_plain, "seconds_spt": self.seconds_spt,
+                "coverage_plain": self.coverage_plain, "coverage_spt": self.coverage_spt,
+                "glare_width_ratio": self.glare_ratio()}
+
+
+def spt_gain(lamps: int = 4, photons: int = 1_000_000, *, aperture_deg: float = 0.15,
+             seed: int = 1, truth: str = "cell", quad: int = 48) -> SptGain:
+    """Run the same synthetic lamps with and without SPT aimed at the test points."""
+    from lightsim.luminaires.photometric import write_ies
+
+    rng = np.random.default_rng([seed, 0x5B7])
+    widths: dict[bool, dict[str, list[float]]] = {False: {}, True: {}}
+    secs = {False: 0.0, True: 0.0}
+    cov: dict[bool, list[bool]] = {False: [], True: []}
+    with tempfile.TemporaryDirectory(prefix="lightsim-spt-") as tmp:
+        for n in range(lamps):
+            grid, _ = synthetic_lamp(rng)
+            path = Path(tmp) / f"lamp{n:03d}.ies"
+            write_ies(path, grid)
+            for spt in (False, True):
+                run = run_lamp(path, photons, aperture_deg=aperture_deg, spt=spt,
+                               seed=seed + n, truth=truth, quad=quad)
+                secs[spt] += run.seconds
+                lo, hi = run.interval_cd[:, 0], run.interval_cd[:, 1]
+                cov[spt].extend(((lo <= run.truth_cd) & (run.truth_cd <= hi)).tolist())
+                for name, w, t in zip(run.names, hi - lo, run.truth_cd, strict=True):
+                    if t > 0:
+                        widths[spt].setdefault(name, []).append(float(w / t))
+    mean = {k: {p: float(np.mean(v)) for p, v in d.items()} for k, d in widths.items()}
+    return SptGain(lamps, photons, mean[False], mean[True], secs[False], secs[True],
+                   float(np.mean(cov[False])), float(np.mean(cov[True])))

@@ -29,7 +29,13 @@ size_deg      deg    0.15     side of the square aperture (≈ 65 mm at 25 m)
 shift_deg     deg    0        vertical reach of the strips beyond the aperture (aiming)
 substeps      –      1        bins per aperture side (strip resolution a/m); 1 if no shift
 distance_m    m      –        wall distance D
-targets       –      ()       aperture indices whose hits refine Selective Photon Tracing
+targets       –      ()       aperture indices whose neighbourhood refines Selective
+                              Photon Tracing (a photon landing there marks its cell)
+target_window deg    1.0      side of that neighbourhood (a square around the point):
+                              wider than the aperture, so that the cells feeding a dim
+                              point are found in the first passes
+target_photons –     16       a target refines only while its aperture holds fewer
+                              (effective) photons than this in the set
 ============  =====  =======  ===========================================================
 """
 
@@ -84,6 +90,8 @@ class ApertureLayout:
     substeps: int = 1
     targets: tuple[int, ...] = field(default_factory=tuple)
     raster: tuple[float, float, float, float] | None = None
+    target_window_deg: float = 1.0
+    target_photons: float = 16.0
 
     def __post_init__(self) -> None:
         h = np.asarray(self.h_deg, dtype=np.float64).reshape(-1)
@@ -185,7 +193,7 @@ class ApertureLayout:
 
 @njit(cache=True)
 def _bin_photons(hd, vd, power, cell_start, cell_items, g_h0, g_v0, g_dh, g_dv, g_nh, g_nv,
-                 ap_h0, ap_h1, ap_v0, n_bins, offset, step, is_target, counts, hit):
+                 ap_h0, ap_h1, ap_v0, n_bins, offset, step, counts):
     """Add photon powers to the strip bins they fall in (serial: no write races)."""
     n_ch = power.shape[1]
     for i in range(hd.shape[0]):
@@ -203,8 +211,6 @@ def _bin_photons(hd, vd, power, cell_start, cell_items, g_h0, g_v0, g_dh, g_dv, 
                 continue
             for c in range(n_ch):
                 counts[offset[p] + b, c] += power[i, c]
-            if is_target[p]:
-                hit[i] = True
 
 
 class ApertureCounter:
@@ -225,8 +231,6 @@ class ApertureCounter:
         # statistics of sparse apertures (:func:`count_interval`)
         self.channels = channels
         self.counts = np.zeros((int(self._bins.sum()), channels + 1))
-        self._target = np.zeros(len(self._h0), dtype=np.bool_)
-        self._target[list(layout.targets)] = True
         self._build_grid()
 
     def _build_grid(self) -> None:
@@ -263,7 +267,7 @@ class ApertureCounter:
         Returns
         -------
         ndarray of bool, shape (n,)
-            Photons that landed in a target aperture's strip (for SPT refinement).
+            Photons that landed within ``target_window_deg`` of a target (SPT trigger).
         """
         n = len(h_m)
         hit = np.zeros(n, dtype=np.bool_)
@@ -276,10 +280,29 @@ class ApertureCounter:
         lum = pw[:, 0] if pw.shape[1] == 1 else pw @ LUMA
         pw = np.ascontiguousarray(np.column_stack([pw, lum * lum]))
         start, items, g_h0, g_v0, g_dh, g_dv, g_nh, g_nv = self._grid
+        w = 0.5 * self.layout.target_window_deg
+        for t in self.active_targets():  # SPT trigger: landed near a target point
+            hit |= ((np.abs(hd - self.layout.h_deg[t]) < w)
+                    & (np.abs(vd - self.layout.v_deg[t]) < w))
         _bin_photons(hd, vd, pw, start, items, g_h0, g_v0, g_dh, g_dv, g_nh, g_nv,
                      self._h0, self._h1, self._v0, self._bins, self._offset,
-                     self.layout.step_deg, self._target, self.counts, hit)
+                     self.layout.step_deg, self.counts)
         return hit
+
+    def active_targets(self) -> list[int]:
+        """Targets whose aperture has caught fewer than ``target_photons`` (effective)
+        photons so far: only they still ask for refinement, so the photons go where the
+        intervals are wide. Decided from earlier frames only (keeps SPT unbiased)."""
+        lay = self.layout
+        if not lay.targets:
+            return []
+        t = np.asarray(lay.targets)
+        m, B, r = lay.substeps, lay.n_bins, lay.reach_bins
+        win = self.counts[:len(lay) * B].reshape(len(lay), B, -1)[t, r:r + m].sum(axis=1)
+        lum = win[:, 0] if self.channels == 1 else win[:, :-1] @ LUMA
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n_eff = np.where(win[:, -1] > 0, lum * lum / win[:, -1], 0.0)
+        return t[n_eff < lay.target_photons].tolist()
 
 
 def _per_photon(counts: NDArray, emitted: NDArray) -> NDArray:

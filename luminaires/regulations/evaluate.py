@@ -329,6 +329,10 @@ def _eval_zone(g: Geometry, idx: NDArray, st: _Stats, h: NDArray, v: NDArray,
                 _limit_dict(g.min, g.max), verdict, g, err)
     out["stat"] = g.stat
     out["n_probes"] = len(idx)
+    # the zone's maximum with its direction and interval, whatever the limited statistic
+    top = idx[int(np.argmax(means))]
+    out.update({"max_cd": _f(st.mean[top]), "max_h_deg": _f(h[top]),
+                "max_v_deg": _f(v[top]), "max_interval_cd": [_f(st.lo[top]), _f(st.hi[top])]})
     if g.polygon:
         out["polygon_deg"] = [[_f(a), _f(b)] for a, b in g.polygon]
     if g.line:
@@ -455,7 +459,9 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
         the present bounds) plus ``kind, certainty, note, source, error_estimate`` and
         per kind: zones ``stat, n_probes, probes_outside_wall, polygon_deg | line_deg``
         (value at the extreme probe; a zone partly outside the wall is tested where the
-        wall covers it); sums ``points`` (h/v are None); relations ``lhs, op, factor, reference,
+        wall covers it) and ``max_cd, max_h_deg, max_v_deg, max_interval_cd`` (the probe
+        with the largest mean: the zone's maximum, its direction and interval); sums
+        ``points`` (h/v are None); relations ``lhs, op, factor, reference,
         reference_cd, reference_interval_cd, margin_cd, margin_interval_cd`` (value at the
         lhs probe with the worst margin; limit = factor × reference). Rules that cannot be
         tested are reported by :func:`unevaluated_rules`.
