@@ -129,9 +129,15 @@ def test_count_interval_poisson_limits_and_empty_aperture():
     omega = lay.solid_angles()
     assert n_eff[0] == pytest.approx(3.0) and n_eff[1] == 0.0
     q = 1.0 / (4 * 100 * omega[0])  # one photon's share of the mean over 4 sets
-    assert lo[0] / q == pytest.approx(0.6187, abs=1e-3)  # Garwood 95 % for n = 3
-    assert hi[0] / q == pytest.approx(8.7673, abs=1e-3)
-    assert lo[1] == 0.0 and hi[1] * 4 * 100 * omega[1] == pytest.approx(3.6889, abs=1e-3)
+    # mid-p 95 % bounds for n = 3, checked on the Poisson law itself (scipy.stats)
+    from scipy.stats import poisson
+
+    mu_lo, mu_hi = lo[0] / q, hi[0] / q
+    assert poisson.sf(3, mu_lo) + 0.5 * poisson.pmf(3, mu_lo) == pytest.approx(0.025, abs=1e-9)
+    assert poisson.cdf(3, mu_hi) - 0.5 * poisson.pmf(3, mu_hi) == pytest.approx(0.025, abs=1e-9)
+    assert 0.6 < mu_lo < 1.0 and 7.0 < mu_hi < 8.8   # inside the exact (Garwood) interval
+    # nothing caught: [0, −ln 0.05 = 3.0 average photons]
+    assert lo[1] == 0.0 and hi[1] * 4 * 100 * omega[1] == pytest.approx(-math.log(0.05))
 
 
 def test_empty_and_bad_layouts():
@@ -143,3 +149,48 @@ def test_empty_and_bad_layouts():
             ApertureLayout([0.0], [0.0], **{"size_deg": 0.15, "distance_m": D, **kw})
     with pytest.raises(ValueError):
         ApertureLayout([math.nan], [0.0], 0.15, D)
+
+
+# ---- Selective Photon Tracing aimed at test points ---------------------------------------
+def test_refine_share_keeps_every_cell_at_its_exact_share():
+    from lightsim.sampling import SelectiveSampler
+
+    sp = SelectiveSampler(3, 0, pass_photons=20_000, refine_share=0.5)
+    _, idx, pts, w = sp.next_pass()           # nothing refined yet: plain stratified
+    assert np.allclose(w, 1.0)
+    trigger = np.zeros(len(idx), bool)
+    trigger[:40] = True                        # a few photons landed near a target
+    sp.update(idx, trigger)
+    refined = np.unique(idx[:40] % sp.n_cells)
+    _, idx2, _, w2 = sp.next_pass()
+    cells = idx2 % sp.n_cells
+    share = np.bincount(cells, weights=w2, minlength=sp.n_cells) / w2.sum()
+    np.testing.assert_allclose(share, 1.0 / sp.n_cells, rtol=1e-12)  # unbiased weights
+    per_cell = np.bincount(cells, minlength=sp.n_cells)
+    assert per_cell[refined].min() > 10 * np.delete(per_cell, refined).max()
+    assert len(idx2) <= 20_000 and len(idx2) > 0.95 * 20_000
+    # the refinement follows the last pass only: no trigger, no refined cell
+    sp.update(idx2, np.zeros(len(idx2), bool))
+    assert not sp.refined.any()
+
+
+def test_spt_on_points_concentrates_photons_and_stays_unbiased(tmp_path):
+    from lightsim.luminaires.photometric import write_ies
+    from lightsim.validation.coverage import run_lamp, synthetic_lamp
+
+    grid, _ = synthetic_lamp(np.random.default_rng(11))
+    path = tmp_path / "lamp.ies"
+    write_ies(path, grid)
+    plain = run_lamp(path, 300_000, quad=16)
+    spt = run_lamp(path, 300_000, spt=True, quad=16)
+    i = plain.names.index("B50L")
+    assert spt.n_eff[i] > 2 * plain.n_eff[i]      # more photons where they are few
+    for run in (plain, spt):
+        # the well-lit points: errors in units of the half-width (≈ 0.4 on average for a
+        # calibrated unbiased 95 % interval; a bias of one half-width would show as ≥ 1)
+        z = []
+        for name in ("75R", "50R", "50V", "50L", "25L", "25R"):
+            k = run.names.index(name)
+            lo, hi = run.interval_cd[k]
+            z.append(abs(run.per_set_cd[:, k].mean() - run.truth_cd[k]) / (0.5 * (hi - lo)))
+        assert np.mean(z) < 1.0, z

@@ -49,9 +49,11 @@ from numpy.typing import NDArray
 
 from lightsim.engine.config import RunConfig
 
-__all__ = ["CoverageResult", "aperture_truth", "coverage_study", "run_lamp",
-           "synthetic_lamp"]
+__all__ = ["COVERAGE_BAND", "CoverageResult", "SptGain", "aperture_truth", "coverage_study",
+           "run_lamp", "spt_gain", "synthetic_lamp"]
 
+COVERAGE_BAND = (0.93, 0.97)
+"""Target share of 95 % intervals that cover the truth."""
 CUTOFF_STEP_DEG = 15.0
 """Slope of the right-hand-traffic cut-off's rising part (R112: 15°)."""
 
@@ -242,10 +244,11 @@ class CoverageResult:
     def rate(self) -> float:
         return self.covered / self.evaluations if self.evaluations else float("nan")
 
-    def binomial_band(self, z: float = 3.0) -> tuple[float, float]:
-        """0.95 ± z binomial standard errors for this many evaluations."""
+    def band(self, z: float = 3.0) -> tuple[float, float]:
+        """Accepted coverage: the 93–97 % target widened to 0.95 ± z binomial standard
+        errors when there are too few evaluations to resolve it."""
         se = math.sqrt(0.95 * 0.05 / max(self.evaluations, 1))
-        return 0.95 - z * se, 0.95 + z * se
+        return min(COVERAGE_BAND[0], 0.95 - z * se), max(COVERAGE_BAND[1], 0.95 + z * se)
 
     def to_dict(self) -> dict[str, Any]:
         return {"lamps": self.lamps, "photons": self.photons,

@@ -417,7 +417,11 @@ def cutoff_interval(values: ArrayLike, frame: Any, centre_deg: float | None,
                     g_smooth_deg: float = 0.02, floor_rel: float = 1e-4,
                     min_sharpness: float = 0.05, min_contrast: float = 0.5,
                     confidence: float = 0.95) -> CutoffInterval:
-    """Cut-off interval from per-set estimates (S, n) at :func:`scan_sample_points`."""
+    """Cut-off interval from per-set estimates (S, n) at :func:`scan_sample_points`.
+
+    ``centre_deg``: the pooled image's cut-off (from :func:`find_cutoff`); None = scan
+    the mean of the sets' profiles.
+    """
     from scipy.special import stdtrit
 
     wf = WallFrame.from_any(frame)
@@ -432,18 +436,21 @@ def cutoff_interval(values: ArrayLike, frame: Any, centre_deg: float | None,
     # out gives a nearly as good image; the spread of those positions is the variance of
     # a nonlinear statistic of a mean (a single set's own scan is far noisier)
     total = prof.sum(axis=0)
-    per_set = []
-    for s in range(S):
-        loo = (total - prof[s]) / max(S - 1, 1)
-        res = [_scan_profile(v, np.maximum(loo[i], 0.0), float(hs[i]), pix_deg,
-                             step_deg, smooth_deg, g_smooth_deg, floor_rel, min_sharpness,
+
+    def position(p: NDArray) -> float | None:
+        res = [_scan_profile(v, np.maximum(p[i], 0.0), float(hs[i]), pix_deg, step_deg,
+                             smooth_deg, g_smooth_deg, floor_rel, min_sharpness,
                              min_contrast) for i in range(len(hs))]
         found = [r for r in res if r.found]
         main = next((r for r in found if abs(abs(r.h_deg) - 2.5) < 1e-9), None)
         if main is not None:
-            per_set.append(float(main.v_inflection_deg))
-        elif found:
-            per_set.append(float(np.mean([r.v_inflection_deg for r in found])))
+            return float(main.v_inflection_deg)
+        return float(np.mean([r.v_inflection_deg for r in found])) if found else None
+
+    if centre_deg is None:  # the pooled estimate's own position
+        centre_deg = position(total / S)
+    per_set = [x for s in range(S)
+               if (x := position((total - prof[s]) / max(S - 1, 1))) is not None]
     n = len(per_set)
     interval = None
     if centre_deg is not None and n >= 2:
