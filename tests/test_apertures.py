@@ -156,7 +156,7 @@ def test_refine_share_keeps_every_cell_at_its_exact_share():
     from lightsim.sampling import SelectiveSampler
 
     sp = SelectiveSampler(3, 0, pass_photons=20_000, refine_share=0.5)
-    _, idx, pts, w = sp.next_pass()           # nothing refined yet: plain stratified
+    _, idx, _pts, w = sp.next_pass()           # nothing refined yet: plain stratified
     assert np.allclose(w, 1.0)
     trigger = np.zeros(len(idx), bool)
     trigger[:40] = True                        # a few photons landed near a target

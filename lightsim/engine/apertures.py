@@ -403,8 +403,8 @@ def count_interval(counts: NDArray, emitted: NDArray, emitted_power: NDArray,
     the mid-p Poisson interval of n (:func:`_midp_poisson`) times q, in cd. Mid-p, not the
     exact (Garwood) interval: Garwood never covers less than 95 % and so covers 97–100 %
     at a handful of photons; mid-p covers 95 % on average over the mean. The upper bound
-    is at least the mean plus the zero-count bound of average photons (with SPT's light photons the heavy ones that
-    missed are unseen); for equal weights that changes nothing.
+    is at least the mean plus the zero-count bound of average photons (with SPT's light
+    photons the heavy ones that missed are unseen); for equal weights nothing changes.
 
     Returns
     -------
