@@ -162,7 +162,7 @@ def aperture_values(session, shift_deg: float = 0.0, confidence: float = 0.95
     nothing there: most sets saw none), NaN elsewhere (Student-t over the sets).
     """
     from lightsim.engine.apertures import (
-        count_interval,
+        count_statistics,
         intensities,
         layout_from_config,
         raster_tiles,
@@ -179,13 +179,25 @@ def aperture_values(session, shift_deg: float = 0.0, confidence: float = 0.95
         raise InputError(f"--aim: {exc}") from None
     cd = luminous(intensities(counts, emitted, layout, applied))
     power = np.stack([stats[s]["emitted_power"] for s in sets])
-    n_eff, lo, hi = count_interval(counts, emitted, power, layout, applied, confidence)
-    sparse = n_eff < SPARSE_PHOTONS_PER_SET * len(sets)
-    intervals = np.where(sparse[:, None], np.stack([lo, hi], axis=1), np.nan)
+    count = np.stack(count_statistics(counts, emitted, power, layout, applied))  # (4, P)
+    intervals = sparse_intervals(count, len(sets), confidence)
+    n_eff = count[0]
     tiles = raster_tiles(counts, emitted, layout)
     return {"cd": cd, "tiles": luminous(tiles.values), "tile_h_deg": tiles.h_deg,
             "tile_v_deg": tiles.v_deg, "layout": layout, "shift_deg": applied,
-            "n_eff": n_eff, "intervals_cd": intervals}
+            "n_eff": n_eff, "intervals_cd": intervals, "count_stats": count}
+
+
+def sparse_intervals(count: np.ndarray, n_sets: int, confidence: float) -> np.ndarray:
+    """(P, 2) photon-count intervals (cd) where an aperture caught fewer than
+    ``SPARSE_PHOTONS_PER_SET`` photons per set, NaN elsewhere; ``count`` is the (4, P)
+    stack of :func:`~lightsim.engine.apertures.count_statistics`."""
+    from lightsim.engine.apertures import interval_from_counts
+
+    n_eff, q, q0, mean = count
+    lo, hi = interval_from_counts(n_eff, q, q0, mean, confidence)
+    sparse = n_eff < SPARSE_PHOTONS_PER_SET * n_sets
+    return np.where(sparse[:, None], np.stack([lo, hi], axis=1), np.nan)
 
 
 def _stat_row(name: str, h: float, v: float, samples: np.ndarray, confidence: float,
@@ -244,6 +256,7 @@ def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "rig
         if aim:
             aim_info["aperture_dv_deg"] = -ap["shift_deg"]
         cd = ap["cd"][:, :-1]
+        count_stats = ap["count_stats"][:, :-1]
         values = lux_equivalent(cd, hv, frame.distance_m)
         taken = {g.name for g in rs.geometries}
         extra = [r if r["name"] not in taken else {**r, "name": f"{r['name']} (measured)"}
@@ -251,7 +264,7 @@ def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "rig
         method = {"name": "aperture", **ap["layout"].to_dict(),
                   "spt_targets": len(cfg.aperture_targets)}
     else:
-        intervals = None
+        intervals = count_stats = None
         stats = session.probe(hv) if len(hv) else None
         values = (luminous(stats.values) if stats is not None
                   else np.zeros((session.config.n_sets, 0)))
@@ -261,7 +274,7 @@ def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "rig
     return {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,
             "confidence": confidence, "aim": aim_info, "method": method,
             "results": results + extra, "unevaluated": unevaluated, "_probes": probes,
-            "_hv": hv, "_values_lux": values, "_cd": cd, "_intervals_cd": intervals}
+            "_hv": hv, "_values_lux": values, "_cd": cd, "_count_stats": count_stats}
 
 
 def lux_equivalent(cd: np.ndarray, hv: np.ndarray, distance_m: float) -> np.ndarray:
@@ -285,8 +298,8 @@ def save_probes(out: Path, reg: dict[str, Any]) -> Path:
         np.savez(fh, h_deg=probes.h_deg, v_deg=probes.v_deg,
                  labels=np.asarray(probes.labels, dtype=str), hv_m=reg["_hv"],
                  values_lux=reg["_values_lux"], ruleset=np.asarray(reg["ruleset"]),
-                 intervals_cd=(np.full((len(probes), 2), np.nan)
-                               if reg.get("_intervals_cd") is None else reg["_intervals_cd"]),
+                 count_stats=(np.full((4, len(probes)), np.nan)
+                              if reg.get("_count_stats") is None else reg["_count_stats"]),
                  traffic=np.asarray(reg["traffic"]), aim_dv_deg=reg["aim"]["dv_deg"])
     return path
 
@@ -304,7 +317,7 @@ def recheck_from_probes(out: Path, summary: dict[str, Any], lux: np.ndarray,
         traffic = str(data["traffic"])
         dv = float(data["aim_dv_deg"])
         values, hv = data["values_lux"], data["hv_m"]
-        intervals = data["intervals_cd"] if "intervals_cd" in data else None
+        count = data["count_stats"] if "count_stats" in data else None
     except (KeyError, ValueError, OSError) as exc:
         raise InputError(f"{path}: corrupt probe file ({exc})") from None
     from lightsim.luminaires.regulations import load_ruleset, probe_points
@@ -316,6 +329,8 @@ def recheck_from_probes(out: Path, summary: dict[str, Any], lux: np.ndarray,
                          f"simulate --regulation {rs.id}")
     if len(probes) != values.shape[1]:
         raise InputError(f"{PROBES_FILE} does not match rule set '{rs.id}' (changed file?)")
+    intervals = (None if count is None or not np.isfinite(count).all()
+                 else sparse_intervals(count, values.shape[0], confidence))
     results, unevaluated, _ = evaluate_probe_values(
         rs, probes, hv, values, float(summary["wall"]["distance_m"]), traffic, confidence,
         intervals)

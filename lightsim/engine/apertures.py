@@ -51,8 +51,9 @@ from numpy.typing import NDArray
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 """Rec. 709 luminance weights of RGB photon power (as ``lightsim.render.frame``)."""
 
-__all__ = ["ApertureCounter", "ApertureLayout", "RasterTiles", "count_interval", "intensities",
-           "raster_tiles", "rect_solid_angle"]
+__all__ = ["ApertureCounter", "ApertureLayout", "RasterTiles", "count_interval",
+           "count_statistics", "intensities", "interval_from_counts", "raster_tiles",
+           "rect_solid_angle"]
 
 
 def rect_solid_angle(h0_deg: NDArray, h1_deg: NDArray, v0_deg: NDArray, v1_deg: NDArray
@@ -410,6 +411,16 @@ def count_interval(counts: NDArray, emitted: NDArray, emitted_power: NDArray,
     -------
     n_eff : (P,), lo, hi : (P,) luminous cd
     """
+    n_eff, q, q0, mean = count_statistics(counts, emitted, emitted_power, layout, shift_deg)
+    lo, hi = interval_from_counts(n_eff, q, q0, mean, confidence)
+    return n_eff, lo, hi
+
+
+def count_statistics(counts: NDArray, emitted: NDArray, emitted_power: NDArray,
+                     layout: ApertureLayout, shift_deg: float = 0.0
+                     ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """(n_eff, q, q0, mean) per test-point aperture, the inputs of
+    :func:`interval_from_counts` (see :func:`count_interval`)."""
     counts = np.asarray(counts, np.float64)
     emitted = np.asarray(emitted, np.float64).reshape(-1)
     S = counts.shape[0]
@@ -432,14 +443,24 @@ def count_interval(counts: NDArray, emitted: NDArray, emitted_power: NDArray,
     ep_lum = ep[:, 0] if ep.shape[1] == 1 else ep @ LUMA
     q0 = float(np.mean(ep_lum / np.maximum(emitted, 1.0) / np.maximum(emitted, 1.0))) / S
     q = np.where(n_eff > 0, q, q0 / omega)
+    return n_eff, q, q0 / omega, mean
+
+
+def interval_from_counts(n_eff: NDArray, q: NDArray, q0: NDArray, mean: NDArray,
+                         confidence: float = 0.95) -> tuple[NDArray, NDArray]:
+    """The count interval (cd) from its ingredients (see :func:`count_interval`):
+    effective photons ``n_eff``, one counted photon's worth ``q`` and an average photon's
+    ``q0`` (cd), and the mean (cd) — kept in ``probes.npz`` so that ``lightsim report``
+    can recompute it at another confidence level."""
     alpha = 1.0 - confidence
+    n_eff = np.asarray(n_eff, np.float64)
     lo = _midp_poisson(n_eff, alpha / 2)
     hi = _midp_poisson(n_eff, 1.0 - alpha / 2)
     # with weighted photons (SPT) the light ones counted say nothing about heavy ones
     # that happened to miss: the upper bound keeps room for the zero-count bound of
     # average photons on top of what was seen
-    up0 = float(_midp_poisson(np.zeros(1), 1.0 - alpha / 2)[0]) * q0 / omega
-    return n_eff, lo * q, np.maximum(hi * q, mean + up0)
+    up0 = float(_midp_poisson(np.zeros(1), 1.0 - alpha / 2)[0]) * np.asarray(q0)
+    return lo * q, np.maximum(hi * q, np.asarray(mean) + up0)
 
 
 def _midp_poisson(n: NDArray, level: float) -> NDArray:
