@@ -16,6 +16,13 @@ option                 unit   default     meaning
 ``--photons``          –      400 000     photons per case
 ``--seed``             –      1
 ``--json``             –      none        every check with σ, q and allowance
+``--coverage``         –      off         the regulation-point coverage study instead:
+                                          synthetic sharp cut-off lamps, 95 % intervals
+                                          against exact aperture means
+``--lamps``            –      40          lamps in the coverage study
+``--aperture``         deg    0.15        detector aperture of the coverage study
+``--spt-points``       –      off         SPT aimed at the test points (coverage study)
+``--truth``            –      cell        ``cell`` (today's sampler) or ``bilinear``
 =====================  =====  ==========  ================================================
 
 ``lightsim converge SCENE``
@@ -72,15 +79,30 @@ def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
 @click.option("--seed", type=int, default=1, show_default=True)
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Write every check (with its σ and allowance) as JSON.")
+@click.option("--coverage", is_flag=True,
+              help="Coverage study of the regulation points' 95 % intervals on synthetic "
+                   "sharp cut-off lamps with exact answers.")
+@click.option("--lamps", type=int, default=40, show_default=True,
+              help="Synthetic lamps in the coverage study.")
+@click.option("--aperture", type=float, default=0.15, show_default=True,
+              help="Detector aperture (deg) of the coverage study.")
+@click.option("--spt-points", is_flag=True, help="Coverage study with SPT aimed at the points.")
+@click.option("--truth", type=click.Choice(["cell", "bilinear"]), default="cell",
+              show_default=True, help="Intensity the source samples (cell = today's sampler).")
 @click.option("--quiet", "-q", is_flag=True, help="Only the table.")
 def validate(full: bool, stability: bool, run_all: bool, cases: tuple[str, ...],
              estimators: tuple[str, ...], photons: int | None, seed: int,
-             json_path: str | None, quiet: bool) -> None:
+             json_path: str | None, coverage: bool, lamps: int, aperture: float,
+             spt_points: bool, truth: str, quiet: bool) -> None:
     """Check the simulator against exact answers (and stiff, extreme cases).
 
     Prints case, quantity, expected, measured, error, uncertainty and pass for every
     check; exits with code 1 if any check fails.
     """
+    if coverage:
+        _coverage(lamps, photons or 1_000_000, aperture, spt_points, truth, seed,
+                  json_path, quiet)
+        return
     from lightsim.validation import analytic
     from lightsim.validation import stability as stab
     from lightsim.validation.analytic import TABLE_COLUMNS, SuiteSettings, table_rows
@@ -253,3 +275,44 @@ def converge(scene: str, budgets: str | None, full: bool, estimators: tuple[str,
                    f"its own estimated error {ref['rel_error']:.2%}"
                    if ref.get("rel_error") is not None else "reference: bin")
     click.echo(f"wrote {paths['csv']}, {paths['json']}, {paths['png']}")
+
+
+def _coverage(lamps: int, photons: int, aperture: float, spt: bool, truth: str, seed: int,
+              json_path: str | None, quiet: bool) -> None:
+    """``validate --coverage``: print the rate, the worst biases and a per-point table."""
+    from lightsim.validation.coverage import COVERAGE_BAND, coverage_study
+
+    if lamps < 1:
+        raise InputError(f"--lamps must be at least 1, got {lamps}")
+    if photons < 1000:
+        raise InputError(f"--photons must be at least 1000, got {photons}")
+    if not (math.isfinite(aperture) and 0 < aperture <= 2):
+        raise InputError(f"--aperture must be in (0, 2] degrees, got {aperture}")
+
+    def progress(n: int, run) -> None:
+        if not quiet:
+            click.echo(f"  lamp {n + 1}/{lamps}: {run.seconds:.1f} s", err=True)
+
+    res = coverage_study(lamps, photons, aperture_deg=aperture, spt=spt, truth=truth,
+                         seed=seed, progress=progress)
+    lo, hi = res.band()
+    ok = lo <= res.rate <= hi
+    rows = [[name, f"{p['coverage']:.1%}", f"{p['mean_bias_halfwidths']:+.2f}"]
+            for name, p in res.per_point.items()]
+    _print_table(f"lightsim validate --coverage: {res.lamps} lamps × {photons:,} photons, "
+                 f"aperture {aperture:g}°{' with SPT' if spt else ''} "
+                 f"(truth: {truth}), {res.seconds:.0f} s",
+                 ["point", "coverage", "mean bias (half-widths)"], rows)
+    click.echo(f"coverage {res.covered}/{res.evaluations} = {res.rate:.1%} "
+               f"(target {COVERAGE_BAND[0]:.0%}–{COVERAGE_BAND[1]:.0%}, accepted "
+               f"{lo:.1%}–{hi:.1%} for this many evaluations): {'pass' if ok else 'FAIL'}")
+    click.echo(f"worst evaluation: {res.worst_bias_point} off by {res.worst_bias:.2f} "
+               f"half-widths; worst point on average: {res.worst_mean_point} "
+               f"{res.worst_mean_bias:+.2f} half-widths")
+    if json_path:
+        from lightsim.io.summary import write_json
+
+        write_json(json_path, {"coverage": res.to_dict(), "passed": ok,
+                               "accepted_band": [lo, hi]})
+    if not ok:
+        raise SystemExit(1)

@@ -160,10 +160,17 @@ class SelectiveSampler:
         Target number of photons per pass; the refinement count J per refined cell is
         chosen before each pass from it (allocation never depends on the pass's own
         photons, which keeps the pass unbiased).
+    refine_share : float, optional
+        None (the paper's caustic SPT): ordinary cells get one photon per pass and the
+        refined cells the rest. A share f in (0, 1): every cell keeps
+        n₀ = ⌊(1 − f)·pass_photons / L⌋ photons and the refined cells share the other
+        f·pass_photons — used to aim at test points without starving the rest of the
+        map (the weights n_pass / (L n_c) keep every pass unbiased either way).
     """
 
     def __init__(self, seed: int, set_index: int, cell_digits: tuple[int, int] = (5, 3),
-                 pass_photons: int = 4096) -> None:
+                 pass_photons: int = 4096, refine_share: float | None = None) -> None:
+        self.refine_share = refine_share
         self.seed = seed
         self.set_index = set_index
         self.cell_digits = cell_digits
@@ -188,6 +195,10 @@ class SelectiveSampler:
         n_ref = int(self.refined.sum())
         if n_ref == 0:  # nothing known yet: plain stratified sampling of every cell
             n_c = np.full(L, max(1, self.pass_photons // L), dtype=np.int64)
+        elif self.refine_share is not None:
+            base = max(1, int((1.0 - self.refine_share) * self.pass_photons) // L)
+            J = max(self.pass_photons - base * L, 0) // n_ref
+            n_c = np.where(self.refined, base + J, base).astype(np.int64)
         else:
             J = max(self.pass_photons - L, 0) // n_ref
             n_c = np.where(self.refined, 1 + J, 1).astype(np.int64)
@@ -205,7 +216,14 @@ class SelectiveSampler:
         return p, indices, points, weight
 
     def update(self, indices: np.ndarray, caustic: np.ndarray) -> None:
-        """Mark the cells of photons whose paths were caustic (refined from now on)."""
+        """Mark the cells of photons whose paths were caustic (refined from now on).
+
+        With a ``refine_share`` (SPT aimed at test points) the refined cells are those of
+        the last pass's triggering photons only, so a point that has enough photons
+        stops drawing the refinement.
+        """
+        if self.refine_share is not None:
+            self.refined[:] = False
         if len(indices):
             self.refined[(indices[caustic] % self.n_cells)] = True
 

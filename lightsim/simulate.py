@@ -71,6 +71,8 @@ class SimulateOptions:
     mount_height: float = 0.65
     ies_type: str = "auto"
     lamp_set: int | None = None
+    aperture: float = 0.15
+    spt_points: bool = False
 
     def run_config(self) -> RunConfig:
         """The engine settings (validated); also checks the photometric output names, so
@@ -165,6 +167,11 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
         raise InputError("--aim aims the pattern for a regulation check: give --regulation")
     scene = load(opts)
     config = opts.run_config()
+    if opts.regulation is not None:  # test points counted in detector apertures
+        from lightsim.report import aperture_config
+
+        config = aperture_config(config, opts.regulation, opts.traffic, scene.wall,
+                                 opts.aperture, opts.aim, opts.spt_points)
     session = Session(scene, config, workers=opts.workers, address=opts.address,
                       checkpoint=(resume or {}).get("session"),
                       regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt))
@@ -308,7 +315,10 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
         report.save_probes(out, reg)
         summary["regulation"] = report.public(reg)
         results = reg["results"]
-    summary["cutoff"] = _cutoff(lux, frame, opts.traffic)
+    summary["cutoff"] = _cutoff(lux, frame, opts.traffic, session)
+    if results is not None and summary["regulation"].get("aim", {}).get("applied"):
+        summary["regulation"]["aim"]["cutoff_interval_deg"] = summary["cutoff"].get(
+            "v_cutoff_interval_deg")
     report.engineering_plots(out, lux, frame, results, opts.mount_height)
     if opts.ies or opts.ldt:
         from lightsim.luminaires.photometric import resolve_ies_type, write_photometric
@@ -336,13 +346,24 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
             summary["farfield"]["files"].append(str(path))
 
 
-def _cutoff(lux: np.ndarray, frame, traffic: str) -> dict[str, Any]:
-    from lightsim.render.cutoff import find_cutoff
+def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:
+    from lightsim.render.cutoff import cutoff_interval, find_cutoff, scan_sample_points
 
     res = find_cutoff(lux, frame.to_dict(), traffic)
-    return {"found": res.found, "message": res.message, "v_cutoff_deg": res.v_cutoff_deg,
-            "sharpness_g": res.sharpness_g, "linear": res.linear,
-            "aim_dv_deg": res.aim_dv_deg}
+    out = {"found": res.found, "message": res.message, "v_cutoff_deg": res.v_cutoff_deg,
+           "sharpness_g": res.sharpness_g, "linear": res.linear,
+           "aim_dv_deg": res.aim_dv_deg}
+    if res.found and session is not None and session.config.n_sets > 1:
+        # every set scans its own estimate: their spread is the position's interval
+        hv, _, _ = scan_sample_points(frame.to_dict(), traffic)
+        from lightsim.render.frame import luminous
+
+        ci = cutoff_interval(luminous(session.probe(hv).values), frame.to_dict(),
+                             res.v_cutoff_deg, traffic)
+        out["v_cutoff_interval_deg"] = (None if ci.interval_deg is None
+                                        else list(ci.interval_deg))
+        out["interval"] = ci.to_dict()
+    return out
 
 
 def describe_options(opts: SimulateOptions) -> str:

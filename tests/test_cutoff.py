@@ -121,3 +121,44 @@ def test_bad_inputs():
         find_cutoff(np.ones((10, 10)), FRAME)
     with pytest.raises(InputError, match="traffic"):
         find_cutoff(step_pattern(-0.57), FRAME, traffic="middle")
+
+
+# ---- the cut-off position's interval from the sets (jackknife) --------------------------
+def _set_values(v0: float, noise: float, seed: int, sets: int = 16) -> np.ndarray:
+    from lightsim.render.cutoff import scan_sample_points
+
+    hv, _, _ = scan_sample_points(FRAME)
+    hd = np.degrees(np.arctan2(hv[:, 0], D))
+    vd = np.degrees(np.arctan2(hv[:, 1], D))
+    e = 10.0 ** (1.5 - (1 + np.tanh((vd - v0) / 0.08)) - 0.002 * hd**2)
+    rng = np.random.default_rng(seed)
+    return e[None, :] * (1 + noise * rng.standard_normal((sets, len(e))))
+
+
+def test_cutoff_interval_covers_the_true_position():
+    from lightsim.render.cutoff import cutoff_interval
+
+    covered, widths = [], []
+    for seed in range(24):
+        ci = cutoff_interval(_set_values(-0.57, 0.3, seed), FRAME, None)
+        assert ci.found_sets == 16 and ci.interval_deg is not None
+        lo, hi = ci.interval_deg
+        covered.append(lo <= -0.57 <= hi)
+        widths.append(hi - lo)
+    # 95 % intervals: at least 19 of 24 (P(fewer) < 2 % for exact coverage)
+    assert sum(covered) >= 19
+    narrow = cutoff_interval(_set_values(-0.57, 0.075, 99), FRAME, None)
+    # a quarter of the noise: a much narrower interval (≈ ¼)
+    assert (narrow.interval_deg[1] - narrow.interval_deg[0]) < 0.5 * np.median(widths)
+    json.dumps(narrow.to_dict())
+
+
+def test_cutoff_interval_degenerate_inputs():
+    from lightsim.render.cutoff import cutoff_interval
+
+    flat = np.ones((16, _set_values(-0.57, 0.0, 0).shape[1]))
+    ci = cutoff_interval(flat, FRAME, None)   # no cut-off anywhere: reported, not raised
+    assert ci.found_sets == 0 and ci.interval_deg is None
+    one = cutoff_interval(_set_values(-0.57, 0.1, 1, sets=1), FRAME, -0.57)
+    assert one.interval_deg is None
+    assert cutoff_interval(np.zeros((4, 7)), FRAME, None).interval_deg is None  # bad shape

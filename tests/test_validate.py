@@ -282,3 +282,51 @@ def test_full_suite_passes():
     assert not failed, failed
     assert any(c.case == "slab-absorbing/bin" for c in res.checks)
     assert any(c.case == "lambertian/radius" for c in res.checks)
+
+
+# ------------------------------------------------------------------------------------------
+# Coverage of the regulation points' intervals (validate --coverage)
+# ------------------------------------------------------------------------------------------
+
+def test_synthetic_lamp_truth_is_the_sampled_intensity():
+    from lightsim.validation.coverage import _cell_intensity, aperture_truth, synthetic_lamp
+
+    grid, p = synthetic_lamp(np.random.default_rng(5))
+    # the cell-constant truth is a grid node's value, the aperture mean lies between
+    h, v = np.array([1.15, -3.43]), np.array([-0.57, 0.57])
+    t = aperture_truth(grid, h, v, 0.15, quad=64)
+    cell = _cell_intensity(grid, h, v)
+    assert t[0] == pytest.approx(cell[0], rel=0.2) and 0 < t[1] < 0.2 * t[0]
+    # a tiny aperture inside one cell returns that cell's value exactly
+    tiny = aperture_truth(grid, np.array([0.6]), np.array([-2.0]), 0.01, quad=8)
+    assert tiny[0] == pytest.approx(_cell_intensity(grid, np.array([0.6]),
+                                                    np.array([-2.0]))[0], rel=1e-9)
+    # the sharp cut-off: just below vc is bright, just above is glare
+    below = _cell_intensity(grid, np.array([-3.0]), np.array([p["vc"] - 0.2]))[0]
+    above = _cell_intensity(grid, np.array([-3.0]), np.array([p["vc"] + 0.2]))[0]
+    assert below > 8 * above > 0
+
+
+def test_coverage_study_small_within_a_binomial_band():
+    from lightsim.validation.coverage import coverage_study
+
+    res = coverage_study(3, 200_000, seed=7, quad=24)
+    assert res.evaluations == 3 * 18
+    lo, hi = res.band()   # 0.95 ± 3 binomial standard errors for 54 evaluations
+    assert lo <= res.rate <= hi, res.to_dict()
+    assert abs(res.worst_mean_bias) < 1.0
+    json.dumps(res.to_dict())
+
+
+@pytest.mark.slow
+def test_coverage_study_full_93_to_97_percent():
+    from lightsim.validation.coverage import COVERAGE_BAND, coverage_study
+
+    res = coverage_study(40, 1_000_000)
+    assert COVERAGE_BAND[0] <= res.rate <= COVERAGE_BAND[1], res.to_dict()
+
+
+def test_validate_coverage_cli_bad_input(capsys):
+    for argv in (["--lamps", "0"], ["--photons", "10"], ["--aperture", "-1"]):
+        code, _, err = _run(["validate", "--coverage", *argv], capsys)
+        assert code == 2 and len(err.strip().splitlines()) == 1

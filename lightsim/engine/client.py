@@ -59,6 +59,8 @@ class SetState:
     photonmap: Any = None
     bins: np.ndarray | None = None
     windows: np.ndarray | None = None  # (G, C) power in the pixel window of each grid probe
+    apertures: Any = None  # ApertureCounter of the run's detector apertures, if any
+    aperture_hits: np.ndarray | None = None  # sources of this frame's target-aperture photons
 
     def __post_init__(self) -> None:
         if self.ledger is None:
@@ -187,9 +189,14 @@ class Client:
 
     def _new_set(self, s: int) -> SetState:
         st = SetState(s, self.channels)
-        if self.plan.spt:
-            st.sampler = SelectiveSampler(self.config.seed, s,
+        if self.plan.spt or self.config.aperture_targets:
+            share = None if self.plan.spt else self.config.aperture_spt_share
+            st.sampler = SelectiveSampler(self.config.seed, s, refine_share=share,
                                           pass_photons=self.config.photons_per_set)
+        if self.config.apertures:
+            from lightsim.engine.apertures import counter_from_config
+
+            st.apertures = counter_from_config(self.config, self.frame, self.channels)
         if self.config.estimator == "bin":
             W, H = self.frame.resolution
             st.bins = np.zeros((H, W, self.channels))
@@ -266,7 +273,11 @@ class Client:
             st.caustic += int(caustic.sum())
             st.records += len(part)
             if st.sampler is not None:
-                st.sampler.update(owners[g], caustic)
+                trigger = caustic if self.plan.spt else np.zeros(hi - lo, np.bool_)
+                if st.aperture_hits is not None:  # SPT aimed at test points
+                    trigger = trigger.copy()
+                    trigger[st.aperture_hits] = True
+                st.sampler.update(owners[g], trigger)
         return {"photons": float(len(points)), "records": float(len(rec)),
                 "rays": float(res.rays), "seconds": time.perf_counter() - t0}
 
@@ -277,6 +288,11 @@ class Client:
         return cache[s]
 
     def _insert(self, st: SetState, rec: PhotonRecords) -> None:
+        if st.apertures is not None:  # detector apertures count every wall photon directly
+            on_wall = np.isin(rec.part, self._wall_part_ids)
+            h, v = self.frame.to_hv(rec.position[on_wall])
+            hit = st.apertures.add(h, v, rec.power[on_wall])
+            st.aperture_hits = rec.source[on_wall][hit]
         if st.bins is not None:
             W, H = self.frame.resolution
             h, v = self.frame.to_hv(rec.position)
@@ -446,7 +462,9 @@ class Client:
         """Per-set counters and bookkeeping (unnormalised ledger)."""
         return {s: {"emitted": st.emitted, "frames": st.frames, "caustic": st.caustic,
                     "records": st.records, "ledger": st.ledger.copy(),
-                    "emitted_power": st.emitted_power.copy()}
+                    "emitted_power": st.emitted_power.copy(),
+                    "apertures": (None if st.apertures is None
+                                  else st.apertures.counts.copy())}
                 for s, st in self.sets.items()}
 
     def counters(self) -> dict[int, int]:

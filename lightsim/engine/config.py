@@ -39,6 +39,16 @@ parameter               unit   default     meaning
 ``probe_grid``          –      64 × 32     points on the wall where every set estimates E:
                                            their spread over the sets is the error estimate
 ``channels``            –      auto        1 (luminous) or 3 (RGB); auto = plan
+``apertures``           deg    none        (H, V) of detector apertures every set counts
+                                           photons in (``lightsim.engine.apertures``)
+``aperture_deg``        deg    0.15        side of the square aperture (≈ 65 mm at 25 m)
+``aperture_shift_deg``  deg    0           strip reach for aiming after the run
+``aperture_substeps``   –      1           strip bins per aperture side
+``aperture_targets``    –      none        aperture indices that Selective Photon Tracing
+                                           refines (photons landing there mark their cell)
+``aperture_spt_share``  1      0.5         share of each SPT pass given to refined cells
+``aperture_raster``     deg    none        (H lo, H hi, V lo, V hi) tiled with apertures
+                                           for the beam maximum Imax
 ======================  =====  ==========  ==================================================
 """
 
@@ -77,6 +87,13 @@ class RunConfig:
     channels: int | None = None
     threads: int | None = None
     extra_probes: tuple[tuple[float, float], ...] = field(default_factory=tuple)
+    apertures: tuple[tuple[float, float], ...] = field(default_factory=tuple)
+    aperture_deg: float = 0.15
+    aperture_shift_deg: float = 0.0
+    aperture_substeps: int = 1
+    aperture_targets: tuple[int, ...] = field(default_factory=tuple)
+    aperture_spt_share: float = 0.5
+    aperture_raster: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -108,6 +125,12 @@ class RunConfig:
             raise InputError(f"record must be 'wall' or 'all', got '{self.record}'")
         if self.channels not in (None, 1, 3):
             raise InputError(f"channels must be 1 or 3, got {self.channels}")
+        if not (math.isfinite(self.aperture_deg) and 0 < self.aperture_deg < 10):
+            raise InputError(f"aperture must be between 0 and 10 degrees, "
+                             f"got {self.aperture_deg}")
+        if not 0 < self.aperture_spt_share < 1:
+            raise InputError(f"aperture SPT share must lie in (0, 1), "
+                             f"got {self.aperture_spt_share}")
 
     @property
     def n_sets(self) -> int:
@@ -130,4 +153,6 @@ class RunConfig:
         if self.max_radius is not None and math.isinf(self.max_radius):
             d["max_radius"] = "inf"
         d["extra_probes"] = [list(p) for p in self.extra_probes]
+        d["apertures"] = [list(p) for p in self.apertures]
+        d["aperture_targets"] = list(self.aperture_targets)
         return d

@@ -78,11 +78,14 @@ __all__ = [
     "G_RANGE",
     "LINEARITY_DEG",
     "TARGET_V_DEG",
+    "CutoffInterval",
     "CutoffResult",
     "ScanResult",
     "aim_shift",
     "apply_shift",
+    "cutoff_interval",
     "find_cutoff",
+    "scan_sample_points",
 ]
 
 TARGET_V_DEG = -0.57
@@ -158,11 +161,20 @@ def _scan(lux: NDArray, wf: WallFrame, h_deg: float, v_lo: float, v_hi: float,
         return ScanResult(h_deg, False, message="scan window outside the wall image")
     v = np.arange(v_lo, v_hi + 0.5 * step_deg, step_deg)
     e = _profile(lux, wf, h_deg, v, band_deg)
+    pix_deg = float(np.degrees(wf.pixel_size_m[1] / wf.distance_m))
+    return _scan_profile(v, e, h_deg, pix_deg, step_deg, smooth_deg, g_smooth_deg,
+                         floor_rel, min_sharpness, min_contrast)
+
+
+def _scan_profile(v: NDArray, e: NDArray, h_deg: float, pix_deg: float, step_deg: float,
+                  smooth_deg: float, g_smooth_deg: float, floor_rel: float,
+                  min_sharpness: float, min_contrast: float) -> ScanResult:
+    """The inflection search on one band-averaged profile ``e`` (lx) along ``v`` (deg)."""
+    v_lo = float(v[0])
     peak = float(np.max(e)) if e.size else 0.0
     if not np.isfinite(peak) or peak <= 0:
         return ScanResult(h_deg, False, message="no light on this scan")
     log_e = np.log10(np.maximum(e, peak * floor_rel))
-    pix_deg = float(np.degrees(wf.pixel_size_m[1] / wf.distance_m))
     sig = max(smooth_deg, pix_deg) / step_deg
     sig_g = max(g_smooth_deg, 0.5 * pix_deg) / step_deg
     smooth = gaussian_filter1d(log_e, sig, mode="nearest")
@@ -342,3 +354,107 @@ def apply_shift(lux: ArrayLike, frame: Any, dh_deg: float, dv_deg: float,
     i_new = map_coordinates(intensity, [row.ravel(), col.ravel()], order=1, mode="nearest")
     e_new = lux_from_candela(i_new.reshape(hm.shape), hm, vm, D)
     return np.where(inside, e_new, fill)
+
+
+# ---- an interval for the cut-off position from the independent sets -------------------
+@dataclass(frozen=True)
+class CutoffInterval:
+    """Uncertainty of the cut-off position from the interleave sets (jackknife).
+
+    The pooled image is the mean of the S sets' estimates. Leaving set s out gives S
+    images of S − 1 sets; each is scanned exactly as :func:`find_cutoff` scans (same R112
+    scans and settings; the 2.5° scan's inflection or the mean of the scans found), and
+    the jackknife standard error ``se = √((n−1)/n · Σ (v₋ₛ − v̄)²)`` gives the Student-t
+    interval ``centre ± t(n−1)·se`` around the pooled image's position ``centre``.
+    ``per_set_deg`` holds the leave-one-out positions; those without a cut-off are
+    counted (``found_sets``), not used.
+    """
+
+    found_sets: int
+    sets: int
+    centre_deg: float | None
+    interval_deg: tuple[float, float] | None
+    per_set_deg: tuple[float, ...]
+    confidence: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"found_sets": self.found_sets, "sets": self.sets,
+                "centre_deg": self.centre_deg,
+                "interval_deg": None if self.interval_deg is None else list(self.interval_deg),
+                "per_set_deg": list(self.per_set_deg), "confidence": self.confidence}
+
+
+def scan_sample_points(frame: Any, traffic: str = "right",
+                       scan_h_deg: Sequence[float] = (1.5, 2.5, 3.5),
+                       v_window_deg: tuple[float, float] = (-3.0, 1.5),
+                       band_deg: float = 0.1, step_deg: float = 0.01
+                       ) -> tuple[NDArray, NDArray, NDArray]:
+    """Wall points (m) at which the sets must be estimated for :func:`cutoff_interval`.
+
+    Returns
+    -------
+    hv_m : (n_scans · n_v · 5, 2) wall metres, scan-major, then V, then the band's 5 H
+    h_deg : (n_scans,) scan positions; v_deg : (n_v,) the V grid
+    """
+    wf = WallFrame.from_any(frame)
+    sign = -1.0 if str(traffic).lower() == "right" else 1.0
+    v_lo = max(v_window_deg[0], float(wf.v_deg().min()))
+    v_hi = min(v_window_deg[1], float(wf.v_deg().max()))
+    v = np.arange(v_lo, v_hi + 0.5 * step_deg, step_deg) if v_hi > v_lo else np.zeros(0)
+    hs = np.array([sign * abs(float(o)) for o in scan_h_deg])
+    offsets = np.linspace(-band_deg / 2, band_deg / 2, 5) if band_deg > 0 else np.zeros(1)
+    H = (hs[:, None, None] + offsets[None, None, :]) * np.ones((1, len(v), 1))
+    V = np.broadcast_to(v[None, :, None], H.shape)
+    hv = np.stack([wall_m_from_deg(H, wf.distance_m).ravel(),
+                   wall_m_from_deg(V, wf.distance_m).ravel()], axis=1)
+    return hv, hs, v
+
+
+def cutoff_interval(values: ArrayLike, frame: Any, centre_deg: float | None,
+                    traffic: str = "right", scan_h_deg: Sequence[float] = (1.5, 2.5, 3.5),
+                    v_window_deg: tuple[float, float] = (-3.0, 1.5), band_deg: float = 0.1,
+                    step_deg: float = 0.01, smooth_deg: float = 0.05,
+                    g_smooth_deg: float = 0.02, floor_rel: float = 1e-4,
+                    min_sharpness: float = 0.05, min_contrast: float = 0.5,
+                    confidence: float = 0.95) -> CutoffInterval:
+    """Cut-off interval from per-set estimates (S, n) at :func:`scan_sample_points`.
+
+    ``centre_deg``: the pooled image's cut-off (from :func:`find_cutoff`); None = scan
+    the mean of the sets' profiles.
+    """
+    from scipy.special import stdtrit
+
+    wf = WallFrame.from_any(frame)
+    _, hs, v = scan_sample_points(wf, traffic, scan_h_deg, v_window_deg, band_deg, step_deg)
+    vals = np.nan_to_num(np.asarray(values, dtype=float), nan=0.0)
+    S = vals.shape[0]
+    if len(v) < 10 or vals.shape[1] != len(hs) * len(v) * (5 if band_deg > 0 else 1):
+        return CutoffInterval(0, S, centre_deg, None, (), confidence)
+    prof = vals.reshape(S, len(hs), len(v), -1).mean(axis=-1)
+    pix_deg = float(np.degrees(wf.pixel_size_m[1] / wf.distance_m))
+    # jackknife: the pooled image is the mean of the sets' estimates, so leaving one set
+    # out gives a nearly as good image; the spread of those positions is the variance of
+    # a nonlinear statistic of a mean (a single set's own scan is far noisier)
+    total = prof.sum(axis=0)
+
+    def position(p: NDArray) -> float | None:
+        res = [_scan_profile(v, np.maximum(p[i], 0.0), float(hs[i]), pix_deg, step_deg,
+                             smooth_deg, g_smooth_deg, floor_rel, min_sharpness,
+                             min_contrast) for i in range(len(hs))]
+        found = [r for r in res if r.found]
+        main = next((r for r in found if abs(abs(r.h_deg) - 2.5) < 1e-9), None)
+        if main is not None:
+            return float(main.v_inflection_deg)
+        return float(np.mean([r.v_inflection_deg for r in found])) if found else None
+
+    if centre_deg is None:  # the pooled estimate's own position
+        centre_deg = position(total / S)
+    per_set = [x for s in range(S)
+               if (x := position((total - prof[s]) / max(S - 1, 1))) is not None]
+    n = len(per_set)
+    interval = None
+    if centre_deg is not None and n >= 2:
+        se = float(np.sqrt((n - 1) / n * np.sum((np.asarray(per_set) - np.mean(per_set)) ** 2)))
+        half = float(stdtrit(n - 1, 0.5 + confidence / 2)) * se
+        interval = (float(centre_deg) - half, float(centre_deg) + half)
+    return CutoffInterval(n, S, centre_deg, interval, tuple(per_set), confidence)

@@ -329,6 +329,10 @@ def _eval_zone(g: Geometry, idx: NDArray, st: _Stats, h: NDArray, v: NDArray,
                 _limit_dict(g.min, g.max), verdict, g, err)
     out["stat"] = g.stat
     out["n_probes"] = len(idx)
+    # the zone's maximum with its direction and interval, whatever the limited statistic
+    top = idx[int(np.argmax(means))]
+    out.update({"max_cd": _f(st.mean[top]), "max_h_deg": _f(h[top]),
+                "max_v_deg": _f(v[top]), "max_interval_cd": [_f(st.lo[top]), _f(st.hi[top])]})
     if g.polygon:
         out["polygon_deg"] = [[_f(a), _f(b)] for a, b in g.polygon]
     if g.line:
@@ -423,7 +427,8 @@ def unevaluated_rules(ruleset: RuleSet, probes: Probes) -> list[dict[str, str]]:
 
 
 def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
-             traffic: str | None = None, confidence: float = 0.95) -> list[dict[str, Any]]:
+             traffic: str | None = None, confidence: float = 0.95,
+             intervals_cd: ArrayLike | None = None) -> list[dict[str, Any]]:
     """Test per-set intensity estimates against a rule set.
 
     Parameters
@@ -439,6 +444,11 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
         Must match ``probes.traffic`` if given.
     confidence : float, default 0.95
         Two-sided confidence level of the Student-t intervals.
+    intervals_cd : array_like, shape (P, 2), optional
+        Probe intervals (cd) that replace the Student-t ones where both bounds are finite
+        (e.g. photon-count intervals of apertures that caught too few photons for the
+        sets' spread to mean anything); points and zones use them, sums and relations
+        keep the per-set statistics.
 
     Returns
     -------
@@ -449,7 +459,9 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
         the present bounds) plus ``kind, certainty, note, source, error_estimate`` and
         per kind: zones ``stat, n_probes, probes_outside_wall, polygon_deg | line_deg``
         (value at the extreme probe; a zone partly outside the wall is tested where the
-        wall covers it); sums ``points`` (h/v are None); relations ``lhs, op, factor, reference,
+        wall covers it) and ``max_cd, max_h_deg, max_v_deg, max_interval_cd`` (the probe
+        with the largest mean: the zone's maximum, its direction and interval); sums
+        ``points`` (h/v are None); relations ``lhs, op, factor, reference,
         reference_cd, reference_interval_cd, margin_cd, margin_interval_cd`` (value at the
         lhs probe with the worst margin; limit = factor × reference). Rules that cannot be
         tested are reported by :func:`unevaluated_rules`.
@@ -486,6 +498,13 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
     err = n_sets >= 2
     tfac = _t_factor(n_sets, confidence)
     st = _stats(values, tfac)
+    if intervals_cd is not None:
+        ov = np.asarray(intervals_cd, dtype=float)
+        if ov.shape != (len(probes), 2):
+            raise InputError(f"intervals_cd must have shape ({len(probes)}, 2), "
+                             f"got {ov.shape}")
+        use = np.isfinite(ov).all(axis=1)
+        st = _Stats(st.mean, np.where(use, ov[:, 0], st.lo), np.where(use, ov[:, 1], st.hi))
     results: list[dict[str, Any]] = []
     for kind in ("point", "zone"):
         for g in rs.geometries:
