@@ -21,7 +21,9 @@ parameter              unit   default    meaning
 
 Input problems raise :class:`~lightsim.errors.InputError` with one line: missing file,
 not a mesh, truncated GLB, NaN/inf vertices, no emitter, zero or negative flux, a wall
-that is not planar. Zero-area triangles are dropped with a warning.
+that is not planar. Zero-area triangles are dropped with a warning. A wall modelled as a
+closed thin solid (a slab, as CAD exports one) is reduced to its lamp-facing face, with a
+warning (:func:`solid_wall_face`).
 """
 
 from __future__ import annotations
@@ -378,6 +380,57 @@ def _plane_frame(part: Part, resolution: tuple[int, int]) -> WallFrame:
                      (float(v.min()), float(v.max())), distance, resolution)
 
 
+SOLID_WALL_MAX_THICKNESS = 0.05  # thickness / in-plane size below which a solid is "thin"
+FACE_COS_TOL = 1e-6               # 1 − cos of the angle a front-face triangle may tilt
+
+
+def solid_wall_face(part: Part) -> tuple[Part, str] | None:
+    """The lamp-facing face of a closed thin solid wall, or None if ``part`` is not one.
+
+    A CAD wall is often a slab (e.g. 1 mm thick): closed, with a front face towards the
+    lamp, a back face and rims. The detector is the front face — the triangles whose
+    outward normal points at the lamp reference point (origin) and lie in the plane
+    nearest to it. Returns the reduced part and a one-line description, or None when the
+    part is open, not thin, or has no planar front face (then it stays "not planar").
+    """
+    import trimesh
+
+    if len(part.faces) < 4:
+        return None
+    mesh = trimesh.Trimesh(part.vertices, part.faces, process=True, validate=False)
+    if not mesh.is_watertight:
+        return None
+    pts = part.vertices[np.unique(part.faces)]
+    centroid = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centroid, full_matrices=False)
+    normal = vt[2]
+    if normal @ centroid > 0:
+        normal = -normal  # towards the lamp at the origin
+    off = (pts - centroid) @ normal
+    thickness = float(np.ptp(off))
+    size = float(np.ptp((pts - centroid) @ vt[1]))
+    if not (size > 0 and thickness <= SOLID_WALL_MAX_THICKNESS * size):
+        return None
+    tri = part.vertices[part.faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    # a solid with inward winding (negative volume) has its front face pointing away
+    outward = 1.0 if mesh.volume >= 0 else -1.0
+    facing = outward * (fn @ normal) > 1.0 - FACE_COS_TOL
+    if not np.any(facing):
+        return None
+    height = tri.mean(axis=1) @ normal  # larger: nearer the lamp
+    front = facing & (height >= height[facing].max() - 0.25 * thickness)
+    faces = part.faces[front]
+    if outward < 0:
+        faces = faces[:, ::-1].copy()
+    reduced = replace(part, faces=faces)
+    note = (f"wall '{part.name}' is a closed solid {thickness * 1e3:.3g} mm thick: its "
+            f"lamp-facing face ({int(front.sum())} of {len(part.faces)} triangles) is the "
+            "detector")
+    return reduced, note
+
+
 def make_wall(distance: float, size: tuple[float, float], albedo: float = 0.8,
               resolution: tuple[int, int] = (640, 256)) -> tuple[Part, WallFrame]:
     """A rectangular diffuse wall at z = ``distance`` facing the lamp, centred on H-V."""
@@ -536,6 +589,11 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
     if len(walls) > 1:
         raise InputError(f"{path}: more than one wall ({', '.join(p.name for p in walls)})")
     if walls:
+        solid = solid_wall_face(walls[0])
+        if solid is not None:
+            parts = [solid[0] if p is walls[0] else p for p in parts]
+            warnings.append(solid[1])
+            walls = [solid[0]]
         frame = _plane_frame(walls[0], resolution)
     else:
         wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
