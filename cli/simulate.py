@@ -250,6 +250,9 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
         click.echo(f"energy (lm): emitted {e['emitted']:.6g} = wall {e['wall']:.6g} + "
                    f"absorbed {absorbed:.6g} + escaped {e['escaped']:.6g} + "
                    f"roulette {e['roulette']:.3g} + max depth {e['max_depth']:.3g}")
+        if "road" in s:
+            click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
+                       f"{s['road']['text']}")
         if "regulation" in s:
             from rich.console import Console
 

@@ -302,7 +302,7 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
         summary["regulation"] = report.public(reg)
         results = reg["results"]
     summary["cutoff"] = _cutoff(lux, frame, opts.traffic)
-    report.engineering_plots(out, lux, frame, results, opts.mount_height)
+    report.engineering_plots(out, lux, frame, results, opts.mount_height, summary=summary)
     if opts.ies or opts.ldt:
         from lightsim.luminaires.photometric import write_photometric
 
