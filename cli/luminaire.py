@@ -116,3 +116,30 @@ def bulbs() -> None:
         click.echo(f"  {spec.name:<8} {spec.flux_source}")
     click.echo("cup = H4 shield cup; tip cap = opaque black cap on the dome. Filament sizes and "
                "positions are stated assumptions (see lightsim.luminaires.bulbs).")
+
+
+@luminaire.command()
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--side", "side_mm", type=float, default=1.0, show_default=True,
+              help="Edge of the square Lambertian emitter (LED die) in mm.")
+@click.option("--rays", type=int, default=100_000, show_default=True,
+              help="Rays in the file (rounded down to a square number).")
+@click.option("--flux", "flux_lm", type=float, default=1000.0, show_default=True,
+              help="Luminous flux in lm.")
+@click.option("--seed", type=int, default=1, show_default=True)
+def rayfile(out: Path, side_mm: float, rays: int, flux_lm: float, seed: int) -> None:
+    """Write the ray file of a square Lambertian LED die facing +Z (TM-25 for .tm25ray,
+    Zemax binary for .dat/.ray)."""
+    from lightsim.io.rayfile import TM25_SUFFIXES, ZEMAX_SUFFIXES, write_tm25, write_zemax
+    from lightsim.luminaires.rayfiles import lambertian_square
+
+    pos, dirs, flux = lambertian_square(side_mm * MM, rays, flux_lm, seed)
+    suffix = out.suffix.lower()
+    if suffix in TM25_SUFFIXES:
+        write_tm25(out, pos, dirs, flux, name=f"Lambertian square {side_mm:g} mm")
+    elif suffix in ZEMAX_SUFFIXES:
+        write_zemax(out, pos, dirs, flux, description=f"Lambertian square {side_mm:g} mm")
+    else:
+        raise InputError(f"{out}: ray file name must end in .tm25ray, .dat or .ray")
+    click.echo(f"wrote {out}: {len(pos):,} rays, {flux_lm:g} lm, square {side_mm:g} mm, "
+               "Lambertian along +Z")

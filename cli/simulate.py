@@ -140,6 +140,12 @@ class _Progress:
 @click.option("--filament-at", help="Filament centre X,Y,Z (m).")
 @click.option("--filament-axis", default="0,0,1", show_default=True,
               help="Filament axis X,Y,Z.")
+@click.option("--rayfile", type=click.Path(dir_okay=False),
+              help="LED/bulb ray file (IES TM-25 .tm25ray or Zemax binary .dat/.ray) as the "
+                   "light source, replacing the scene's emitters.")
+@click.option("--rayfile-at", help="Where the ray file's origin goes, X,Y,Z (m).")
+@click.option("--rayfile-axis", default="0,0,1", show_default=True,
+              help="Where the ray file's +Z points, X,Y,Z.")
 @click.option("--part-material", multiple=True,
               help="NAME=mirror[:R]|glass[:n]|diffuse[:ρ]|wall|ignore (repeatable).")
 @click.option("--regulation", help="Rule set to check, e.g. r112-b-passing (see "
@@ -173,7 +179,8 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
              regulation: str | None, traffic: str, aim: bool, ies_out: str | None,
              ldt_out: str | None, farfield_photons: int, mount_height: float,
              log_scale: bool, workers: int, address: str | None, resume_dir: str | None,
-             explain: bool, quiet: bool) -> None:
+             explain: bool, quiet: bool, rayfile: str | None = None,
+             rayfile_at: str | None = None, rayfile_axis: str = "0,0,1") -> None:
     """Simulate SCENE_FILE (GLB/glTF/OBJ/STL/PLY) and write the wall illuminance in lux."""
     import os
 
@@ -206,7 +213,9 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
             log_scale=log_scale, workers=workers,
             address=address or os.environ.get("RAY_ADDRESS") or None,
             regulation=regulation, traffic=traffic, aim=aim, ies=ies_out, ldt=ldt_out,
-            farfield_photons=farfield_photons, mount_height=mount_height)
+            farfield_photons=farfield_photons, mount_height=mount_height,
+            rayfile=rayfile, rayfile_at=_triple(rayfile_at, "--rayfile-at"),
+            rayfile_axis=_triple(rayfile_axis, "--rayfile-axis") or (0.0, 0.0, 1.0))
         opts.run_config()  # validate the settings before any work
 
     stop = {"signal": None}

@@ -17,6 +17,8 @@ parameter              unit   default    meaning
 ``wall_albedo``        –      0.8        albedo of the added wall (camera views only)
 ``part_materials``     –      none       per part: ``mirror[:R]``, ``glass[:n]``,
                                          ``diffuse[:ρ]``, ``wall``, ``ignore``
+``rayfile``            –      none       TM-25 / Zemax ray file that replaces the file's
+                                         emitters (``rayfile_at`` m, ``rayfile_axis``)
 =====================  =====  =========  ================================================
 
 Input problems raise :class:`~lightsim.errors.InputError` with one line: missing file,
@@ -474,7 +476,9 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                wall_distance: float = 25.0, wall_size: tuple[float, float] = (30.0, 12.0),
                wall_albedo: float = 0.8, resolution: tuple[int, int] = (640, 256),
                part_materials: dict[str, str] | None = None,
-               channels: int | None = None) -> Scene:
+               channels: int | None = None, rayfile: str | None = None,
+               rayfile_at: tuple[float, float, float] | None = None,
+               rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> Scene:
     """Load a luminaire (GLB, glTF, OBJ, STL, PLY) into a validated :class:`Scene`.
 
     See the module docstring for the parameters. A wall is added at ``wall_distance`` when
@@ -489,6 +493,13 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         if filament is not None:
             raise InputError("an IES/LDT file is its own light source: --filament makes no sense")
         parts = [goniometric_source(path, flux)]
+        wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
+        return Scene([*parts, wall_part], frame, str(path), [], channels)
+    if path.suffix.lower() == ".tm25ray":  # a ray file alone: the LED in front of the wall
+        if filament is not None or rayfile is not None:
+            raise InputError("a ray file is its own light source: --filament/--rayfile make "
+                             "no sense")
+        parts = [ray_source_part(path, (0.0, 0.0, 0.0), rayfile_axis, flux)]
         wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
         return Scene([*parts, wall_part], frame, str(path), [], channels)
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -566,13 +577,21 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                          f"(parts: {', '.join(n for n, *_ in raw)})")
 
     # -- emitters --------------------------------------------------------------------------
+    if rayfile is not None:
+        if filament is not None:
+            raise InputError("give either --filament or --rayfile, not both")
+        for p in [p for p in parts if p.role == EMITTER]:
+            warnings.append(f"emitter '{p.name}' replaced by the ray file {Path(rayfile).name}")
+        parts = [p for p in parts if p.role != EMITTER]
+        parts.append(ray_source_part(rayfile, rayfile_at or (0.0, 0.0, 0.0), rayfile_axis,
+                                     flux))
     if filament is not None:
         parts.append(_filament_part(filament, filament_at, filament_axis, flux, emission))
     emitters = [p for p in parts if p.role == EMITTER]
     if not emitters:
         raise InputError(f"{path}: no emitter (no material with emissiveFactor); give one with "
                          "--filament BULB --filament-at X,Y,Z")
-    if flux is not None and filament is None:
+    if flux is not None and filament is None and rayfile is None:
         own = [p.flux_lm for p in emitters]
         total = sum(f for f in own if f > 0)
         for p in emitters:  # the total is set; shares keep the file's ratios where known
@@ -630,6 +649,26 @@ def goniometric_source(path: str | Path, flux: float | None = None,
     faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
     return Part(Path(path).stem, EMITTER, verts, faces, None, Material("source", DIFFUSE),
                 flux_lm=total, emission="goniometric", distribution=grid)
+
+
+def ray_source_part(path: str | Path, at: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                    axis: tuple[float, float, float] = (0.0, 0.0, 1.0),
+                    flux: float | None = None) -> Part:
+    """An emitter part that draws its photons from a TM-25 or Zemax ray file.
+
+    The file's origin is placed at ``at`` (m) and its +Z turned to ``axis``; the flux is
+    the file's luminous flux or ``flux`` (lm). See :mod:`lightsim.raysource`.
+    """
+    from lightsim.raysource import RaySource
+
+    src = RaySource(path, at, axis, flux)
+    # a tiny tetrahedron stands for the source in size and bookkeeping; never traced
+    p = src.position
+    verts = p + 1e-6 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1.0]])
+    faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    return Part(f"rayfile-{Path(path).stem}", EMITTER, verts, faces, None,
+                Material("source", DIFFUSE), flux_lm=src.flux_lm, emission="rayfile",
+                distribution=src)
 
 
 def _filament_part(bulb: str, at: tuple[float, float, float] | None,

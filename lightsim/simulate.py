@@ -69,6 +69,9 @@ class SimulateOptions:
     ldt: str | None = None
     farfield_photons: int = 1_000_000
     mount_height: float = 0.65
+    rayfile: str | None = None
+    rayfile_at: tuple[float, float, float] | None = None
+    rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
     def run_config(self) -> RunConfig:
         """The engine settings (validated); also checks the photometric output names, so
@@ -93,7 +96,8 @@ class SimulateOptions:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> SimulateOptions:
         d = dict(d)
-        for key in ("filament_at", "filament_axis", "wall_size", "resolution"):
+        for key in ("filament_at", "filament_axis", "wall_size", "resolution", "rayfile_at",
+                    "rayfile_axis"):
             if d.get(key) is not None:
                 d[key] = tuple(d[key])
         return cls(**d)
@@ -127,7 +131,8 @@ def load(opts: SimulateOptions) -> Scene:
                       filament=opts.filament, filament_at=opts.filament_at,
                       filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
                       wall_size=opts.wall_size, resolution=opts.resolution,
-                      part_materials=opts.part_materials)
+                      part_materials=opts.part_materials, rayfile=opts.rayfile,
+                      rayfile_at=opts.rayfile_at, rayfile_axis=opts.rayfile_axis)
 
 
 def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,
