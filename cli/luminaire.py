@@ -143,3 +143,27 @@ def rayfile(out: Path, side_mm: float, rays: int, flux_lm: float, seed: int) -> 
         raise InputError(f"{out}: ray file name must end in .tm25ray, .dat or .ray")
     click.echo(f"wrote {out}: {len(pos):,} rays, {flux_lm:g} lm, square {side_mm:g} mm, "
                "Lambertian along +Z")
+
+
+@luminaire.command("cad-example")
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--focal-length", "focal_mm", type=float, default=25.0, show_default=True,
+              help="Paraboloid focal length in mm.")
+@click.option("--aperture", "aperture_mm", type=float, default=160.0, show_default=True,
+              help="Reflector aperture diameter in mm.")
+@click.option("--flux", "flux_lm", type=float, default=1000.0, show_default=True,
+              help="Filament flux in lm (written to the material map).")
+def cad_example(out: Path, focal_mm: float, aperture_mm: float, flux_lm: float) -> None:
+    """Write an example headlamp as CAD (STEP or IGES by suffix: exact paraboloid
+    reflector, axial filament, bulb glass, cover lens) and its material map OUT.toml."""
+    from lightsim.io.atomic import write_text
+    from lightsim.luminaires.cad_example import (
+        example_material_map,
+        headlamp_shapes,
+        write_cad,
+    )
+
+    write_cad(out, headlamp_shapes(focal_mm, aperture_mm / 2))
+    mmap = out.with_suffix(".toml")
+    write_text(mmap, example_material_map(flux_lm))
+    click.echo(f"wrote {out} (reflector, filament, bulb, lens; mm) and {mmap}")

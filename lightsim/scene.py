@@ -19,6 +19,9 @@ parameter              unit   default    meaning
                                          ``diffuse[:ρ]``, ``wall``, ``ignore``
 ``rayfile``            –      none       TM-25 / Zemax ray file that replaces the file's
                                          emitters (``rayfile_at`` m, ``rayfile_axis``)
+``materials``          –      none       material map (TOML): name pattern → optics
+                                         (:mod:`lightsim.materialmap`)
+``tessellation``       mm/°   0.01/2     STEP/IGES mesher tolerances (:mod:`lightsim.io.cad`)
 =====================  =====  =========  ================================================
 
 Input problems raise :class:`~lightsim.errors.InputError` with one line: missing file,
@@ -52,7 +55,8 @@ from lightsim.materials import (
 log = logging.getLogger("lightsim.scene")
 
 SURFACE, EMITTER, WALL = "surface", "emitter", "wall"
-MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".stl", ".ply", ".off")
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".stl", ".ply", ".off", ".step", ".stp", ".iges",
+                 ".igs")
 PHOTOMETRIC_SUFFIXES = (".ies", ".ldt")
 
 
@@ -326,9 +330,14 @@ def _parse_part_material(name: str, spec: str) -> tuple[str, Material | None]:
                      "wall or ignore")
 
 
-def _read_parts(path: Path) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None,
-                                          dict, dict]]:
+def _read_parts(path: Path, tessellation: Any = None
+                ) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None, dict, dict]]:
     """(name, vertices, faces, normals, material json, extras) for each mesh in ``path``."""
+    if path.suffix.lower() in (".step", ".stp", ".iges", ".igs"):
+        from lightsim.io.cad import read_cad
+
+        return [(p.name, p.vertices, p.faces, p.normals, p.material, p.extras)
+                for p in read_cad(path, tessellation)]
     if path.suffix.lower() in (".glb", ".gltf"):
         from lightsim.io.gltf import read_gltf
 
@@ -478,7 +487,8 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                part_materials: dict[str, str] | None = None,
                channels: int | None = None, rayfile: str | None = None,
                rayfile_at: tuple[float, float, float] | None = None,
-               rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> Scene:
+               rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0),
+               materials: str | Path | None = None, tessellation: Any = None) -> Scene:
     """Load a luminaire (GLB, glTF, OBJ, STL, PLY) into a validated :class:`Scene`.
 
     See the module docstring for the parameters. A wall is added at ``wall_distance`` when
@@ -511,7 +521,13 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         raise InputError(f"emission must be isotropic, lambertian or collimated, "
                          f"got '{emission}'")
     part_materials = dict(part_materials or {})
-    raw = _read_parts(path)
+    mmap = None
+    if materials is not None:
+        from lightsim.materialmap import read_material_map
+
+        mmap = read_material_map(materials)
+    raw = _read_parts(path, tessellation)
+    unmatched: list[str] = []
     if not raw:
         raise InputError(f"{path}: contains no triangle meshes")
 
@@ -539,11 +555,25 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
             kind = {"mirror": MIRROR, "dielectric": DIELECTRIC, "diffuse": DIFFUSE}[role]
             material = replace(material, kind=kind)
             role = SURFACE
+        explicit = False
         for key in (pname, name):
             if key in part_materials:
                 role, override = _parse_part_material(pname, part_materials.pop(key))
                 material = override or material
+                explicit = True
                 break
+        if mmap is not None and not explicit:
+            rule = mmap.rule_for(pname) or mmap.rule_for(name)
+            if rule is None:
+                unmatched.append(pname)
+            else:
+                role = {"emitter": EMITTER, "wall": WALL, "ignore": "ignore"}.get(
+                    rule.kind, SURFACE)
+                material = rule.material(pname) or material
+                if rule.kind == "emitter":
+                    ls = {**ls, "emission": rule.emission}
+                    if rule.flux_lm is not None:
+                        ls["flux_lm"] = rule.flux_lm
         if role == "ignore":
             continue
         # drop degenerate triangles (zero area or repeated indices)
@@ -572,6 +602,9 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         if role == SURFACE and material.kind == DIELECTRIC:
             part = _check_dielectric(part, warnings)
         parts.append(part)
+    if unmatched:
+        warnings.append(f"material map: no rule for {', '.join(unmatched)} (file materials "
+                        "kept)")
     if part_materials:
         raise InputError(f"--part-material names unknown part(s): {', '.join(part_materials)} "
                          f"(parts: {', '.join(n for n, *_ in raw)})")

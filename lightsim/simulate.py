@@ -35,6 +35,7 @@ import numpy as np
 from lightsim import __version__
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.io.cad import Tessellation
 from lightsim.scene import Scene, load_scene
 
 CHECKPOINT = "checkpoint.json"
@@ -72,6 +73,9 @@ class SimulateOptions:
     rayfile: str | None = None
     rayfile_at: tuple[float, float, float] | None = None
     rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    materials: str | None = None
+    cad_linear_tol_mm: float = 0.01
+    cad_angular_tol_deg: float = 2.0
 
     def run_config(self) -> RunConfig:
         """The engine settings (validated); also checks the photometric output names, so
@@ -132,7 +136,10 @@ def load(opts: SimulateOptions) -> Scene:
                       filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
                       wall_size=opts.wall_size, resolution=opts.resolution,
                       part_materials=opts.part_materials, rayfile=opts.rayfile,
-                      rayfile_at=opts.rayfile_at, rayfile_axis=opts.rayfile_axis)
+                      rayfile_at=opts.rayfile_at, rayfile_axis=opts.rayfile_axis,
+                      materials=opts.materials,
+                      tessellation=Tessellation(opts.cad_linear_tol_mm,
+                                                opts.cad_angular_tol_deg))
 
 
 def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,
