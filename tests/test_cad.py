@@ -86,11 +86,25 @@ def test_material_map_errors_and_unmatched_parts(lamp, tmp_path):
         assert "\n" not in str(err.value)
 
 
-def test_iges_import_converts_units(tmp_path):
+def test_iges_import_keeps_names_and_units(tmp_path):
     igs = write_cad(tmp_path / "lamp.igs", headlamp_shapes(lens=False))
     parts = read_cad(igs, COARSE)
     verts = np.concatenate([np.asarray(p.vertices) for p in parts])
     assert np.abs(verts).max() == pytest.approx(0.080, abs=1e-4)  # metres, not mm
+    assert {p.name for p in parts} == {"reflector", "filament"}
+
+
+def test_iges_unit_flag_without_ocp(tmp_path, monkeypatch):
+    """With cascadio alone the IGES unit comes from the global section."""
+    from lightsim.io import cad
+
+    igs = write_cad(tmp_path / "lamp.igs", headlamp_shapes(lens=False))
+    assert cad.iges_unit_m(igs.read_bytes()) == 1e-3
+    monkeypatch.setattr(cad, "iges_as_step", lambda path: None)
+    monkeypatch.setattr(cad, "_has_ocp", lambda: False)
+    parts = cad.read_cad(igs, COARSE)
+    verts = np.concatenate([np.asarray(p.vertices) for p in parts])
+    assert np.abs(verts).max() == pytest.approx(0.080, abs=1e-4)
     assert all(p.name.startswith("iges-") for p in parts)
 
 

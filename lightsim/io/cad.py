@@ -14,10 +14,12 @@ angular one the angle between neighbouring facet normals; both are given in CAD 
 (mm, degrees). The beam error they leave on an exact paraboloid is measured by
 ``tests/test_cad.py`` and tabulated in ``docs/cad.md``.
 
-STEP units come from the file (converted to metres by the reader). IGES files are
-tessellated in their own unit, which this module reads from the IGES global section
-(parameter 14, the unit flag) and converts; IGES part names are not kept by the reader
-(parts are named ``iges-1``, ``iges-2``, …).
+STEP units come from the file (converted to metres by the reader). IGES: with
+OpenCASCADE's Python binding (``cadquery-ocp``, finer control) the file is read with its
+names and units into an OpenCASCADE document and handed on as STEP; with ``cascadio``
+alone it is tessellated in its own unit, which this module reads from the IGES global
+section (parameter 14, the unit flag) and converts, and the names are lost (parts are
+named ``iges-1``, ``iges-2``, …).
 
 =================  =====  =======  =====================================================
 parameter          unit   default  meaning
@@ -102,6 +104,38 @@ def iges_unit_m(data: bytes) -> float:
     return unit
 
 
+def iges_as_step(path: Path) -> bytes | None:
+    """The IGES file as STEP text with its part names and units (OpenCASCADE's XCAF
+    reader and writer), or None without ``cadquery-ocp``."""
+    try:
+        from OCP.IFSelect import IFSelect_RetDone
+        from OCP.IGESCAFControl import IGESCAFControl_Reader
+        from OCP.Message import Message, Message_PrinterOStream
+        from OCP.STEPCAFControl import STEPCAFControl_Writer
+        from OCP.STEPControl import STEPControl_AsIs
+        from OCP.TCollection import TCollection_ExtendedString
+        from OCP.TDocStd import TDocStd_Document
+    except ImportError:
+        return None
+    Message.DefaultMessenger_s().RemovePrinters(Message_PrinterOStream.get_type_descriptor_s())
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    reader = IGESCAFControl_Reader()
+    reader.SetNameMode(True)
+    if reader.ReadFile(str(path)) != IFSelect_RetDone or not reader.Transfer(doc):
+        raise InputError(f"{path}: OpenCASCADE could not read this IGES file")
+    writer = STEPCAFControl_Writer()
+    writer.SetNameMode(True)
+    writer.Transfer(doc, STEPControl_AsIs)
+    fd, tmp = tempfile.mkstemp(suffix=".step", prefix="lightsim-iges-")
+    os.close(fd)
+    try:
+        if writer.Write(tmp) != IFSelect_RetDone:
+            raise InputError(f"{path}: OpenCASCADE could not convert this IGES file")
+        return Path(tmp).read_bytes()
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
 def tessellate(path: str | os.PathLike, tess: Tessellation | None = None) -> Path:
     """Tessellate a STEP or IGES file into a temporary GLB file (metres); returns its path.
 
@@ -119,6 +153,10 @@ def tessellate(path: str | os.PathLike, tess: Tessellation | None = None) -> Pat
                          "'lightsim[cad]'") from None
     data = p.read_bytes()
     kind = "step" if suffix in STEP_SUFFIXES else "iges"
+    if kind == "iges":
+        as_step = iges_as_step(p)
+        if as_step is not None:
+            data, kind = as_step, "step"
     if kind == "step" and b"ISO-10303-21" not in data[:200]:
         raise InputError(f"{p}: not a STEP file (no ISO-10303-21 header)")
     # OpenCASCADE meshes in the file's length unit after reading: mm for STEP (the
@@ -133,6 +171,14 @@ def tessellate(path: str | os.PathLike, tess: Tessellation | None = None) -> Pat
     with os.fdopen(fd, "wb") as f:
         f.write(glb)
     return Path(tmp)
+
+
+def _has_ocp() -> bool:
+    try:
+        import OCP.IGESCAFControl  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def read_cad(path: str | os.PathLike, tess: Tessellation | None = None) -> list:
@@ -150,7 +196,7 @@ def read_cad(path: str | os.PathLike, tess: Tessellation | None = None) -> list:
         parts = read_gltf(glb)
     finally:
         glb.unlink(missing_ok=True)
-    if p.suffix.lower() in IGES_SUFFIXES:
+    if p.suffix.lower() in IGES_SUFFIXES and not _has_ocp():
         scale = iges_unit_m(p.read_bytes())
         out = []
         for i, part in enumerate(parts):
