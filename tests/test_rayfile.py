@@ -56,6 +56,21 @@ def test_zemax_round_trip(tmp_path, units, scale):
     assert rf.format == "zemax" and rf.unit_m == scale and rf.flux_is_luminous
     np.testing.assert_allclose(rf.rays()[:, :3] * rf.unit_m, pos, rtol=1e-5, atol=1e-12)
     assert rf.luminous_flux() == pytest.approx(flux.sum(), rel=1e-6)
+    o, d = RaySource(path).sample_rays(np.array([[0.0], [0.999999]]))
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-6)
+    assert np.all(np.isfinite(o))
+
+
+def test_radiant_only_file_needs_flux(tmp_path):
+    """A Zemax file in watts gives relative weights only: the lumens must be given."""
+    pos, k, flux = _rays()
+    path = write_zemax(tmp_path / "w.dat", pos, k, flux)
+    data = bytearray(path.read_bytes())
+    data[196:200] = (0).to_bytes(4, "little")  # flux type 0: watts
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match="give --flux"):
+        RaySource(path)
+    assert RaySource(path, flux_lm=250.0).flux_lm == 250.0
 
 
 def test_corrupt_files_give_one_line(tmp_path):
