@@ -108,11 +108,16 @@ def test_iges_unit_flag_without_ocp(tmp_path, monkeypatch):
     assert all(p.name.startswith("iges-") for p in parts)
 
 
-def test_bad_cad_input_is_one_line(tmp_path):
+def test_bad_cad_input_is_one_line(tmp_path, capsys):
     bad = tmp_path / "junk.step"
     bad.write_text("not a step file")
     with pytest.raises(InputError, match="not a STEP file"):
         load_scene(bad)
+    broken = tmp_path / "broken.step"
+    broken.write_text("ISO-10303-21;\nHEADER;\nENDSEC;\nDATA;\n#1=GARBAGE(;\nENDSEC;\n"
+                      "END-ISO-10303-21;\n")
+    code, _, err = run_cli(["simulate", str(broken), "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "broken.step" in err
     with pytest.raises(InputError, match="tolerance"):
         Tessellation(-1.0, 2.0)
     with pytest.raises(InputError, match="tolerance"):
