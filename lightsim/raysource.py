@@ -137,16 +137,17 @@ class RaySource:
         u = np.asarray(u, dtype=np.float64)
         idx = self.ray_indices(u[:, 0] if u.ndim == 2 else u)
         order = np.argsort(idx, kind="stable")  # read the file front to back
-        rows = np.asarray(self.file.rays()[idx[order], :6], dtype=np.float64)
-        pos = np.empty((len(idx), 3))
-        k = np.empty((len(idx), 3))
-        pos[order] = rows[:, :3] * self.file.unit_m
-        k[order] = rows[:, 3:6]
+        rows = np.empty((len(idx), 6))
+        rows[order] = self.file.rays()[idx[order], :6]
+        pos = rows[:, :3] * self.file.unit_m
+        k = rows[:, 3:6]
         norm = np.linalg.norm(k, axis=1, keepdims=True)
         if np.any(~(norm > 0)) or not np.all(np.isfinite(pos)):
             raise InputError(f"{self.path}: a drawn ray has a zero or invalid direction")
-        k /= norm
-        return pos @ self.rotation.T + self.position, k @ self.rotation.T
+        k = k / norm
+        if not np.array_equal(self.rotation, np.eye(3)):
+            pos, k = pos @ self.rotation.T, k @ self.rotation.T
+        return pos + self.position, k
 
     def describe(self) -> str:
         return (f"ray file {Path(self.path).name}: {self.file.describe()}, "
