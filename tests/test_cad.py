@@ -124,6 +124,21 @@ def test_bad_cad_input_is_one_line(tmp_path, capsys):
         Tessellation(0.01, 95.0)
 
 
+@pytest.mark.parametrize("tol_mm", [0.5, 0.1, 0.03])
+def test_linear_tolerance_is_in_mm_and_met(tmp_path, tol_mm):
+    """OpenCASCADE's facets stay within the linear tolerance (mm) of the exact surface."""
+    step = write_paraboloid_step(tmp_path / "p.step", 25.0, 80.0, 10.0)
+    refl = read_cad(step, Tessellation(tol_mm, 30.0))[0]
+    tri = np.asarray(refl.vertices)[refl.faces]
+    pts = np.concatenate([tri.mean(axis=1), 0.5 * (tri[:, 0] + tri[:, 1]),
+                          0.5 * (tri[:, 1] + tri[:, 2]), 0.5 * (tri[:, 2] + tri[:, 0])])
+    r2 = pts[:, 0] ** 2 + pts[:, 1] ** 2
+    f = 0.025
+    dist = np.abs(r2 / (4 * f) - pts[:, 2]) / np.sqrt(1 + r2 / (4 * f * f))  # ⊥ to surface
+    assert dist.max() <= tol_mm * 1e-3
+    assert dist.max() > 0.3 * tol_mm * 1e-3  # and the mesher uses the room it is given
+
+
 def test_beam_error_falls_as_the_tolerance_tightens(tmp_path):
     """Rays from the focus leave an exact paraboloid parallel to the axis; the imported
     mesh's error falls with the tolerance and is tiny at the default."""
