@@ -116,3 +116,54 @@ def bulbs() -> None:
         click.echo(f"  {spec.name:<8} {spec.flux_source}")
     click.echo("cup = H4 shield cup; tip cap = opaque black cap on the dome. Filament sizes and "
                "positions are stated assumptions (see lightsim.luminaires.bulbs).")
+
+
+@luminaire.command()
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--side", "side_mm", type=float, default=1.0, show_default=True,
+              help="Edge of the square Lambertian emitter (LED die) in mm.")
+@click.option("--rays", type=int, default=100_000, show_default=True,
+              help="Rays in the file (rounded down to a square number).")
+@click.option("--flux", "flux_lm", type=float, default=1000.0, show_default=True,
+              help="Luminous flux in lm.")
+@click.option("--seed", type=int, default=1, show_default=True)
+def rayfile(out: Path, side_mm: float, rays: int, flux_lm: float, seed: int) -> None:
+    """Write the ray file of a square Lambertian LED die facing +Z (TM-25 for .tm25ray,
+    Zemax binary for .dat/.ray)."""
+    from lightsim.io.rayfile import TM25_SUFFIXES, ZEMAX_SUFFIXES, write_tm25, write_zemax
+    from lightsim.luminaires.rayfiles import lambertian_square
+
+    pos, dirs, flux = lambertian_square(side_mm * MM, rays, flux_lm, seed)
+    suffix = out.suffix.lower()
+    if suffix in TM25_SUFFIXES:
+        write_tm25(out, pos, dirs, flux, name=f"Lambertian square {side_mm:g} mm")
+    elif suffix in ZEMAX_SUFFIXES:
+        write_zemax(out, pos, dirs, flux, description=f"Lambertian square {side_mm:g} mm")
+    else:
+        raise InputError(f"{out}: ray file name must end in .tm25ray, .dat or .ray")
+    click.echo(f"wrote {out}: {len(pos):,} rays, {flux_lm:g} lm, square {side_mm:g} mm, "
+               "Lambertian along +Z")
+
+
+@luminaire.command("cad-example")
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--focal-length", "focal_mm", type=float, default=25.0, show_default=True,
+              help="Paraboloid focal length in mm.")
+@click.option("--aperture", "aperture_mm", type=float, default=160.0, show_default=True,
+              help="Reflector aperture diameter in mm.")
+@click.option("--flux", "flux_lm", type=float, default=1000.0, show_default=True,
+              help="Filament flux in lm (written to the material map).")
+def cad_example(out: Path, focal_mm: float, aperture_mm: float, flux_lm: float) -> None:
+    """Write an example headlamp as CAD (STEP or IGES by suffix: exact paraboloid
+    reflector, axial filament, bulb glass, cover lens) and its material map OUT.toml."""
+    from lightsim.io.atomic import write_text
+    from lightsim.luminaires.cad_example import (
+        example_material_map,
+        headlamp_shapes,
+        write_cad,
+    )
+
+    write_cad(out, headlamp_shapes(focal_mm, aperture_mm / 2))
+    mmap = out.with_suffix(".toml")
+    write_text(mmap, example_material_map(flux_lm))
+    click.echo(f"wrote {out} (reflector, filament, bulb, lens; mm) and {mmap}")

@@ -66,5 +66,7 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
         results = reg["results"]
         console.print(rp.format_regulation(reg))
         write_json(out / "summary.json", summary)
-    written += rp.engineering_plots(out, lux, wall, results, mount_height)
+    written += rp.engineering_plots(out, lux, wall, results, mount_height, summary=summary)
+    write_json(out / "summary.json", summary)  # noise floor and road reach
+    click.echo(summary["road"]["text"])
     click.echo("wrote " + ", ".join(str(p) for p in written))

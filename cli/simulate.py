@@ -140,6 +140,19 @@ class _Progress:
 @click.option("--filament-at", help="Filament centre X,Y,Z (m).")
 @click.option("--filament-axis", default="0,0,1", show_default=True,
               help="Filament axis X,Y,Z.")
+@click.option("--rayfile", type=click.Path(dir_okay=False),
+              help="LED/bulb ray file (IES TM-25 .tm25ray or Zemax binary .dat/.ray) as the "
+                   "light source, replacing the scene's emitters.")
+@click.option("--rayfile-at", help="Where the ray file's origin goes, X,Y,Z (m).")
+@click.option("--rayfile-axis", default="0,0,1", show_default=True,
+              help="Where the ray file's +Z points, X,Y,Z.")
+@click.option("--materials", "materials", type=click.Path(dir_okay=False),
+              help="Material map (TOML): part-name pattern → mirror/glass/diffuse/emitter/"
+                   "ignore, for CAD files without optics.")
+@click.option("--cad-linear-tol", type=float, default=0.01, show_default=True,
+              help="STEP/IGES tessellation: largest facet-to-surface distance (mm).")
+@click.option("--cad-angular-tol", type=float, default=2.0, show_default=True,
+              help="STEP/IGES tessellation: largest angle between facet normals (deg).")
 @click.option("--part-material", multiple=True,
               help="NAME=mirror[:R]|glass[:n]|diffuse[:ρ]|wall|ignore (repeatable).")
 @click.option("--regulation", help="Rule set to check, e.g. r112-b-passing (see "
@@ -186,8 +199,12 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
              ldt_out: str | None, ies_type: str, lamp_set: str | None,
              farfield_photons: int, mount_height: float,
              log_scale: bool, workers: int, address: str | None, resume_dir: str | None,
-             explain: bool, quiet: bool) -> None:
-    """Simulate SCENE_FILE (GLB/glTF/OBJ/STL/PLY) and write the wall illuminance in lux."""
+             explain: bool, quiet: bool, rayfile: str | None = None,
+             rayfile_at: str | None = None, rayfile_axis: str = "0,0,1",
+             materials: str | None = None, cad_linear_tol: float = 0.01,
+             cad_angular_tol: float = 2.0) -> None:
+    """Simulate SCENE_FILE (GLB/glTF/OBJ/STL/PLY, STEP/IGES, a .tm25ray ray file) and write
+    the wall illuminance in lux."""
     import os
 
     from lightsim.simulate import SimulateOptions, read_checkpoint, run_simulation
@@ -220,7 +237,11 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
             address=address or os.environ.get("RAY_ADDRESS") or None,
             regulation=regulation, traffic=traffic, aim=aim, ies=ies_out, ldt=ldt_out,
             farfield_photons=farfield_photons, mount_height=mount_height, ies_type=ies_type,
-            lamp_set=_lamp_set(lamp_set), aperture=aperture, spt_points=spt_points)
+            lamp_set=_lamp_set(lamp_set), aperture=aperture, spt_points=spt_points,
+            rayfile=rayfile, rayfile_at=_triple(rayfile_at, "--rayfile-at"),
+            rayfile_axis=_triple(rayfile_axis, "--rayfile-axis") or (0.0, 0.0, 1.0),
+            materials=materials, cad_linear_tol_mm=cad_linear_tol,
+            cad_angular_tol_deg=cad_angular_tol)
         opts.run_config()  # validate the settings before any work
 
     stop = {"signal": None}
@@ -264,6 +285,9 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
         click.echo(f"energy (lm): emitted {e['emitted']:.6g} = wall {e['wall']:.6g} + "
                    f"absorbed {absorbed:.6g} + escaped {e['escaped']:.6g} + "
                    f"roulette {e['roulette']:.3g} + max depth {e['max_depth']:.3g}")
+        if "road" in s:
+            click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
+                       f"{s['road']['text']}")
         if "regulation" in s:
             from rich.console import Console
 

@@ -345,16 +345,51 @@ def recheck_from_probes(out: Path, summary: dict[str, Any], lux: np.ndarray,
 
 def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
                       results: list[dict[str, Any]] | None = None,
-                      mount_height_m: float = 0.65) -> list[Path]:
-    """Write ``isolux.png`` (screen, H/V degrees) and ``road.png`` (bird's-eye view)."""
+                      mount_height_m: float = 0.65,
+                      summary: dict[str, Any] | None = None) -> list[Path]:
+    """Write ``isolux.png`` (screen, H/V degrees) and ``road.png`` (bird's-eye view).
+
+    With the run's ``summary`` the iso-lux levels start at the map's noise floor, and
+    ``summary["isolux"]`` (floor, levels) and ``summary["road"]`` (reach per level) are
+    filled in.
+    """
     from lightsim.io.plots import isolux_plot, road_view_plot
 
     fd = _frame_dict(frame)
+    floor = noise_floor_from_summary(summary, fd) if summary is not None else None
     paths = [isolux_plot(Path(out) / "isolux.png", lux, fd, results=results,
-                         title="iso-lux on the screen")]
-    road_view_plot(Path(out) / "road.png", lux, fd, mount_height_m=mount_height_m)
+                         title="iso-lux on the screen", noise_floor_lx=floor)]
+    road = road_view_plot(Path(out) / "road.png", lux, fd, mount_height_m=mount_height_m)
     paths.append(Path(out) / "road.png")
+    if summary is not None:
+        from lightsim.render.road import REACH_LEVELS
+
+        summary["isolux"] = {"noise_floor_lx": floor,
+                             "noise_floor_rule": "levels where an estimate holds < 16 "
+                                                 "photons (relative noise > 25 %) are "
+                                                 "not drawn"}
+        summary["road"] = {**road.summary(REACH_LEVELS), "text": road.reach_text()}
     return paths
+
+
+def noise_floor_from_summary(summary: dict[str, Any], frame: dict[str, Any]) -> float | None:
+    """The iso-lux noise floor (lx) of a run from its summary: photons, lamp flux and the
+    largest area an estimate averages over (kNN or radius disk, or a pixel for binning)."""
+    from lightsim.io.plots import isolux_noise_floor
+
+    try:
+        est = summary.get("estimator", {})
+        if est.get("name") == "bin":
+            w, h = frame["resolution"]
+            area = ((frame["h_range_m"][1] - frame["h_range_m"][0]) / w
+                    * (frame["v_range_m"][1] - frame["v_range_m"][0]) / h)
+        else:
+            r = est.get("max_radius_m")
+            area = math.pi * float(r) ** 2 if r is not None else math.inf
+        return isolux_noise_floor(int(summary["photons"]),
+                                  float(summary["scene"]["flux_lm"]), area)
+    except (KeyError, TypeError, ValueError):
+        return None  # an older or partial summary: draw all levels
 
 
 def farfield_grid(scene, photons: int = 1_000_000, seed: int = 1, step_deg: float = 1.0,

@@ -17,11 +17,18 @@ parameter              unit   default    meaning
 ``wall_albedo``        –      0.8        albedo of the added wall (camera views only)
 ``part_materials``     –      none       per part: ``mirror[:R]``, ``glass[:n]``,
                                          ``diffuse[:ρ]``, ``wall``, ``ignore``
+``rayfile``            –      none       TM-25 / Zemax ray file that replaces the file's
+                                         emitters (``rayfile_at`` m, ``rayfile_axis``)
+``materials``          –      none       material map (TOML): name pattern → optics
+                                         (:mod:`lightsim.materialmap`)
+``tessellation``       mm/°   0.01/2     STEP/IGES mesher tolerances (:mod:`lightsim.io.cad`)
 =====================  =====  =========  ================================================
 
 Input problems raise :class:`~lightsim.errors.InputError` with one line: missing file,
 not a mesh, truncated GLB, NaN/inf vertices, no emitter, zero or negative flux, a wall
-that is not planar. Zero-area triangles are dropped with a warning.
+that is not planar. Zero-area triangles are dropped with a warning. A wall modelled as a
+closed thin solid (a slab, as CAD exports one) is reduced to its lamp-facing face, with a
+warning (:func:`solid_wall_face`).
 """
 
 from __future__ import annotations
@@ -48,7 +55,8 @@ from lightsim.materials import (
 log = logging.getLogger("lightsim.scene")
 
 SURFACE, EMITTER, WALL = "surface", "emitter", "wall"
-MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".stl", ".ply", ".off")
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".stl", ".ply", ".off", ".step", ".stp", ".iges",
+                 ".igs")
 PHOTOMETRIC_SUFFIXES = (".ies", ".ldt")
 
 
@@ -322,9 +330,14 @@ def _parse_part_material(name: str, spec: str) -> tuple[str, Material | None]:
                      "wall or ignore")
 
 
-def _read_parts(path: Path) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None,
-                                          dict, dict]]:
+def _read_parts(path: Path, tessellation: Any = None
+                ) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None, dict, dict]]:
     """(name, vertices, faces, normals, material json, extras) for each mesh in ``path``."""
+    if path.suffix.lower() in (".step", ".stp", ".iges", ".igs"):
+        from lightsim.io.cad import read_cad
+
+        return [(p.name, p.vertices, p.faces, p.normals, p.material, p.extras)
+                for p in read_cad(path, tessellation)]
     if path.suffix.lower() in (".glb", ".gltf"):
         from lightsim.io.gltf import read_gltf
 
@@ -378,6 +391,57 @@ def _plane_frame(part: Part, resolution: tuple[int, int]) -> WallFrame:
                      (float(v.min()), float(v.max())), distance, resolution)
 
 
+SOLID_WALL_MAX_THICKNESS = 0.05  # thickness / in-plane size below which a solid is "thin"
+FACE_COS_TOL = 1e-6               # 1 − cos of the angle a front-face triangle may tilt
+
+
+def solid_wall_face(part: Part) -> tuple[Part, str] | None:
+    """The lamp-facing face of a closed thin solid wall, or None if ``part`` is not one.
+
+    A CAD wall is often a slab (e.g. 1 mm thick): closed, with a front face towards the
+    lamp, a back face and rims. The detector is the front face — the triangles whose
+    outward normal points at the lamp reference point (origin) and lie in the plane
+    nearest to it. Returns the reduced part and a one-line description, or None when the
+    part is open, not thin, or has no planar front face (then it stays "not planar").
+    """
+    import trimesh
+
+    if len(part.faces) < 4:
+        return None
+    mesh = trimesh.Trimesh(part.vertices, part.faces, process=True, validate=False)
+    if not mesh.is_watertight:
+        return None
+    pts = part.vertices[np.unique(part.faces)]
+    centroid = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - centroid, full_matrices=False)
+    normal = vt[2]
+    if normal @ centroid > 0:
+        normal = -normal  # towards the lamp at the origin
+    off = (pts - centroid) @ normal
+    thickness = float(np.ptp(off))
+    size = float(np.ptp((pts - centroid) @ vt[1]))
+    if not (size > 0 and thickness <= SOLID_WALL_MAX_THICKNESS * size):
+        return None
+    tri = part.vertices[part.faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    # a solid with inward winding (negative volume) has its front face pointing away
+    outward = 1.0 if mesh.volume >= 0 else -1.0
+    facing = outward * (fn @ normal) > 1.0 - FACE_COS_TOL
+    if not np.any(facing):
+        return None
+    height = tri.mean(axis=1) @ normal  # larger: nearer the lamp
+    front = facing & (height >= height[facing].max() - 0.25 * thickness)
+    faces = part.faces[front]
+    if outward < 0:
+        faces = faces[:, ::-1].copy()
+    reduced = replace(part, faces=faces)
+    note = (f"wall '{part.name}' is a closed solid {thickness * 1e3:.3g} mm thick: its "
+            f"lamp-facing face ({int(front.sum())} of {len(part.faces)} triangles) is the "
+            "detector")
+    return reduced, note
+
+
 def make_wall(distance: float, size: tuple[float, float], albedo: float = 0.8,
               resolution: tuple[int, int] = (640, 256)) -> tuple[Part, WallFrame]:
     """A rectangular diffuse wall at z = ``distance`` facing the lamp, centred on H-V."""
@@ -421,7 +485,11 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                wall_distance: float = 25.0, wall_size: tuple[float, float] = (30.0, 12.0),
                wall_albedo: float = 0.8, resolution: tuple[int, int] = (640, 256),
                part_materials: dict[str, str] | None = None,
-               channels: int | None = None, lamp_set: int | None = None) -> Scene:
+               channels: int | None = None, lamp_set: int | None = None,
+               rayfile: str | None = None,
+               rayfile_at: tuple[float, float, float] | None = None,
+               rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0),
+               materials: str | Path | None = None, tessellation: Any = None) -> Scene:
     """Load a luminaire (GLB, glTF, OBJ, STL, PLY) into a validated :class:`Scene`.
 
     An IES/LDT file becomes a goniometric point source (``lamp_set``: the EULUMDAT lamp set
@@ -444,6 +512,13 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                      list(parts[0].distribution.warnings), channels)
     if lamp_set is not None:
         raise InputError("--lamp-set applies to EULUMDAT (.ldt) files only")
+    if path.suffix.lower() == ".tm25ray":  # a ray file alone: the LED in front of the wall
+        if filament is not None or rayfile is not None:
+            raise InputError("a ray file is its own light source: --filament/--rayfile make "
+                             "no sense")
+        parts = [ray_source_part(path, (0.0, 0.0, 0.0), rayfile_axis, flux)]
+        wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
+        return Scene([*parts, wall_part], frame, str(path), [], channels)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{path}: not a mesh or photometric file (expected one of "
                          f"{', '.join(MESH_SUFFIXES + PHOTOMETRIC_SUFFIXES)})")
@@ -453,7 +528,13 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         raise InputError(f"emission must be isotropic, lambertian or collimated, "
                          f"got '{emission}'")
     part_materials = dict(part_materials or {})
-    raw = _read_parts(path)
+    mmap = None
+    if materials is not None:
+        from lightsim.materialmap import read_material_map
+
+        mmap = read_material_map(materials)
+    raw = _read_parts(path, tessellation)
+    unmatched: list[str] = []
     if not raw:
         raise InputError(f"{path}: contains no triangle meshes")
 
@@ -481,11 +562,25 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
             kind = {"mirror": MIRROR, "dielectric": DIELECTRIC, "diffuse": DIFFUSE}[role]
             material = replace(material, kind=kind)
             role = SURFACE
+        explicit = False
         for key in (pname, name):
             if key in part_materials:
                 role, override = _parse_part_material(pname, part_materials.pop(key))
                 material = override or material
+                explicit = True
                 break
+        if mmap is not None and not explicit:
+            rule = mmap.rule_for(pname) or mmap.rule_for(name)
+            if rule is None:
+                unmatched.append(pname)
+            else:
+                role = {"emitter": EMITTER, "wall": WALL, "ignore": "ignore"}.get(
+                    rule.kind, SURFACE)
+                material = rule.material(pname) or material
+                if rule.kind == "emitter":
+                    ls = {**ls, "emission": rule.emission}
+                    if rule.flux_lm is not None:
+                        ls["flux_lm"] = rule.flux_lm
         if role == "ignore":
             continue
         # drop degenerate triangles (zero area or repeated indices)
@@ -514,18 +609,29 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         if role == SURFACE and material.kind == DIELECTRIC:
             part = _check_dielectric(part, warnings)
         parts.append(part)
+    if unmatched:
+        warnings.append(f"material map: no rule for {', '.join(unmatched)} (file materials "
+                        "kept)")
     if part_materials:
         raise InputError(f"--part-material names unknown part(s): {', '.join(part_materials)} "
                          f"(parts: {', '.join(n for n, *_ in raw)})")
 
     # -- emitters --------------------------------------------------------------------------
+    if rayfile is not None:
+        if filament is not None:
+            raise InputError("give either --filament or --rayfile, not both")
+        for p in [p for p in parts if p.role == EMITTER]:
+            warnings.append(f"emitter '{p.name}' replaced by the ray file {Path(rayfile).name}")
+        parts = [p for p in parts if p.role != EMITTER]
+        parts.append(ray_source_part(rayfile, rayfile_at or (0.0, 0.0, 0.0), rayfile_axis,
+                                     flux))
     if filament is not None:
         parts.append(_filament_part(filament, filament_at, filament_axis, flux, emission))
     emitters = [p for p in parts if p.role == EMITTER]
     if not emitters:
         raise InputError(f"{path}: no emitter (no material with emissiveFactor); give one with "
                          "--filament BULB --filament-at X,Y,Z")
-    if flux is not None and filament is None:
+    if flux is not None and filament is None and rayfile is None:
         own = [p.flux_lm for p in emitters]
         total = sum(f for f in own if f > 0)
         for p in emitters:  # the total is set; shares keep the file's ratios where known
@@ -542,6 +648,11 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
     if len(walls) > 1:
         raise InputError(f"{path}: more than one wall ({', '.join(p.name for p in walls)})")
     if walls:
+        solid = solid_wall_face(walls[0])
+        if solid is not None:
+            parts = [solid[0] if p is walls[0] else p for p in parts]
+            warnings.append(solid[1])
+            walls = [solid[0]]
         frame = _plane_frame(walls[0], resolution)
     else:
         wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
@@ -580,6 +691,26 @@ def goniometric_source(path: str | Path, flux: float | None = None,
     faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
     return Part(Path(path).stem, EMITTER, verts, faces, None, Material("source", DIFFUSE),
                 flux_lm=total, emission="goniometric", distribution=grid)
+
+
+def ray_source_part(path: str | Path, at: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                    axis: tuple[float, float, float] = (0.0, 0.0, 1.0),
+                    flux: float | None = None) -> Part:
+    """An emitter part that draws its photons from a TM-25 or Zemax ray file.
+
+    The file's origin is placed at ``at`` (m) and its +Z turned to ``axis``; the flux is
+    the file's luminous flux or ``flux`` (lm). See :mod:`lightsim.raysource`.
+    """
+    from lightsim.raysource import RaySource
+
+    src = RaySource(path, at, axis, flux)
+    # a tiny tetrahedron stands for the source in size and bookkeeping; never traced
+    p = src.position
+    verts = p + 1e-6 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1.0]])
+    faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    return Part(f"rayfile-{Path(path).stem}", EMITTER, verts, faces, None,
+                Material("source", DIFFUSE), flux_lm=src.flux_lm, emission="rayfile",
+                distribution=src)
 
 
 def _filament_part(bulb: str, at: tuple[float, float, float] | None,

@@ -35,6 +35,7 @@ import numpy as np
 from lightsim import __version__
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.io.cad import Tessellation
 from lightsim.scene import Scene, load_scene
 
 CHECKPOINT = "checkpoint.json"
@@ -73,6 +74,12 @@ class SimulateOptions:
     lamp_set: int | None = None
     aperture: float = 0.15
     spt_points: bool = False
+    rayfile: str | None = None
+    rayfile_at: tuple[float, float, float] | None = None
+    rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    materials: str | None = None
+    cad_linear_tol_mm: float = 0.01
+    cad_angular_tol_deg: float = 2.0
 
     def run_config(self) -> RunConfig:
         """The engine settings (validated); also checks the photometric output names, so
@@ -102,7 +109,8 @@ class SimulateOptions:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> SimulateOptions:
         d = dict(d)
-        for key in ("filament_at", "filament_axis", "wall_size", "resolution"):
+        for key in ("filament_at", "filament_axis", "wall_size", "resolution", "rayfile_at",
+                    "rayfile_axis"):
             if d.get(key) is not None:
                 d[key] = tuple(d[key])
         return cls(**d)
@@ -136,7 +144,12 @@ def load(opts: SimulateOptions) -> Scene:
                       filament=opts.filament, filament_at=opts.filament_at,
                       filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
                       wall_size=opts.wall_size, resolution=opts.resolution,
-                      part_materials=opts.part_materials, lamp_set=opts.lamp_set)
+                      part_materials=opts.part_materials, lamp_set=opts.lamp_set,
+                      rayfile=opts.rayfile,
+                      rayfile_at=opts.rayfile_at, rayfile_axis=opts.rayfile_axis,
+                      materials=opts.materials,
+                      tessellation=Tessellation(opts.cad_linear_tol_mm,
+                                                opts.cad_angular_tol_deg))
 
 
 def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,
@@ -319,7 +332,8 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
     if results is not None and summary["regulation"].get("aim", {}).get("applied"):
         summary["regulation"]["aim"]["cutoff_interval_deg"] = summary["cutoff"].get(
             "v_cutoff_interval_deg")
-    report.engineering_plots(out, lux, frame, results, opts.mount_height)
+    report.engineering_plots(out, lux, frame, results, opts.mount_height,
+                            summary=summary)
     if opts.ies or opts.ldt:
         from lightsim.luminaires.photometric import resolve_ies_type, write_photometric
 

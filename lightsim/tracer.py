@@ -54,7 +54,7 @@ LEDGER = ("wall", "absorbed_diffuse", "absorbed_mirror", "absorbed_volume", "esc
           "roulette", "max_depth")
 L_WALL, L_ABS_DIFF, L_ABS_MIRR, L_ABS_VOL, L_ESC, L_RR, L_MAXD = range(len(LEDGER))
 
-EMISSION_MODES = ("isotropic", "lambertian", "collimated", "goniometric")
+EMISSION_MODES = ("isotropic", "lambertian", "collimated", "goniometric", "rayfile")
 
 # photon flags
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
@@ -196,7 +196,9 @@ def emit(table: EmitterTable, points: np.ndarray) -> tuple[np.ndarray, np.ndarra
     for k, (pos, grid, _) in enumerate(table.points):
         sel = (~mesh) & (u[:, 2] >= edges[k]) & ((u[:, 2] < edges[k + 1])
                                                   | (k == len(table.points) - 1))
-        if np.any(sel):
+        if np.any(sel) and hasattr(grid, "sample_rays"):  # a ray file (lightsim.raysource)
+            origin[sel], direction[sel] = grid.sample_rays(u[sel])
+        elif np.any(sel):
             origin[sel] = pos
             direction[sel] = sample_directions(grid, u[sel, 0], u[sel, 1])[0]
     return origin, direction

@@ -227,8 +227,22 @@ class Client:
         self.update(scene, geometry)
 
     # -- shooting ------------------------------------------------------------------------
-    def shoot(self) -> dict[str, float]:
-        """Shoot one frame of photons for every owned set and insert them into the maps."""
+    def frame_share(self, s: int, total: int | None) -> int:
+        """Photons set ``s`` shoots in a frame of ``total`` photons over all sets (None: a
+        full frame). A partial frame splits ``total`` exactly: every set gets
+        ``total // n_sets``, the first ``total % n_sets`` sets one more."""
+        full = self.config.photons_per_set
+        if total is None:
+            return full
+        n_sets = self.config.n_sets
+        return min(full, int(total) // n_sets + (1 if s < int(total) % n_sets else 0))
+
+    def shoot(self, total: int | None = None) -> dict[str, float]:
+        """Shoot one frame of photons for every owned set and insert them into the maps.
+
+        ``total`` (photons over all sets) makes this a partial last frame (plain sampling;
+        an SPT pass is always whole, since a cut pass would leave cells unsampled).
+        """
         t0 = time.perf_counter()
         pts, keys, weights, groups, owners = [], [], [], [], []
         for g, s in enumerate(self.set_indices):
@@ -238,7 +252,7 @@ class Client:
                 # key space: pass 0 is plain sampling, SPT passes are 1, 2, ...
                 k = photon_keys(self.config.seed, s, pass_index + 1, idx)
             else:
-                n = self.config.photons_per_set
+                n = self.frame_share(s, total)
                 idx = np.arange(st.next_index, st.next_index + n, dtype=np.int64)
                 p = halton_points(idx, self._perms(s))
                 k = photon_keys(self.config.seed, s, 0, idx)
@@ -471,11 +485,14 @@ class Client:
         """Frames shot per set: with the seed, all that is needed to replay a set."""
         return {s: st.frames for s, st in self.sets.items()}
 
-    def replay(self, frames: dict[int, int]) -> None:
-        """Rebuild the sets' state by re-shooting ``frames`` frames (deterministic)."""
+    def replay(self, frames: dict[int, int], partial: dict[int, int] | None = None) -> None:
+        """Rebuild the sets' state by re-shooting ``frames`` frames (deterministic);
+        ``partial`` maps a frame index (0-based) to the photons (over all sets) of a
+        partial frame such as the last one of ``--photons N``."""
         self.reset()
         n = max(frames.values(), default=0)
         if any(f != n for f in frames.values()):
             raise ValueError("sets of one client must have shot the same number of frames")
-        for _ in range(n):
-            self.shoot()
+        partial = {int(k): int(v) for k, v in (partial or {}).items()}
+        for i in range(n):
+            self.shoot(partial.get(i))

@@ -28,8 +28,8 @@ class LocalBackend:
         self.clients = [Client(scene, config, plan, sets, probes_hv)
                         for sets in assignment if sets]
 
-    def shoot(self) -> list[dict[str, float]]:
-        return [c.shoot() for c in self.clients]
+    def shoot(self, total: int | None = None) -> list[dict[str, float]]:
+        return [c.shoot(total) for c in self.clients]
 
     def render(self, **kw: Any) -> list[dict[str, Any]]:
         return [c.render(**kw) for c in self.clients]
@@ -56,10 +56,10 @@ class LocalBackend:
             out.update(c.counters())
         return out
 
-    def replay(self, counters: dict[int, int]) -> None:
+    def replay(self, counters: dict[int, int], partial: dict[int, int] | None = None) -> None:
         counters = {int(k): int(v) for k, v in counters.items()}
         for c in self.clients:
-            c.replay({s: counters.get(s, 0) for s in c.set_indices})
+            c.replay({s: counters.get(s, 0) for s in c.set_indices}, partial)
 
     def close(self) -> None:
         for c in self.clients:

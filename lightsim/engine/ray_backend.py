@@ -129,6 +129,7 @@ class RayBackend:
         self.scene_bytes = len(pickle.dumps(scene))
         self.actors = [self._spawn(sets) for sets in self.assignment]
         self.frames_shot = [0] * len(self.actors)  # per actor, for replay after a fault
+        self.partial: dict[int, int] = {}  # frame index → photons of a partial frame
         self.changes_log: list[list[tuple]] = []  # interaction changes, replayed to newcomers
         self.bytes_last_frame = 0
         self.restarts = 0
@@ -167,12 +168,14 @@ class RayBackend:
         for sent in self.changes_log:  # bring the newcomer to the current scene
             ray.get(actor.call.remote("apply_refs", sent))
         frames = {s: self.frames_shot[i] for s in self.assignment[i]}
-        ray.get(actor.call.remote("replay", frames))
+        ray.get(actor.call.remote("replay", frames, dict(self.partial)))
         self.actors[i] = actor
 
     # -- backend interface --------------------------------------------------------------
-    def shoot(self) -> list[dict[str, float]]:
-        out = self._call_all("shoot")
+    def shoot(self, total: int | None = None) -> list[dict[str, float]]:
+        if total is not None:  # a partial frame, replayed as such after a fault
+            self.partial[max(self.frames_shot, default=0)] = int(total)
+        out = self._call_all("shoot", total)
         self.frames_shot = [f + 1 for f in self.frames_shot]
         return out
 
@@ -205,6 +208,7 @@ class RayBackend:
         self.changes_log.append(sent)
         self._call_all("apply_refs", sent)
         self.frames_shot = [0] * len(self.actors)
+        self.partial = {}
 
     def stats(self) -> dict[int, dict[str, Any]]:
         out: dict[int, dict[str, Any]] = {}
@@ -218,13 +222,14 @@ class RayBackend:
             out.update(r)
         return out
 
-    def replay(self, counters: dict[int, int]) -> None:
+    def replay(self, counters: dict[int, int], partial: dict[int, int] | None = None) -> None:
         counters = {int(k): int(v) for k, v in counters.items()}
         ray = _ray()
         refs = []
+        self.partial = {int(k): int(v) for k, v in (partial or {}).items()}
         for i, (actor, sets) in enumerate(zip(self.actors, self.assignment, strict=True)):
             frames = {s: counters.get(s, 0) for s in sets}
-            refs.append(actor.call.remote("replay", frames))
+            refs.append(actor.call.remote("replay", frames, dict(self.partial)))
             self.frames_shot[i] = max(frames.values(), default=0)
         ray.get(refs)
 

@@ -132,6 +132,7 @@ class Session:
                                         self.probes_hv)
         self.log: list[dict[str, Any]] = []
         self.frames = 0
+        self.partial: dict[int, int] = {}  # frame index → photons of a partial frame
         self._t0: float | None = None
         self._elapsed_before = 0.0
         self.last: Estimate | None = None
@@ -150,7 +151,7 @@ class Session:
 
     # -- frames --------------------------------------------------------------------------
     def frame(self, image: bool = True, shoot: bool = True, camera=None,
-              mode: str = "interleaved") -> Estimate:
+              mode: str = "interleaved", photons: int | None = None) -> Estimate:
         """One frame: every client shoots (unless ``shoot`` is False) and renders.
 
         ``mode`` ``interleaved`` is the paper's frame (each set its own pixels, then the box
@@ -158,6 +159,7 @@ class Session:
         map; M² times the queries). The binning estimator always pools. ``camera`` (a
         :class:`~lightsim.render.camera.PinholeCamera`) adds an interleaved luminance
         image (cd/m²) in ``Estimate.camera``; the plan must include the camera pass.
+        ``photons`` (over all sets) makes the frame partial, e.g. the last of a budget.
         """
         if mode not in ("interleaved", "pooled"):
             raise ValueError(f"mode must be 'interleaved' or 'pooled', got {mode!r}")
@@ -168,7 +170,9 @@ class Session:
         t0 = time.perf_counter()
         timings: dict[str, float] = {}
         if shoot:
-            self.backend.shoot()
+            if photons is not None:
+                self.partial[self.frames] = int(photons)
+            self.backend.shoot(photons)
             timings["shoot"] = time.perf_counter() - t0
             self.frames += 1
         t1 = time.perf_counter()
@@ -248,6 +252,7 @@ class Session:
         self.scene, _ = apply_changes(self.scene, changes)  # validates before sending
         self.backend.apply(changes)
         self.frames = 0
+        self.partial = {}
         self.log.append({"event": "update", "seconds": self.elapsed})
 
     # -- accounting ----------------------------------------------------------------------
@@ -286,7 +291,8 @@ class Session:
             should_stop: Callable[[], bool] | None = None) -> Estimate:
         """Shoot frames until a budget is met, then render the final image.
 
-        Stops at whichever comes first: ``photons`` emitted (total over sets),
+        Stops at whichever comes first: exactly ``photons`` emitted (total over sets; the
+        last frame is partial, except with Selective Photon Tracing, whose passes are whole),
         ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — with the
         blur at its upper bound, so an unresolved blur cannot stop a run early (after at
         least ``min_frames`` frames). With no budget at all, one frame is shot.
@@ -304,7 +310,10 @@ class Session:
                 break
             if should_stop is not None and should_stop():
                 break
-            est = self.frame(image=False)
+            rest = None if photons is None else photons - done
+            full = self.config.photons_per_set * self.config.n_sets
+            partial = rest if rest is not None and rest < full and not self.plan.spt else None
+            est = self.frame(image=False, photons=partial)
             if callback is not None:
                 callback(est)
             if (target_error is not None and est.error is not None
@@ -320,10 +329,12 @@ class Session:
         """Everything needed to continue this run to the same result (see resume)."""
         return {"config": self.config.to_dict(), "frames": self.frames,
                 "elapsed": self.elapsed, "log": list(self.log),
-                "counters": self.backend.counters()}
+                "counters": self.backend.counters(),
+                "partial": {str(k): v for k, v in self.partial.items()}}
 
     def _restore(self, ckpt: dict[str, Any]) -> None:
-        self.backend.replay(ckpt["counters"])
+        self.partial = {int(k): int(v) for k, v in ckpt.get("partial", {}).items()}
+        self.backend.replay(ckpt["counters"], self.partial)
         self.frames = int(ckpt["frames"])
         self.log = list(ckpt["log"])
         self._elapsed_before = float(ckpt["elapsed"])

@@ -1,8 +1,10 @@
 """Lighting-engineering plots (PNG, matplotlib Agg, written atomically).
 
 * :func:`isolux_plot` — iso-lux lines of the wall pattern in H/V degrees (H to the right,
-  V up, equal scale), the regulation test points coloured by verdict and labelled, zone
-  outlines, and the H-H / V-V axes.
+  V up, equal scale), labelled in lx and cd (I = E·D²), the regulation test points
+  coloured by verdict and labelled, zone outlines, and the H-H / V-V axes. Levels below
+  the map's noise floor (:func:`isolux_noise_floor`) are not drawn: there a contour
+  follows the photon noise, not the beam.
 * :func:`road_view_plot` — bird's-eye view of the road illuminance (lx) for a lamp at a
   given height: lateral position (m) across, distance ahead (m) up, iso-lux lines
   (default 1, 3, 5, 10, 20 lx); physics in :mod:`lightsim.render.road`.
@@ -19,6 +21,8 @@ lux             lx     –                          wall illuminance (H, W), row
 frame           –      –                          wall frame (``WallFrame`` or dict)
 results         –      None                       ``regulations.evaluate`` output
 levels          lx     auto (1-2-5 steps)         iso-lux levels of the wall plot
+noise_floor_lx  lx     None                       levels below it are left out
+max_rel_noise   –      0.25                       noise-floor criterion (1/√photons)
 road_levels     lx     (1, 3, 5, 10, 20)          iso-lux levels of the road view
 mount_height_m  m      0.65                       lamp height above the road
 x_range_m       m      (−15, 15)                  road view lateral extent
@@ -41,7 +45,8 @@ from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
 from lightsim.luminaires.regulations.units import WallFrame
 
-__all__ = ["VERDICT_COLOURS", "auto_levels", "isolux_plot", "road_view_plot"]
+__all__ = ["VERDICT_COLOURS", "auto_levels", "isolux_levels", "isolux_noise_floor",
+           "isolux_plot", "road_view_plot"]
 
 VERDICT_COLOURS = {"pass": "#1a9850", "fail": "#d73027", "uncertain": "#f39c12"}
 """Marker colours of the three verdicts (green, red, amber)."""
@@ -59,6 +64,56 @@ def auto_levels(max_value: float, decades: float = 3.0) -> list[float]:
             if lo <= v < max_value:
                 out.append(float(f"{v:.6g}"))
     return out
+
+
+def isolux_noise_floor(photons: int, flux_lm: float, area_m2: float,
+                       max_rel_noise: float = 0.25) -> float | None:
+    """Illuminance (lx) below which a map estimate rests on fewer than 1/max_rel_noise²
+    photons.
+
+    A density estimate over an area A (the largest kNN disk π r_max², a fixed-radius disk
+    or a pixel) from N photons of a lamp of flux Φ counts n = E·A·N/Φ photons at
+    illuminance E when each carries Φ/N (photons reaching the wall carry at most that),
+    so its relative noise is 1/√n. Where n < 1/max_rel_noise² an iso-lux line traces
+    the noise as speckle islands.
+
+    Parameters
+    ----------
+    photons : int
+        Photons emitted (all sets).
+    flux_lm : float
+        Luminous flux of the lamp Φ (lm).
+    area_m2 : float
+        Largest area an estimate averages over (m²).
+    max_rel_noise : float, default 0.25
+        Relative noise allowed at a drawn level (0.25 → 16 photons).
+
+    Returns
+    -------
+    float or None
+        The floor in lx, or None when it cannot be stated (no photons, unbounded area).
+    """
+    vals = (float(photons), float(flux_lm), float(area_m2), float(max_rel_noise))
+    if not all(np.isfinite(x) and x > 0 for x in vals):
+        return None
+    n_min = 1.0 / max_rel_noise**2
+    return n_min * vals[1] / (vals[0] * vals[2])
+
+
+def isolux_levels(vmax: float, levels: Sequence[float] | None = None,
+                  noise_floor_lx: float | None = None) -> list[float]:
+    """The iso-lux levels (lx) drawn for a map with maximum ``vmax`` (lx): ``levels`` or
+    1-2-5 steps (three decades, or from the noise floor up), without those at or above
+    the maximum and those below ``noise_floor_lx``."""
+    if levels is not None:
+        lv = _levels_checked(levels)
+    elif noise_floor_lx is not None and vmax > noise_floor_lx:
+        lv = auto_levels(vmax, decades=float(np.log10(vmax / noise_floor_lx)))
+    else:
+        lv = auto_levels(vmax)
+    if noise_floor_lx is not None:
+        lv = [x for x in lv if x >= noise_floor_lx]
+    return [x for x in lv if x < vmax] if vmax > 0 else []
 
 
 def _new_figure(size: tuple[float, float]) -> Any:
@@ -88,7 +143,8 @@ def _levels_checked(levels: Sequence[float]) -> list[float]:
 def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
                 results: Sequence[Mapping[str, Any]] | None = None,
                 levels: Sequence[float] | None = None, *, title: str | None = None,
-                dpi: int = 120, figsize: tuple[float, float] | None = None) -> Path:
+                dpi: int = 120, figsize: tuple[float, float] | None = None,
+                noise_floor_lx: float | None = None) -> Path:
     """Iso-lux plot of a wall lux image with regulation test points and zones.
 
     Parameters
@@ -111,6 +167,9 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
         Resolution.
     figsize : (width, height) in inches, optional
         Default scales with the wall's angular aspect.
+    noise_floor_lx : float, optional
+        Levels below this illuminance (lx, see :func:`isolux_noise_floor`) are left out;
+        the automatic levels then span from the floor to the maximum.
 
     Returns
     -------
@@ -127,8 +186,10 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     v = wf.v_deg()
     H, V = np.meshgrid(h, v)
     vmax = float(img.max()) if img.size else 0.0
-    lv = _levels_checked(levels) if levels is not None else auto_levels(vmax)
-    lv = [x for x in lv if x < vmax] if vmax > 0 else []
+    floor = (float(noise_floor_lx) if noise_floor_lx is not None
+             and np.isfinite(noise_floor_lx) and noise_floor_lx > 0 else None)
+    lv = isolux_levels(vmax, levels, floor)
+    d2 = wf.distance_m ** 2  # I = E·D² (cd) on the screen axis, as the rule sets count
     span_h, span_v = float(h.max() - h.min()), float(v.max() - v.min())
     if figsize is None:
         figsize = (10.0, float(np.clip(10.0 * span_v / max(span_h, 1e-9) + 1.6, 3.5, 9.0)))
@@ -140,9 +201,20 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
                          norm=LogNorm(vmin=lv[0], vmax=fill_lv[-1]), cmap="YlOrRd",
                          alpha=0.55, extend="neither")
         cs = ax.contour(H, V, img, levels=lv, colors="0.15", linewidths=0.7)
-        ax.clabel(cs, fmt=lambda x: f"{x:g} lx", fontsize=7, inline=True)
-        fig.colorbar(cf, ax=ax, label="illuminance on the wall (lx)", location="bottom",
-                     shrink=0.6, aspect=40)
+        ax.clabel(cs, fmt=lambda x: f"{x:g} lx · {x * d2:,.0f} cd", fontsize=7,
+                  inline=True)
+        cb = fig.colorbar(cf, ax=ax, label="illuminance on the wall (lx)",
+                          location="bottom", shrink=0.6, aspect=40)
+        cb.set_ticks(lv)
+        cb.set_ticklabels([f"{x:g}" for x in lv])
+        top = cb.ax.secondary_xaxis("top", functions=(lambda e: e * d2, lambda i: i / d2))
+        top.set_xticks([x * d2 for x in lv])
+        top.set_xticklabels([f"{x * d2:,.0f}" for x in lv], fontsize=7)
+        top.set_xlabel(f"intensity I = E·D² (cd, D = {wf.distance_m:g} m)", fontsize=8)
+        if floor is not None:
+            ax.text(0.99, 0.02, f"levels below the noise floor {floor:.2g} lx "
+                    "not drawn", transform=ax.transAxes, fontsize=7, ha="right",
+                    va="bottom", color="0.3")
     else:
         ax.text(0.5, 0.5, "no light on the wall", transform=ax.transAxes, ha="center",
                 va="center", color="0.4")
@@ -274,8 +346,7 @@ def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame:
     ax.set_aspect("equal")
     ax.set_xlabel("lateral position (m, right +)")
     ax.set_ylabel("distance ahead (m)")
-    reach = road.reach_m(lv[0])
-    sub = f"{lv[0]:g} lx reach: {reach:.0f} m" if reach is not None else ""
+    sub = road.reach_text()
     ax.set_title(title or f"Road illuminance, lamp at {road.mount_height_m:g} m\n{sub}",
                  fontsize=10)
     _save(fig, path, dpi)

@@ -27,6 +27,7 @@ x_range_m       m      (−15, 15)     lateral extent of the view (right positiv
 z_range_m       m      (0, 100)      distance ahead covered
 resolution_m    m      0.25          road grid step
 level_lux       lx     1.0           iso-lux level of :meth:`RoadIlluminance.reach_m`
+REACH_LEVELS    lx     1, 3, 10      levels whose reach is printed and in summary.json
 ==============  =====  ============  ===============================================
 """
 
@@ -42,7 +43,10 @@ from numpy.typing import ArrayLike, NDArray
 from lightsim.errors import InputError
 from lightsim.luminaires.regulations.units import sample_wall
 
-__all__ = ["RoadIlluminance", "road_illuminance", "road_illuminance_from"]
+__all__ = ["REACH_LEVELS", "RoadIlluminance", "road_illuminance", "road_illuminance_from"]
+
+REACH_LEVELS = (1.0, 3.0, 10.0)
+"""Iso-lux levels (lx) whose reach down the road an engineer quotes."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +75,17 @@ class RoadIlluminance:
         lit = np.nan_to_num(self.lux, nan=0.0) >= level_lux
         rows = np.flatnonzero(lit.any(axis=1))
         return float(self.z_m[rows[-1]]) if rows.size else None
+
+    def reach_text(self, levels: tuple[float, ...] = REACH_LEVELS) -> str:
+        """One line, e.g. ``reach 1 lx 61 m, 3 lx 42 m, 10 lx 25 m`` ("–": never
+        reached; "≥ 100 m": still lit at the far end of the view)."""
+        far = float(self.z_m[-1])
+        parts = []
+        for lv in levels:
+            r = self.reach_m(lv)
+            txt = "–" if r is None else (f"≥ {far:.0f} m" if r >= far else f"{r:.0f} m")
+            parts.append(f"{lv:g} lx {txt}")
+        return "reach " + ", ".join(parts)
 
     def summary(self, levels: tuple[float, ...] = (1.0, 3.0, 5.0, 10.0, 20.0)
                 ) -> dict[str, Any]:

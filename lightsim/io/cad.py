@@ -1,0 +1,209 @@
+"""STEP and IGES import: OpenCASCADE tessellation (through ``cascadio``) to named parts.
+
+A headlamp arrives from CAD as exact surfaces (B-rep). ``cascadio`` (OpenCASCADE's
+reader and mesher, a trimesh companion) tessellates them into a glTF binary in memory,
+which :func:`lightsim.io.gltf.read_gltf` then reads like any GLB: one part per solid or
+free face, named as in the CAD tree (STEP product names), with **vertex normals taken
+from the exact surface** by the mesher — so a reflector's shading normals are the CAD
+normals at the vertices, and only their interpolation between vertices and the facets'
+positions carry the tessellation error.
+
+A reflector's facet error is a beam error: the mesher's tolerances are therefore fine by
+default. The linear tolerance bounds the distance between facet and surface, the
+angular one the angle between neighbouring facet normals; both are given in CAD terms
+(mm, degrees). The beam error they leave on an exact paraboloid is measured by
+``tests/test_cad.py`` and tabulated in ``docs/cad.md``.
+
+STEP units come from the file (converted to metres by the reader). IGES: with
+OpenCASCADE's Python binding (``cadquery-ocp``, finer control) the file is read with its
+names and units into an OpenCASCADE document and handed on as STEP; with ``cascadio``
+alone it is tessellated in its own unit, which this module reads from the IGES global
+section (parameter 14, the unit flag) and converts, and the names are lost (parts are
+named ``iges-1``, ``iges-2``, …).
+
+=================  =====  =======  =====================================================
+parameter          unit   default  meaning
+=================  =====  =======  =====================================================
+``linear_tol``     mm     0.01     largest facet-to-surface distance
+``angular_tol``    deg    2        largest angle between neighbouring facet normals
+=================  =====  =======  =====================================================
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from lightsim.errors import InputError
+
+STEP_SUFFIXES = (".step", ".stp")
+IGES_SUFFIXES = (".iges", ".igs")
+CAD_SUFFIXES = STEP_SUFFIXES + IGES_SUFFIXES
+DEFAULT_LINEAR_TOL_MM = 0.01
+DEFAULT_ANGULAR_TOL_DEG = 2.0
+# IGES global parameter 14: unit flag → metres per unit
+IGES_UNITS_M = {1: 0.0254, 2: 1e-3, 3: None, 4: 0.3048, 5: 1609.344, 6: 1.0, 7: 1000.0,
+                8: 0.0254e-3, 9: 1e-6, 10: 0.01, 11: 0.0254e-6}
+
+
+@dataclass(frozen=True)
+class Tessellation:
+    """Mesher tolerances (see the module docstring)."""
+
+    linear_tol_mm: float = DEFAULT_LINEAR_TOL_MM
+    angular_tol_deg: float = DEFAULT_ANGULAR_TOL_DEG
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.linear_tol_mm) and self.linear_tol_mm > 0):
+            raise InputError(f"CAD linear tolerance must be a positive number of mm, got "
+                             f"{self.linear_tol_mm}")
+        if not (math.isfinite(self.angular_tol_deg) and 0 < self.angular_tol_deg < 90):
+            raise InputError(f"CAD angular tolerance must lie in (0, 90) degrees, got "
+                             f"{self.angular_tol_deg}")
+
+
+def iges_unit_m(data: bytes) -> float:
+    """Metres per model unit of an IGES file, from its global section (G lines)."""
+    lines = data.decode("latin-1", "replace").splitlines()
+    glob = "".join(ln[:72] for ln in lines if len(ln) >= 73 and ln[72] == "G")
+    if not glob:
+        raise InputError("IGES file has no global section")
+    pdelim, rdelim = ",", ";"
+    if glob.startswith("1H"):  # custom delimiters
+        pdelim = glob[2]
+    fields, cur, i = [], "", 0
+    while i < len(glob) and len(fields) < 16:
+        c = glob[i]
+        if c.isdigit() and not cur:  # a Hollerith string nH…
+            j = i
+            while j < len(glob) and glob[j].isdigit():
+                j += 1
+            if j < len(glob) and glob[j] == "H":
+                n = int(glob[i:j])
+                fields.append(glob[j + 1:j + 1 + n])
+                i = j + 1 + n
+                if i < len(glob) and glob[i] in (pdelim, rdelim):
+                    i += 1
+                continue
+        if c in (pdelim, rdelim):
+            fields.append(cur)
+            cur = ""
+        else:
+            cur += c
+        i += 1
+    try:
+        flag = int(float(fields[13]))
+    except (IndexError, ValueError):
+        raise InputError("IGES global section has no unit flag (parameter 14)") from None
+    unit = IGES_UNITS_M.get(flag)
+    if unit is None:
+        raise InputError(f"IGES unit flag {flag} is not supported (give the file in mm)")
+    return unit
+
+
+def iges_as_step(path: Path) -> bytes | None:
+    """The IGES file as STEP text with its part names and units (OpenCASCADE's XCAF
+    reader and writer), or None without ``cadquery-ocp``."""
+    try:
+        from OCP.IFSelect import IFSelect_RetDone
+        from OCP.IGESCAFControl import IGESCAFControl_Reader
+        from OCP.Message import Message, Message_PrinterOStream
+        from OCP.STEPCAFControl import STEPCAFControl_Writer
+        from OCP.STEPControl import STEPControl_AsIs
+        from OCP.TCollection import TCollection_ExtendedString
+        from OCP.TDocStd import TDocStd_Document
+    except ImportError:
+        return None
+    Message.DefaultMessenger_s().RemovePrinters(Message_PrinterOStream.get_type_descriptor_s())
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    reader = IGESCAFControl_Reader()
+    reader.SetNameMode(True)
+    if reader.ReadFile(str(path)) != IFSelect_RetDone or not reader.Transfer(doc):
+        raise InputError(f"{path}: OpenCASCADE could not read this IGES file")
+    writer = STEPCAFControl_Writer()
+    writer.SetNameMode(True)
+    writer.Transfer(doc, STEPControl_AsIs)
+    fd, tmp = tempfile.mkstemp(suffix=".step", prefix="lightsim-iges-")
+    os.close(fd)
+    try:
+        if writer.Write(tmp) != IFSelect_RetDone:
+            raise InputError(f"{path}: OpenCASCADE could not convert this IGES file")
+        return Path(tmp).read_bytes()
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def tessellate(path: str | os.PathLike, tess: Tessellation | None = None) -> Path:
+    """Tessellate a STEP or IGES file into a temporary GLB file (metres); returns its path.
+
+    The caller removes the file. Raises :class:`InputError` for unreadable CAD files.
+    """
+    tess = tess or Tessellation()
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in CAD_SUFFIXES:
+        raise InputError(f"{p}: not a STEP or IGES file")
+    try:
+        import cascadio
+    except ImportError:
+        raise InputError("STEP/IGES import needs the 'cascadio' package: pip install "
+                         "'lightsim[cad]'") from None
+    data = p.read_bytes()
+    kind = "step" if suffix in STEP_SUFFIXES else "iges"
+    if kind == "iges":
+        as_step = iges_as_step(p)
+        if as_step is not None:
+            data, kind = as_step, "step"
+    if kind == "step" and b"ISO-10303-21" not in data[:200]:
+        raise InputError(f"{p}: not a STEP file (no ISO-10303-21 header)")
+    # OpenCASCADE meshes in the file's length unit after reading: mm for STEP (the
+    # reader converts to its mm session unit), the file's own unit for IGES
+    unit_mm = 1.0 if kind == "step" else iges_unit_m(data) * 1e3
+    glb = cascadio.load(data, file_type=kind, tol_linear=tess.linear_tol_mm / unit_mm,
+                        tol_angular=math.radians(tess.angular_tol_deg),
+                        merge_primitives=kind == "step")
+    if not glb:
+        raise InputError(f"{p}: OpenCASCADE could not read or mesh this {kind.upper()} file")
+    fd, tmp = tempfile.mkstemp(suffix=".glb", prefix="lightsim-cad-")
+    with os.fdopen(fd, "wb") as f:
+        f.write(glb)
+    return Path(tmp)
+
+
+def _has_ocp() -> bool:
+    try:
+        import OCP.IGESCAFControl  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def read_cad(path: str | os.PathLike, tess: Tessellation | None = None) -> list:
+    """Parts of a STEP/IGES file as :class:`lightsim.io.gltf.GltfPrimitive` records.
+
+    Names are the CAD names (STEP); positions in metres; normals from the exact surface.
+    """
+    import numpy as np
+
+    from lightsim.io.gltf import read_gltf
+
+    p = Path(path)
+    glb = tessellate(p, tess)
+    try:
+        parts = read_gltf(glb)
+    finally:
+        glb.unlink(missing_ok=True)
+    if p.suffix.lower() in IGES_SUFFIXES and not _has_ocp():
+        scale = iges_unit_m(p.read_bytes())
+        out = []
+        for i, part in enumerate(parts):
+            part.name = f"iges-{i + 1}"
+            part.vertices = np.asarray(part.vertices, dtype=np.float64) * scale
+            out.append(part)
+        parts = out
+    if not parts:
+        raise InputError(f"{p}: no surfaces in this CAD file")
+    return parts

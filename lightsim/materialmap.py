@@ -1,0 +1,161 @@
+"""Material map files: optics for CAD parts by name pattern, without editing the CAD.
+
+A CAD export carries geometry and names, not optics. A material map (TOML) assigns them::
+
+    schema = "lightsim-materials-1"
+
+    [[rule]]
+    match = "reflector*"      # shell-style pattern on the part name, case-insensitive
+    kind = "mirror"
+    reflectance = 0.88
+
+    [[rule]]
+    match = "lens"
+    kind = "glass"
+    ior = 1.59
+
+    [[rule]]
+    match = "filament"
+    kind = "emitter"
+    flux_lm = 1000
+    emission = "isotropic"    # or lambertian
+
+    [[rule]]
+    match = "housing*"
+    kind = "ignore"
+
+The first rule whose pattern matches a part decides; parts no rule matches keep the
+file's own material (glTF) or the default diffuse grey. A ``--part-material`` given on
+the command line wins over the map.
+
+==============  =====  =======  =====================================================
+key             unit   default  meaning
+==============  =====  =======  =====================================================
+``match``       –      –        pattern (``*``, ``?``, ``[ab]``) on the part name
+``kind``        –      –        ``mirror``, ``glass``, ``diffuse``, ``emitter``,
+                                ``wall``, ``ignore``
+``reflectance`` –      0.88     mirror reflectance
+``ior``         –      1.5      glass refractive index
+``attenuation`` 1/m    0        glass absorption coefficient σ (Beer–Lambert)
+``albedo``      –      0.5      diffuse (and wall) reflectance
+``flux_lm``     lm     –        emitter flux (required unless ``--flux`` is given)
+``emission``    –      iso.     emitter: ``isotropic`` or ``lambertian``
+==============  =====  =======  =====================================================
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lightsim.errors import InputError
+from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, Material
+
+SCHEMA = "lightsim-materials-1"
+KINDS = ("mirror", "glass", "diffuse", "emitter", "wall", "ignore")
+KEYS = {"match", "kind", "reflectance", "ior", "attenuation", "albedo", "flux_lm",
+        "emission"}
+
+
+@dataclass(frozen=True)
+class MaterialRule:
+    """One rule of a material map (see the module docstring)."""
+
+    match: str
+    kind: str
+    reflectance: float = 0.88
+    ior: float = 1.5
+    attenuation: float = 0.0
+    albedo: float = 0.5
+    flux_lm: float | None = None
+    emission: str = "isotropic"
+
+    def matches(self, name: str) -> bool:
+        return fnmatch.fnmatchcase(name.lower(), self.match.lower())
+
+    def material(self, name: str) -> Material | None:
+        """The lightsim material of a part this rule assigns (None for emitters/ignore)."""
+        if self.kind == "mirror":
+            return Material(name, MIRROR, np.full(3, self.reflectance))
+        if self.kind == "glass":
+            return Material(name, DIELECTRIC, np.ones(3), self.ior,
+                            np.full(3, self.attenuation))
+        if self.kind in ("diffuse", "wall"):
+            return Material(name, DIFFUSE, np.full(3, self.albedo))
+        return None
+
+
+@dataclass(frozen=True)
+class MaterialMap:
+    path: str
+    rules: tuple[MaterialRule, ...]
+
+    def rule_for(self, name: str) -> MaterialRule | None:
+        return next((r for r in self.rules if r.matches(name)), None)
+
+
+def _number(where: str, key: str, value: object, lo: float, hi: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(f"{where}: '{key}' must be a number, got {value!r}")
+    x = float(value)
+    if not (math.isfinite(x) and lo <= x <= hi):
+        raise InputError(f"{where}: '{key}' = {x:g} must lie in [{lo:g}, {hi:g}]")
+    return x
+
+
+def read_material_map(path: str | os.PathLike) -> MaterialMap:
+    """Read and check a material map; one-line :class:`InputError` for any problem."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such material map")
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        msg = str(exc).splitlines()[0]
+        raise InputError(f"{p}: not a TOML material map ({msg})") from None
+    if doc.get("schema", SCHEMA) != SCHEMA:
+        raise InputError(f"{p}: schema must be '{SCHEMA}', got {doc.get('schema')!r}")
+    unknown = set(doc) - {"schema", "rule", "title", "source"}
+    if unknown:
+        raise InputError(f"{p}: unknown key(s) {', '.join(sorted(unknown))} (expected "
+                         "[[rule]] tables)")
+    rules = []
+    for i, t in enumerate(doc.get("rule", [])):
+        where = f"{p}: rule {i + 1}"
+        if not isinstance(t, dict):
+            raise InputError(f"{where}: must be a table")
+        bad = set(t) - KEYS
+        if bad:
+            raise InputError(f"{where}: unknown key(s) {', '.join(sorted(bad))}")
+        match, kind = t.get("match"), str(t.get("kind", "")).lower()
+        if not isinstance(match, str) or not match:
+            raise InputError(f"{where}: 'match' must be a non-empty name pattern")
+        if kind not in KINDS:
+            raise InputError(f"{where}: 'kind' must be one of {', '.join(KINDS)}, "
+                             f"got {t.get('kind')!r}")
+        kw: dict[str, object] = {}
+        if "reflectance" in t:
+            kw["reflectance"] = _number(where, "reflectance", t["reflectance"], 0.0, 1.0)
+        if "ior" in t:
+            kw["ior"] = _number(where, "ior", t["ior"], 1.0, 5.0)
+        if "attenuation" in t:
+            kw["attenuation"] = _number(where, "attenuation", t["attenuation"], 0.0, 1e9)
+        if "albedo" in t:
+            kw["albedo"] = _number(where, "albedo", t["albedo"], 0.0, 1.0)
+        if "flux_lm" in t:
+            kw["flux_lm"] = _number(where, "flux_lm", t["flux_lm"], 1e-30, 1e30)
+        if "emission" in t:
+            em = str(t["emission"]).lower()
+            if em not in ("isotropic", "lambertian"):
+                raise InputError(f"{where}: emission must be isotropic or lambertian")
+            kw["emission"] = em
+        rules.append(MaterialRule(match, kind, **kw))  # type: ignore[arg-type]
+    if not rules:
+        raise InputError(f"{p}: the material map has no [[rule]]")
+    return MaterialMap(str(p), tuple(rules))
