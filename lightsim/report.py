@@ -170,7 +170,8 @@ def aperture_values(session, shift_deg: float = 0.0, confidence: float = 0.95
 
     stats = session.backend.stats()
     sets = sorted(stats)
-    counts = np.stack([stats[s]["apertures"] for s in sets])
+    per_set = session.backend.apertures()
+    counts = np.stack([per_set[s] for s in sets])
     emitted = np.array([stats[s]["emitted"] for s in sets], dtype=np.float64)
     layout = layout_from_config(session.config, session.scene.wall.distance_m)
     try:

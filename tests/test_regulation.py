@@ -451,8 +451,8 @@ def _sharp_run(tmp_path_factory, photons: int):
     grid, _ = synthetic_lamp(np.random.default_rng(2024))
     write_ies(tmp / "sharp.ies", grid)
     argv = ["simulate", str(tmp / "sharp.ies"), "--photons", str(photons), "--estimator", "bin",
-            "--resolution", "160x64", "--regulation", "r112-b-passing", "--out",
-            str(tmp / "out"), "--quiet"]
+            "--resolution", "160x64", "--regulation", "r112-b-passing", "--aim", "--out",
+            str(tmp / "out"), "--quiet"]  # as the README demo: aimed
     with pytest.raises(SystemExit) as exc:
         main(argv)
     assert exc.value.code == 0
@@ -470,13 +470,16 @@ def sharp_lamp_quick(tmp_path_factory):
     return _sharp_run(tmp_path_factory, 250_000)
 
 
-def _points_and_truth(tmp, results):
+def _points_and_truth(tmp, reg):
+    """The table's points and the file's exact aperture means where the apertures were:
+    aiming moved the lamp up by ``aperture_dv_deg``, so point v was measured at v − dv."""
     from lightsim.luminaires.photometric import read_ies
     from lightsim.validation.coverage import aperture_truth
 
-    rows = [r for r in results if r["kind"] == "point"]
+    dv = reg["aim"].get("aperture_dv_deg", 0.0)
+    rows = [r for r in reg["results"] if r["kind"] == "point"]
     truth = aperture_truth(read_ies(tmp / "sharp.ies"), np.array([r["h_deg"] for r in rows]),
-                           np.array([r["v_deg"] for r in rows]), 0.15)
+                           np.array([r["v_deg"] for r in rows]) - dv, 0.15)
     return rows, truth
 
 
@@ -503,7 +506,7 @@ def _check_every_point(run, capsys):
     tmp, s = run
     reg = s["regulation"]
     assert reg["method"]["name"] == "aperture" and reg["method"]["size_deg"] == 0.15
-    rows, truth = _points_and_truth(tmp, reg["results"])
+    rows, truth = _points_and_truth(tmp, reg)
     assert len(rows) == 17
     misses = [r["name"] for r, t in zip(rows, truth, strict=True)
               if not r["interval_cd"][0] <= t <= r["interval_cd"][1]]
@@ -517,7 +520,7 @@ def _check_every_point(run, capsys):
     capsys.readouterr()
     assert exc.value.code in (0, None)
     simultaneous = json.loads((tmp / "out" / "summary.json").read_text())["regulation"]
-    rows, truth = _points_and_truth(tmp, simultaneous["results"])
+    rows, truth = _points_and_truth(tmp, simultaneous)
     for r, t in zip(rows, truth, strict=True):
         lo, hi = r["interval_cd"]
         assert lo <= t <= hi, (r["name"], lo, hi, t)
@@ -534,8 +537,16 @@ def test_table_has_hv_imax_and_zone_maxima(sharp_lamp_quick):
     # Imax lies at the hot spot of the file, within a few apertures, and near its peak
     peak = grid.max_candela()
     assert imax["interval_cd"][0] < peak * 1.05 and imax["value_cd"] > 0.9 * peak
-    i_at = float(grid.intensity_hv(np.array([imax["h_deg"]]), np.array([imax["v_deg"]]))[0])
+    dv = s["regulation"]["aim"]["aperture_dv_deg"]
+    i_at = float(grid.intensity_hv(np.array([imax["h_deg"]]),
+                                   np.array([imax["v_deg"] - dv]))[0])
     assert i_at > 0.9 * peak
+    # --aim: the apertures followed the aim in 0.03° steps; the cut-off has an interval
+    aim = s["regulation"]["aim"]
+    assert aim["applied"] and abs(aim["aperture_dv_deg"] - aim["dv_deg"]) <= 0.015 + 1e-9
+    assert aim["aperture_dv_deg"] / 0.03 == pytest.approx(round(aim["aperture_dv_deg"] / 0.03))
+    lo, hi = aim["cutoff_interval_deg"]
+    assert lo <= s["cutoff"]["v_cutoff_deg"] <= hi and 0 < hi - lo < 0.5
     zone = res["III"]
     assert {"max_cd", "max_h_deg", "max_v_deg", "max_interval_cd"} <= set(zone)
     assert zone["max_interval_cd"][0] <= zone["max_cd"] <= zone["max_interval_cd"][1]

@@ -476,9 +476,12 @@ class Client:
         """Per-set counters and bookkeeping (unnormalised ledger)."""
         return {s: {"emitted": st.emitted, "frames": st.frames, "caustic": st.caustic,
                     "records": st.records, "ledger": st.ledger.copy(),
-                    "emitted_power": st.emitted_power.copy(),
-                    "apertures": (None if st.apertures is None
-                                  else st.apertures.counts.copy())}
+                    "emitted_power": st.emitted_power.copy()}
+                for s, st in self.sets.items()}
+
+    def apertures(self) -> dict[int, np.ndarray | None]:
+        """Per-set detector-aperture counts (:mod:`lightsim.engine.apertures`), or None."""
+        return {s: None if st.apertures is None else st.apertures.counts.copy()
                 for s, st in self.sets.items()}
 
     def counters(self) -> dict[int, int]:

@@ -50,6 +50,12 @@ class LocalBackend:
             out.update(c.stats())
         return dict(sorted(out.items()))
 
+    def apertures(self) -> dict[int, Any]:
+        out: dict[int, Any] = {}
+        for c in self.clients:
+            out.update(c.apertures())
+        return dict(sorted(out.items()))
+
     def counters(self) -> dict[int, int]:
         out: dict[int, int] = {}
         for c in self.clients:

@@ -216,6 +216,12 @@ class RayBackend:
             out.update(r)
         return dict(sorted(out.items()))
 
+    def apertures(self) -> dict[int, Any]:
+        out: dict[int, Any] = {}
+        for r in self._call_all("apertures"):
+            out.update(r)
+        return dict(sorted(out.items()))
+
     def counters(self) -> dict[int, int]:
         out: dict[int, int] = {}
         for r in self._call_all("counters"):
