@@ -252,7 +252,7 @@ class ViewServer:
         import uvicorn
 
         self.config = uvicorn.Config(app, host=HOST, port=port, log_level="warning",
-                                     ws="websockets", lifespan="off", ws_max_size=1 << 20)
+                                     ws="websockets-sansio", lifespan="off", ws_max_size=1 << 20)
         self.server = uvicorn.Server(self.config)
         self.thread: threading.Thread | None = None
 

@@ -154,14 +154,17 @@ class SceneEditor:
         parts: list[Part] = []
         emitters = self.emitters(c)
         scale = c.wall_distance_m / self.base.wall.distance_m
+        placed = False
         for p in self.base.parts:
-            if p.role == EMITTER:
+            if p.role == EMITTER:  # the new emitters take the place of the first old one
+                if not placed:
+                    parts.extend(e.transformed(aim) if moved else e for e in emitters)
+                    placed = True
                 continue
             if p.role == WALL:
                 parts.append(p if scale == 1.0 else p.transformed(affine(np.eye(3) * scale)))
             else:
                 parts.append(p.transformed(aim) if moved else p)
-        parts.extend(e.transformed(aim) if moved else e for e in emitters)
         w = self.base.wall
         wall = w if scale == 1.0 else replace(
             w, centre=w.centre * scale, distance_m=w.distance_m * scale,

@@ -102,6 +102,7 @@ function setControl(name, value) {
   return n;
 }
 V.setControl = setControl;
+V.dropConnection = () => ws && ws.close();  // tests/bench: a dropped connection must resume
 $("bulb").addEventListener("change", () => setControl("bulb", $("bulb").value));
 $("save").addEventListener("click", () => send({ type: "save" }));
 $("upload").addEventListener("change", async () => {
