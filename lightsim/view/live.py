@@ -39,6 +39,7 @@ import shutil
 import threading
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,6 +86,8 @@ class LiveStats:
     edits_coalesced: int = 0
     last_frame_s: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+    # the last frames: mode, seconds of shoot/render/assemble/encode, bytes sent
+    log: deque = field(default_factory=lambda: deque(maxlen=500))
 
 
 class LiveSession:
@@ -299,11 +302,17 @@ class LiveSession:
             est_p = s.frame(image=True, shoot=False, mode="pooled")
             self._pooled_photons = est_p.photons
             est, quality, image = est_p, "pooled", True
+        entry = {"mode": self.mode, "quality": quality, "image": bool(image),
+                 "photons": int(est.photons), "frame_s": self.stats.last_frame_s,
+                 **{f"{k}_s": v for k, v in est.timings.items()}}
         if image and est.lux is not None:
             self._last_image = time.perf_counter()
             self.stats.images += 1
-            self.publish("frame:wall", encode_image(luminous(est.lux), self._header("wall", est,
-                                                                               quality)))
+            t1 = time.perf_counter()
+            msg = encode_image(luminous(est.lux), self._header("wall", est, quality))
+            entry.update(encode_s=time.perf_counter() - t1, bytes=len(msg))
+            self.publish("frame:wall", msg)
+        self.stats.log.append(entry)
         if est.camera is not None:
             self.publish("frame:camera", encode_image(luminous(est.camera),
                                                self._header("camera", est, "interleaved")))
