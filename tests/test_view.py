@@ -364,3 +364,20 @@ def test_page_end_to_end(tmp_path):
     finally:
         server.stop()
         live.stop()
+
+
+def test_pose_edit_as_light_transform_equals_the_rebuilt_scene(headlight):
+    """The live session moves the filament with the engine's light transform (no embree
+    rebuild); the result must be the scene the editor builds from the base."""
+    ed = SceneEditor(headlight, _bulbs())
+    a = ed.defaults().with_changes({"aim_h_deg": 2.0, "filament_x_mm": 0.2,
+                                    "bulb": "H7"}, ("H7",))
+    b = a.with_changes({"filament_x_mm": -0.4, "filament_z_mm": 0.5,
+                        "filament_tilt_deg": 7.0})
+    delta = ed.emitter_matrix(b) @ np.linalg.inv(ed.emitter_matrix(a))
+    moved = ed.build(a)
+    for p in moved.emitters:
+        moved = moved.transform_part(p.name, delta)
+    want = ed.build(b)
+    for p, q in zip(moved.emitters, want.emitters):
+        np.testing.assert_allclose(p.vertices, q.vertices, atol=1e-12)

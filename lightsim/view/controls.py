@@ -65,6 +65,8 @@ SPECS: tuple[ControlSpec, ...] = (
 )
 SPEC_BY_NAME = {s.name: s for s in SPECS}
 CONFIG_CONTROLS = ("k", "interleave", "frame_photons")
+POSE_CONTROLS = frozenset({"filament_x_mm", "filament_y_mm", "filament_z_mm",
+                           "filament_tilt_deg"})  # move the emitters only
 
 
 @dataclass(frozen=True)

@@ -141,11 +141,27 @@ class SceneEditor:
             em = list(self.base.emitters)
         total = sum(p.flux_lm for p in em)
         shares = [p.flux_lm / total if total > 0 else 1.0 / len(em) for p in em]
-        d = 1e-3 * np.array([c.filament_x_mm, c.filament_y_mm, c.filament_z_mm])
-        # T(centre + d) · R(tilt) · T(−centre): tilt about the filament's own centre
-        lin = rotation_x(-c.filament_tilt_deg)
-        pose = affine(lin, centre + d - lin @ centre)
+        pose = self.pose_matrix(c, centre)
         return [replace(p.transformed(pose), flux_lm=c.flux_lm * w) for p, w in zip(em, shares)]
+
+    def pose_matrix(self, c: Controls, centre: np.ndarray | None = None) -> np.ndarray:
+        """4×4 T(centre + d) · R(tilt) · T(−centre): offset d (mm) and tilt about the
+        filament's own centre."""
+        if centre is None:
+            centre = self._centre(c)
+        d = 1e-3 * np.array([c.filament_x_mm, c.filament_y_mm, c.filament_z_mm])
+        lin = rotation_x(-c.filament_tilt_deg)
+        return affine(lin, centre + d - lin @ centre)
+
+    def emitter_matrix(self, c: Controls) -> np.ndarray:
+        """4×4 from the unposed emitters of ``c``'s bulb to where they are drawn (pose,
+        then aim): the engine's ``light_transform`` is the ratio of two of these."""
+        return aim_matrix(c.aim_h_deg, c.aim_v_deg) @ self.pose_matrix(c)
+
+    def _centre(self, c: Controls) -> np.ndarray:
+        if c.bulb and c.bulb != self.base_bulb and c.bulb in self.bulbs:
+            return self.focus + np.asarray(self.bulbs[c.bulb].offset_m, float)
+        return self.filament_centre
 
     def build(self, c: Controls) -> Scene:
         """The edited scene (a new :class:`Scene`; the base is never modified)."""

@@ -51,7 +51,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.errors import LightsimError
 from lightsim.render.frame import luminous
 from lightsim.scene import Scene
-from lightsim.view.controls import CONFIG_CONTROLS, Controls
+from lightsim.view.controls import CONFIG_CONTROLS, POSE_CONTROLS, Controls
 from lightsim.view.editor import SceneEditor
 from lightsim.view.encode import encode_image
 
@@ -259,6 +259,13 @@ class LiveSession:
             if changed & {*CONFIG_CONTROLS, "wall_distance_m"}:
                 # the run configuration or the wall frame (probe grid, radii) changed
                 self._open(scene, new)
+            elif changed <= POSE_CONTROLS:
+                # only the filament moved: emitters are not traced, the embree scene stays
+                delta = self.editor.emitter_matrix(new) @ np.linalg.inv(
+                    self.editor.emitter_matrix(self.controls))
+                self.session.update(light_transform=delta)
+                self.controls = new
+                self._reset_clock()
             else:
                 self.session.update(scene=scene)
                 self.controls = new
