@@ -7,13 +7,15 @@ builds a queue.
 
 * **Interaction** (paper section 4.1): an edit → ``Session.update`` discards the photons;
   the next frame shoots a new batch, renders the interleaved image and box-filters it.
-* **Accumulation** (the paper's walkthrough with a still scene): no edit → every frame adds
-  photons to the maps; the interleaved image is redrawn at most every ``image_interval``
-  seconds (shooting between redraws), and once the scene has been still for
-  ``pooled_after`` seconds the pooled full-resolution map (the written result) is drawn
-  each time the photon count has doubled.
-* The error figure and photon count are published every frame; the regulation table at
-  most every ``regulation_interval`` seconds (its ~10³ probes cost a frame's queries).
+* **Accumulation** (the paper's walkthrough with a still scene): no edit → photon batches
+  are added to the maps (``Session.accumulate``) for ``step_seconds``, then one estimate
+  gives the error figure and, at most every ``image_interval`` seconds, the interleaved
+  image; once the error figure is ≤ ``pooled_error`` (or after ``pooled_after`` s) the
+  pooled full-resolution map (the written result) is drawn, again each time the photon
+  count has quadrupled.
+* The error figure and photon count are published every step; the regulation table once
+  the scene is still, at most every ``regulation_interval`` seconds (its ~10³ probes per
+  set cost about a frame's queries).
 * Nothing is lost: every applied edit is appended to ``edits.jsonl`` (flushed and
   fsynced) and the current controls to ``state.json`` (atomic) in the session folder;
   ``lightsim view --state FILE`` restores them.
@@ -21,9 +23,14 @@ builds a queue.
 =========================  =====  =======  ==================================================
 parameter                  unit   default  meaning
 =========================  =====  =======  ==================================================
-``image_interval``         s      0.5      accumulation: redraw the interleaved image this often
-``pooled_after``           s      2.0      still this long → pooled high-quality map
-``regulation_interval``    s      1.0      regulation table refresh
+``step_seconds``           s      0.5      accumulation: photon batches shot between two
+                                           estimates (error figure, image)
+``image_interval``         s      0.5      accumulation: redraw the interleaved image at most
+                                           this often (and ≤ 1/4 of the time)
+``pooled_error``           –      0.05     error figure that triggers the first pooled map
+``pooled_after``           s      10       … or still this long; then each 4× photons
+``regulation_interval``    s      1.0      regulation table refresh once the scene is still
+                                           (and ≤ 1/5 of the time)
 ``stop_error``             –      0.005    accumulation stops (idles) at this error figure
 ``max_photons``            –      2·10⁸    … or at this many photons
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
@@ -113,7 +120,8 @@ class LiveSession:
                  config: RunConfig, publish: Publish, *, controls: Controls | None = None,
                  regulation: RegulationHook | None = None, save_run: SaveHook | None = None,
                  folder: Path | None = None, camera: Any = None,
-                 image_interval: float = 0.5, pooled_after: float = 2.0,
+                 image_interval: float = 0.5, pooled_after: float = 10.0,
+                 pooled_error: float = 0.05, step_seconds: float = 0.5,
                  regulation_interval: float = 1.0, stop_error: float = 0.005,
                  max_photons: int = 200_000_000) -> None:
         self.editor = editor
@@ -127,6 +135,10 @@ class LiveSession:
         self.camera_watchers = 0  # set by the app: tabs showing the camera view
         self.image_interval = image_interval
         self.pooled_after = pooled_after
+        self.pooled_error = pooled_error
+        self.step_seconds = step_seconds
+        self._image_every = image_interval
+        self._reg_cost = 0.0
         self.regulation_interval = regulation_interval
         self.stop_error = stop_error
         self.max_photons = max_photons
@@ -284,16 +296,22 @@ class LiveSession:
         changed = self._apply_pending()
         self._handle_saves()
         s = self.session
-        now = time.perf_counter()
-        still = now - self._changed_at
         if not changed and self._converged(s):
             self._wake.wait(0.25)  # nothing left to gain: wait for an edit
             self._wake.clear()
             return
         if not changed and self.mode == "interaction" and s.frames >= 1:
             self.mode = "accumulation"
-        image = changed or self.mode == "interaction" or now - self._last_image >= \
-            self.image_interval
+        if self.mode == "accumulation":
+            # shoot batches between displayed frames, so the probe estimates, the image
+            # and the error figure are paid once per step, not once per batch
+            t_end = time.perf_counter() + self.step_seconds
+            while time.perf_counter() < t_end and not self._busy() and not self._stop.is_set():
+                s.accumulate(1)
+            if self._busy():
+                return  # an edit waits: do not render the old scene
+        now = time.perf_counter()
+        image = self.mode == "interaction" or now - self._last_image >= self._image_every
         camera = self.camera if (image and self.camera is not None
                                  and self.camera_watchers > 0) else None
         t0 = time.perf_counter()
@@ -303,9 +321,10 @@ class LiveSession:
         self.stats.frames += 1
         if self.mode == "interaction":
             self.stats.interaction_frames += 1
+        if image:  # keep the redraws of a still scene to ≤ 1/4 of the time
+            self._image_every = max(self.image_interval, 3.0 * est.timings.get("render", 0))
         quality = "interleaved"
-        if (self.mode == "accumulation" and still >= self.pooled_after
-                and est.photons >= 2 * max(self._pooled_photons, 1) and not self._busy()):
+        if self.mode == "accumulation" and not self._busy() and self._pooled_due(est):
             est_p = s.frame(image=True, shoot=False, mode="pooled")
             self._pooled_photons = est_p.photons
             est, quality, image = est_p, "pooled", True
@@ -322,16 +341,32 @@ class LiveSession:
         self.stats.log.append(entry)
         if est.camera is not None:
             self.publish("frame:camera", encode_image(luminous(est.camera),
-                                               self._header("camera", est, "interleaved")))
+                                                      self._header("camera", est,
+                                                                   "interleaved")))
         self.last_status = self._status(est, quality)
         self.publish("status", self.last_status)
-        if (self.regulation_hook is not None and not self._busy()
-                and time.perf_counter() - self._last_reg >= self.regulation_interval):
+        # the table needs ~10³ probes per set: only once the scene is still, and at most
+        # a fifth of the time
+        if (self.regulation_hook is not None and self.mode == "accumulation"
+                and not self._busy() and time.perf_counter() - self._last_reg
+                >= max(self.regulation_interval, 4.0 * self._reg_cost)):
+            t1 = time.perf_counter()
             table = self.regulation_hook(s)
             self._last_reg = time.perf_counter()
+            self._reg_cost = self._last_reg - t1
             self.publish("regulation", {"edit": self.edit, "title": table.title,
                                         "rows": table.rows, "points": table.points,
                                         "unevaluated": table.unevaluated})
+
+    def _pooled_due(self, est) -> bool:
+        """The pooled map (M² times an image's queries) first when the error figure is
+        ≤ ``pooled_error`` or the scene has been still ``pooled_after`` s, then each time
+        the photons have quadrupled (so it costs a bounded share of the time)."""
+        if self._pooled_photons:
+            return est.photons >= 4 * self._pooled_photons
+        still = time.perf_counter() - self._changed_at
+        err = est.rel_error
+        return still >= self.pooled_after or (err is not None and err <= self.pooled_error)
 
     def _converged(self, s) -> bool:
         """Accumulation has reached ``stop_error`` or ``max_photons``: stop shooting."""
