@@ -292,7 +292,7 @@ def test_page_end_to_end(tmp_path):
     from lightsim.cli.view import start_view
 
     live, server = start_view(str(HEADLIGHT), 0, resolution=(160, 64), folder=tmp_path,
-                              frame_photons=20000, camera=False)
+                              frame_photons=20000)
     assert server.url.startswith("http://127.0.0.1:")  # loopback only
     host = server.server.servers[0].sockets[0].getsockname()[0]
     assert host == "127.0.0.1"
@@ -359,6 +359,10 @@ def test_page_end_to_end(tmp_path):
                                    f"window.lightsimView.connected && "
                                    f"window.lightsimView.wallFrames > {frames}",
                                    timeout=20_000)
+            # the camera view as the second tab
+            page.click("#tab-camera")
+            page.wait_for_function("window.lightsimView.cameraFrames >= 1", timeout=30_000)
+            assert page.is_visible("#camera") and not page.is_visible("#wall")
             assert not errors, errors
             browser.close()
     finally:

@@ -96,6 +96,9 @@ function setControlValues(c) {
   if (c.bulb !== undefined) $("bulb").value = c.bulb;
 }
 function setControl(name, value) {
+  const r = $(`r-${name}`), t = $(`t-${name}`);  // show what was sent (scripts, bench)
+  if (r && typeof value === "number") r.value = value;
+  if (t && document.activeElement !== t) t.value = value;
   const n = ++V.token;
   V.sentAt[n] = performance.now();
   send({ type: "set", changes: { [name]: value }, token: n });
