@@ -139,6 +139,7 @@ class LiveSession:
         self.step_seconds = step_seconds
         self._image_every = image_interval
         self._reg_cost = 0.0
+        self._update_s = 0.0
         self.regulation_interval = regulation_interval
         self.stop_error = stop_error
         self.max_photons = max_photons
@@ -265,6 +266,7 @@ class LiveSession:
         if pending is None:
             return False
         new, info = pending
+        t0 = time.perf_counter()
         try:
             scene = self.editor.build(new)
             changed = new.changed(self.controls)
@@ -287,6 +289,7 @@ class LiveSession:
             self.publish("controls", self.describe())  # the page snaps back
             return False
         self.edit += 1
+        self._update_s = time.perf_counter() - t0
         self.token = dict(info.get("token") or {})
         self.stats.edits_applied += 1
         self._autosave(info["changes"])
@@ -329,6 +332,7 @@ class LiveSession:
             self._pooled_photons = est_p.photons
             est, quality, image = est_p, "pooled", True
         entry = {"mode": self.mode, "quality": quality, "image": bool(image),
+                 "update_s": self._update_s if changed else 0.0,
                  "photons": int(est.photons), "frame_s": self.stats.last_frame_s,
                  **{f"{k}_s": v for k, v in est.timings.items()}}
         if image and est.lux is not None:
