@@ -274,7 +274,7 @@ function drawWall(frame) {
 function drawCamera(frame) {
   const c = $("camera"), ctx = c.getContext("2d");
   const W = frame.head.width, H = frame.head.height;
-  const s = Math.min((c.width - MARGIN.right - 10) / W, (c.height - 20) / H);
+  const s = Math.min((c.width - MARGIN.right - 10) / W, (c.height - 36) / H);
   ctx.fillStyle = "#111"; ctx.fillRect(0, 0, c.width, c.height);
   const { lo, hi } = paint(ctx, frame, 10, 10, s);
   colourBar(ctx, 10 + W * s + 12, 10, H * s, lo, hi, "cd/m²");
