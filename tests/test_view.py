@@ -385,3 +385,37 @@ def test_pose_edit_as_light_transform_equals_the_rebuilt_scene(headlight):
     want = ed.build(b)
     for p, q in zip(moved.emitters, want.emitters):
         np.testing.assert_allclose(p.vertices, q.vertices, atol=1e-12)
+
+
+# -- the command line ------------------------------------------------------------------------
+@pytest.mark.parametrize("extra, words", [
+    (["--regulation", "r999"], "unknown rule set"), (["--resolution", "0x5"], "--resolution"),
+    (["--port", "70000"], "--port"), (["--workers", "1", "--address", "1.2.3.4:1"], "not both"),
+    (["--workers", "-1"], "--workers"),
+])
+def test_view_command_bad_options_are_one_line(extra, words, capsys, tmp_path):
+    from helpers import run_cli
+
+    code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), *extra], capsys)
+    assert code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_view_command_missing_scene_bad_state_and_taken_port(capsys, tmp_path):
+    import socket
+
+    from helpers import run_cli
+
+    code, _, err = run_cli(["view", str(tmp_path / "nope.glb"), "--out", str(tmp_path)], capsys)
+    assert code == 2 and "no such file" in err
+    bad = tmp_path / "state.json"
+    bad.write_text('{"controls": {"k": "NaN"}}')
+    code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), "--state",
+                            str(bad)], capsys)
+    assert code == 2 and "not a finite number" in err and len(err.strip().splitlines()) == 1
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), "--port",
+                                str(port)], capsys)
+    assert code == 2 and "cannot listen" in err and len(err.strip().splitlines()) == 1, err

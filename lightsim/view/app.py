@@ -265,6 +265,15 @@ class ViewServer:
         return f"http://{HOST}:{self.port}/"
 
     def start(self, timeout: float = 30.0) -> ViewServer:
+        if self.config.port:  # a taken port: one line, before uvicorn logs its own
+            import socket
+
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+                try:
+                    probe.bind((HOST, self.config.port))
+                except OSError as exc:
+                    raise InputError(f"cannot listen on {HOST}:{self.config.port}: "
+                                     f"{exc.strerror or exc}") from None
         self.thread = threading.Thread(target=self.server.run, name="lightsim-view-http",
                                        daemon=True)
         self.thread.start()
