@@ -419,3 +419,42 @@ def test_view_command_missing_scene_bad_state_and_taken_port(capsys, tmp_path):
         code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), "--port",
                                 str(port)], capsys)
     assert code == 2 and "cannot listen" in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_live_session_on_ray_workers(tmp_path):
+    """The same live session with two Ray actors (loopback-only namespace): frames are
+    published, an edit is applied and frames follow it."""
+    import sys
+    import textwrap
+
+    from netns import run_in_netns
+
+    script = tmp_path / "ray_view.py"
+    script.write_text(textwrap.dedent(f"""
+        import json, time
+        from lightsim.cli.view import build_live
+        got = []
+        live = build_live({str(HEADLIGHT)!r}, resolution=(48, 24), workers=2,
+                          frame_photons=4000, camera=False, regulation=None,
+                          publish=lambda k, p: got.append((k, p)))
+        live.start()
+        t0 = time.monotonic()
+        while live.stats.frames < 2 and time.monotonic() - t0 < 200:
+            time.sleep(0.1)
+        live.submit({{"filament_x_mm": 0.3}}, {{"client": 1, "n": 1}})
+        while live.edit < 1 and time.monotonic() - t0 < 260:
+            time.sleep(0.1)
+        t1 = time.monotonic()
+        while live.stats.frames < 4 and time.monotonic() - t1 < 60:
+            time.sleep(0.1)
+        live.stop()
+        print(json.dumps({{"edit": live.edit, "frames": live.stats.frames,
+                          "kinds": sorted({{k for k, _ in got}})}}))
+    """))
+    res = run_in_netns(f"{sys.executable} {script}", timeout=400)
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert out["edit"] == 1 and out["frames"] >= 4
+    assert "frame:wall" in out["kinds"] and "status" in out["kinds"]
