@@ -458,3 +458,20 @@ def test_live_session_on_ray_workers(tmp_path):
     out = json.loads(res.stdout.strip().splitlines()[-1])
     assert out["edit"] == 1 and out["frames"] >= 4
     assert "frame:wall" in out["kinds"] and "status" in out["kinds"]
+
+
+def test_accumulate_shoots_the_same_photons_as_frames():
+    """``Session.accumulate`` (added for the view) is ``frame`` without the estimates."""
+    from lightsim.engine.config import RunConfig
+    from lightsim.engine.server import Session
+
+    scene = load_scene(HEADLIGHT, resolution=(32, 16))
+    cfg = RunConfig(frame_photons=1600, probe_grid=(8, 4))
+    with Session(scene, cfg) as a, Session(scene, cfg) as b:
+        a.frame(image=False)
+        a.frame(image=False)
+        b.accumulate(2)
+        ea, eb = a.frame(shoot=False), b.frame(shoot=False)
+        assert a.frames == b.frames == 2 and ea.photons == eb.photons == 3200
+        np.testing.assert_array_equal(ea.lux, eb.lux)
+        np.testing.assert_array_equal(ea.probes.values, eb.probes.values)
