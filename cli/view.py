@@ -160,19 +160,20 @@ def save_hook(scene_path: str, ruleset: str | None, traffic: str, workers: int,
     return save
 
 
-def default_camera(distance: float):
+def default_camera(distance: float, resolution: tuple[int, int] = (400, 200)):
     """The second tab's camera: above and behind the lamp, looking at H-V on the wall."""
     from lightsim.render.camera import PinholeCamera
 
     return PinholeCamera(position=(0.0, 1.0, -1.0), look_at=(0.0, 0.0, float(distance)),
-                         fov_deg=32.0, resolution=(400, 200))
+                         fov_deg=32.0, resolution=tuple(resolution))
 
 
 def build_live(scene_path: str, *, resolution=(640, 256), workers: int = 0,
                address: str | None = None, regulation: str | None = "r112-b-passing",
                traffic: str = "right", folder: Path | None = None,
                state: dict[str, Any] | None = None, frame_photons: int = 20_000,
-               camera: bool = True, publish=None, **live_kw: Any):
+               camera: bool = True, camera_resolution: tuple[int, int] = (400, 200),
+               publish=None, **live_kw: Any):
     """The live session of ``lightsim view`` (also used by the benchmark and the tests)."""
     from lightsim.engine.config import RunConfig
     from lightsim.engine.server import Session
@@ -192,7 +193,7 @@ def build_live(scene_path: str, *, resolution=(640, 256), workers: int = 0,
     if state is not None:
         controls = Controls.from_dict({**controls.to_dict(), **state.get("controls", {})},
                                       editor.bulb_names())
-    cam = default_camera(scene.wall.distance_m) if camera else None
+    cam = default_camera(scene.wall.distance_m, camera_resolution) if camera else None
 
     def make_session(sc, config: RunConfig):
         return Session(sc, config, workers=workers, address=address, camera=cam is not None,

@@ -292,7 +292,7 @@ def test_page_end_to_end(tmp_path):
     from lightsim.cli.view import start_view
 
     live, server = start_view(str(HEADLIGHT), 0, resolution=(160, 64), folder=tmp_path,
-                              frame_photons=20000)
+                              frame_photons=20000, camera_resolution=(80, 40))
     assert server.url.startswith("http://127.0.0.1:")  # loopback only
     host = server.server.servers[0].sockets[0].getsockname()[0]
     assert host == "127.0.0.1"
@@ -306,7 +306,7 @@ def test_page_end_to_end(tmp_path):
             page.uncheck("#isolux")
             page.uncheck("#points")
             page.wait_for_function("window.lightsimView.regulation !== null "
-                                   "&& window.lightsimView.status.photons >= 60000",
+                                   "&& window.lightsimView.status.photons >= 40000",
                                    timeout=45_000)
             before = _centroid(page)
             table_before = page.inner_text("#reg tbody")
@@ -316,7 +316,7 @@ def test_page_end_to_end(tmp_path):
                 "(el) => { el.value = 5; el.dispatchEvent(new Event('input')); }")
             page.wait_for_function(
                 f"window.lightsimView.lastHeader.edit > {edit0} && "
-                "window.lightsimView.status.photons >= 60000 && "
+                "window.lightsimView.status.photons >= 40000 && "
                 f"window.lightsimView.regulation.edit > {edit0}", timeout=45_000)
             after = _centroid(page)
             r = page.evaluate("window.lightsimView.plotRect")
