@@ -234,6 +234,17 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
         live.request_save(done.append)
         while not done and time.monotonic() - t0 < 90:
             time.sleep(0.05)
+        # a second scene (here the saved one) replaces the first; the session goes on
+        edit, frames = live.edit, live.stats.frames
+        saved = next(p for p in tmp_path.iterdir() if p.name.startswith("run-"))
+        live.replace_scene(load_scene(saved / "scene.glb", resolution=(48, 24)))
+        with pytest.raises(InputError):  # no emitter: refused before anything changes
+            live.replace_scene(load_scene(saved / "scene.glb", resolution=(48, 24),
+                                          part_materials={"filament": "ignore"}))
+        while (live.edit == edit or live.stats.frames <= frames + 1) \
+                and time.monotonic() - t0 < 120:
+            time.sleep(0.05)
+        assert live.edit == edit + 1 and live.controls.aim_v_deg == 0.0
     finally:
         live.stop()
     assert done and done[0]["level"] == "info", done
@@ -249,12 +260,25 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
     assert summary["regulation"]["ruleset"] == "r112-b-passing"
     assert summary["energy_lm"]["closure_relative"] < 1e-6
     edits = [json.loads(line) for line in (tmp_path / "edits.jsonl").read_text().splitlines()]
-    assert edits[-1]["controls"]["aim_v_deg"] == -0.5
-    state = read_json(tmp_path / "state.json")
-    assert state["controls"]["filament_y_mm"] == 0.2
+    assert edits[1]["controls"]["aim_v_deg"] == -0.5  # [0]: start, [1]: the edit
+    assert edits[1]["changes"] == {"aim_v_deg": -0.5, "filament_y_mm": 0.2}
+    assert "upload" in edits[-1]["changes"]
+    state = read_json(tmp_path / "state.json")  # the uploaded scene's controls now
+    assert state["scene"].endswith("scene.glb") and state["controls"]["filament_y_mm"] == 0
+    saved_state = read_json(run / "controls.json")
+    assert saved_state["controls"]["filament_y_mm"] == 0.2
     back = load_scene(run / "scene.glb", resolution=(48, 24))
     assert back.total_flux == pytest.approx(1000.0)
     assert {"frame:wall", "status", "regulation"} <= set(published)
+
+
+def test_same_origin_rule():
+    from lightsim.view.app import same_origin
+
+    assert same_origin({"host": "127.0.0.1:8765"})
+    assert same_origin({"host": "127.0.0.1:8765", "origin": "http://127.0.0.1:8765"})
+    assert not same_origin({"host": "127.0.0.1:8765", "origin": "https://evil.example"})
+    assert not same_origin({"host": "127.0.0.1:8765", "origin": "http://127.0.0.1:9999"})
 
 
 # -- end to end in a real browser ----------------------------------------------------------------

@@ -22,7 +22,8 @@ results) are kept in a short bounded queue instead, so none is lost.
 dropped connection reconnects (the page retries) and receives ``hello``, the latest frame
 and status at once: the session itself never depends on a connection.
 
-The server binds 127.0.0.1 only.
+The server binds 127.0.0.1 only, and refuses WebSocket handshakes and uploads whose
+``Origin`` is another site.
 """
 
 from __future__ import annotations
@@ -138,6 +139,17 @@ def check_glb(data: bytes) -> None:
         raise InputError(f"the upload is truncated: header says {length} bytes, got {len(data)}")
 
 
+def same_origin(headers: Any) -> bool:
+    """True unless a browser says the request comes from another site.
+
+    Browsers send ``Origin`` with WebSocket handshakes and cross-site POSTs; a page of
+    another site must not drive the session (cross-site WebSocket hijacking). Clients
+    without ``Origin`` (scripts, curl) are local processes and are let through.
+    """
+    origin = headers.get("origin")
+    return origin is None or origin == f"http://{headers.get('host', '')}"
+
+
 def create_app(live: Any, hub: Hub, load_upload: Callable[[Path], Any]) -> Any:
     """The starlette application around a :class:`~lightsim.view.live.LiveSession`.
 
@@ -157,6 +169,8 @@ def create_app(live: Any, hub: Hub, load_upload: Callable[[Path], Any]) -> Any:
         return FileResponse(static / "index.html", headers={"Cache-Control": "no-store"})
 
     async def upload(request: Request) -> JSONResponse:
+        if not same_origin(request.headers):
+            return JSONResponse({"level": "error", "text": "cross-origin upload refused"}, 403)
         body = b""
         async for chunk in request.stream():
             body += chunk
@@ -165,12 +179,15 @@ def create_app(live: Any, hub: Hub, load_upload: Callable[[Path], Any]) -> Any:
         try:
             check_glb(body)
             scene = await asyncio.to_thread(_load_bytes, body, load_upload)
+            live.replace_scene(scene)  # checks it has an emitter and a wall
         except LightsimError as exc:
             return JSONResponse({"level": "error", "text": str(exc)}, 400)
-        live.replace_scene(scene)
         return JSONResponse({"level": "info", "text": "scene accepted; restarting"})
 
     async def ws_endpoint(ws: WebSocket) -> None:
+        if not same_origin(ws.headers):  # another web site in the same browser: refuse
+            await ws.close(code=1008)
+            return
         await ws.accept()
         hub.loop = asyncio.get_running_loop()
         conn = hub.add(ws)

@@ -181,6 +181,7 @@ async function drain(kind) {
       const now = performance.now();
       for (const [k, t0] of Object.entries(V.sentAt)) {
         if (Number(k) <= tok.n) { V.latencies.push({ token: Number(k), ms: now - t0 }); delete V.sentAt[k]; }
+        if (V.latencies.length > 1000) V.latencies.shift();
       }
     }
   }
