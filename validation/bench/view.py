@@ -59,9 +59,8 @@ def load_average() -> float:
 
 def engine_baseline(scene_path: str, resolution: tuple[int, int], frame_photons: int,
                     frames: int = 3) -> dict[str, float]:
-    """:func:`_engine_baseline` in a worker thread, like the view's session thread (on the
-    loaded development machine frames ran 2–4× faster in a worker thread than in the
-    main thread; the baseline must not differ from the view in that)."""
+    """:func:`_engine_baseline` in a worker thread, as the view's session runs (so the
+    two differ only in the browser, server and page)."""
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(1) as pool:
