@@ -12,7 +12,7 @@ builds a queue.
   gives the error figure and, at most every ``image_interval`` seconds, the interleaved
   image; once the error figure is ≤ ``pooled_error`` (or after ``pooled_after`` s) the
   pooled full-resolution map (the written result) is drawn, again each time the photon
-  count has quadrupled.
+  count has doubled; from then on only pooled maps are drawn.
 * The error figure and photon count are published every step; the regulation table once
   the scene is still, at most every ``regulation_interval`` seconds (its ~10³ probes per
   set cost about a frame's queries).
@@ -28,7 +28,7 @@ parameter                  unit   default  meaning
 ``image_interval``         s      0.5      accumulation: redraw the interleaved image at most
                                            this often (and ≤ 1/4 of the time)
 ``pooled_error``           –      0.05     error figure that triggers the first pooled map
-``pooled_after``           s      10       … or still this long; then each 4× photons
+``pooled_after``           s      10       … or still this long; then each 2× photons
 ``regulation_interval``    s      1.0      regulation table refresh once the scene is still
                                            (and ≤ 1/5 of the time)
 ``stop_error``             –      0.005    accumulation stops (idles) at this error figure
@@ -314,7 +314,9 @@ class LiveSession:
             if self._busy():
                 return  # an edit waits: do not render the old scene
         now = time.perf_counter()
-        image = self.mode == "interaction" or now - self._last_image >= self._image_every
+        # once a pooled map is shown, a still scene shows only newer pooled maps
+        image = self.mode == "interaction" or (
+            self._pooled_photons == 0 and now - self._last_image >= self._image_every)
         camera = self.camera if (image and self.camera is not None
                                  and self.camera_watchers > 0) else None
         t0 = time.perf_counter()
@@ -365,9 +367,9 @@ class LiveSession:
     def _pooled_due(self, est) -> bool:
         """The pooled map (M² times an image's queries) first when the error figure is
         ≤ ``pooled_error`` or the scene has been still ``pooled_after`` s, then each time
-        the photons have quadrupled (so it costs a bounded share of the time)."""
+        the photons have doubled (so it costs a bounded share of the time)."""
         if self._pooled_photons:
-            return est.photons >= 4 * self._pooled_photons
+            return est.photons >= 2 * self._pooled_photons
         still = time.perf_counter() - self._changed_at
         err = est.rel_error
         return still >= self.pooled_after or (err is not None and err <= self.pooled_error)

@@ -5,6 +5,7 @@
 const V = window.lightsimView = {
   client: null, framesDrawn: 0, wallFrames: 0, cameraFrames: 0, latencies: [], sentAt: {},
   token: 0, status: null, regulation: null, messages: [], lastHeader: null, plotRect: null,
+  lastWallHeader: null,
   connected: false, reconnects: 0, hello: null,
 };
 const $ = (id) => document.getElementById(id);
@@ -133,7 +134,10 @@ $("points").addEventListener("change", () => lastWall && drawWall(lastWall));
 function pct(x) { return x === null || x === undefined ? "–" : `${(100 * x).toFixed(1)} %`; }
 function showStatus(s) {
   V.status = s;
-  $("mode").textContent = `${s.mode}${s.quality === "pooled" ? " (pooled map)" : ""}`;
+  const h = V.lastWallHeader;  // what is on the canvas may be older than the status
+  const shown = h ? ` · showing ${h.quality === "pooled" ? "pooled map" :
+    "interleaved frame"} of ${h.photons.toLocaleString("en")} photons` : "";
+  $("mode").textContent = `${s.mode}${shown}`;
   $("error").textContent = pct(s.rel_error);
   $("photons").textContent = s.photons.toLocaleString("en");
   $("frame_s").textContent = `${(1000 * s.frame_s).toFixed(0)} ms`;
@@ -172,7 +176,7 @@ async function drain(kind) {
     for (let i = 0; i < codes.length; i++)
       img[i] = codes[i] === 0 ? 0 : lo * Math.exp((codes[i] - 1) / 65534 * span);
     const frame = { head, img };
-    if (kind === "wall") { lastWall = frame; drawWall(frame); V.wallFrames++; }
+    if (kind === "wall") { lastWall = frame; drawWall(frame); V.wallFrames++; V.lastWallHeader = head; }
     else { drawCamera(frame); V.cameraFrames++; }
     V.framesDrawn++;
     V.lastHeader = head;
