@@ -158,6 +158,7 @@ class LiveSession:
         self.mode = "interaction"
         self._changed_at = time.perf_counter()
         self._last_image = 0.0
+        self._last_camera = 0.0
         self._last_reg = 0.0
         self._pooled_photons = 0
         self.last_status: dict[str, Any] = {}
@@ -317,8 +318,9 @@ class LiveSession:
         # once a pooled map is shown, a still scene shows only newer pooled maps
         image = self.mode == "interaction" or (
             self._pooled_photons == 0 and now - self._last_image >= self._image_every)
-        camera = self.camera if (image and self.camera is not None
-                                 and self.camera_watchers > 0) else None
+        camera = self.camera if (self.camera is not None and self.camera_watchers > 0 and (
+            self.mode == "interaction" or now - self._last_camera >= self._image_every)) \
+            else None
         t0 = time.perf_counter()
         est = s.frame(image=image, camera=camera)
         self.stats.last_frame_s = time.perf_counter() - t0
@@ -346,6 +348,7 @@ class LiveSession:
             self.publish("frame:wall", msg)
         self.stats.log.append(entry)
         if est.camera is not None:
+            self._last_camera = time.perf_counter()
             self.publish("frame:camera", encode_image(luminous(est.camera),
                                                       self._header("camera", est,
                                                                    "interleaved")))
