@@ -10,7 +10,7 @@ builds a queue.
 * **Accumulation** (the paper's walkthrough with a still scene): no edit → photon batches
   are added to the maps (``Session.accumulate``) for ``step_seconds``, then one estimate
   gives the error figure and, at most every ``image_interval`` seconds, the interleaved
-  image; once the error figure is ≤ ``pooled_error`` (or after ``pooled_after`` s) the
+  image; once the error figure is ≤ ``pooled_error`` the
   pooled full-resolution map (the written result) is drawn, again each time the photon
   count has doubled; from then on only pooled maps are drawn.
 * The error figure and photon count are published every step; the regulation table once
@@ -28,7 +28,10 @@ parameter                  unit   default  meaning
 ``image_interval``         s      0.5      accumulation: redraw the interleaved image at most
                                            this often (and ≤ 1/4 of the time)
 ``pooled_error``           –      0.05     error figure that triggers the first pooled map
-``pooled_after``           s      10       … or still this long; then each 2× photons
+``pooled_after``           s      ∞        … or still this long; then each 2× photons (a
+                                           pooled map of few photons is noisier than the
+                                           filtered frame, hence no time trigger by
+                                           default)
 ``regulation_interval``    s      1.0      regulation table refresh once the scene is still
                                            (and ≤ 1/5 of the time)
 ``stop_error``             –      0.005    accumulation stops (idles) at this error figure
@@ -41,6 +44,7 @@ parameter                  unit   default  meaning
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import threading
@@ -120,7 +124,7 @@ class LiveSession:
                  config: RunConfig, publish: Publish, *, controls: Controls | None = None,
                  regulation: RegulationHook | None = None, save_run: SaveHook | None = None,
                  folder: Path | None = None, camera: Any = None,
-                 image_interval: float = 0.5, pooled_after: float = 10.0,
+                 image_interval: float = 0.5, pooled_after: float = math.inf,
                  pooled_error: float = 0.05, step_seconds: float = 0.5,
                  regulation_interval: float = 1.0, stop_error: float = 0.005,
                  max_photons: int = 200_000_000) -> None:
