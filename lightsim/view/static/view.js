@@ -133,7 +133,9 @@ $("points").addEventListener("change", () => lastWall && drawWall(lastWall));
 // ---- status and regulation ---------------------------------------------------------------
 function pct(x) { return x === null || x === undefined ? "–" : `${(100 * x).toFixed(1)} %`; }
 function showStatus(s) {
+  const stale = V.regulation && (!V.status || V.status.edit !== s.edit);
   V.status = s;
+  if (stale) showRegulation(V.regulation);  // mark the table as older than the pattern
   const h = V.lastWallHeader;  // what is on the canvas may be older than the status
   const shown = h ? ` · showing ${h.quality === "pooled" ? "pooled map" :
     "interleaved frame"} of ${h.photons.toLocaleString("en")} photons` : "";
@@ -147,7 +149,8 @@ function fmt(x) { return x === null || x === undefined ? "–" : Math.round(x).t
 function showRegulation(r) {
   V.regulation = r;
   $("reg-title").textContent = `regulation: ${r.title}` +
-    (r.unevaluated ? ` (${r.unevaluated} rules not evaluated)` : "");
+    (r.unevaluated ? ` (${r.unevaluated} rules not evaluated)` : "") +
+    (V.status && V.status.edit > r.edit ? " — before the last change" : "");
   $("reg").querySelector("tbody").innerHTML = r.rows.map((row) =>
     `<tr><td>${row.name}</td><td>${row.limit}</td><td>${fmt(row.value)}</td>` +
     `<td>${row.interval ? fmt(row.interval[0]) + " … " + fmt(row.interval[1]) : "–"}</td>` +
