@@ -19,6 +19,7 @@ BENCHMARKS: dict[str, str] = {
     "plan": "bench_plan:command",
     "spt": "bench_spt:command",
     "scaling": "bench_scaling:command",
+    "view": "bench_view:command",
 }
 
 

@@ -285,9 +285,10 @@ class Scene:
 
     def transform_part(self, name: str, matrix: np.ndarray) -> Scene:
         """A new scene with part ``name`` moved by the 4×4 ``matrix``."""
-        parts = [p.transformed(matrix) if p.name == name else p for p in self.parts]
-        if parts == self.parts:
+        # compare names, not parts: Part equality compares numpy arrays (ambiguous)
+        if not any(p.name == name for p in self.parts):
             raise InputError(f"no part named '{name}'")
+        parts = [p.transformed(matrix) if p.name == name else p for p in self.parts]
         return Scene(parts, self.wall, self.source, list(self.warnings), self.channels)
 
     @property

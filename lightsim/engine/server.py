@@ -186,6 +186,19 @@ class Session:
             self.log.append({**est.error_entry(), "frames": self.frames})
         return est
 
+    def accumulate(self, batches: int = 1) -> None:
+        """Shoot ``batches`` frames of photons into every set without estimating anything.
+
+        Accumulation between displayed frames (``lightsim view``): the probe estimates
+        and the error figure of :meth:`frame` are then paid once per displayed frame, not
+        once per batch. Deterministic like :meth:`frame` (the same photons in the same
+        order).
+        """
+        self.start_clock()
+        for _ in range(max(0, int(batches))):
+            self.backend.shoot()
+            self.frames += 1
+
     def walkthrough(self, camera=None) -> Estimate:
         """A frame without shooting: the camera/view may change, the photons stay."""
         return self.frame(image=True, shoot=False, camera=camera)

@@ -1,0 +1,51 @@
+"""``lightsim bench view``: latency, frames/s and convergence of ``lightsim view`` in a
+real browser (headless Chromium), with a model for 16 and 64 Ray workers."""
+
+from __future__ import annotations
+
+import click
+
+from lightsim.validation.bench.table import print_table, write_json
+
+
+@click.command("view")
+@click.argument("scene_file", required=False, type=click.Path(dir_okay=False))
+@click.option("--resolution", default="640x256", show_default=True)
+@click.option("--frame-photons", type=int, default=20_000, show_default=True)
+@click.option("--changes", type=int, default=5, show_default=True, help="Latency samples.")
+@click.option("--drag-seconds", type=float, default=6.0, show_default=True)
+@click.option("--converge-timeout", type=float, default=40.0, show_default=True)
+@click.option("--chromium", default="/usr/bin/chromium", show_default=True,
+              type=click.Path(dir_okay=False), help="Chromium executable.")
+@click.option("--screenshots", type=click.Path(file_okay=False),
+              help="Save the page (interaction, converged) as PNG here.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
+def command(scene_file: str | None, resolution: str, frame_photons: int, changes: int,
+            drag_seconds: float, converge_timeout: float, chromium: str,
+            screenshots: str | None, json_path: str | None) -> None:
+    """Time from a control change to the drawn image, interaction frames/s, convergence."""
+    from pathlib import Path
+
+    from lightsim.cli.bench_tracer import example_headlight
+    from lightsim.cli.simulate import _pair
+    from lightsim.errors import InputError
+    from lightsim.validation.bench.view import bench_view
+
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        raise InputError("bench view needs Playwright for Python: pip install playwright") \
+            from None
+    w, h = _pair(resolution, "--resolution", int)
+    if changes < 1 or drag_seconds <= 0 or converge_timeout <= 0:
+        raise InputError("--changes, --drag-seconds and --converge-timeout must be positive")
+    path = scene_file or str(example_headlight())
+    res = bench_view(path, (w, h), frame_photons, changes, drag_seconds, converge_timeout,
+                     chromium, Path(screenshots) if screenshots else None)
+    print_table(f"bench view: {Path(path).name} at {w}x{h}, {frame_photons:,} photons/frame "
+                f"(load average {res['load_average_start']:.1f} → "
+                f"{res['load_average_end']:.1f} on {res['costs']['cores']} cores)", res["rows"])
+    print_table("model for Ray workers from the measured costs (docs/scaling.md)", res["model"])
+    if json_path:
+        write_json(json_path, "view", res["rows"] + res["model"],
+                   {k: v for k, v in res.items() if k not in ("rows", "model")})

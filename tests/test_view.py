@@ -1,0 +1,501 @@
+"""``lightsim view``: frame encoding, controls, scene edits, fan-out, save run, and the
+page end-to-end in a real headless Chromium (Debian's, driven by Playwright)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import shutil
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lightsim.errors import InputError
+from lightsim.scene import load_scene
+from lightsim.view.controls import Controls
+from lightsim.view.editor import SceneEditor, aim_matrix
+from lightsim.view.encode import decode_image, encode_image
+
+ROOT = Path(__file__).resolve().parents[1]
+HEADLIGHT = ROOT / "luminaires" / "examples" / "headlight.glb"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+
+
+# -- frames ---------------------------------------------------------------------------------
+def test_frame_round_trip_keeps_values_to_quantisation():
+    rng = np.random.default_rng(3)
+    img = 10.0 ** rng.uniform(-3, 3, size=(17, 33))
+    img[0, 0], img[1, 1], img[2, 2] = 0.0, np.nan, -5.0
+    img[3, 3] = 1e-30  # far below the 6-decade floor: black
+    msg = encode_image(img, {"kind": "wall", "edit": 4})
+    head, out = decode_image(msg)
+    assert head["kind"] == "wall" and head["edit"] == 4
+    assert (head["width"], head["height"]) == (33, 17)
+    ok = img > head["lo"]
+    step = math.log(head["hi"] / head["lo"]) / 65534
+    assert np.all(np.abs(np.log(out[ok] / img[ok])) <= 0.5 * step + 1e-12)
+    assert out[0, 0] == 0 and out[1, 1] == 0 and out[2, 2] == 0 and out[3, 3] == 0
+    # the payload is plain zlib (what the browser's DecompressionStream("deflate") reads)
+    n = int.from_bytes(msg[4:8], "little")
+    assert len(zlib.decompress(msg[8 + n:])) == 2 * 17 * 33
+
+
+def test_frame_of_an_empty_or_dark_image():
+    for img in (np.zeros((4, 5)), np.full((4, 5), np.nan)):
+        head, out = decode_image(encode_image(img, {"kind": "wall"}))
+        assert np.all(out == 0) and head["hi"] > head["lo"] > 0
+    with pytest.raises(ValueError):
+        encode_image(np.zeros(5), {})
+
+
+# -- controls -----------------------------------------------------------------------------
+@pytest.mark.parametrize("changes, words", [
+    ({"k": "NaN"}, "not a finite number"), ({"aim_h_deg": float("inf")}, "not a finite"),
+    ({"aim_h_deg": 99}, "outside"), ({"k": 2.5}, "whole number"),
+    ({"flux_lm": "abc"}, "not a number"), ({"k": True}, "not a number"),
+    ({"colour": 1}, "unknown control"), ({"bulb": "H99"}, "unknown bulb"),
+    ({"frame_photons": -1}, "outside"),
+])
+def test_bad_control_values_are_one_line_errors(changes, words):
+    with pytest.raises(InputError, match=words) as exc:
+        Controls(bulb="H4-low").with_changes(changes, ("H4-low", "H7"))
+    assert "\n" not in str(exc.value)
+
+
+def test_good_control_values():
+    c = Controls().with_changes({"k": "32", "aim_h_deg": "-2.5", "bulb": "H7"}, ("H7",))
+    assert (c.k, c.aim_h_deg, c.bulb) == (32, -2.5, "H7")
+    assert Controls().changed(c) == {"k", "aim_h_deg", "bulb"}
+
+
+# -- scene edits ----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def headlight():
+    return load_scene(HEADLIGHT, resolution=(64, 32))
+
+
+def _bulbs():
+    from lightsim.cli.view import bulb_presets
+
+    return bulb_presets()
+
+
+def test_default_controls_reproduce_the_scene(headlight):
+    ed = SceneEditor(headlight, _bulbs())
+    c = ed.defaults()
+    assert c.bulb == "H4-low" and c.flux_lm == pytest.approx(1000.0)
+    out = ed.build(c)
+    for a, b in zip(headlight.parts, out.parts):
+        assert a.name == b.name and np.array_equal(a.vertices, b.vertices)
+
+
+def test_aim_turns_the_beam_axis_exactly():
+    for h, v in ((5.0, 0.0), (-3.0, 0.0), (0.0, 2.0), (0.0, -1.5)):
+        d = aim_matrix(h, v)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        p = d * 25.0 / d[2]  # hits the wall z = 25 m; H is world −X
+        assert math.degrees(math.atan2(-p[0], 25.0)) == pytest.approx(h, abs=1e-12)
+        assert math.degrees(math.atan2(p[1], 25.0)) == pytest.approx(v, abs=1e-12)
+
+
+def test_filament_offset_tilt_flux_and_wall(headlight):
+    ed = SceneEditor(headlight, _bulbs())
+    c = ed.defaults().with_changes({"filament_x_mm": 0.3, "filament_z_mm": -1.0,
+                                    "filament_tilt_deg": 10.0, "flux_lm": 1500.0,
+                                    "wall_distance_m": 10.0})
+    out = ed.build(c)
+    em = out.emitters
+    pts = np.concatenate([p.vertices for p in em])
+    centre = 0.5 * (pts.min(0) + pts.max(0))
+    base = np.concatenate([p.vertices for p in headlight.emitters])
+    # the box of a tilted cylinder is centred where it was, plus the offset
+    np.testing.assert_allclose(centre - 0.5 * (base.min(0) + base.max(0)),
+                               [0.3e-3, 0.0, -1.0e-3], atol=1e-12)
+    assert out.total_flux == pytest.approx(1500.0)
+    # tilt: +10° lifts the front end; the axis is (0, sin 10°, cos 10°)
+    v = em[0].vertices - centre
+    axis = np.linalg.svd(v - v.mean(0))[2][0]
+    axis *= np.sign(axis[2])
+    np.testing.assert_allclose(axis, [0, math.sin(math.radians(10)), math.cos(math.radians(10))],
+                               atol=1e-6)
+    w = out.wall
+    assert w.distance_m == pytest.approx(10.0)
+    hd, vd = w.degrees(*(x[-1] for x in w.pixel_centres()))
+    hd0, vd0 = headlight.wall.degrees(*(x[-1] for x in headlight.wall.pixel_centres()))
+    assert (hd, vd) == pytest.approx((hd0, vd0))  # same angular field
+    wall_z = next(p for p in out.parts if p.role == "wall").vertices[:, 2]
+    np.testing.assert_allclose(wall_z, 10.0)
+
+
+def test_bulb_swap_uses_the_preset_at_the_same_focus(headlight):
+    bulbs = _bulbs()
+    ed = SceneEditor(headlight, bulbs)
+    np.testing.assert_allclose(ed.focus, [0, 0, 0.025], atol=1e-9)  # H4 lamp, f = 25 mm
+    out = ed.build(ed.defaults().with_changes({"bulb": "H7", "flux_lm": 1500.0}, ("H7",)))
+    (em,) = out.emitters
+    pts = em.vertices
+    np.testing.assert_allclose(0.5 * (pts.min(0) + pts.max(0)), [0, 0, 0.025], atol=1e-4)
+    assert em.flux_lm == pytest.approx(1500.0)
+    assert np.ptp(pts[:, 2]) == pytest.approx(4.1e-3, rel=0.05)  # H7 coil length
+
+
+def test_edited_scene_written_as_glb_reads_back(headlight, tmp_path):
+    from lightsim.cli.view import scene_gltf_parts
+    from lightsim.luminaires.gltf_writer import write_glb
+
+    ed = SceneEditor(headlight, _bulbs())
+    scene = ed.build(ed.defaults().with_changes({"aim_h_deg": 2.0, "flux_lm": 800.0,
+                                                 "wall_distance_m": 12.0}))
+    path = tmp_path / "edited.glb"
+    write_glb(path, scene_gltf_parts(scene))
+    back = load_scene(path, resolution=(64, 32))
+    assert back.n_triangles == scene.n_triangles
+    assert back.total_flux == pytest.approx(800.0)
+    assert back.wall.distance_m == pytest.approx(12.0)
+    kinds = {p.name: (p.role, p.material.kind) for p in scene.parts}
+    assert {p.name: (p.role, p.material.kind) for p in back.parts} == kinds
+    by_name = {p.name: p for p in back.parts}
+    for a in scene.parts:
+        np.testing.assert_allclose(a.vertices, by_name[a.name].vertices, atol=1e-6)  # float32
+
+
+def test_upload_check_rejects_what_is_not_a_glb():
+    from lightsim.view.app import check_glb
+
+    for data, words in ((b"hello world, not a glb!", "not a GLB"),
+                        (b"glTF" + (1).to_bytes(4, "little") + (24).to_bytes(4, "little")
+                         + bytes(12), "version 1"),
+                        (b"glTF" + (2).to_bytes(4, "little") + (999).to_bytes(4, "little")
+                         + bytes(12), "truncated")):
+        with pytest.raises(InputError, match=words):
+            check_glb(data)
+    check_glb(HEADLIGHT.read_bytes())
+
+
+# -- fan-out: drop frames, never queue ---------------------------------------------------------
+class _SlowSocket:
+    def __init__(self) -> None:
+        self.sent: list = []
+
+    async def send_bytes(self, b: bytes) -> None:
+        await asyncio.sleep(0.05)
+        self.sent.append(b)
+
+    async def send_text(self, t: str) -> None:
+        self.sent.append(json.loads(t))
+
+
+def test_slow_connection_gets_latest_frame_and_every_message():
+    from lightsim.view.app import Connection
+
+    async def scenario() -> tuple[Connection, _SlowSocket]:
+        ws = _SlowSocket()
+        c = Connection(ws, 1)
+        task = asyncio.create_task(c.sender())
+        for i in range(10):  # ten frames while one is being sent
+            c.post("frame:wall", b"frame%d" % i)
+            c.post("message", {"level": "info", "text": f"m{i}"})
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.2)
+        task.cancel()
+        return c, ws
+
+    c, ws = asyncio.run(scenario())
+    frames = [x for x in ws.sent if isinstance(x, bytes)]
+    texts = [x["text"] for x in ws.sent if isinstance(x, dict)]
+    assert frames[-1] == b"frame9" and len(frames) < 10  # latest drawn, some dropped
+    assert c.dropped == 10 - len(frames)
+    assert texts == [f"m{i}" for i in range(10)]  # messages are never dropped
+
+
+# -- the session thread: save run, autosave --------------------------------------------------
+def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
+    import OpenEXR
+
+    from lightsim.cli.view import build_live
+    from lightsim.io.summary import read_json
+
+    published: list[str] = []
+    live = build_live(str(HEADLIGHT), resolution=(48, 24), folder=tmp_path,
+                      frame_photons=4000, camera=False,
+                      publish=lambda kind, payload: published.append(kind))
+    live.start()
+    try:
+        live.submit({"aim_v_deg": -0.5, "filament_y_mm": 0.2}, {"client": 1, "n": 1})
+        with pytest.raises(InputError):
+            live.submit({"aim_v_deg": float("nan")})
+        done: list[dict] = []
+        t0 = time.monotonic()
+        while live.stats.edits_applied < 1 and time.monotonic() - t0 < 60:
+            time.sleep(0.05)
+        live.request_save(done.append)
+        while not done and time.monotonic() - t0 < 90:
+            time.sleep(0.05)
+        # a second scene (here the saved one) replaces the first; the session goes on
+        edit, frames = live.edit, live.stats.frames
+        saved = next(p for p in tmp_path.iterdir() if p.name.startswith("run-"))
+        live.replace_scene(load_scene(saved / "scene.glb", resolution=(48, 24)))
+        with pytest.raises(InputError):  # no emitter: refused before anything changes
+            live.replace_scene(load_scene(saved / "scene.glb", resolution=(48, 24),
+                                          part_materials={"filament": "ignore"}))
+        while (live.edit == edit or live.stats.frames <= frames + 1) \
+                and time.monotonic() - t0 < 120:
+            time.sleep(0.05)
+        assert live.edit == edit + 1 and live.controls.aim_v_deg == 0.0
+    finally:
+        live.stop()
+    assert done and done[0]["level"] == "info", done
+    (run,) = [p for p in tmp_path.iterdir() if p.name.startswith("run-")]
+    assert not list(tmp_path.glob(".*partial"))
+    names = {p.name for p in run.iterdir()}
+    assert {"wall_lux.exr", "wall_lux.png", "summary.json", "error_vs_time.png",
+            "isolux.png", "probes.npz", "scene.glb", "edits.jsonl", "controls.json"} <= names
+    with OpenEXR.File(str(run / "wall_lux.exr")) as f:
+        y = f.channels()["Y"].pixels
+    assert y.shape == (24, 48) and np.all(np.isfinite(y)) and y.max() > 0
+    summary = read_json(run / "summary.json")
+    assert summary["regulation"]["ruleset"] == "r112-b-passing"
+    assert summary["energy_lm"]["closure_relative"] < 1e-6
+    edits = [json.loads(line) for line in (tmp_path / "edits.jsonl").read_text().splitlines()]
+    assert edits[1]["controls"]["aim_v_deg"] == -0.5  # [0]: start, [1]: the edit
+    assert edits[1]["changes"] == {"aim_v_deg": -0.5, "filament_y_mm": 0.2}
+    assert "upload" in edits[-1]["changes"]
+    state = read_json(tmp_path / "state.json")  # the uploaded scene's controls now
+    assert state["scene"].endswith("scene.glb") and state["controls"]["filament_y_mm"] == 0
+    saved_state = read_json(run / "controls.json")
+    assert saved_state["controls"]["filament_y_mm"] == 0.2
+    back = load_scene(run / "scene.glb", resolution=(48, 24))
+    assert back.total_flux == pytest.approx(1000.0)
+    assert {"frame:wall", "status", "regulation"} <= set(published)
+
+
+def test_same_origin_rule():
+    from lightsim.view.app import same_origin
+
+    assert same_origin({"host": "127.0.0.1:8765"})
+    assert same_origin({"host": "127.0.0.1:8765", "origin": "http://127.0.0.1:8765"})
+    assert not same_origin({"host": "127.0.0.1:8765", "origin": "https://evil.example"})
+    assert not same_origin({"host": "127.0.0.1:8765", "origin": "http://127.0.0.1:9999"})
+
+
+# -- end to end in a real browser ----------------------------------------------------------------
+def _browser():
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.skip("playwright (Python) is not installed: pip install playwright")
+    if not Path(CHROMIUM).exists():
+        pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
+    return sync_playwright
+
+
+def _centroid(page) -> tuple[float, float]:
+    """Brightness-weighted centroid (canvas px) of the drawn pattern (overlays off)."""
+    return tuple(page.evaluate("""() => {
+        const p = window.lightsimView.plotRect, c = document.getElementById('wall');
+        const r = {x: Math.ceil(p.x), y: Math.ceil(p.y), w: Math.floor(p.w) - 1,
+                   h: Math.floor(p.h) - 1};
+        const d = c.getContext('2d').getImageData(r.x, r.y, r.w, r.h).data;
+        let sx = 0, sy = 0, s = 0;
+        for (let y = 0; y < r.h; y++) for (let x = 0; x < r.w; x++) {
+            const i = 4 * (y * r.w + x);
+            const l = 0.2126 * d[i] + 0.7152 * d[i + 1] + 0.0722 * d[i + 2];
+            const w = l * l;  // emphasise the hot spot over the noisy fringe
+            sx += w * x; sy += w * y; s += w;
+        }
+        return [sx / s, sy / s];
+    }"""))
+
+
+@pytest.mark.timeout(120)
+def test_page_end_to_end(tmp_path):
+    sync_playwright = _browser()
+    from lightsim.cli.view import start_view
+
+    live, server = start_view(str(HEADLIGHT), 0, resolution=(160, 64), folder=tmp_path,
+                              frame_photons=20000, camera_resolution=(80, 40))
+    assert server.url.startswith("http://127.0.0.1:")  # loopback only
+    host = server.server.servers[0].sockets[0].getsockname()[0]
+    assert host == "127.0.0.1"
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            page = browser.new_page(viewport={"width": 1300, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(server.url)
+            page.uncheck("#isolux")
+            page.uncheck("#points")
+            page.wait_for_function("window.lightsimView.regulation !== null "
+                                   "&& window.lightsimView.status.photons >= 40000",
+                                   timeout=45_000)
+            before = _centroid(page)
+            table_before = page.inner_text("#reg tbody")
+            edit0 = page.evaluate("window.lightsimView.status.edit")
+            # move the aim-H slider: +5° turns the lamp to the right
+            page.locator("#r-aim_h_deg").evaluate(
+                "(el) => { el.value = 5; el.dispatchEvent(new Event('input')); }")
+            page.wait_for_function(
+                f"window.lightsimView.lastHeader.edit > {edit0} && "
+                "window.lightsimView.status.photons >= 40000 && "
+                f"window.lightsimView.regulation.edit > {edit0}", timeout=45_000)
+            after = _centroid(page)
+            r = page.evaluate("window.lightsimView.plotRect")
+            expected = r["w"] * 25 * math.tan(math.radians(5)) / 30.0  # wall 30 m wide
+            assert after[0] - before[0] == pytest.approx(expected, rel=0.35), (before, after)
+            assert abs(after[1] - before[1]) < 0.25 * expected
+            assert page.inner_text("#reg tbody") != table_before
+            assert page.evaluate("window.lightsimView.latencies.length") >= 1
+
+            # bad input: a message on the page, and the session keeps running
+            for sel, text, words in (("#t-k", "NaN", "not a finite number"),
+                                     ("#t-aim_v_deg", "40", "outside")):
+                page.fill(sel, text)
+                page.press(sel, "Enter")
+                page.wait_for_function(
+                    "document.getElementById('message').className === 'error' && "
+                    f"document.getElementById('message').textContent.includes('{words}')",
+                    timeout=10_000)
+            page.set_input_files("#upload", files=[{"name": "second.glb",
+                                                    "mimeType": "model/gltf-binary",
+                                                    "buffer": b"this is not a glb file"}])
+            page.wait_for_function("document.getElementById('message').textContent"
+                                   ".includes('not a GLB')", timeout=10_000)
+            frames = page.evaluate("window.lightsimView.wallFrames")
+            photons = page.evaluate("window.lightsimView.status.photons")
+            page.wait_for_function(f"window.lightsimView.wallFrames > {frames} && "
+                                   f"window.lightsimView.status.photons > {photons}",
+                                   timeout=20_000)
+            assert page.input_value("#t-k") == "64"  # snapped back to the session's value
+
+            # a second tab watches the same session; a dropped connection resumes
+            other = browser.new_page()
+            other.goto(server.url)
+            other.wait_for_function("window.lightsimView.wallFrames >= 1", timeout=20_000)
+            assert other.evaluate("window.lightsimView.status.edit") == \
+                page.evaluate("window.lightsimView.status.edit")
+            frames = page.evaluate("window.lightsimView.wallFrames")
+            page.evaluate("window.lightsimView.dropConnection()")
+            page.wait_for_function(f"window.lightsimView.reconnects >= 1 && "
+                                   f"window.lightsimView.connected && "
+                                   f"window.lightsimView.wallFrames > {frames}",
+                                   timeout=20_000)
+            # the camera view as the second tab
+            page.click("#tab-camera")
+            page.wait_for_function("window.lightsimView.cameraFrames >= 1", timeout=30_000)
+            assert page.is_visible("#camera") and not page.is_visible("#wall")
+            assert not errors, errors
+            browser.close()
+    finally:
+        server.stop()
+        live.stop()
+
+
+def test_pose_edit_as_light_transform_equals_the_rebuilt_scene(headlight):
+    """The live session moves the filament with the engine's light transform (no embree
+    rebuild); the result must be the scene the editor builds from the base."""
+    ed = SceneEditor(headlight, _bulbs())
+    a = ed.defaults().with_changes({"aim_h_deg": 2.0, "filament_x_mm": 0.2,
+                                    "bulb": "H7"}, ("H7",))
+    b = a.with_changes({"filament_x_mm": -0.4, "filament_z_mm": 0.5,
+                        "filament_tilt_deg": 7.0})
+    delta = ed.emitter_matrix(b) @ np.linalg.inv(ed.emitter_matrix(a))
+    moved = ed.build(a)
+    for p in moved.emitters:
+        moved = moved.transform_part(p.name, delta)
+    want = ed.build(b)
+    for p, q in zip(moved.emitters, want.emitters):
+        np.testing.assert_allclose(p.vertices, q.vertices, atol=1e-12)
+
+
+# -- the command line ------------------------------------------------------------------------
+@pytest.mark.parametrize("extra, words", [
+    (["--regulation", "r999"], "unknown rule set"), (["--resolution", "0x5"], "--resolution"),
+    (["--port", "70000"], "--port"), (["--workers", "1", "--address", "1.2.3.4:1"], "not both"),
+    (["--workers", "-1"], "--workers"),
+])
+def test_view_command_bad_options_are_one_line(extra, words, capsys, tmp_path):
+    from helpers import run_cli
+
+    code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), *extra], capsys)
+    assert code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_view_command_missing_scene_bad_state_and_taken_port(capsys, tmp_path):
+    import socket
+
+    from helpers import run_cli
+
+    code, _, err = run_cli(["view", str(tmp_path / "nope.glb"), "--out", str(tmp_path)], capsys)
+    assert code == 2 and "no such file" in err
+    bad = tmp_path / "state.json"
+    bad.write_text('{"controls": {"k": "NaN"}}')
+    code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), "--state",
+                            str(bad)], capsys)
+    assert code == 2 and "not a finite number" in err and len(err.strip().splitlines()) == 1
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), "--port",
+                                str(port)], capsys)
+    assert code == 2 and "cannot listen" in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_live_session_on_ray_workers(tmp_path):
+    """The same live session with two Ray actors (loopback-only namespace): frames are
+    published, an edit is applied and frames follow it."""
+    import sys
+    import textwrap
+
+    from netns import run_in_netns
+
+    script = tmp_path / "ray_view.py"
+    script.write_text(textwrap.dedent(f"""
+        import json, time
+        from lightsim.cli.view import build_live
+        got = []
+        live = build_live({str(HEADLIGHT)!r}, resolution=(48, 24), workers=2,
+                          frame_photons=4000, camera=False, regulation=None,
+                          publish=lambda k, p: got.append((k, p)))
+        live.start()
+        t0 = time.monotonic()
+        while live.stats.frames < 2 and time.monotonic() - t0 < 200:
+            time.sleep(0.1)
+        live.submit({{"filament_x_mm": 0.3}}, {{"client": 1, "n": 1}})
+        while live.edit < 1 and time.monotonic() - t0 < 260:
+            time.sleep(0.1)
+        t1 = time.monotonic()
+        while live.stats.frames < 4 and time.monotonic() - t1 < 60:
+            time.sleep(0.1)
+        live.stop()
+        print(json.dumps({{"edit": live.edit, "frames": live.stats.frames,
+                          "kinds": sorted({{k for k, _ in got}})}}))
+    """))
+    res = run_in_netns(f"{sys.executable} {script}", timeout=400)
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert out["edit"] == 1 and out["frames"] >= 4
+    assert "frame:wall" in out["kinds"] and "status" in out["kinds"]
+
+
+def test_accumulate_shoots_the_same_photons_as_frames():
+    """``Session.accumulate`` (added for the view) is ``frame`` without the estimates."""
+    from lightsim.engine.config import RunConfig
+    from lightsim.engine.server import Session
+
+    scene = load_scene(HEADLIGHT, resolution=(32, 16))
+    cfg = RunConfig(frame_photons=1600, probe_grid=(8, 4))
+    with Session(scene, cfg) as a, Session(scene, cfg) as b:
+        a.frame(image=False)
+        a.frame(image=False)
+        b.accumulate(2)
+        ea, eb = a.frame(shoot=False), b.frame(shoot=False)
+        assert a.frames == b.frames == 2 and ea.photons == eb.photons == 3200
+        np.testing.assert_array_equal(ea.lux, eb.lux)
+        np.testing.assert_array_equal(ea.probes.values, eb.probes.values)
