@@ -47,7 +47,7 @@ LAMP_A = LowBeam(texture=0.02)
 LAMP_B = LowBeam(hotspot_deg=(3.0, -2.0), hotspot_sigma_deg=(4.0, 1.3),
                  spread_sigma_deg=(14.0, 3.0), cutoff_v_deg=-1.0, cutoff_width_deg=0.2,
                  texture=0.02, seed=3)
-REAL_PHOTO = Path("/work/shared/data/photos/zoe-lowbeam-garage-door.jpg")
+REAL_PHOTO = Path(__file__).parent / "data" / "zoe-lowbeam-garage-door.jpg"   # CC BY 4.0
 
 
 @pytest.fixture(scope="module")
@@ -239,7 +239,6 @@ def test_threshold_helpers():
 
 # --- the real photograph -------------------------------------------------------------------
 
-@pytest.mark.skipif(not REAL_PHOTO.exists(), reason="shared photo not available")
 def test_real_photo_goes_through(sim_dir, tmp_path):
     """Not a ground truth (unknown distance and aim, two beams): outputs exist and are finite."""
     out = tmp_path / "zoe"
