@@ -7,6 +7,7 @@ into exit code 1 (input errors exit with 2).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -55,12 +56,24 @@ def _pair(text: str, name: str) -> tuple[float, float]:
               help="Rotations searched, ± degrees.")
 @click.option("--scale-range", default="0.5,2", show_default=True,
               help="Scales searched MIN,MAX, relative to 'photo width = simulation width'.")
+@click.option("--points", metavar='"x,y=H,V; …"',
+              help="Control points: photo pixel (x = column, y = row) = screen angle H,V in "
+                   "degrees; 4 or more fix the screen geometry (no registration by the beam).")
+@click.option("--markers", default="auto", show_default=True, metavar="auto|off|LAYOUT.json",
+              help="Find screen-target markers on the photo (default layout, or a "
+                   "layout.json from 'lightsim screen-target').")
+@click.option("--screen-distance", type=float, metavar="M",
+              help="Lamp → screen distance of the photo in m  [default: the simulation's].")
+@click.option("--normalise-at", metavar="POINT|H,V",
+              help="Test point (or H,V degrees) the photo's relative test-point values are "
+                   "normalised at  [default: 50R].")
 @click.option("--credit", help="Attribution printed on the figures (e.g. a photo's licence).")
 @click.option("-q", "--quiet", is_flag=True, help="Print only failures.")
 def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
             fit_gamma: bool, fail_below: tuple[str, ...], fail_above: tuple[str, ...],
             transform_file: Path | None, traffic: str, max_rotation: float, scale_range: str,
-            credit: str | None, quiet: bool) -> None:
+            points: str | None, markers: str, screen_distance: float | None,
+            normalise_at: str | None, credit: str | None, quiet: bool) -> None:
     """Compare PHOTO (PNG/JPEG/TIFF/EXR) with a simulated wall illuminance map.
 
     Writes comparison.json, overlay.png, difference.png and contours.png to --out.
@@ -81,7 +94,12 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
     options = CompareOptions(model="homography" if homography else "similarity",
                              fit_gamma=fit_gamma, traffic=traffic,
                              transform=load_transform(transform_file) if transform_file else None,
-                             registration=reg, credit=credit)
+                             registration=reg, credit=credit, points=points,
+                             markers=markers, screen_distance_m=screen_distance,
+                             normalise_at=normalise_at)
+    if screen_distance is not None and not (math.isfinite(screen_distance)
+                                            and screen_distance > 0):
+        raise InputError(f"--screen-distance must be > 0 m, got {screen_distance!r}")
     out = out_dir or Path(f"compare-{photo.stem}")
     result = run_compare(photo, sim_path, out, options)
     if not quiet:
@@ -96,6 +114,7 @@ def _report(result, out: Path) -> None:
     from rich.table import Table
 
     console = Console()
+    _report_aim(console, result)
     t = result.transform_dict()
     console.print(f"transform ({t['model']}, photo px → simulation px): rotation "
                   f"{t['rotation_deg']:+.3f}°, scale {t['scale']:.5g}, translation "
@@ -112,3 +131,32 @@ def _report(result, out: Path) -> None:
     console.print(table)
     console.print(f"wrote {out}/comparison.json, overlay.png, difference.png, contours.png "
                   f"({result.seconds:.1f} s)")
+
+
+def _report_aim(console, result) -> None:
+    """The headline: the aim as measured, or why it cannot be judged."""
+    aim = result.aim
+    if aim is None:
+        return
+    if not aim.judgeable:
+        console.print(f"[bold]AIM: {aim.statement}[/bold]")
+    else:
+        cut = aim.cutoff
+        if cut.offset_deg is None:
+            console.print(f"[bold]AIM: cut-off not measured[/bold] ({cut.message})")
+        else:
+            word = "higher" if cut.offset_deg > 0 else "lower"
+            console.print(f"[bold]AIM: cut-off {cut.offset_deg:+.3f}° ± "
+                          f"{cut.interval_deg:.3f}° (photo {word} than the simulation)"
+                          f"[/bold] — {cut.message}")
+        if aim.hotspot_dh_deg is not None:
+            pm = f" ± {aim.hotspot_interval_deg:.3f}°" if aim.hotspot_interval_deg else ""
+            console.print(f"hot spot: ΔH {aim.hotspot_dh_deg:+.2f}°, ΔV "
+                          f"{aim.hotspot_dv_deg:+.2f}°{pm} (photo − simulation)")
+        console.print(aim.statement)
+    n = aim.normalised_at
+    rows = ", ".join(
+        f"{p.name} {'–' if p.photo_rel is None else f'{p.photo_rel:.3g}'}"
+        f"{'≥' if p.clipped else ''} (sim {'–' if p.sim_rel is None else f'{p.sim_rel:.3g}'})"
+        for p in aim.points)
+    console.print(f"test points relative to {n['point']}: {rows}")

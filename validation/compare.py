@@ -59,6 +59,7 @@ from skimage.transform import ProjectiveTransform, warp
 from lightsim import __version__
 from lightsim.errors import InputError
 from lightsim.io.summary import read_json, write_json
+from lightsim.validation.photo_aim import AimResult, AngleSampler, cutoff_offset, test_points
 from lightsim.validation.photo_io import PhotoImage, Simulation, load_simulation, read_photo
 from lightsim.validation.photo_metrics import (
     HIGHER_IS_BETTER,
@@ -79,6 +80,7 @@ from lightsim.validation.photo_register import (
     register,
     registration_dict,
 )
+from lightsim.validation.screen_geometry import ScreenGeometry, fit_screen, parse_points, sim_matrix
 
 __all__ = [
     "OUTPUTS",
@@ -107,6 +109,10 @@ class CompareOptions:
     transform: NDArray | None = None
     registration: RegistrationOptions = field(default_factory=RegistrationOptions)
     credit: str | None = None
+    points: str | None = None
+    markers: str = "auto"
+    screen_distance_m: float | None = None
+    normalise_at: str | None = None
 
     def registration_options(self) -> RegistrationOptions:
         """Registration settings with this comparison's model."""
@@ -155,6 +161,8 @@ class Comparison:
     details: dict[str, Any]
     seconds: float
     options: CompareOptions = field(default_factory=CompareOptions)
+    geometry: ScreenGeometry | None = None
+    aim: AimResult | None = None
 
     def transform_dict(self) -> dict[str, Any]:
         """Decomposition and matrix of the transform (JSON-ready)."""
@@ -163,7 +171,8 @@ class Comparison:
         else:
             out = decompose(self.matrix, self.photo.shape)
             out.update(matrix=[[float(v) for v in row] for row in self.matrix / self.matrix[2, 2]],
-                       model="given")
+                       model=("screen " + self.geometry.source) if self.geometry is not None
+                       else "given")
         out["maps"] = "photo pixels (x = column, y = row) → simulation pixels"
         out["overlap_fraction"] = float(self.overlap.mean())
         return out
@@ -185,6 +194,10 @@ class Comparison:
                                       "hotspot_dh_deg": "deg", "hotspot_dv_deg": "deg",
                                       "cutoff_v_photo_deg": "deg", "cutoff_v_sim_deg": "deg",
                                       "cutoff_offset_deg": "deg"}},
+            "geometry": (self.geometry.to_dict() if self.geometry is not None else
+                         {"source": "given transform" if self.registration is None
+                          else "beam registration"}),
+            "aim": self.aim.to_dict() if self.aim is not None else None,
             "details": self.details,
             "settings": {"model": self.options.model, "fit_gamma": self.options.fit_gamma,
                          "traffic": self.options.traffic,
@@ -266,7 +279,15 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
         raise InputError(f"traffic must be 'right' or 'left', got {opts.traffic!r}")
     t0 = time.perf_counter()
     reg = None
-    if opts.transform is not None:
+    geometry = screen_geometry(photo, sim, opts)
+    if geometry is not None and geometry.source == "markers":
+        from lightsim.validation.screen_target import marker_mask
+
+        # marker pixels are paper and ink, not beam: they take no part in the comparison
+        photo = replace(photo, clipped=photo.clipped | marker_mask(geometry, photo.shape))
+    if geometry is not None:
+        matrix = sim_matrix(geometry, sim.frame)
+    elif opts.transform is not None:
         matrix = np.asarray(opts.transform, np.float64)
     else:
         reg = register(photo.luminance, ~photo.clipped, sim.lux, opts.registration_options())
@@ -274,7 +295,9 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
     values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
     overlap = np.isfinite(values) & np.isfinite(sim.lux)
     if overlap.sum() < max(25, 0.005 * overlap.size):
-        raise InputError("no overlap between the photo and the simulation after registration")
+        raise InputError("no overlap between the photo and the simulation after registration"
+                         if reg is not None else "the photo does not show the simulated part "
+                         "of the screen (no overlap through the screen geometry)")
     full_scale = 1.0 if photo.encoding.startswith("srgb") else math.inf
     phot = fit_photometric(values, sim.lux, overlap & ~clip_w, opts.fit_gamma,
                            full_scale=full_scale)
@@ -282,8 +305,98 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
     metrics, details = compute_metrics(photo_lux, sim.lux, overlap, clip_w, sim.frame,
                                        phot.clip_lx, opts.traffic,
                                        reg.blur_px if reg is not None else 0.0)
+    aim = measure_aim(photo, sim, matrix, geometry, reg, opts)
+    metrics["cutoff_dv_deg"] = aim.cutoff.offset_deg
+    metrics["cutoff_dv_interval_deg"] = aim.cutoff.interval_deg
+    metrics["geometry_residual_deg"] = (geometry.residual_deg[0] if geometry is not None
+                                        else None)
     return Comparison(photo, sim, matrix, reg, phot, photo_lux, clip_w, overlap, metrics,
-                      details, time.perf_counter() - t0, opts)
+                      details, time.perf_counter() - t0, opts, geometry, aim)
+
+
+def screen_geometry(photo: PhotoImage, sim: Simulation, opts: CompareOptions
+                    ) -> ScreenGeometry | None:
+    """The photo's screen geometry: ``--points``, else markers found on it, else None.
+
+    Raises
+    ------
+    InputError
+        Malformed or degenerate control points, or an unreadable marker layout.
+    """
+    distance = opts.screen_distance_m or sim.wall.distance_m
+    if opts.points:
+        xy, hv = parse_points(opts.points)
+        hp, wp = photo.shape
+        if np.any((xy < -0.5) | (xy > np.array([wp - 0.5, hp - 0.5]))):
+            raise InputError(f"--points: a photo pixel lies outside the {wp}×{hp} photo")
+        return fit_screen(xy, hv, distance, source="points")
+    if opts.markers == "off" or opts.transform is not None:
+        return None
+    from lightsim.validation.screen_target import detect_markers, load_layout
+
+    layout = None if opts.markers == "auto" else load_layout(opts.markers)
+    return detect_markers(photo.luminance, layout, distance)
+
+
+_NOT_JUDGEABLE = ("aim cannot be judged from this photo: without control points (--points) "
+                  "or screen markers the photo was registered by the beam itself, which moves "
+                  "it onto the simulated pattern and hides any aim error; the offsets below "
+                  "compare the pattern's shape only")
+
+
+def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
+                geometry: ScreenGeometry | None, reg: Registration | None,
+                opts: CompareOptions) -> AimResult:
+    """Cut-off offset, hot-spot offset and test points read off the photo (no fitting
+    of the photo onto the beam when the geometry comes from the screen)."""
+    sampler = AngleSampler(photo.luminance, photo.clipped, matrix, sim.lux, sim.frame)
+    sigma = geometry.sigma_deg if geometry is not None else None
+    cut = cutoff_offset(sampler, opts.traffic, sigma)
+    norm, points = test_points(sampler, opts.traffic, opts.normalise_at)
+    spots = _hotspot_offset(photo, sim, matrix)
+    if geometry is not None:
+        judge = True
+        statement = (f"aim measured through the screen geometry from {len(geometry.photo_xy)} "
+                     f"{'control points' if geometry.source == 'points' else 'marker corners'}"
+                     f" (residual {geometry.residual_px[0]:.2f} px, "
+                     f"{geometry.residual_deg[0]:.3f}° RMS); the photo was not moved onto "
+                     "the beam")
+    elif reg is None:
+        judge = True
+        statement = ("aim measured through the given transform; lightsim cannot check it: "
+                     "it is only as good as the transform's source")
+    else:
+        judge, statement = False, _NOT_JUDGEABLE
+    h_int = 1.96 * sigma if sigma is not None else None
+    return AimResult(judge, statement, geometry.source if geometry is not None else
+                     ("given transform" if reg is None else "beam registration"), cut,
+                     spots[0], spots[1], h_int, norm, points)
+
+
+def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray
+                    ) -> tuple[float | None, float | None]:
+    """Photo − simulation hot spot (deg): centroids of the ≥ 90 % regions, each image's
+    own maximum, the photo's clipped pixels counted as hot (they are the brightest)."""
+    from scipy.ndimage import gaussian_filter
+
+    values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
+    inside = np.isfinite(values)
+    if not inside.any():
+        return None, None
+    wall = sim.wall
+    out = []
+    for img, clip in ((np.where(inside, values, 0.0), clip_w), (np.nan_to_num(sim.lux), None)):
+        sm = gaussian_filter(img, 1.0)
+        hot = inside & (sm >= 0.9 * float(sm[inside].max()))
+        if clip is not None:
+            hot |= clip & (gaussian_filter(img, 1.0) >= 0.5 * float(sm[inside].max()))
+        rr, cc = np.nonzero(hot)
+        if rr.size == 0:
+            return None, None
+        out.append((float(np.interp(cc.mean(), np.arange(wall.width), wall.h_deg())),
+                    float(np.interp(rr.mean(), np.arange(wall.height), wall.v_deg()))))
+    (hp, vp), (hs, vs) = out
+    return hp - hs, vp - vs
 
 
 def write_outputs(result: Comparison, out_dir: str | os.PathLike) -> dict[str, Path]:

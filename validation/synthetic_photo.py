@@ -82,6 +82,7 @@ __all__ = [
     "camera_matrix",
     "lowbeam_lux",
     "render_photo",
+    "screen_scene",
     "truth_path",
     "wall_frame",
     "write_photo",
@@ -216,6 +217,56 @@ def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
                "lux": {"max_lx": float(np.nanmax(lux))}, **(extra or {})}
     write_json(out / "summary.json", summary)
     return out
+
+
+def screen_scene(lux: NDArray, frame: dict[str, Any], layout: Any = None, upsample: int = 4,
+                 ambient_lx: float = 0.5) -> tuple[NDArray, dict[str, Any], NDArray]:
+    """The wall as a camera sees it with a marker board on it (for synthetic photos).
+
+    The lux map is resampled ``upsample`` times finer (bilinear between pixel centres) so
+    the markers' modules are resolved, ``ambient_lx`` of room light is added everywhere (a
+    camera needs some to see markers outside the beam) and the result is multiplied by the
+    board's reflectance (:func:`lightsim.validation.screen_target.board_reflectance`):
+    the wall's luminance up to the constant 1/π of a Lambertian screen.
+
+    Parameters
+    ----------
+    lux : ndarray, shape (H, W)
+        Illuminance on the wall (lx).
+    frame : dict
+        Its wall frame.
+    layout : ScreenLayout, optional
+        Board (default layout).
+    upsample : int, default 4
+        Fine-grid factor.
+    ambient_lx : float, default 0.5
+        Room light (lx).
+
+    Returns
+    -------
+    scene : ndarray, shape (u·H, u·W)
+        Reflectance × illuminance (lx), to photograph with :func:`render_photo`.
+    fine_frame : dict
+        The fine grid's wall frame.
+    to_sim : ndarray, shape (3, 3)
+        Fine-grid px → ``frame`` px; a photo's true photo → simulation matrix is
+        ``to_sim @ shot.matrix``.
+    """
+    from lightsim.validation.photo_register import level_matrix
+    from lightsim.validation.screen_target import DEFAULT_LAYOUT, board_reflectance
+
+    u = int(upsample)
+    if u < 1 or not math.isfinite(ambient_lx) or ambient_lx < 0:
+        raise InputError("upsample must be ≥ 1 and ambient light ≥ 0 lx")
+    arr = np.nan_to_num(np.asarray(lux, np.float64))
+    hs, ws = arr.shape
+    rows = (np.arange(hs * u) + 0.5) / u - 0.5
+    cols = (np.arange(ws * u) + 0.5) / u - 0.5
+    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    fine = map_coordinates(arr, [rr, cc], order=1, mode="nearest")
+    fine_frame = {**frame, "resolution": [ws * u, hs * u]}
+    refl = board_reflectance(layout or DEFAULT_LAYOUT, fine_frame)
+    return (fine + ambient_lx) * refl, fine_frame, level_matrix(u)
 
 
 # ---------------------------------------------------------------------------------------
