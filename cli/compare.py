@@ -103,6 +103,8 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
     out = out_dir or Path(f"compare-{photo.stem}")
     result = run_compare(photo, sim_path, out, options)
     if not quiet:
+        for line in result.photo.info.get("warnings", []):
+            click.echo(f"lightsim: warning: {line}", err=True)
         _report(result, out)
     fails = failed_thresholds(result.metrics, below, above)
     if fails:

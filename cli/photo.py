@@ -29,7 +29,7 @@ def _numbers(text: str | None, n: int, name: str, kind: type = float) -> tuple |
 
 @click.command()
 @click.argument("sim_path", metavar="RESULT_DIR|wall_lux.exr", type=click.Path(path_type=Path))
-@click.argument("out", metavar="OUT.(jpg|png|tif|exr)", type=click.Path(path_type=Path,
+@click.argument("out", metavar="OUT.(jpg|png|tif|exr|dng)", type=click.Path(path_type=Path,
                                                                         dir_okay=False))
 @click.option("--rotate", type=float, default=0.0, show_default=True,
               help="Camera roll: the pattern turns counter-clockwise by DEG.")

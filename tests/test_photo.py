@@ -253,3 +253,95 @@ def test_cli_photo_writes_photo_and_truth(result_dir, tmp_path, capsys):
 def test_cli_photo_rejects_bad_options(result_dir, tmp_path, capsys, args, message):
     code, _, err = _run(["photo", str(result_dir), str(tmp_path / "x.png"), *args], capsys)
     assert code == 2 and message in err and "Traceback" not in err
+
+
+# --- camera raw files, EXIF and library messages -----------------------------------------
+
+def test_dng_reads_as_linear_sensor_data_with_black_white_levels_and_exif(lux, tmp_path):
+    """A DNG written by tifffile, decoded by LibRaw (rawpy): values back to 1 code in 3839."""
+    from lightsim.validation.synthetic_photo import DNG_BLACK, DNG_WHITE, write_dng
+
+    shot = render_photo(lux, CameraSettings(rotate_deg=4, saturate=0.7, noise=0.004, seed=3))
+    path = write_dng(tmp_path / "beam.dng", shot.linear)
+    photo = read_photo(path)
+    assert photo.encoding == "raw-linear" and photo.shape == shot.linear.shape
+    assert photo.info["black_level"] == [DNG_BLACK] * 4
+    assert photo.info["white_level"] == DNG_WHITE
+    expect = np.round(DNG_BLACK + shot.linear * (DNG_WHITE - DNG_BLACK))
+    expect = (expect - DNG_BLACK) / (DNG_WHITE - DNG_BLACK)
+    np.testing.assert_allclose(photo.luminance, expect, atol=1e-9)
+    np.testing.assert_array_equal(photo.clipped, expect >= 0.98)
+    assert photo.clipped.any()
+    exif = photo.info["exif"]
+    assert exif["exposure_time_s"] == pytest.approx(1 / 50)
+    assert exif["f_number"] == pytest.approx(2.8) and exif["iso"] == 200
+    assert exif["relative_exposure"] == pytest.approx(200 / 50 / 2.8**2)
+    assert photo.info["warnings"] == []
+
+
+def test_jpeg_exif_exposure_is_read(tmp_path):
+    from PIL import Image
+
+    img = Image.fromarray(np.full((32, 48, 3), 120, np.uint8))
+    exif = Image.Exif()
+    exif.get_ifd(0x8769).update({33434: 0.004, 33437: 4.0, 34855: 400})
+    path = tmp_path / "e.jpg"
+    img.save(path, exif=exif)
+    info = read_photo(path).info["exif"]
+    assert info["exposure_time_s"] == pytest.approx(0.004) and info["iso"] == 400
+    assert info["relative_exposure"] == pytest.approx(0.004 * 400 / 16)
+
+
+@pytest.mark.parametrize("cut", [0.5, 0.05])
+def test_truncated_raw_is_one_input_error(lux, tmp_path, cut):
+    from lightsim.validation.synthetic_photo import write_dng
+
+    good = write_dng(tmp_path / "g.dng", render_photo(lux).linear).read_bytes()
+    bad = tmp_path / "bad.dng"
+    bad.write_bytes(good[: int(len(good) * cut)])
+    with pytest.raises(InputError) as exc:
+        read_photo(bad)
+    assert "\n" not in str(exc.value)
+
+
+def _tiff_with_bad_tag(path, codes):
+    """A TIFF whose private tag 65000 points beyond the end of the file."""
+    import struct
+
+    import tifffile
+
+    tifffile.imwrite(path, codes, photometric="rgb", extratags=[(65000, "I", 8, tuple(range(8)))])
+    data = bytearray(path.read_bytes())
+    i = data.find(struct.pack("<HHI", 65000, 4, 8))
+    assert i > 0
+    data[i + 8:i + 12] = struct.pack("<I", 0x7FFFFFF0)
+    path.write_bytes(bytes(data))
+
+
+def test_tiff_library_warning_becomes_our_one_line_warning(lux, result_dir, tmp_path, capsys):
+    shot = render_photo(lux, CameraSettings(rotate_deg=3))
+    codes = np.repeat(np.round(shot.encoded * 255).astype(np.uint8)[..., None], 3, axis=-1)
+    path = tmp_path / "badtag.tif"
+    _tiff_with_bad_tag(path, codes)
+    photo = read_photo(path)
+    assert len(photo.info["warnings"]) == 1 and "tifffile" in photo.info["warnings"][0]
+    assert capsys.readouterr().err == ""               # nothing leaked to the terminal
+    code, _, err = _run(["compare", str(path), "--sim", str(result_dir), "--out",
+                         str(tmp_path / "c"), "-q"], capsys)
+    assert code == 0 and err == ""
+    code, _, err = _run(["compare", str(path), "--sim", str(result_dir), "--out",
+                         str(tmp_path / "c2")], capsys)
+    assert code == 0 and err.count("\n") == 1 and err.startswith("lightsim: warning: photo")
+
+
+def test_cli_photo_writes_a_raw_dng_that_compare_reads(result_dir, tmp_path, capsys):
+    out = tmp_path / "p.dng"
+    code, _, err = _run(["photo", str(result_dir), str(out), "--rotate", "5", "--scale",
+                         "1.1"], capsys)
+    assert code == 0, err
+    code, _, err = _run(["compare", str(out), "--sim", str(result_dir), "--out",
+                         str(tmp_path / "c"), "-q"], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "c" / "comparison.json").read_text())
+    assert doc["photo"]["encoding"] == "raw-linear"
+    assert doc["transform"]["rotation_deg"] == pytest.approx(5, abs=0.3)

@@ -89,7 +89,7 @@ __all__ = [
     "write_result",
 ]
 
-PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
+PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".dng")
 
 
 # ---------------------------------------------------------------------------------------
@@ -483,6 +483,62 @@ def _write_raster(path: Path, codes: NDArray, suffix: str) -> None:
             iio.imwrite(tmp, codes, extension=suffix)
 
 
+#: Sensor levels and EXIF of the synthetic raw camera (12-bit, as many DSLRs).
+DNG_BLACK, DNG_WHITE = 256, 4095
+DNG_EXPOSURE = {"exposure_time_s": 1 / 50, "f_number": 2.8, "iso": 200}
+
+
+def write_dng(path: str | os.PathLike, linear: NDArray, black: int = DNG_BLACK,
+              white: int = DNG_WHITE, exposure: dict[str, float] | None = None) -> Path:
+    """Write a linear grey image as a raw DNG (RGGB mosaic, 2×2 sensor px per photo px).
+
+    The file is a TIFF with the DNG 1.4 tags LibRaw needs (CFA pattern, black and white
+    levels, an identity colour matrix, as-shot neutral) and EXIF-style exposure tags,
+    written by :mod:`tifffile`; every CFA sample of a cell holds the pixel's value, so a
+    reader that bins 2×2 cells gets the photo back.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.dng`` file (written atomically).
+    linear : ndarray, shape (H, W)
+        Linear values, 1 = the white level (clipped to [0, 1]).
+    black, white : int
+        Sensor black and white levels (codes).
+    exposure : dict, optional
+        ``exposure_time_s``, ``f_number``, ``iso`` (default :data:`DNG_EXPOSURE`).
+    """
+    import tifffile
+
+    ex = {**DNG_EXPOSURE, **(exposure or {})}
+    x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
+    codes = np.round(black + x * (white - black)).astype(np.uint16)
+    mosaic = np.kron(codes, np.ones((2, 2), np.uint16))
+    t_num, t_den = 1, round(1 / ex["exposure_time_s"])
+    tags = [
+        (50706, "B", 4, (1, 4, 0, 0), True),            # DNGVersion
+        (50707, "B", 4, (1, 1, 0, 0), True),            # DNGBackwardVersion
+        (50708, "s", 0, "lightsim synthetic camera", True),   # UniqueCameraModel
+        (33421, "H", 2, (2, 2), True),                  # CFARepeatPatternDim
+        (33422, "B", 4, (0, 1, 1, 2), True),            # CFAPattern: R G / G B
+        (50710, "B", 3, (0, 1, 2), True),               # CFAPlaneColor
+        (50711, "H", 1, 1, True),                       # CFALayout: rectangular
+        (50714, "H", 1, int(black), True),              # BlackLevel
+        (50717, "H", 1, int(white), True),              # WhiteLevel
+        (50721, "2i", 9, (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1), True),
+        (50778, "H", 1, 21, True),                      # CalibrationIlluminant1: D65
+        (50728, "2I", 3, (1, 1, 1, 1, 1, 1), True),     # AsShotNeutral
+        (33434, "2I", 1, (t_num, t_den), True),         # ExposureTime
+        (33437, "2I", 1, (round(10 * ex["f_number"]), 10), True),   # FNumber
+        (34855, "H", 1, int(ex["iso"]), True),          # ISOSpeedRatings
+    ]
+    p = Path(path)
+    with atomic_path(p) as tmp:
+        tifffile.imwrite(tmp, mosaic, photometric=32803, compression=None, subfiletype=0,
+                         extratags=tags, metadata=None)
+    return p
+
+
 def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
                 extra: dict[str, Any] | None = None) -> tuple[Path, Path]:
     """Write the photo (format from the suffix) and its ``.truth.json`` sidecar atomically.
@@ -491,7 +547,7 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     ----------
     path : path-like
         ``.png``, ``.jpg``/``.jpeg``, ``.tif``/``.tiff`` (sRGB-encoded, 8/16 bit RGB) or
-        ``.exr`` (linear float R, G, B).
+        ``.exr`` (linear float R, G, B) or ``.dng`` (a raw file: :func:`write_dng`).
     photo : SyntheticPhoto
         From :func:`render_photo`.
     extra : dict, optional
@@ -515,7 +571,9 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     bits = photo.settings.bits
     if suffix in (".jpg", ".jpeg") and bits != 8:
         raise InputError("JPEG photos are 8-bit; use --bits 8 or write PNG/TIFF")
-    if suffix == ".exr":
+    if suffix == ".dng":
+        write_dng(p, photo.linear)
+    elif suffix == ".exr":
         from lightsim.io.exr import write_exr
 
         lin = photo.linear.astype(np.float32)
