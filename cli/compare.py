@@ -67,13 +67,18 @@ def _pair(text: str, name: str) -> tuple[float, float]:
 @click.option("--normalise-at", metavar="POINT|H,V",
               help="Test point (or H,V degrees) the photo's relative test-point values are "
                    "normalised at  [default: 50R].")
+@click.option("--against", "against", type=click.Path(path_type=Path, dir_okay=False),
+              help="Compare PHOTO with this second photo of the same wall instead of a "
+                   "simulation: aligned by the static scene, writes pair.json and "
+                   "relative_difference.png.")
 @click.option("--credit", help="Attribution printed on the figures (e.g. a photo's licence).")
 @click.option("-q", "--quiet", is_flag=True, help="Print only failures.")
 def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
             fit_gamma: bool, fail_below: tuple[str, ...], fail_above: tuple[str, ...],
             transform_file: Path | None, traffic: str, max_rotation: float, scale_range: str,
             points: str | None, markers: str, screen_distance: float | None,
-            normalise_at: str | None, credit: str | None, quiet: bool) -> None:
+            normalise_at: str | None, against: Path | None, credit: str | None,
+            quiet: bool) -> None:
     """Compare PHOTO (PNG/JPEG/TIFF/EXR) with a simulated wall illuminance map.
 
     Writes comparison.json, overlay.png, difference.png and contours.png to --out.
@@ -87,6 +92,10 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
     )
     from lightsim.validation.photo_register import RegistrationOptions
 
+    if against is not None:
+        _compare_pair(photo, against, out_dir, points, markers, screen_distance, traffic,
+                      credit, quiet)
+        return
     below = [parse_threshold(t) for t in fail_below]
     above = [parse_threshold(t) for t in fail_above]
     reg = RegistrationOptions(max_rotation_deg=max_rotation,
@@ -162,3 +171,32 @@ def _report_aim(console, result) -> None:
         f"{'≥' if p.clipped else ''} (sim {'–' if p.sim_rel is None else f'{p.sim_rel:.3g}'})"
         for p in aim.points)
     console.print(f"test points relative to {n['point']}: {rows}")
+
+
+def _compare_pair(a_path: Path, b_path: Path, out_dir: Path | None, points: str | None,
+                  markers: str, screen_distance: float | None, traffic: str,
+                  credit: str | None, quiet: bool) -> None:
+    """``compare A --against B``: photo against photo."""
+    from lightsim.validation.photo_io import read_photo
+    from lightsim.validation.photo_pair import PairOptions, compare_pair, write_pair
+    from lightsim.validation.screen_geometry import fit_screen, parse_points
+
+    a, b = read_photo(a_path), read_photo(b_path)
+    geometry = None
+    if points:
+        xy, hv = parse_points(points)
+        geometry = fit_screen(xy, hv, screen_distance or 25.0, source="points")
+    result = compare_pair(a, b, geometry, PairOptions(markers=markers), traffic)
+    out = out_dir or Path(f"compare-{a_path.stem}-vs-{b_path.stem}")
+    write_pair(result, out, credit)
+    if quiet:
+        return
+    for line in a.info.get("warnings", []) + b.info.get("warnings", []):
+        click.echo(f"lightsim: warning: {line}", err=True)
+    click.echo(result.statement)
+    click.echo(f"exposure: B × {result.exposure_ratio:.4g} ({result.exposure_source})")
+    for p in result.points:
+        ch = "–" if p["change"] is None else f"{100 * p['change']:+.1f} %"
+        flag = " (clipped/masked)" if p["unusable"] else ""
+        click.echo(f"  {p['name']:>5} (H {p['h_deg']:+.2f}°, V {p['v_deg']:+.2f}°): {ch}{flag}")
+    click.echo(f"wrote {out}/pair.json, relative_difference.png")

@@ -106,6 +106,7 @@ def test_homography_from_points_is_exact_and_its_residual_measures_the_noise():
     ("1,2=3,4;5,6=7,8;9,10=11,12", "at least 4"),
     ("1,2=3", "must be 'x,y=H,V'"),
     ("0,0=0,0;1,1=1,1;2,2=2,2;3,3=3,3", "collinear"),
+    ("0,0=0,0;10,0=1,0;20,0=2,0;30,0=3,0;0,10=0,-1", "general position"),
     ("0,0=0,0;1,0=1,0;0,1=0,1;5,5=inf,1", "not finite"),
 ])
 def test_bad_points_are_input_errors(text, message):
@@ -205,3 +206,112 @@ def test_screen_target_bad_output_exits_2(tmp_path, capsys):
 def test_write_target_rejects_a_bad_resolution(tmp_path):
     with pytest.raises(InputError, match="px-per-m"):
         write_target(tmp_path / "b.png", px_per_m=float("nan"))
+
+
+# --- photo against photo -------------------------------------------------------------------
+
+def _deflected(lux):
+    """A deflector that dims everything left of H = −2° by 40 % (soft edge)."""
+    from lightsim.luminaires.regulations.units import WallFrame
+
+    h = WallFrame.from_any(FRAME).h_deg()[None, :]
+    return lux * (1 - 0.4 / (1 + np.exp((h + 2.0) / 0.2)))
+
+
+def _pair(lux, folder, layout, texture, ambient, moved=True):
+    cam = dict(rotate_deg=2, scale=0.9, size=(1300, 560), tilt_deg=5, blur_px=0.8,
+               noise=0.004)
+    shots = []
+    for name, scene_lux, extra in (
+            ("a", lux, dict(seed=1)),
+            ("b", _deflected(lux), dict(rotate_deg=3.2 if moved else 2,
+                                        shift_px=(9, -6) if moved else (0, 0),
+                                        exposure_ev=-0.5, seed=2))):
+        scene, _, to_sim = screen_scene(scene_lux, FRAME, layout=layout,
+                                        texture_seed=texture, ambient_lx=ambient)
+        shot = render_photo(scene, CameraSettings(**{**cam, **extra}))
+        path, _ = write_photo(folder / f"{name}.jpg", shot)
+        shots.append((path, shot, to_sim))
+    return shots
+
+
+def _points_text(truth):
+    hv = np.array([(h, v) for _, h, v in DEFAULT_LAYOUT.markers])[[0, 4, 5, 9, 2, 7]]
+    from lightsim.luminaires.regulations.units import WallFrame
+
+    wall = WallFrame.from_any(FRAME)
+    rows, cols = wall.pixel_of(25 * np.tan(np.radians(hv[:, 0])),
+                               25 * np.tan(np.radians(hv[:, 1])))
+    x, y = apply_matrix(np.linalg.inv(truth), cols, rows)
+    return "; ".join(f"{a:.3f},{b:.3f}={h},{v}" for a, b, (h, v) in zip(x, y, hv))
+
+
+def _true_change(lux, name, ambient):
+    """(E_B + ambient)/(E_A + ambient) − 1 at a test point: what the camera sees change."""
+    from scipy.ndimage import map_coordinates
+
+    from lightsim.luminaires.regulations.ruleset import load_ruleset
+    from lightsim.luminaires.regulations.units import WallFrame
+
+    g = load_ruleset("r112-b-passing").geometry(name)
+    wall = WallFrame.from_any(FRAME)
+    r, c = wall.pixel_of(25 * np.tan(np.radians(g.h)), 25 * np.tan(np.radians(g.v)))
+    ea, eb = (float(map_coordinates(x, [[r], [c]], order=1)[0]) for x in (lux, _deflected(lux)))
+    return (eb + ambient) / (ea + ambient) - 1
+
+
+def _check_pair(doc, shots, truth_change):
+    """B → A within a pixel over the screen (|H| ≤ 10°, −6° ≤ V ≤ 4° seen in A); the
+    change at the unclipped test points as the camera sees it."""
+    (_, a, to_sim), (_, b, _) = shots
+    m = np.array(doc["alignment"]["matrix"])
+    a_to_b = np.linalg.inv(b.matrix) @ a.matrix
+    # compare B→A maps at A pixels x_a: truth is x_a itself, found is m·(a_to_b·x_a)
+    from lightsim.luminaires.regulations.units import WallFrame
+
+    wall = WallFrame.from_any(FRAME)
+    yy, xx = np.mgrid[0:560:8, 0:1300:8].astype(float)
+    sx, sy = apply_matrix(to_sim @ a.matrix, xx, yy)
+    h = np.interp(sx, np.arange(wall.width), wall.h_deg())
+    v = np.interp(sy, np.arange(wall.height), wall.v_deg())
+    keep = (np.abs(h) <= 10) & (v >= -6) & (v <= 4)
+    bx, by = apply_matrix(a_to_b, xx, yy)
+    fx, fy = apply_matrix(m, bx, by)
+    assert float(np.max(np.hypot(fx - xx, fy - yy)[keep])) < 1.0
+    changes = {p["name"]: p["change"] for p in doc["test_points"] if not p["unusable"]}
+    for name, want in truth_change.items():
+        assert changes[name] == pytest.approx(want, abs=0.05), (name, changes, truth_change)
+
+
+def test_photo_against_photo_by_static_features(lux, tmp_path, capsys):
+    shots = _pair(lux, tmp_path, layout=False, texture=7, ambient=2.0)
+    (pa, a, to_sim), (pb, _, _) = shots
+    text = _points_text(to_sim @ a.matrix)
+    code, out, err = _run(["compare", str(pa), "--against", str(pb), "--points", text,
+                           "--out", str(tmp_path / "pair")], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "pair" / "pair.json").read_text())
+    assert doc["alignment"]["method"] == "features" and doc["alignment"]["inliers"] >= 50
+    assert doc["exposure"]["source"] == "static scene"
+    assert doc["exposure"]["ratio"] == pytest.approx(2 ** 0.5, rel=0.03)
+    _check_pair(doc, shots, {n: _true_change(lux, n, 2.0) for n in ("B50L", "75R", "50V", "50L")})
+    assert (tmp_path / "pair" / "relative_difference.png").stat().st_size > 10_000
+    assert "not by the beams" in out
+
+
+def test_photo_against_photo_by_markers(lux, tmp_path, capsys):
+    shots = _pair(lux, tmp_path, layout=None, texture=None, ambient=0.5)
+    code, _, err = _run(["compare", str(shots[0][0]), "--against", str(shots[1][0]),
+                         "--out", str(tmp_path / "pm")], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "pm" / "pair.json").read_text())
+    assert doc["alignment"]["method"] == "markers" and doc["geometry"]["source"] == "markers"
+    _check_pair(doc, shots, {n: _true_change(lux, n, 0.5) for n in ("B50L", "75R", "50V", "50L")})
+
+
+def test_photo_against_photo_without_a_static_scene_exits_2(lux, tmp_path, capsys):
+    shots = _pair(lux, tmp_path, layout=False, texture=None, ambient=0.0)
+    code, _, err = _run(["compare", str(shots[0][0]), "--against", str(shots[1][0]),
+                         "--out", str(tmp_path / "none")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "static" in err
+    assert not (tmp_path / "none").exists()

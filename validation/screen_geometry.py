@@ -152,6 +152,32 @@ def _collinear(pts: NDArray, tol: float) -> bool:
     return bool(sv[-1] <= tol * max(sv[0], 1e-300))
 
 
+def _line_dist(p: NDArray, a: NDArray, b: NDArray) -> NDArray:
+    """Distance of points ``p`` from the line through ``a`` and ``b``."""
+    d = b - a
+    n = math.hypot(*d)
+    return np.abs(d[0] * (p[:, 1] - a[1]) - d[1] * (p[:, 0] - a[0])) / max(n, 1e-300)
+
+
+def _degenerate(pts: NDArray, tol: float = 1e-3) -> bool:
+    """Whether no four points are in general position (a homography needs four with no
+    three on a line). Greedy: the two farthest points, the point farthest from their line,
+    then the point farthest from all three lines through those."""
+    d2 = ((pts[:, None, :] - pts[None, :, :]) ** 2).sum(-1)
+    i, j = np.unravel_index(int(np.argmax(d2)), d2.shape)
+    span = math.sqrt(float(d2[i, j]))
+    if span <= 0:
+        return True
+    a, b = pts[i], pts[j]
+    k = int(np.argmax(_line_dist(pts, a, b)))
+    if _line_dist(pts[k:k + 1], a, b)[0] <= tol * span:
+        return True
+    c = pts[k]
+    m = np.minimum(np.minimum(_line_dist(pts, a, b), _line_dist(pts, a, c)),
+                   _line_dist(pts, b, c))
+    return bool(m.max() <= tol * span)
+
+
 def fit_screen(photo_xy: NDArray, screen_deg: NDArray, distance_m: float = 25.0,
                source: str = "points", details: dict[str, Any] | None = None
                ) -> ScreenGeometry:
@@ -196,6 +222,9 @@ def fit_screen(photo_xy: NDArray, screen_deg: NDArray, distance_m: float = 25.0,
         raise InputError("control points are collinear: they do not fix the screen plane")
     if len(np.unique(np.round(xy / span, 9), axis=0)) < n:
         raise InputError("control points repeat a photo pixel")
+    if _degenerate(xy) or _degenerate(wall):
+        raise InputError("control points do not fix the screen: no four of them are in "
+                         "general position (three or more on one line)")
     matrix, _ = cv2.findHomography(xy, wall, 0)
     if matrix is None or not np.all(np.isfinite(matrix)) or abs(np.linalg.det(matrix)) < 1e-300:
         raise InputError("control points do not define a screen homography (degenerate)")

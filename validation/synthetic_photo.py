@@ -220,7 +220,8 @@ def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
 
 
 def screen_scene(lux: NDArray, frame: dict[str, Any], layout: Any = None, upsample: int = 4,
-                 ambient_lx: float = 0.5) -> tuple[NDArray, dict[str, Any], NDArray]:
+                 ambient_lx: float = 0.5, texture_seed: int | None = None
+                 ) -> tuple[NDArray, dict[str, Any], NDArray]:
     """The wall as a camera sees it with a marker board on it (for synthetic photos).
 
     The lux map is resampled ``upsample`` times finer (bilinear between pixel centres) so
@@ -241,6 +242,10 @@ def screen_scene(lux: NDArray, frame: dict[str, Any], layout: Any = None, upsamp
         Fine-grid factor.
     ambient_lx : float, default 0.5
         Room light (lx).
+    texture_seed : int, optional
+        Give the wall a static texture (random grey rectangles, reflectance 0.45–0.9, like
+        posters and bricks) for photo-against-photo alignment; ``layout=False`` leaves the
+        markers off.
 
     Returns
     -------
@@ -265,7 +270,17 @@ def screen_scene(lux: NDArray, frame: dict[str, Any], layout: Any = None, upsamp
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
     fine = map_coordinates(arr, [rr, cc], order=1, mode="nearest")
     fine_frame = {**frame, "resolution": [ws * u, hs * u]}
-    refl = board_reflectance(layout or DEFAULT_LAYOUT, fine_frame)
+    refl = (board_reflectance(layout or DEFAULT_LAYOUT, fine_frame) if layout is not False
+            else np.full(fine.shape, 0.9))
+    if texture_seed is not None:
+        rng = np.random.default_rng(texture_seed)
+        tex = np.ones_like(fine)
+        h, w = fine.shape
+        for _ in range(400):
+            r0, c0 = rng.integers(0, h), rng.integers(0, w)
+            dr, dc = rng.integers(4, max(5, h // 8)), rng.integers(4, max(5, w // 12))
+            tex[r0:r0 + dr, c0:c0 + dc] = rng.uniform(0.5, 1.0)
+        refl = np.where(refl >= 0.89, refl * tex, refl)     # markers stay as printed
     return (fine + ambient_lx) * refl, fine_frame, level_matrix(u)
 
 
