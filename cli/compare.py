@@ -67,6 +67,8 @@ def _pair(text: str, name: str) -> tuple[float, float]:
 @click.option("--normalise-at", metavar="POINT|H,V",
               help="Test point (or H,V degrees) the photo's relative test-point values are "
                    "normalised at  [default: 50R].")
+@click.option("--lamp", type=click.Choice(["left", "right"]),
+              help="The photo shows two lamps: compare this one (the other side is left out).")
 @click.option("--against", "against", type=click.Path(path_type=Path, dir_okay=False),
               help="Compare PHOTO with this second photo of the same wall instead of a "
                    "simulation: aligned by the static scene, writes pair.json and "
@@ -77,8 +79,8 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
             fit_gamma: bool, fail_below: tuple[str, ...], fail_above: tuple[str, ...],
             transform_file: Path | None, traffic: str, max_rotation: float, scale_range: str,
             points: str | None, markers: str, screen_distance: float | None,
-            normalise_at: str | None, against: Path | None, credit: str | None,
-            quiet: bool) -> None:
+            normalise_at: str | None, lamp: str | None, against: Path | None,
+            credit: str | None, quiet: bool) -> None:
     """Compare PHOTO (PNG/JPEG/TIFF/EXR) with a simulated wall illuminance map.
 
     Writes comparison.json, overlay.png, difference.png and contours.png to --out.
@@ -105,7 +107,7 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
                              transform=load_transform(transform_file) if transform_file else None,
                              registration=reg, credit=credit, points=points,
                              markers=markers, screen_distance_m=screen_distance,
-                             normalise_at=normalise_at)
+                             normalise_at=normalise_at, lamp=lamp)
     if screen_distance is not None and not (math.isfinite(screen_distance)
                                             and screen_distance > 0):
         raise InputError(f"--screen-distance must be > 0 m, got {screen_distance!r}")

@@ -252,6 +252,10 @@ def test_real_photo_goes_through(sim_dir, tmp_path):
     assert doc["metrics"]["zncc"] is not None and doc["metrics"]["ssim"] is not None
     for png in ("overlay.png", "difference.png", "contours.png"):
         assert (out / png).stat().st_size > 20_000
+    # no markers or points on this photo: the report says aim cannot be judged from it
+    assert doc["geometry"]["source"] == "beam registration" and not doc["aim"]["judgeable"]
+    assert "cannot be judged" in doc["aim"]["statement"]
+    assert any("2 lamps found" in w for w in doc["photo"]["warnings"])
 
 
 # --- broader sweep -------------------------------------------------------------------------
@@ -281,3 +285,44 @@ def test_registration_sweep(camera, model, lux_a, sim_a, tmp_path):
     result = compare_images(photo, sim_a, CompareOptions(model=model, fit_gamma=True))
     assert_recovered(result.matrix, truth, photo.shape, lux_a)
     assert result.metrics["zncc"] >= 0.95
+
+
+# --- two lamps in one frame ------------------------------------------------------------------
+
+def test_two_lamps_are_found_and_one_can_be_picked(lux_a, sim_dir, tmp_path, capsys):
+    from lightsim.render.cutoff import apply_shift
+    from lightsim.validation.photo_lamps import find_lamps
+
+    both = lux_a + apply_shift(lux_a, FRAME, 8.0, 0.0)      # a second lamp 8° to the right
+    photo, truth, path = _shoot(both, tmp_path, "two", rotate_deg=3, noise=0.004)
+    lamps = find_lamps(photo)
+    assert lamps.count == 2
+    # the hot spots' columns: simulation hot spot (1.5° R) and 8° further right
+    wall = load_simulation(sim_dir).wall
+    hs = np.interp([1.5, 9.5], wall.h_deg(), np.arange(wall.width))
+    inv = np.linalg.inv(truth)
+    px = [float(apply_matrix(inv, np.array(c), np.array(wall.height / 2))[0]) for c in hs]
+    assert lamps.peaks_px == pytest.approx(px, abs=12)
+    assert px[0] < lamps.split_px < px[1]
+    code, _, err = _run(["compare", str(path), "--sim", str(sim_dir), "--out",
+                         str(tmp_path / "c2")], capsys)
+    assert code == 0 and "2 lamps found" in err and err.count("\n") == 1
+    code, _, err = _run(["compare", str(path), "--sim", str(sim_dir), "--out",
+                         str(tmp_path / "cl"), "--lamp", "left"], capsys)
+    assert code == 0 and err == ""
+    doc = json.loads((tmp_path / "cl" / "comparison.json").read_text())
+    assert doc["details"]["lamps"]["kept"] == "left" and doc["details"]["lamps"]["count"] == 2
+
+
+def test_lamp_on_a_one_lamp_photo_exits_2(lux_a, sim_dir, tmp_path, capsys):
+    _, _, path = _shoot(lux_a, tmp_path, "one")
+    code, _, err = _run(["compare", str(path), "--sim", str(sim_dir), "--out",
+                         str(tmp_path / "c"), "--lamp", "right"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "one lamp" in err
+    assert not (tmp_path / "c").exists()
+
+
+def test_real_photo_shows_two_lamps():
+    from lightsim.validation.photo_lamps import find_lamps
+
+    assert find_lamps(read_photo(REAL_PHOTO)).count == 2

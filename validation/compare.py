@@ -113,6 +113,7 @@ class CompareOptions:
     markers: str = "auto"
     screen_distance_m: float | None = None
     normalise_at: str | None = None
+    lamp: str | None = None
 
     def registration_options(self) -> RegistrationOptions:
         """Registration settings with this comparison's model."""
@@ -279,6 +280,7 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
         raise InputError(f"traffic must be 'right' or 'left', got {opts.traffic!r}")
     t0 = time.perf_counter()
     reg = None
+    photo, lamps = _one_lamp(photo, opts.lamp)
     geometry = screen_geometry(photo, sim, opts)
     if geometry is not None and geometry.source == "markers":
         from lightsim.validation.screen_target import marker_mask
@@ -310,8 +312,25 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
     metrics["cutoff_dv_interval_deg"] = aim.cutoff.interval_deg
     metrics["geometry_residual_deg"] = (geometry.residual_deg[0] if geometry is not None
                                         else None)
+    details["lamps"] = {"count": lamps.count, "hotspot_columns_px": list(lamps.peaks_px),
+                        "split_column_px": lamps.split_px, "kept": opts.lamp}
     return Comparison(photo, sim, matrix, reg, phot, photo_lux, clip_w, overlap, metrics,
                       details, time.perf_counter() - t0, opts, geometry, aim)
+
+
+def _one_lamp(photo: PhotoImage, lamp: str | None) -> tuple[PhotoImage, Any]:
+    """Find the lamps on the photo; keep one (``--lamp``) or warn that there are several."""
+    from lightsim.validation.photo_lamps import find_lamps, keep_lamp
+
+    lamps = find_lamps(photo)
+    if lamp is not None:
+        return keep_lamp(photo, lamp, lamps), lamps
+    if lamps.count >= 2:
+        cols = ", ".join(f"{c:.0f}" for c in lamps.peaks_px)
+        photo.info.setdefault("warnings", []).append(
+            f"photo {Path(photo.path).name}: {lamps.count} lamps found (hot spots at x = "
+            f"{cols} px) but the simulation is one lamp; pick one with --lamp left|right")
+    return photo, lamps
 
 
 def screen_geometry(photo: PhotoImage, sim: Simulation, opts: CompareOptions
