@@ -52,7 +52,7 @@ def _pair(text: str, name: str) -> tuple[float, float]:
                    "or a synthetic photo's .truth.json) instead of registering.")
 @click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
               show_default=True, help="Side of the cut-off scans (R112).")
-@click.option("--max-rotation", type=float, default=15.0, show_default=True,
+@click.option("--max-rotation", type=float, default=20.0, show_default=True,
               help="Rotations searched, ± degrees.")
 @click.option("--scale-range", default="0.5,2", show_default=True,
               help="Scales searched MIN,MAX, relative to 'photo width = simulation width'.")
@@ -133,6 +133,10 @@ def _report(result, out: Path) -> None:
                   f"{t['rotation_deg']:+.3f}°, scale {t['scale']:.5g}, translation "
                   f"({t['translation_px'][0]:.2f}, {t['translation_px'][1]:.2f}) px, overlap "
                   f"{100 * t['overlap_fraction']:.0f} %")
+    if result.registration is not None and result.registration.blur_at_cap:
+        console.print(f"registration: the fitted blur reached its cap "
+                      f"({t['blur_cap_px']:.3g} simulation px): blur and cut-off offsets are "
+                      "only bounds")
     p = result.photometric
     console.print(f"exposure: 1 lx → {p.gain:.4g} of full scale, gamma {p.gamma:.3f}, "
                   f"clips at {p.clip_lx:.4g} lx")

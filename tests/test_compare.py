@@ -326,3 +326,62 @@ def test_real_photo_shows_two_lamps():
     from lightsim.validation.photo_lamps import find_lamps
 
     assert find_lamps(read_photo(REAL_PHOTO)).count == 2
+
+
+# --- the fallback registration on patterns that are not a low beam ---------------------------
+
+ISSUE_CAMERA = dict(rotate_deg=7, scale=1.1, tilt_deg=5, blur_px=1.5, noise=0.01, gamma=2.2,
+                    seed=1)      # the camera of issue 16's failing case
+
+
+@pytest.mark.parametrize("pattern", ["two_spots", "ring_caustic", "lowbeam"])
+@pytest.mark.parametrize("camera", [
+    pytest.param(ISSUE_CAMERA, id="rot7-scale1.1-keystone-blur-noise-gamma"),
+    pytest.param(dict(rotate_deg=-18, scale=0.6, shift_px=(10, -5), blur_px=1.0, noise=0.005,
+                      seed=2), id="rot-18-scale0.6"),
+])
+def test_registration_of_any_pattern_within_a_pixel(pattern, camera, tmp_path):
+    from lightsim.validation import synthetic_photo as sp
+
+    lux = (lowbeam_lux(FRAME, LAMP_A) if pattern == "lowbeam"
+           else getattr(sp, f"{pattern}_lux")(FRAME))
+    sim = load_simulation(write_result(tmp_path / "sim", lux, FRAME))
+    photo, truth, _ = _shoot(lux, tmp_path, "p", **camera)
+    model = "homography" if camera.get("tilt_deg") else "similarity"
+    result = compare_images(photo, sim, CompareOptions(model=model, fit_gamma=True,
+                                                       markers="off"))
+    assert_recovered(result.matrix, truth, photo.shape, lux)
+    assert not result.registration.blur_at_cap
+
+
+def test_blur_cap_is_reported(lux_a, sim_a, tmp_path):
+    photo, _, _ = _shoot(lux_a, tmp_path, "blurry", blur_px=4.0, scale=0.5, size=(200, 80),
+                         rotate_deg=2)      # 8 simulation px of blur, the cap is 4
+    result = compare_images(photo, sim_a, CompareOptions(markers="off"))
+    t = result.transform_dict()
+    assert t["blur_at_cap"] and result.registration.blur_at_cap
+    assert t["photo_blur_px"] <= t["blur_cap_px"] + 1e-9
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("camera", [
+    pytest.param(ISSUE_CAMERA, id="rot7-scale1.1-keystone"),
+    pytest.param(dict(rotate_deg=19, scale=1.1, blur_px=1.5, noise=0.01, seed=4), id="rot19"),
+    pytest.param(dict(rotate_deg=-17, scale=0.6, shift_px=(10, -5), blur_px=1.0, noise=0.005,
+                      seed=2), id="rot-17-scale0.6"),
+])
+def test_registration_of_the_shipped_headlight(camera, tmp_path_factory, capsys):
+    """The simulated example headlight (a real photon-mapping run), photographed."""
+    folder = tmp_path_factory.getbasetemp() / "h4-sim"
+    if not (folder / "wall_lux.exr").exists():
+        glb = Path(__file__).parents[1] / "luminaires" / "examples" / "headlight.glb"
+        code, _, err = _run(["simulate", str(glb), "--photons", "1000000", "--out",
+                             str(folder), "--quiet"], capsys)
+        assert code == 0, err
+    sim = load_simulation(folder)
+    lux = np.nan_to_num(sim.lux)
+    photo, truth, _ = _shoot(lux, tmp_path_factory.mktemp("h4p"), "p", **camera)
+    model = "homography" if camera.get("tilt_deg") else "similarity"
+    result = compare_images(photo, sim, CompareOptions(model=model, fit_gamma=True,
+                                                       markers="off"))
+    assert_recovered(result.matrix, truth, photo.shape, lux)

@@ -82,8 +82,10 @@ __all__ = [
     "camera_matrix",
     "lowbeam_lux",
     "render_photo",
+    "ring_caustic_lux",
     "screen_scene",
     "truth_path",
+    "two_spots_lux",
     "wall_frame",
     "write_photo",
     "write_result",
@@ -181,6 +183,37 @@ def lowbeam_lux(frame: Any, beam: LowBeam | None = None) -> NDArray:
         field = gaussian_filter(rng.standard_normal(lux.shape), 1.0)
         lux = lux * np.maximum(1.0 + b.texture * field / max(field.std(), 1e-12), 0.0)
     return lux * (b.peak_lx / lux.max())
+
+
+def two_spots_lux(frame: Any, peak_lx: float = 30.0) -> NDArray:
+    """Two round spots of different size and brightness (like lamps on a sheet of paper).
+
+    Discs of radius 3° at (−6°, −1°) and 2.2° at (7°, 1°), soft edges (logistic, 0.15°),
+    the second at 2/3 of the first's level, over a 1 % floor; lux at the wall.
+    """
+    wf = WallFrame.from_any(frame)
+    h, v = np.meshgrid(wf.h_deg(), wf.v_deg())
+
+    def disc(h0: float, v0: float, r: float) -> NDArray:
+        return 1.0 / (1.0 + np.exp((np.hypot(h - h0, v - v0) - r) / 0.15))
+
+    return peak_lx * (disc(-6, -1, 3.0) + 2 / 3 * disc(7, 1, 2.2) + 0.01)
+
+
+def ring_caustic_lux(frame: Any, peak_lx: float = 40.0) -> NDArray:
+    """A ring's caustic (the paper's RING scene seen from above): a bright cardioid.
+
+    Light reflected inside a ring focuses on a cardioid ``r = a(1 + cos φ)`` (a = 2.5°,
+    centred on (1°, −0.5°)), brightest towards its cusp side, filled dimly inside, with
+    the ring's own bright rim at 5.2°; lux at the wall.
+    """
+    wf = WallFrame.from_any(frame)
+    h, v = np.meshgrid(wf.h_deg(), wf.v_deg())
+    r, phi = np.hypot(h - 1.0, v + 0.5), np.arctan2(v + 0.5, h - 1.0)
+    rc = 2.5 * (1.0 + np.cos(phi))
+    e = (np.exp(-0.5 * ((r - rc) / 0.3) ** 2) * (0.6 + 0.4 * np.cos(phi / 2) ** 2)
+         + 0.15 * (r < rc) + 0.3 * np.exp(-0.5 * ((r - 5.2) / 0.25) ** 2) + 0.005)
+    return peak_lx * e / e.max()
 
 
 def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
