@@ -315,3 +315,28 @@ def test_photo_against_photo_without_a_static_scene_exits_2(lux, tmp_path, capsy
                          "--out", str(tmp_path / "none")], capsys)
     assert code == 2 and err.count("\n") == 1 and "static" in err
     assert not (tmp_path / "none").exists()
+
+
+def test_cli_photo_of_a_marker_screen_with_the_lamp_aimed_half_a_degree_up(sim, tmp_path,
+                                                                            capsys):
+    from pathlib import Path
+
+    folder = Path(sim.source).parent
+    photo = tmp_path / "up.jpg"
+    code, _, err = _run(["photo", str(folder), str(photo), "--markers", "--reaim", "0,0.5",
+                         "--rotate", "-4", "--scale", "3", "--size", "1200x500", "--tilt",
+                         "-7", "--blur", "1", "--noise", "0.005", "--seed", "5"], capsys)
+    assert code == 0, err
+    truth = json.loads((tmp_path / "up.truth.json").read_text())
+    assert truth["reaim_deg"] == {"dh": 0.0, "dv": 0.5} and truth["markers"]
+    code, out, err = _run(["compare", str(photo), "--sim", str(folder), "--out",
+                           str(tmp_path / "c")], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "c" / "comparison.json").read_text())
+    cut = doc["aim"]["cutoff"]
+    assert abs(cut["offset_deg"] - 0.5) <= cut["interval_deg"]
+    assert f"AIM: cut-off {cut['offset_deg']:+.3f}° ± {cut['interval_deg']:.3f}°" in out
+    # only the lower row of markers is in this photo: the cut-off, 4° above them, is an
+    # extrapolation of the screen geometry and its interval is wider for it
+    assert doc["geometry"]["marker_ids"] == [6, 7, 8]
+    assert cut["sigma_geometry_deg"] > 1.5 * doc["geometry"]["sigma_deg"]

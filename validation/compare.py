@@ -370,9 +370,14 @@ def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
     of the photo onto the beam when the geometry comes from the screen)."""
     sampler = AngleSampler(photo.luminance, photo.clipped, matrix, sim.lux, sim.frame)
     sigma = geometry.sigma_deg if geometry is not None else None
-    cut = cutoff_offset(sampler, opts.traffic, sigma)
+    cut = cutoff_offset(sampler, opts.traffic, sigma, geometry)
     norm, points = test_points(sampler, opts.traffic, opts.normalise_at)
-    spots = _hotspot_offset(photo, sim, matrix)
+    spots, spot_deg = _hotspot_offset(photo, sim, matrix)
+    if geometry is not None and spot_deg is not None:
+        x, y = geometry.deg_to_photo(np.array([spot_deg[0]]), np.array([spot_deg[1]]))
+        sig = geometry.sigma_at(x, y)
+        if sig is not None:
+            sigma = float(math.hypot(sig[0][0], sig[1][0]))
     if geometry is not None:
         judge = True
         statement = (f"aim measured through the screen geometry from {len(geometry.photo_xy)} "
@@ -393,7 +398,8 @@ def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
 
 
 def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray
-                    ) -> tuple[float | None, float | None]:
+                    ) -> tuple[tuple[float | None, float | None],
+                               tuple[float, float] | None]:
     """Photo − simulation hot spot (deg): centroids of the ≥ 90 % regions, each image's
     own maximum, the photo's clipped pixels counted as hot (they are the brightest)."""
     from scipy.ndimage import gaussian_filter
@@ -401,7 +407,7 @@ def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray
     values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
     inside = np.isfinite(values)
     if not inside.any():
-        return None, None
+        return (None, None), None
     wall = sim.wall
     out = []
     for img, clip in ((np.where(inside, values, 0.0), clip_w), (np.nan_to_num(sim.lux), None)):
@@ -411,11 +417,11 @@ def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray
             hot |= clip & (gaussian_filter(img, 1.0) >= 0.5 * float(sm[inside].max()))
         rr, cc = np.nonzero(hot)
         if rr.size == 0:
-            return None, None
+            return (None, None), None
         out.append((float(np.interp(cc.mean(), np.arange(wall.width), wall.h_deg())),
                     float(np.interp(rr.mean(), np.arange(wall.height), wall.v_deg()))))
     (hp, vp), (hs, vs) = out
-    return hp - hs, vp - vs
+    return (hp - hs, vp - vs), (hp, vp)
 
 
 def write_outputs(result: Comparison, out_dir: str | os.PathLike) -> dict[str, Path]:

@@ -16,7 +16,9 @@ Cut-off offset (:func:`cutoff_offset`)
     the cap. Photo samples that are clipped or outside the photo take no part. The offset is
     the mean over the scans found; its **interval** (≈95 %) is ``±1.96·√(σ_scan² +
     σ_geometry²)`` with ``σ_scan`` the standard error of the scans' mean (at least half a
-    resampling step) and ``σ_geometry`` the screen geometry's angular uncertainty.
+    resampling step) and ``σ_geometry`` the screen geometry's uncertainty in V **at the
+    cut-off** (the homography's covariance carried there, so a cut-off far from the
+    markers — an extrapolation — gets a wider interval).
 
 Test points (:func:`test_points`)
     75R, 50V and B50L (UN R112, mirrored for left-hand traffic) read off the photo as
@@ -96,6 +98,7 @@ class AngleSampler:
         self.clipped = np.asarray(clipped, np.float64)
         self.sim = np.nan_to_num(np.asarray(sim, np.float64))
         self.inv = np.linalg.inv(np.asarray(matrix, np.float64))
+        self.cut_v: dict[float, float] = {}      # photo cut-off per scan (deg), for σ
 
     def _sim_px(self, h_deg: NDArray, v_deg: NDArray) -> tuple[NDArray, NDArray]:
         d = self.wall.distance_m
@@ -205,6 +208,7 @@ def _scan_offset(sampler: AngleSampler, h: float, step: float, window: float,
                       traffic="right" if h < 0 else "left")
     if not cut.found:
         return None
+    sampler.cut_v[h] = v_photo
     shifts = np.arange(-round(max_offset / step), round(max_offset / step) + 1)
     idx = np.arange(len(v)) + n_pad
     blurs = np.arange(0.0, max_blur + 1e-9, max(step * 2, 0.02))
@@ -278,7 +282,8 @@ def _refine_scan(v: NDArray, p: NDArray, sel: NDArray, v_wide: NDArray, s_wide: 
 
 
 def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
-                  sigma_geometry_deg: float | None = None, step_deg: float = 0.01,
+                  sigma_geometry_deg: float | None = None, geometry: Any = None,
+                  step_deg: float = 0.01,
                   window_deg: float = 1.0, max_offset_deg: float = 2.0,
                   max_blur_deg: float = 1.0) -> CutoffOffset:
     """Vertical offset of the photo's cut-off from the simulation's (module docstring).
@@ -299,6 +304,14 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
                             "no cut-off found on both the photo and the simulation along "
                             "the R112 scans")
     dvs = np.array([g[0] for g in good])
+    if geometry is not None and geometry.param_cov is not None:
+        # the geometry's V uncertainty where the cut-off is measured (extrapolation counts)
+        hs = np.array([sign * h for h, f in zip(SCANS_DEG, found) if f])
+        vs = np.array([float(v) for v in (sampler.cut_v.get(h) for h in hs)])
+        x, y = geometry.deg_to_photo(hs, vs)
+        sig = geometry.sigma_at(x, y)
+        if sig is not None and np.all(np.isfinite(sig[1])):
+            sigma_geometry_deg = float(np.sqrt(np.mean(sig[1] ** 2)))
     blur = float(np.mean([g[1] for g in good]))
     at_cap = any(g[2] for g in good)
     s_scan = float(np.std(dvs, ddof=1) / math.sqrt(len(dvs))) if len(dvs) > 1 else 0.0

@@ -14,9 +14,13 @@ in photo pixels (wall points mapped into the photo vs the given pixels) and in d
 (photo points mapped onto the wall vs the given angles). Lens distortion is not modelled;
 it shows up in the residual.
 
-The angular uncertainty of a mapped position is estimated from the degree residual with
-the degrees of freedom taken out: ``σ = rms·sqrt(2n / (2n − 8))`` for n points (8
-parameters). With exactly four points σ is unknown (``None``).
+The angular uncertainty of a mapped position comes from the fit: the residual (in wall
+metres, with the 8 parameters' degrees of freedom taken out, ``s² = RSS / (2n − 8)``)
+gives the parameters' covariance ``s²·(JᵀJ)⁻¹`` (J the Jacobian of the control points'
+mapped positions), which is carried to any photo position (:meth:`ScreenGeometry.sigma_at`)
+— so a position far from the control points (an extrapolation) gets the larger σ it
+deserves. ``sigma_deg`` is the RMS residual scaled the same way, ``rms·sqrt(2n/(2n − 8))``.
+With exactly four points nothing checks the fit and σ is unknown (``None``).
 
 Parameters
 ----------
@@ -87,6 +91,27 @@ class ScreenGeometry:
     residual_deg: tuple[float, float]
     sigma_deg: float | None
     details: dict[str, Any] = field(default_factory=dict)
+    param_cov: NDArray | None = None
+
+    def sigma_at(self, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray] | None:
+        """1-σ uncertainty (deg) of the H and V a photo pixel maps to, or None (4 points).
+
+        Parameters
+        ----------
+        x, y : ndarray
+            Photo pixels (px).
+        """
+        if self.param_cov is None:
+            return None
+        x = np.atleast_1d(np.asarray(x, np.float64))
+        y = np.atleast_1d(np.asarray(y, np.float64))
+        jac = _jacobian(self.matrix, x, y)                    # (2N, 8) in wall m
+        var = np.einsum("ij,jk,ik->i", jac, self.param_cov, jac).reshape(-1, 2)
+        h, v = apply_matrix(self.matrix, x, y)
+        d = self.distance_m
+        # d(angle)/d(m) = D / (D² + m²), in degrees
+        kh, kv = np.degrees(d / (d**2 + h**2)), np.degrees(d / (d**2 + v**2))
+        return kh * np.sqrt(var[:, 0]), kv * np.sqrt(var[:, 1])
 
     def photo_to_deg(self, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
         """Screen angles (H, V) in degrees of photo pixels (x, y)."""
@@ -150,6 +175,20 @@ def _collinear(pts: NDArray, tol: float) -> bool:
     c = pts - pts.mean(axis=0)
     sv = np.linalg.svd(c, compute_uv=False)
     return bool(sv[-1] <= tol * max(sv[0], 1e-300))
+
+
+def _jacobian(matrix: NDArray, x: NDArray, y: NDArray) -> NDArray:
+    """∂(h, v)/∂(8 homography entries) at photo points, rows (h₀, v₀, h₁, v₁, …)."""
+    m = matrix / matrix[2, 2]
+    den = m[2, 0] * x + m[2, 1] * y + 1.0
+    h = (m[0, 0] * x + m[0, 1] * y + m[0, 2]) / den
+    v = (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / den
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    jh = np.stack([x, y, one, zero, zero, zero, -h * x, -h * y], axis=1) / den[:, None]
+    jv = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y], axis=1) / den[:, None]
+    out = np.empty((2 * len(x), 8))
+    out[0::2], out[1::2] = jh, jv
+    return out
 
 
 def _line_dist(p: NDArray, a: NDArray, b: NDArray) -> NDArray:
@@ -239,9 +278,18 @@ def fit_screen(photo_xy: NDArray, screen_deg: NDArray, distance_m: float = 25.0,
         raise InputError("control points put the screen's horizon inside the photo")
     rms_deg = float(np.sqrt(np.mean(dd**2)))
     sigma = rms_deg * math.sqrt(2 * n / (2 * n - 8)) if n > 4 else None
+    cov = None
+    if n > 4:
+        jac = _jacobian(matrix, xy[:, 0], xy[:, 1])
+        res = np.column_stack([h - wall[:, 0], v - wall[:, 1]]).ravel()
+        s2 = float(res @ res) / (2 * n - 8)
+        try:
+            cov = s2 * np.linalg.inv(jac.T @ jac)
+        except np.linalg.LinAlgError:
+            cov = None
     return ScreenGeometry(matrix, float(distance_m), source, xy, hv,
                           (float(np.sqrt(np.mean(dp**2))), float(dp.max())),
-                          (rms_deg, float(dd.max())), sigma, dict(details or {}))
+                          (rms_deg, float(dd.max())), sigma, dict(details or {}), cov)
 
 
 def sim_matrix(geometry: ScreenGeometry, frame: Any) -> NDArray:
