@@ -60,14 +60,17 @@ def _numbers(text: str | None, n: int, name: str, kind: type = float) -> tuple |
 @click.option("--markers", is_flag=True,
               help="Put the default screen-target marker board on the wall (4× finer "
                    "wall grid; see 'lightsim screen-target').")
+@click.option("--wall-texture", type=int, metavar="SEED",
+              help="Give the wall a static texture (random grey rectangles, seeded), the "
+                   "background 'compare --against' aligns two photos by.")
 @click.option("--ambient", type=float, default=0.5, show_default=True, metavar="LX",
-              help="Room light on the wall with --markers (lx).")
+              help="Room light on the wall with --markers or --wall-texture (lx).")
 @click.option("--reaim", metavar="DH,DV", help="Turn the lamp by DH right, DV up (deg) "
               "before photographing: a lamp aimed off (the truth records it).")
 def photo(sim_path: Path, out: Path, rotate: float, scale: float, shift: str, tilt: float,
           size: str | None, blur: float, noise: float, vignetting: float, gamma: float | None,
           exposure: float, saturate: float | None, bits: str, seed: int, markers: bool,
-          ambient: float, reaim: str | None) -> None:
+          wall_texture: int | None, ambient: float, reaim: str | None) -> None:
     """Photograph a simulated wall with a synthetic camera (truth in OUT's .truth.json)."""
     from lightsim.validation.photo_io import load_simulation
     from lightsim.validation.synthetic_photo import CameraSettings, render_photo, write_photo
@@ -87,11 +90,13 @@ def photo(sim_path: Path, out: Path, rotate: float, scale: float, shift: str, ti
         lux = apply_shift(np.nan_to_num(lux), sim.frame, aim[0], aim[1])
         extra["reaim_deg"] = {"dh": aim[0], "dv": aim[1]}
     to_sim = None
-    if markers:
+    if markers or wall_texture is not None:
         from lightsim.validation.synthetic_photo import screen_scene
 
-        lux, _, to_sim = screen_scene(lux, sim.frame, ambient_lx=ambient)
-        extra["markers"] = {"layout": "default", "ambient_lx": ambient}
+        lux, _, to_sim = screen_scene(lux, sim.frame, layout=None if markers else False,
+                                      ambient_lx=ambient, texture_seed=wall_texture)
+        extra["screen"] = {"markers": "default layout" if markers else None,
+                           "wall_texture_seed": wall_texture, "ambient_lx": ambient}
         # --scale and the default size stay in simulation px on the 4× finer grid
         cam = replace(cam, size=cam.size or (sim.lux.shape[1], sim.lux.shape[0]),
                       scale=cam.scale / 4)

@@ -391,37 +391,77 @@ def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
                      "it is only as good as the transform's source")
     else:
         judge, statement = False, _NOT_JUDGEABLE
-    h_int = 1.96 * sigma if sigma is not None else None
+    # the core match resolves about a quarter of a simulation pixel; the geometry adds σ
+    step = float(np.mean(np.abs(np.diff(sim.wall.v_deg())))) if sim.wall.height > 1 else 0.0
+    h_int = 1.96 * math.hypot(sigma or 0.0, 0.25 * step) if judge else None
     return AimResult(judge, statement, geometry.source if geometry is not None else
                      ("given transform" if reg is None else "beam registration"), cut,
                      spots[0], spots[1], h_int, norm, points)
 
 
-def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray
+def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray,
+                    core_level: float = 0.3, max_shift_deg: float = 2.5
                     ) -> tuple[tuple[float | None, float | None],
                                tuple[float, float] | None]:
-    """Photo − simulation hot spot (deg): centroids of the ≥ 90 % regions, each image's
-    own maximum, the photo's clipped pixels counted as hot (they are the brightest)."""
+    """Photo − simulation hot spot (deg): the shift of the photo's bright core that best
+    matches the simulation's.
+
+    The core is where the (σ = 1 px smoothed) simulation reaches ``core_level`` of its
+    maximum; every integer shift within ±``max_shift_deg`` is scored by the ZNCC of the
+    photo (on the simulation grid, clipped and masked pixels left out, at least half the
+    core covered) against the simulation over the core, and the best is refined by a
+    parabola along H and V. A shape measure robust to a noisy or clipped maximum (a
+    centroid of the top 10 % is not). Returns the offset and the photo's hot spot (the
+    simulation's core centroid moved by it).
+    """
     from scipy.ndimage import gaussian_filter
 
     values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
-    inside = np.isfinite(values)
-    if not inside.any():
-        return (None, None), None
+    good = np.isfinite(values) & ~clip_w
+    s = gaussian_filter(np.nan_to_num(sim.lux), 1.0)
+    core = s >= core_level * float(s.max())
     wall = sim.wall
-    out = []
-    for img, clip in ((np.where(inside, values, 0.0), clip_w), (np.nan_to_num(sim.lux), None)):
-        sm = gaussian_filter(img, 1.0)
-        hot = inside & (sm >= 0.9 * float(sm[inside].max()))
-        if clip is not None:
-            hot |= clip & (gaussian_filter(img, 1.0) >= 0.5 * float(sm[inside].max()))
-        rr, cc = np.nonzero(hot)
-        if rr.size == 0:
-            return (None, None), None
-        out.append((float(np.interp(cc.mean(), np.arange(wall.width), wall.h_deg())),
-                    float(np.interp(rr.mean(), np.arange(wall.height), wall.v_deg()))))
-    (hp, vp), (hs, vs) = out
-    return (hp - hs, vp - vs), (hp, vp)
+    step_h = abs(float(np.mean(np.diff(wall.h_deg())))) if wall.width > 1 else 1.0
+    step_v = abs(float(np.mean(np.diff(wall.v_deg())))) if wall.height > 1 else 1.0
+    mx, my = (max(1, round(max_shift_deg / st)) for st in (step_h, step_v))
+    rr, cc = np.nonzero(core)
+    if rr.size < 9 or not good.any():
+        return (None, None), None
+    ref = s[rr, cc]
+    pv = np.where(good, values, np.nan)
+    hs, ws = pv.shape
+    scores = np.full((2 * my + 1, 2 * mx + 1), -np.inf)
+    for iy, dy in enumerate(range(-my, my + 1)):
+        y = rr + dy
+        for ix, dx in enumerate(range(-mx, mx + 1)):
+            x = cc + dx
+            ok = (y >= 0) & (y < hs) & (x >= 0) & (x < ws)
+            v = np.full(rr.size, np.nan)
+            v[ok] = pv[y[ok], x[ok]]
+            use = np.isfinite(v)
+            if use.sum() < 0.5 * rr.size:
+                continue
+            a, b = v[use] - v[use].mean(), ref[use] - ref[use].mean()
+            den = math.sqrt(float(a @ a) * float(b @ b))
+            if den > 0:
+                scores[iy, ix] = float(a @ b) / den
+    if not np.isfinite(scores).any():
+        return (None, None), None
+    iy, ix = np.unravel_index(int(np.argmax(scores)), scores.shape)
+
+    def refine(c0: float, c1: float, c2: float) -> float:
+        den = c0 - 2 * c1 + c2
+        ok = all(math.isfinite(c) for c in (c0, c1, c2)) and den < 0
+        return 0.5 * (c0 - c2) / den if ok else 0.0
+
+    fx = refine(*scores[iy, ix - 1:ix + 2]) if 0 < ix < 2 * mx else 0.0
+    fy = refine(*scores[iy - 1:iy + 2, ix]) if 0 < iy < 2 * my else 0.0
+    dx, dy = ix - mx + fx, iy - my + fy
+    dh, dv = dx * step_h, -dy * step_v                  # rows grow downwards
+    w = ref / ref.sum()
+    hs_deg = float(np.interp(float(w @ cc), np.arange(wall.width), wall.h_deg()))
+    vs_deg = float(np.interp(float(w @ rr), np.arange(wall.height), wall.v_deg()))
+    return (dh, dv), (hs_deg + dh, vs_deg + dv)
 
 
 def write_outputs(result: Comparison, out_dir: str | os.PathLike) -> dict[str, Path]:

@@ -281,7 +281,8 @@ def compare_pair(a: PhotoImage, b: PhotoImage, geometry: ScreenGeometry | None =
     if lit.sum() < 25:
         raise InputError("the two photos share no lit, unclipped pixels after alignment")
     ea, eb = a.info.get("exif"), b.info.get("exif")
-    static = ~bad & ~_beam_mask(a, o) & (a.luminance > 0) & (bw > 0)
+    beam_b = _warp_b(_beam_mask(b, o).astype(np.float64), matrix, a.shape) > 0.01
+    static = ~bad & ~_beam_mask(a, o) & ~beam_b & (a.luminance > 0) & (bw > 0)
     if ea and eb and ea.get("relative_exposure") and eb.get("relative_exposure"):
         k, source = ea["relative_exposure"] / eb["relative_exposure"], "exif"
     elif static.sum() >= 500 and np.median(a.luminance[static]) > 4e-3 * ref_a:
