@@ -33,8 +33,12 @@ clip_code   1     0.98     fraction of (white − black) at which a sample count
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -113,13 +117,46 @@ def read_raw(path: str | os.PathLike, clip_code: float = 0.98
     InputError
         Missing file, or neither raw data nor a preview can be read (one line).
     """
-    import rawpy
 
     p = Path(path)
     if not p.is_file():
         raise InputError(f"photo not found: {p}" if not p.exists() else
                          f"expected a photo file, got a directory: {p}")
     warnings: list[str] = []
+    printed: list[str] = []
+    try:
+        with _c_stderr(printed):
+            out = _decode(p, clip_code, warnings)
+    except InputError as exc:
+        if printed:         # LibRaw's own words are usually the clearer reason
+            raise InputError(f"{exc} (LibRaw: {printed[0].split(': ', 1)[-1]})") from None
+        raise
+    warnings.extend(f"photo {p.name}: LibRaw: {m.split(': ', 1)[-1]}" for m in printed)
+    return (*out[:4], warnings)
+
+
+@contextlib.contextmanager
+def _c_stderr(lines: list[str]) -> Iterator[None]:
+    """Collect what C code (LibRaw) writes to file descriptor 2 instead of the terminal."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode("utf-8", "replace")
+            lines.extend(ln.strip() for ln in text.splitlines() if ln.strip())
+
+
+def _decode(p: Path, clip_code: float, warnings: list[str]
+            ) -> tuple[NDArray, NDArray, str, dict[str, Any]]:
+    """The LibRaw part of :func:`read_raw` (its C messages are captured by the caller)."""
+    import rawpy
+
     try:
         with rawpy.imread(str(p)) as raw:
             try:
@@ -135,8 +172,7 @@ def read_raw(path: str | os.PathLike, clip_code: float = 0.98
                     info = {"demosaiced": "LibRaw, linear curve"}
                 flip = int(raw.sizes.flip)
                 info["flip"] = flip
-                return (_flip(lum, flip).copy(), _flip(clip, flip).copy(), "raw-linear", info,
-                        warnings)
+                return _flip(lum, flip).copy(), _flip(clip, flip).copy(), "raw-linear", info
             except (rawpy.LibRawError, ValueError) as exc:
                 preview = _preview(raw)
                 if preview is None:
@@ -144,7 +180,7 @@ def read_raw(path: str | os.PathLike, clip_code: float = 0.98
                 warnings.append(f"photo {p.name}: raw data unreadable ({_first_line(exc)}); "
                                 "using its embedded 8-bit preview, which is tone-mapped, not "
                                 "linear sensor data")
-                return preview, None, "srgb-8", {"preview": True}, warnings  # type: ignore
+                return preview, None, "srgb-8", {"preview": True}  # type: ignore[return-value]
     except rawpy.LibRawError as exc:
         raise InputError(f"cannot read raw photo {p}: {_first_line(exc)}") from None
 
