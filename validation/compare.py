@@ -308,7 +308,12 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
                                        phot.clip_lx, opts.traffic,
                                        reg.blur_px if reg is not None else 0.0)
     aim = measure_aim(photo, sim, matrix, geometry, reg, opts)
+    if aim.hotspot_dh_deg is not None:      # one hot-spot measure in the whole report
+        metrics.update(hotspot_dh_deg=aim.hotspot_dh_deg, hotspot_dv_deg=aim.hotspot_dv_deg,
+                       hotspot_offset_deg=math.hypot(aim.hotspot_dh_deg, aim.hotspot_dv_deg))
     metrics["cutoff_dv_deg"] = aim.cutoff.offset_deg
+    metrics["cutoff_dv_abs_deg"] = (abs(aim.cutoff.offset_deg)
+                                    if aim.cutoff.offset_deg is not None else None)
     metrics["cutoff_dv_interval_deg"] = aim.cutoff.interval_deg
     metrics["geometry_residual_deg"] = (geometry.residual_deg[0] if geometry is not None
                                         else None)
