@@ -409,3 +409,27 @@ def test_corrupt_photo_through_the_cli_is_one_line_exit_2(result_dir, lux, tmp_p
         _, err = capfd.readouterr()
         assert exc.value.code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
         assert not (tmp_path / f"o{suffix}").exists()
+
+
+def test_raw_without_decodable_data_falls_back_to_its_preview_with_a_warning(tmp_path):
+    """A DNG whose raw sub-image LibRaw cannot decode (deflate-compressed CFA here) but
+    whose first image is an RGB preview: read as the 8-bit preview, with one warning."""
+    import tifffile
+
+    rng = np.random.default_rng(0)
+    thumb = (40 + 200 * rng.random((64, 96, 3))).astype(np.uint8)
+    dng = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),
+           (50708, "s", 0, "lightsim test", True)]
+    cfa = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
+           (50710, "B", 3, (0, 1, 2), True), (50711, "H", 1, 1, True),
+           (50714, "H", 1, 256, True), (50717, "H", 1, 4095, True)]
+    path = tmp_path / "preview-only.dng"
+    with tifffile.TiffWriter(path) as tif:
+        tif.write(thumb, photometric="rgb", subfiletype=1, subifds=1, extratags=dng,
+                  metadata=None)
+        tif.write(np.full((128, 192), 1000, np.uint16), photometric=32803, subfiletype=0,
+                  extratags=cfa, metadata=None, compression="zlib")
+    photo = read_photo(path)
+    assert photo.encoding == "srgb-8" and photo.info["preview"] and photo.shape == (64, 96)
+    np.testing.assert_allclose(photo.luminance, luminance(srgb_decode(thumb / 255)))
+    assert len(photo.info["warnings"]) == 1 and "preview" in photo.info["warnings"][0]

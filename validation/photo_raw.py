@@ -174,7 +174,7 @@ def _decode(p: Path, clip_code: float, warnings: list[str]
                 info["flip"] = flip
                 return _flip(lum, flip).copy(), _flip(clip, flip).copy(), "raw-linear", info
             except (rawpy.LibRawError, ValueError) as exc:
-                preview = _preview(raw)
+                preview = _preview(p)      # a fresh handle: the failed unpack poisons this one
                 if preview is None:
                     raise InputError(f"cannot read raw photo {p}: {_first_line(exc)}") from None
                 warnings.append(f"photo {p.name}: raw data unreadable ({_first_line(exc)}); "
@@ -185,12 +185,13 @@ def _decode(p: Path, clip_code: float, warnings: list[str]
         raise InputError(f"cannot read raw photo {p}: {_first_line(exc)}") from None
 
 
-def _preview(raw: Any) -> NDArray | None:
+def _preview(path: Path) -> NDArray | None:
     """The embedded preview as 8-bit codes, or None."""
     import rawpy
 
     try:
-        thumb = raw.extract_thumb()
+        with rawpy.imread(str(path)) as raw:
+            thumb = raw.extract_thumb()
     except rawpy.LibRawError:
         return None
     if thumb.format == rawpy.ThumbFormat.JPEG:
