@@ -10,6 +10,7 @@ lamp), so the true aim error is known exactly.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -340,3 +341,28 @@ def test_cli_photo_of_a_marker_screen_with_the_lamp_aimed_half_a_degree_up(sim, 
     # extrapolation of the screen geometry and its interval is wider for it
     assert doc["geometry"]["marker_ids"] == [6, 7, 8]
     assert cut["sigma_geometry_deg"] > 1.5 * doc["geometry"]["sigma_deg"]
+
+
+def test_photo_against_photo_uses_exif_exposure(lux, sim, tmp_path, capsys):
+    """Two raw DNGs of one marker screen, B exposed twice as long (EXIF 1/25 s vs 1/50 s)
+    and twice as bright: the exposure ratio comes from EXIF and nothing else changed."""
+    from lightsim.validation.synthetic_photo import write_dng
+
+    scene, _, _ = screen_scene(lux, FRAME)
+    shot = render_photo(scene, CameraSettings(**{**CAMERA, "noise": 0.0}))
+    a = write_dng(tmp_path / "a.dng", 0.45 * shot.linear)
+    b = write_dng(tmp_path / "b.dng", 0.9 * shot.linear,
+                  exposure={"exposure_time_s": 1 / 25})
+    code, _, err = _run(["compare", str(a), "--against", str(b), "--out",
+                         str(tmp_path / "p")], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "p" / "pair.json").read_text())
+    assert doc["exposure"]["source"] == "exif" and doc["exposure"]["ratio"] == pytest.approx(0.5)
+    assert abs(doc["relative_difference"]["median"]) < 0.01
+    code, _, err = _run(["compare", str(a), "--sim", str(Path(sim.source).parent), "--out",
+                         str(tmp_path / "s"), "-q"], capsys)
+    assert code == 0, err
+    phot = json.loads((tmp_path / "s" / "comparison.json").read_text())["photometric"]
+    assert phot["relative_exposure"] == pytest.approx(200 / 50 / 2.8**2)
+    assert phot["gain_per_relative_exposure"] == pytest.approx(
+        phot["gain"] / phot["relative_exposure"])

@@ -178,6 +178,17 @@ class Comparison:
         out["overlap_fraction"] = float(self.overlap.mean())
         return out
 
+    def _exif_gain(self) -> dict[str, Any]:
+        """With EXIF: the gain per unit relative exposure (t·ISO/N²), a camera constant
+        that carries the exposure fit to other photos of the same camera."""
+        exif = self.photo.info.get("exif") or {}
+        rel = exif.get("relative_exposure")
+        if not rel:
+            return {}
+        return {"gain_per_relative_exposure": self.photometric.gain / rel,
+                "relative_exposure": rel,
+                "relative_exposure_unit": exif.get("relative_exposure_unit")}
+
     def to_json(self) -> dict[str, Any]:
         """The content of ``comparison.json``."""
         return {
@@ -187,7 +198,7 @@ class Comparison:
                            "resolution": [int(self.sim.lux.shape[1]), int(self.sim.lux.shape[0])],
                            "peak_lx": float(np.nanmax(self.sim.lux)), "wall": self.sim.frame},
             "transform": self.transform_dict(),
-            "photometric": self.photometric.to_dict(),
+            "photometric": {**self.photometric.to_dict(), **self._exif_gain()},
             "metrics": self.metrics,
             "metric_info": {"higher_is_better": list(HIGHER_IS_BETTER),
                             "lower_is_better": list(LOWER_IS_BETTER),
