@@ -320,7 +320,6 @@ def test_photo_against_photo_without_a_static_scene_exits_2(lux, tmp_path, capsy
 
 def test_cli_photo_of_a_marker_screen_with_the_lamp_aimed_half_a_degree_up(sim, tmp_path,
                                                                             capsys):
-    from pathlib import Path
 
     folder = Path(sim.source).parent
     photo = tmp_path / "up.jpg"
