@@ -304,11 +304,14 @@ def test_two_lamps_are_found_and_one_can_be_picked(lux_a, sim_dir, tmp_path, cap
     px = [float(apply_matrix(inv, np.array(c), np.array(wall.height / 2))[0]) for c in hs]
     assert lamps.peaks_px == pytest.approx(px, abs=12)
     assert px[0] < lamps.split_px < px[1]
+    known = tmp_path / "truth.json"                    # skip the registration: faster
+    known.write_text(json.dumps({"matrix": truth.tolist()}))
     code, _, err = _run(["compare", str(path), "--sim", str(sim_dir), "--out",
-                         str(tmp_path / "c2")], capsys)
+                         str(tmp_path / "c2"), "--transform", str(known)], capsys)
     assert code == 0 and "2 lamps found" in err and err.count("\n") == 1
     code, _, err = _run(["compare", str(path), "--sim", str(sim_dir), "--out",
-                         str(tmp_path / "cl"), "--lamp", "left"], capsys)
+                         str(tmp_path / "cl"), "--lamp", "left", "--transform", str(known)],
+                        capsys)
     assert code == 0 and err == ""
     doc = json.loads((tmp_path / "cl" / "comparison.json").read_text())
     assert doc["details"]["lamps"]["kept"] == "left" and doc["details"]["lamps"]["count"] == 2

@@ -326,11 +326,13 @@ def test_tiff_library_warning_becomes_our_one_line_warning(lux, result_dir, tmp_
     photo = read_photo(path)
     assert len(photo.info["warnings"]) == 1 and "tifffile" in photo.info["warnings"][0]
     assert capsys.readouterr().err == ""               # nothing leaked to the terminal
+    known = tmp_path / "truth.json"                    # the true transform: no registration
+    known.write_text(json.dumps({"matrix": shot.matrix.tolist()}))
     code, _, err = _run(["compare", str(path), "--sim", str(result_dir), "--out",
-                         str(tmp_path / "c"), "-q"], capsys)
+                         str(tmp_path / "c"), "-q", "--transform", str(known)], capsys)
     assert code == 0 and err == ""
     code, _, err = _run(["compare", str(path), "--sim", str(result_dir), "--out",
-                         str(tmp_path / "c2")], capsys)
+                         str(tmp_path / "c2"), "--transform", str(known)], capsys)
     assert code == 0 and err.count("\n") == 1 and err.startswith("lightsim: warning: photo")
 
 

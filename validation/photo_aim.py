@@ -211,7 +211,7 @@ def _scan_offset(sampler: AngleSampler, h: float, step: float, window: float,
     sampler.cut_v[h] = v_photo
     shifts = np.arange(-round(max_offset / step), round(max_offset / step) + 1)
     idx = np.arange(len(v)) + n_pad
-    blurs = np.arange(0.0, max_blur + 1e-9, max(step * 2, 0.02))
+    blurs = np.arange(0.0, max_blur + 1e-9, 0.05)      # refined continuously below
     best = (math.inf, 0.0, 0.0)
     costs_best = None
     for sigma in blurs:
