@@ -292,7 +292,7 @@ def test_photo_against_photo_by_static_features(lux, tmp_path, capsys):
                            "--out", str(tmp_path / "pair")], capsys)
     assert code == 0, err
     doc = json.loads((tmp_path / "pair" / "pair.json").read_text())
-    assert doc["alignment"]["method"] == "features" and doc["alignment"]["inliers"] >= 50
+    assert doc["alignment"]["method"] == "features + ECC" and doc["alignment"]["inliers"] >= 50
     assert doc["exposure"]["source"] == "static scene"
     assert doc["exposure"]["ratio"] == pytest.approx(2 ** 0.5, rel=0.03)
     _check_pair(doc, shots, {n: _true_change(lux, n, 2.0) for n in ("B50L", "75R", "50V", "50L")})
@@ -365,3 +365,38 @@ def test_photo_against_photo_uses_exif_exposure(lux, sim, tmp_path, capsys):
     assert phot["relative_exposure"] == pytest.approx(200 / 50 / 2.8**2)
     assert phot["gain_per_relative_exposure"] == pytest.approx(
         phot["gain"] / phot["relative_exposure"])
+
+
+def test_real_photograph_against_a_moved_darker_copy_aligns_by_the_door(tmp_path, capsys):
+    """The shipped real photograph (CC BY 4.0, tests/data/README.md) against itself turned
+    1°, moved (7, −4) px and 0.7× as bright, re-encoded as JPEG: the garage door outside
+    the beams aligns B onto A within 0.5 px and the exposure ratio is found."""
+    import math
+
+    import imageio.v3 as iio
+    from skimage.transform import ProjectiveTransform, warp
+
+    from lightsim.validation.photo_io import srgb_decode, srgb_encode
+
+    real = Path(__file__).parent / "data" / "zoe-lowbeam-garage-door.jpg"
+    img = srgb_decode(iio.imread(real).astype(float) / 255)
+    h, w = img.shape[:2]
+    cx, cy, a = (w - 1) / 2, (h - 1) / 2, math.radians(1.0)
+    b_to_a = (np.array([[1, 0, cx + 7], [0, 1, cy - 4], [0, 0, 1.0]])
+              @ np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0],
+                          [0, 0, 1.0]])
+              @ np.array([[1, 0, -cx], [0, 1, -cy], [0, 0, 1.0]]))
+    moved = np.stack([warp(img[..., c], ProjectiveTransform(b_to_a), order=1, mode="edge")
+                      for c in range(3)], axis=-1)
+    b = tmp_path / "b.jpg"
+    iio.imwrite(b, np.round(srgb_encode(0.7 * moved) * 255).astype(np.uint8), quality=92)
+    code, _, err = _run(["compare", str(real), "--against", str(b), "--out",
+                         str(tmp_path / "p")], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "p" / "pair.json").read_text())
+    m = np.array(doc["alignment"]["matrix"])
+    yy, xx = np.mgrid[int(0.1 * h):int(0.9 * h):20, int(0.1 * w):int(0.9 * w):20].astype(float)
+    tx, ty = apply_matrix(b_to_a, xx, yy)
+    fx, fy = apply_matrix(m, xx, yy)
+    assert float(np.max(np.hypot(fx - tx, fy - ty))) < 0.5
+    assert doc["exposure"]["ratio"] == pytest.approx(1 / 0.7, rel=0.02)

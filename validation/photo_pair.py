@@ -12,8 +12,10 @@ aligned by the **static scene**, never by the beams (the beams are what may have
    percentile, the room light) after a σ = 3 px blur,
    grown by ``beam_margin`` of the photo's diagonal — on images tone-mapped so that the
    background, not the beam, fills the 8-bit range; Lowe's ratio test (``ratio``), then
-   RANSAC. Fewer than ``min_inliers`` agreeing matches is an error that says to light
-   the room or use markers.
+   RANSAC, then a sub-pixel refinement by OpenCV's ECC (enhanced correlation
+   coefficient) on the static pixels (kept when it moves no corner by more than 3 px).
+   Fewer than ``min_inliers`` agreeing matches is an error that says to light the room
+   or use markers.
 
 **Exposure**: B is scaled by the ratio of the EXIF relative exposures (``t·ISO/N²``) when
 both photos have one; otherwise by the median B/A over the static scene (the room light
@@ -83,7 +85,7 @@ class PairComparison:
     matrix : ndarray, shape (3, 3)
         B px → A px.
     method : str
-        ``"markers"`` or ``"features"``.
+        ``"markers"``, ``"features + ECC"`` or ``"features"`` (ECC refinement failed).
     inliers : int
         Matches (or marker corners) that agree with the homography.
     residual_px : float
@@ -224,8 +226,41 @@ def align_pair(a: PhotoImage, b: PhotoImage, ga: ScreenGeometry | None = None,
     by_m = _by_markers(a, b, ga, gb, o)
     if by_m is not None:
         return by_m[0], "markers", by_m[1], by_m[2]
-    m, n, r = _by_features(a, b, _beam_mask(a, o), _beam_mask(b, o), o)
-    return m, "features", n, r
+    beam_a, beam_b = _beam_mask(a, o), _beam_mask(b, o)
+    m, n, r = _by_features(a, b, beam_a, beam_b, o)
+    refined = _refine_ecc(a, b, m, beam_a, beam_b)
+    if refined is None:
+        return m, "features", n, r
+    return refined, "features + ECC", n, r
+
+
+def _refine_ecc(a: PhotoImage, b: PhotoImage, m: NDArray, beam_a: NDArray, beam_b: NDArray,
+                max_move_px: float = 3.0) -> NDArray | None:
+    """Sub-pixel refinement of B → A on the static scene: OpenCV's ECC (enhanced correlation
+    coefficient, invariant to brightness and contrast) for a homography, started at the
+    feature fit and only on B's static pixels. None when it fails or moves any photo
+    corner by more than ``max_move_px`` (it then left the feature fit's basin)."""
+    import cv2
+
+    from lightsim.validation.photo_register import apply_matrix
+
+    ia = _static_image(a, beam_a).astype(np.float32)
+    ib = _static_image(b, beam_b).astype(np.float32)
+    warp0 = np.linalg.inv(m).astype(np.float32)            # ECC's warp maps A → B
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-7)
+    try:
+        _, wm = cv2.findTransformECC(ia, ib, warp0, cv2.MOTION_HOMOGRAPHY, crit,
+                                     (~beam_b).astype(np.uint8) * 255, 5)
+    except cv2.error:
+        return None
+    out = np.linalg.inv(wm.astype(np.float64))
+    out /= out[2, 2]
+    h, w = b.shape
+    cx, cy = np.array([0, w - 1, 0, w - 1.0]), np.array([0, 0, h - 1, h - 1.0])
+    x0, y0 = apply_matrix(m, cx, cy)
+    x1, y1 = apply_matrix(out, cx, cy)
+    moved = np.hypot(x1 - x0, y1 - y0)
+    return out if np.all(np.isfinite(moved)) and moved.max() <= max_move_px else None
 
 
 def _warp_b(b: NDArray, matrix: NDArray, shape: tuple[int, int], order: int = 1) -> NDArray:
@@ -294,7 +329,8 @@ def compare_pair(a: PhotoImage, b: PhotoImage, geometry: ScreenGeometry | None =
     points = _point_changes(a.luminance, k * np.nan_to_num(bw, nan=0.0), bad, geometry,
                             traffic, o.point_radius_deg) if geometry is not None else []
     statement = (f"aligned by the static scene ({method}, {inliers} agreeing "
-                 f"{'corners' if method == 'markers' else 'matches'}, {resid:.2f} px RMS), "
+                 f"{'corners' if method == 'markers' else 'matches'}, {resid:.2f} px RMS"
+                 f"{' before ECC' if 'ECC' in method else ''}), "
                  f"not by the beams; exposure from the {source}")
     if source == "beam median":
         statement += " (so an overall brightness change does not show)"
