@@ -400,3 +400,18 @@ def test_real_photograph_against_a_moved_darker_copy_aligns_by_the_door(tmp_path
     fx, fy = apply_matrix(m, xx, yy)
     assert float(np.max(np.hypot(fx - tx, fy - ty))) < 0.5
     assert doc["exposure"]["ratio"] == pytest.approx(1 / 0.7, rel=0.02)
+
+
+def test_a_single_marker_is_not_trusted(lux, sim, tmp_path):
+    """One marker's four corners fix a homography with nothing to check it: not used."""
+    from dataclasses import replace
+
+    one = replace(DEFAULT_LAYOUT, markers=DEFAULT_LAYOUT.markers[2:3])
+    scene, _, _ = screen_scene(lux, FRAME, layout=one)
+    shot = render_photo(scene, CameraSettings(**CAMERA))
+    path, _ = write_photo(tmp_path / "one.jpg", shot)
+    photo = read_photo(path)
+    assert detect_markers(photo.luminance).details["marker_ids"] == [2]
+    result = compare_images(photo, sim, CompareOptions())
+    assert result.geometry is None and not result.aim.judgeable
+    assert any("only marker 2 found" in w for w in result.photo.info["warnings"])

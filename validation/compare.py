@@ -95,6 +95,9 @@ __all__ = [
     "write_outputs",
 ]
 
+#: Markers whose corners disagree by more than this (RMS, photo px) are not used.
+MAX_MARKER_RESIDUAL_PX = 3.0
+
 #: Files written by :func:`write_outputs`.
 OUTPUTS = ("comparison.json", "overlay.png", "difference.png", "contours.png")
 
@@ -370,7 +373,24 @@ def screen_geometry(photo: PhotoImage, sim: Simulation, opts: CompareOptions
     from lightsim.validation.screen_target import detect_markers, load_layout
 
     layout = None if opts.markers == "auto" else load_layout(opts.markers)
-    return detect_markers(photo.luminance, layout, distance)
+    geo = detect_markers(photo.luminance, layout, distance)
+    name = Path(photo.path).name
+    if geo is None:
+        return None
+    warnings = photo.info.setdefault("warnings", [])
+    if len(geo.details["marker_ids"]) < 2:
+        # four corners fix a homography exactly, with nothing left to check it (a false
+        # detection in wall texture would pass): a second marker is required
+        warnings.append(f"photo {name}: only marker {geo.details['marker_ids'][0]} found; "
+                        "two or more are needed to check the screen geometry, so it is "
+                        "not used")
+        return None
+    if geo.residual_px[0] > MAX_MARKER_RESIDUAL_PX:
+        warnings.append(f"photo {name}: the markers found disagree (residual "
+                        f"{geo.residual_px[0]:.1f} px RMS > {MAX_MARKER_RESIDUAL_PX:g}): "
+                        "moved or misplaced markers, or a false detection; not used")
+        return None
+    return geo
 
 
 _NOT_JUDGEABLE = ("aim cannot be judged from this photo: without control points (--points) "
