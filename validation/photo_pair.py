@@ -3,8 +3,8 @@
 "The same car with and without headlamp deflectors" is two photos of one wall. They are
 aligned by the **static scene**, never by the beams (the beams are what may have changed):
 
-1. **Markers** (:mod:`~lightsim.validation.screen_target`) found on both photos: the
-   homography B → A from the corners of the markers they share (OpenCV
+1. **Markers** (:mod:`~lightsim.validation.screen_target`) found on both photos (two or
+   more shared): the homography B → A from the corners of the markers they share (OpenCV
    :func:`cv2.findHomography`, RANSAC at ``ransac_px``).
 2. Otherwise **features** of the static scene: ORB key points (OpenCV, up to
    ``features`` per photo) detected only *outside* both beams — the beam is every pixel
@@ -161,7 +161,7 @@ def _by_markers(a: PhotoImage, b: PhotoImage, ga: ScreenGeometry | None,
         return None
     qa, qb = ga.details.get("marker_quads_px", {}), gb.details.get("marker_quads_px", {})
     common = sorted(set(qa) & set(qb))
-    if not common:
+    if len(common) < 2:             # one marker's corners would leave nothing to check
         return None
     pa = np.vstack([np.asarray(qa[i], np.float64) for i in common])
     pb = np.vstack([np.asarray(qb[i], np.float64) for i in common])
@@ -302,8 +302,8 @@ def compare_pair(a: PhotoImage, b: PhotoImage, geometry: ScreenGeometry | None =
     o = opts or PairOptions()
     layout = None if o.markers in ("auto", "off") else load_layout(o.markers)
     use_markers = o.markers != "off"
-    ga = detect_markers(a.luminance, layout) if use_markers else None
-    gb = detect_markers(b.luminance, layout) if use_markers else None
+    ga = detect_markers(a.luminance, layout, min_markers=2) if use_markers else None
+    gb = detect_markers(b.luminance, layout, min_markers=2) if use_markers else None
     geometry = geometry or ga
     matrix, method, inliers, resid = align_pair(a, b, ga, gb, o)
     bw = _warp_b(b.luminance, matrix, a.shape)
