@@ -341,7 +341,7 @@ ISSUE_CAMERA = dict(rotate_deg=7, scale=1.1, tilt_deg=5, blur_px=1.5, noise=0.01
 @pytest.mark.parametrize("camera", [
     pytest.param(ISSUE_CAMERA, id="rot7-scale1.1-keystone-blur-noise-gamma"),
     pytest.param(dict(rotate_deg=-18, scale=0.6, shift_px=(10, -5), blur_px=1.0, noise=0.005,
-                      seed=2), id="rot-18-scale0.6"),
+                      seed=2), id="rot-18-scale0.6", marks=pytest.mark.slow),
 ])
 def test_registration_of_any_pattern_within_a_pixel(pattern, camera, tmp_path):
     from lightsim.validation import synthetic_photo as sp
