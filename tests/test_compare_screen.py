@@ -156,10 +156,19 @@ def test_aim_half_a_degree_high_is_reported_with_its_interval(aimed_up, sim):
     assert result.metrics["cutoff_dv_deg"] == cut.offset_deg
 
 
-def test_aim_on_target_reads_zero(lux, sim, tmp_path):
+def test_aim_on_target_reads_zero_and_the_test_points_agree(lux, sim, tmp_path):
     photo, _, _ = _marker_photo(lux, tmp_path, "on", rotate_deg=-3, tilt_deg=-6, seed=4)
-    cut = compare_images(photo, sim).aim.cutoff
+    aim = compare_images(photo, sim).aim
+    cut = aim.cutoff
     assert abs(cut.offset_deg) <= max(cut.interval_deg, 0.03)
+    assert aim.normalised_at["point"] == "50R" and not aim.normalised_at["clipped"]
+    points = {p.name: p for p in aim.points}
+    assert set(points) == {"75R", "50V", "B50L"}
+    # bright points: photo and simulation agree relative to 50R (room light adds ~1 %)
+    for name in ("75R", "50V"):
+        assert points[name].ratio == pytest.approx(1.0, abs=0.05), points[name]
+    # B50L is dark: the room light (0.5 lx) dominates it in the photo, as in a real one
+    assert points["B50L"].photo_rel > points["B50L"].sim_rel
 
 
 def test_registration_fallback_says_aim_cannot_be_judged(aimed_up, sim, tmp_path, capsys):
