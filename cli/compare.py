@@ -1,4 +1,4 @@
-"""``lightsim compare PHOTO``: register a photo of a beam pattern to a simulation and score it.
+"""``lightsim compare PHOTO``: measure a photographed beam's aim and match against a simulation.
 
 The work is done by :mod:`lightsim.validation.compare`; this module parses options, prints
 the transform and the metrics, and turns failed ``--fail-below``/``--fail-above`` limits
@@ -81,9 +81,12 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
             points: str | None, markers: str, screen_distance: float | None,
             normalise_at: str | None, lamp: str | None, against: Path | None,
             credit: str | None, quiet: bool) -> None:
-    """Compare PHOTO (PNG/JPEG/TIFF/EXR) with a simulated wall illuminance map.
+    """Compare PHOTO (PNG/JPEG/TIFF/EXR/camera raw) with a simulation, or with --against.
 
-    Writes comparison.json, overlay.png, difference.png and contours.png to --out.
+    With screen geometry (--points or markers on the photo) the aim is measured without
+    moving the photo onto the beam; otherwise the photo is registered by the beam and the
+    report says that aim cannot be judged. Writes comparison.json, overlay.png,
+    difference.png and contours.png (or pair.json and relative_difference.png) to --out.
     """
     from lightsim.validation.compare import (
         CompareOptions,
