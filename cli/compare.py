@@ -1,4 +1,4 @@
-"""``lightsim compare PHOTO``: register a photo of a beam pattern to a simulation and score it.
+"""``lightsim compare PHOTO``: measure a photographed beam's aim and match against a simulation.
 
 The work is done by :mod:`lightsim.validation.compare`; this module parses options, prints
 the transform and the metrics, and turns failed ``--fail-below``/``--fail-above`` limits
@@ -7,6 +7,7 @@ into exit code 1 (input errors exit with 2).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -51,19 +52,41 @@ def _pair(text: str, name: str) -> tuple[float, float]:
                    "or a synthetic photo's .truth.json) instead of registering.")
 @click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
               show_default=True, help="Side of the cut-off scans (R112).")
-@click.option("--max-rotation", type=float, default=15.0, show_default=True,
+@click.option("--max-rotation", type=float, default=20.0, show_default=True,
               help="Rotations searched, ± degrees.")
 @click.option("--scale-range", default="0.5,2", show_default=True,
               help="Scales searched MIN,MAX, relative to 'photo width = simulation width'.")
+@click.option("--points", metavar='"x,y=H,V; …"',
+              help="Control points: photo pixel (x = column, y = row) = screen angle H,V in "
+                   "degrees; 4 or more fix the screen geometry (no registration by the beam).")
+@click.option("--markers", default="auto", show_default=True, metavar="auto|off|LAYOUT.json",
+              help="Find screen-target markers on the photo (default layout, or a "
+                   "layout.json from 'lightsim screen-target').")
+@click.option("--screen-distance", type=float, metavar="M",
+              help="Lamp → screen distance of the photo in m  [default: the simulation's].")
+@click.option("--normalise-at", metavar="POINT|H,V",
+              help="Test point (or H,V degrees) the photo's relative test-point values are "
+                   "normalised at  [default: 50R].")
+@click.option("--lamp", type=click.Choice(["left", "right"]),
+              help="The photo shows two lamps: compare this one (the other side is left out).")
+@click.option("--against", "against", type=click.Path(path_type=Path, dir_okay=False),
+              help="Compare PHOTO with this second photo of the same wall instead of a "
+                   "simulation: aligned by the static scene, writes pair.json and "
+                   "relative_difference.png.")
 @click.option("--credit", help="Attribution printed on the figures (e.g. a photo's licence).")
 @click.option("-q", "--quiet", is_flag=True, help="Print only failures.")
 def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
             fit_gamma: bool, fail_below: tuple[str, ...], fail_above: tuple[str, ...],
             transform_file: Path | None, traffic: str, max_rotation: float, scale_range: str,
+            points: str | None, markers: str, screen_distance: float | None,
+            normalise_at: str | None, lamp: str | None, against: Path | None,
             credit: str | None, quiet: bool) -> None:
-    """Compare PHOTO (PNG/JPEG/TIFF/EXR) with a simulated wall illuminance map.
+    """Compare PHOTO (PNG/JPEG/TIFF/EXR/camera raw) with a simulation, or with --against.
 
-    Writes comparison.json, overlay.png, difference.png and contours.png to --out.
+    With screen geometry (--points or markers on the photo) the aim is measured without
+    moving the photo onto the beam; otherwise the photo is registered by the beam and the
+    report says that aim cannot be judged. Writes comparison.json, overlay.png,
+    difference.png and contours.png (or pair.json and relative_difference.png) to --out.
     """
     from lightsim.validation.compare import (
         CompareOptions,
@@ -74,6 +97,10 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
     )
     from lightsim.validation.photo_register import RegistrationOptions
 
+    if against is not None:
+        _compare_pair(photo, against, out_dir, points, markers, screen_distance, traffic,
+                      credit, quiet)
+        return
     below = [parse_threshold(t) for t in fail_below]
     above = [parse_threshold(t) for t in fail_above]
     reg = RegistrationOptions(max_rotation_deg=max_rotation,
@@ -81,10 +108,17 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
     options = CompareOptions(model="homography" if homography else "similarity",
                              fit_gamma=fit_gamma, traffic=traffic,
                              transform=load_transform(transform_file) if transform_file else None,
-                             registration=reg, credit=credit)
+                             registration=reg, credit=credit, points=points,
+                             markers=markers, screen_distance_m=screen_distance,
+                             normalise_at=normalise_at, lamp=lamp)
+    if screen_distance is not None and not (math.isfinite(screen_distance)
+                                            and screen_distance > 0):
+        raise InputError(f"--screen-distance must be > 0 m, got {screen_distance!r}")
     out = out_dir or Path(f"compare-{photo.stem}")
     result = run_compare(photo, sim_path, out, options)
     if not quiet:
+        for line in result.photo.info.get("warnings", []):
+            click.echo(f"lightsim: warning: {line}", err=True)
         _report(result, out)
     fails = failed_thresholds(result.metrics, below, above)
     if fails:
@@ -96,11 +130,16 @@ def _report(result, out: Path) -> None:
     from rich.table import Table
 
     console = Console()
+    _report_aim(console, result)
     t = result.transform_dict()
     console.print(f"transform ({t['model']}, photo px → simulation px): rotation "
                   f"{t['rotation_deg']:+.3f}°, scale {t['scale']:.5g}, translation "
                   f"({t['translation_px'][0]:.2f}, {t['translation_px'][1]:.2f}) px, overlap "
                   f"{100 * t['overlap_fraction']:.0f} %")
+    if result.registration is not None and result.registration.blur_at_cap:
+        console.print(f"registration: the fitted blur reached its cap "
+                      f"({t['blur_cap_px']:.3g} simulation px): blur and cut-off offsets are "
+                      "only bounds")
     p = result.photometric
     console.print(f"exposure: 1 lx → {p.gain:.4g} of full scale, gamma {p.gamma:.3f}, "
                   f"clips at {p.clip_lx:.4g} lx")
@@ -112,3 +151,61 @@ def _report(result, out: Path) -> None:
     console.print(table)
     console.print(f"wrote {out}/comparison.json, overlay.png, difference.png, contours.png "
                   f"({result.seconds:.1f} s)")
+
+
+def _report_aim(console, result) -> None:
+    """The headline: the aim as measured, or why it cannot be judged."""
+    aim = result.aim
+    if aim is None:
+        return
+    if not aim.judgeable:
+        console.print(f"[bold]AIM: {aim.statement}[/bold]")
+    else:
+        cut = aim.cutoff
+        if cut.offset_deg is None:
+            console.print(f"[bold]AIM: cut-off not measured[/bold] ({cut.message})")
+        else:
+            word = "higher" if cut.offset_deg > 0 else "lower"
+            console.print(f"[bold]AIM: cut-off {cut.offset_deg:+.3f}° ± "
+                          f"{cut.interval_deg:.3f}° (photo {word} than the simulation)"
+                          f"[/bold] — {cut.message}")
+        if aim.hotspot_dh_deg is not None:
+            pm = f" ± {aim.hotspot_interval_deg:.3f}°" if aim.hotspot_interval_deg else ""
+            console.print(f"hot spot: ΔH {aim.hotspot_dh_deg:+.2f}°, ΔV "
+                          f"{aim.hotspot_dv_deg:+.2f}°{pm} (photo − simulation)")
+        console.print(aim.statement)
+    n = aim.normalised_at
+    rows = ", ".join(
+        f"{p.name} {'–' if p.photo_rel is None else f'{p.photo_rel:.3g}'}"
+        f"{'≥' if p.clipped else ''} (sim {'–' if p.sim_rel is None else f'{p.sim_rel:.3g}'})"
+        for p in aim.points)
+    console.print(f"test points relative to {n['point']}: {rows}")
+
+
+def _compare_pair(a_path: Path, b_path: Path, out_dir: Path | None, points: str | None,
+                  markers: str, screen_distance: float | None, traffic: str,
+                  credit: str | None, quiet: bool) -> None:
+    """``compare A --against B``: photo against photo."""
+    from lightsim.validation.photo_io import read_photo
+    from lightsim.validation.photo_pair import PairOptions, compare_pair, write_pair
+    from lightsim.validation.screen_geometry import fit_screen, parse_points
+
+    a, b = read_photo(a_path), read_photo(b_path)
+    geometry = None
+    if points:
+        xy, hv = parse_points(points)
+        geometry = fit_screen(xy, hv, screen_distance or 25.0, source="points")
+    result = compare_pair(a, b, geometry, PairOptions(markers=markers), traffic)
+    out = out_dir or Path(f"compare-{a_path.stem}-vs-{b_path.stem}")
+    write_pair(result, out, credit)
+    if quiet:
+        return
+    for line in a.info.get("warnings", []) + b.info.get("warnings", []):
+        click.echo(f"lightsim: warning: {line}", err=True)
+    click.echo(result.statement)
+    click.echo(f"exposure: B × {result.exposure_ratio:.4g} ({result.exposure_source})")
+    for p in result.points:
+        ch = "–" if p["change"] is None else f"{100 * p['change']:+.1f} %"
+        flag = " (clipped/masked)" if p["unusable"] else ""
+        click.echo(f"  {p['name']:>5} (H {p['h_deg']:+.2f}°, V {p['v_deg']:+.2f}°): {ch}{flag}")
+    click.echo(f"wrote {out}/pair.json, relative_difference.png")

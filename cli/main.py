@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "report": "report:report",
     "photo": "photo:photo",
     "view": "view:view",
+    "screen-target": "screen_target:screen_target",
 }
 
 

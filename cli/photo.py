@@ -7,9 +7,11 @@ goes to ``OUT``'s sidecar ``<name>.truth.json``.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
+import numpy as np
 
 from lightsim.errors import InputError
 
@@ -29,7 +31,7 @@ def _numbers(text: str | None, n: int, name: str, kind: type = float) -> tuple |
 
 @click.command()
 @click.argument("sim_path", metavar="RESULT_DIR|wall_lux.exr", type=click.Path(path_type=Path))
-@click.argument("out", metavar="OUT.(jpg|png|tif|exr)", type=click.Path(path_type=Path,
+@click.argument("out", metavar="OUT.(jpg|png|tif|exr|dng)", type=click.Path(path_type=Path,
                                                                         dir_okay=False))
 @click.option("--rotate", type=float, default=0.0, show_default=True,
               help="Camera roll: the pattern turns counter-clockwise by DEG.")
@@ -55,9 +57,20 @@ def _numbers(text: str | None, n: int, name: str, kind: type = float) -> tuple |
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
               help="Bits per channel (PNG/TIFF).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Noise seed.")
+@click.option("--markers", is_flag=True,
+              help="Put the default screen-target marker board on the wall (4× finer "
+                   "wall grid; see 'lightsim screen-target').")
+@click.option("--wall-texture", type=int, metavar="SEED",
+              help="Give the wall a static texture (random grey rectangles, seeded), the "
+                   "background 'compare --against' aligns two photos by.")
+@click.option("--ambient", type=float, default=0.5, show_default=True, metavar="LX",
+              help="Room light on the wall with --markers or --wall-texture (lx).")
+@click.option("--reaim", metavar="DH,DV", help="Turn the lamp by DH right, DV up (deg) "
+              "before photographing: a lamp aimed off (the truth records it).")
 def photo(sim_path: Path, out: Path, rotate: float, scale: float, shift: str, tilt: float,
           size: str | None, blur: float, noise: float, vignetting: float, gamma: float | None,
-          exposure: float, saturate: float | None, bits: str, seed: int) -> None:
+          exposure: float, saturate: float | None, bits: str, seed: int, markers: bool,
+          wall_texture: int | None, ambient: float, reaim: str | None) -> None:
     """Photograph a simulated wall with a synthetic camera (truth in OUT's .truth.json)."""
     from lightsim.validation.photo_io import load_simulation
     from lightsim.validation.synthetic_photo import CameraSettings, render_photo, write_photo
@@ -69,8 +82,29 @@ def photo(sim_path: Path, out: Path, rotate: float, scale: float, shift: str, ti
                          noise=noise, vignetting=vignetting, gamma=gamma,
                          exposure_ev=exposure, saturate=saturate, bits=int(bits), seed=seed)
     sim = load_simulation(sim_path)
-    shot = render_photo(sim.lux, cam)
-    path, side = write_photo(out, shot, {"simulation": sim.source})
+    lux, extra = sim.lux, {"simulation": sim.source}
+    aim = _numbers(reaim, 2, "--reaim")
+    if aim is not None:
+        from lightsim.render.cutoff import apply_shift
+
+        lux = apply_shift(np.nan_to_num(lux), sim.frame, aim[0], aim[1])
+        extra["reaim_deg"] = {"dh": aim[0], "dv": aim[1]}
+    to_sim = None
+    if markers or wall_texture is not None:
+        from lightsim.validation.synthetic_photo import screen_scene
+
+        lux, _, to_sim = screen_scene(lux, sim.frame, layout=None if markers else False,
+                                      ambient_lx=ambient, texture_seed=wall_texture)
+        extra["screen"] = {"markers": "default layout" if markers else None,
+                           "wall_texture_seed": wall_texture, "ambient_lx": ambient}
+        # --scale and the default size stay in simulation px on the 4× finer grid
+        cam = replace(cam, size=cam.size or (sim.lux.shape[1], sim.lux.shape[0]),
+                      scale=cam.scale / 4)
+    shot = render_photo(lux, cam)
+    if to_sim is not None:
+        m = to_sim @ shot.matrix
+        shot = replace(shot, matrix=m / m[2, 2])
+    path, side = write_photo(out, shot, extra)
     truth = shot.truth()
     click.echo(f"wrote {path} ({truth['photo_size'][0]}×{truth['photo_size'][1]}, "
                f"{100 * truth['clipped_fraction']:.1f} % clipped) and {side}")

@@ -253,3 +253,185 @@ def test_cli_photo_writes_photo_and_truth(result_dir, tmp_path, capsys):
 def test_cli_photo_rejects_bad_options(result_dir, tmp_path, capsys, args, message):
     code, _, err = _run(["photo", str(result_dir), str(tmp_path / "x.png"), *args], capsys)
     assert code == 2 and message in err and "Traceback" not in err
+
+
+# --- camera raw files, EXIF and library messages -----------------------------------------
+
+def test_dng_reads_as_linear_sensor_data_with_black_white_levels_and_exif(lux, tmp_path):
+    """A DNG written by tifffile, decoded by LibRaw (rawpy): values back to 1 code in 3839."""
+    from lightsim.validation.synthetic_photo import DNG_BLACK, DNG_WHITE, write_dng
+
+    shot = render_photo(lux, CameraSettings(rotate_deg=4, saturate=0.7, noise=0.004, seed=3))
+    path = write_dng(tmp_path / "beam.dng", shot.linear)
+    photo = read_photo(path)
+    assert photo.encoding == "raw-linear" and photo.shape == shot.linear.shape
+    assert photo.info["black_level"] == [DNG_BLACK] * 4
+    assert photo.info["white_level"] == DNG_WHITE
+    expect = np.round(DNG_BLACK + shot.linear * (DNG_WHITE - DNG_BLACK))
+    expect = (expect - DNG_BLACK) / (DNG_WHITE - DNG_BLACK)
+    np.testing.assert_allclose(photo.luminance, expect, atol=1e-9)
+    np.testing.assert_array_equal(photo.clipped, expect >= 0.98)
+    assert photo.clipped.any()
+    exif = photo.info["exif"]
+    assert exif["exposure_time_s"] == pytest.approx(1 / 50)
+    assert exif["f_number"] == pytest.approx(2.8) and exif["iso"] == 200
+    assert exif["relative_exposure"] == pytest.approx(200 / 50 / 2.8**2)
+    assert photo.info["warnings"] == []
+
+
+def test_jpeg_exif_exposure_is_read(tmp_path):
+    from PIL import Image
+
+    img = Image.fromarray(np.full((32, 48, 3), 120, np.uint8))
+    exif = Image.Exif()
+    exif.get_ifd(0x8769).update({33434: 0.004, 33437: 4.0, 34855: 400})
+    path = tmp_path / "e.jpg"
+    img.save(path, exif=exif)
+    info = read_photo(path).info["exif"]
+    assert info["exposure_time_s"] == pytest.approx(0.004) and info["iso"] == 400
+    assert info["relative_exposure"] == pytest.approx(0.004 * 400 / 16)
+
+
+@pytest.mark.parametrize("cut", [0.5, 0.05])
+def test_truncated_raw_is_one_input_error(lux, tmp_path, cut):
+    from lightsim.validation.synthetic_photo import write_dng
+
+    good = write_dng(tmp_path / "g.dng", render_photo(lux).linear).read_bytes()
+    bad = tmp_path / "bad.dng"
+    bad.write_bytes(good[: int(len(good) * cut)])
+    with pytest.raises(InputError) as exc:
+        read_photo(bad)
+    assert "\n" not in str(exc.value)
+
+
+def _tiff_with_bad_tag(path, codes):
+    """A TIFF whose private tag 65000 points beyond the end of the file."""
+    import struct
+
+    import tifffile
+
+    tifffile.imwrite(path, codes, photometric="rgb", extratags=[(65000, "I", 8, tuple(range(8)))])
+    data = bytearray(path.read_bytes())
+    i = data.find(struct.pack("<HHI", 65000, 4, 8))
+    assert i > 0
+    data[i + 8:i + 12] = struct.pack("<I", 0x7FFFFFF0)
+    path.write_bytes(bytes(data))
+
+
+def test_tiff_library_warning_becomes_our_one_line_warning(lux, result_dir, tmp_path, capsys):
+    shot = render_photo(lux, CameraSettings(rotate_deg=3))
+    codes = np.repeat(np.round(shot.encoded * 255).astype(np.uint8)[..., None], 3, axis=-1)
+    path = tmp_path / "badtag.tif"
+    _tiff_with_bad_tag(path, codes)
+    photo = read_photo(path)
+    assert len(photo.info["warnings"]) == 1 and "tifffile" in photo.info["warnings"][0]
+    assert capsys.readouterr().err == ""               # nothing leaked to the terminal
+    known = tmp_path / "truth.json"                    # the true transform: no registration
+    known.write_text(json.dumps({"matrix": shot.matrix.tolist()}))
+    code, _, err = _run(["compare", str(path), "--sim", str(result_dir), "--out",
+                         str(tmp_path / "c"), "-q", "--transform", str(known)], capsys)
+    assert code == 0 and err == ""
+    code, _, err = _run(["compare", str(path), "--sim", str(result_dir), "--out",
+                         str(tmp_path / "c2"), "--transform", str(known)], capsys)
+    assert code == 0 and err.count("\n") == 1 and err.startswith("lightsim: warning: photo")
+
+
+def test_cli_photo_writes_a_raw_dng_that_compare_reads(result_dir, tmp_path, capsys):
+    out = tmp_path / "p.dng"
+    code, _, err = _run(["photo", str(result_dir), str(out), "--rotate", "5", "--scale",
+                         "1.1"], capsys)
+    assert code == 0, err
+    code, _, err = _run(["compare", str(out), "--sim", str(result_dir), "--out",
+                         str(tmp_path / "c"), "-q"], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "c" / "comparison.json").read_text())
+    assert doc["photo"]["encoding"] == "raw-linear"
+    assert doc["transform"]["rotation_deg"] == pytest.approx(5, abs=0.3)
+
+
+def _mutations(data: bytes, n: int, rng) -> list[bytes]:
+    """Byte flips, truncations, duplicated and zeroed chunks of a file (seeded)."""
+    out = []
+    for i in range(n):
+        b = bytearray(data)
+        kind = i % 4
+        if kind == 0:
+            for _ in range(int(rng.integers(1, 8))):
+                j = int(rng.integers(0, len(b)))
+                b[j] ^= 1 << int(rng.integers(0, 8))
+        elif kind == 1:
+            b = b[: int(rng.integers(0, len(b)))]
+        elif kind == 2:
+            j = int(rng.integers(0, len(b)))
+            k = min(len(b), j + int(rng.integers(1, 500)))
+            b = b[:k] + b[j:k] + b[k:]
+        else:
+            j = int(rng.integers(0, len(b)))
+            n0 = min(len(b) - j, int(rng.integers(1, 200)))
+            b[j:j + n0] = bytes(n0)
+        out.append(bytes(b))
+    return out
+
+
+@pytest.mark.parametrize("suffix", [".jpg", ".png", ".tif", ".dng"])
+def test_corrupt_photos_give_one_line_or_a_finite_photo_and_print_nothing(lux, tmp_path,
+                                                                          capfd, suffix):
+    """Issue 13: a seeded mutation corpus of each photo format (8 cases here, hundreds
+    in the study): InputError with one line, or a photo with finite values — and nothing
+    written to the terminal by the libraries (checked at the file-descriptor level, so
+    LibRaw's C messages count too)."""
+    shot = render_photo(lux, CameraSettings(rotate_deg=3))
+    path, _ = write_photo(tmp_path / f"base{suffix}", shot)
+    rng = np.random.default_rng(13)
+    for i, data in enumerate(_mutations(path.read_bytes(), 8, rng)):
+        bad = tmp_path / f"m{i}{suffix}"
+        bad.write_bytes(data)
+        try:
+            photo = read_photo(bad)
+        except InputError as exc:
+            assert "\n" not in str(exc)
+        else:
+            assert np.all(np.isfinite(photo.luminance))
+            assert all("\n" not in w for w in photo.info["warnings"])
+        out, err = capfd.readouterr()
+        assert out == "" and err == "", (i, out, err)
+
+
+def test_corrupt_photo_through_the_cli_is_one_line_exit_2(result_dir, lux, tmp_path, capfd):
+    from lightsim.cli.main import main
+
+    shot = render_photo(lux)
+    for suffix in (".jpg", ".dng"):
+        path, _ = write_photo(tmp_path / f"g{suffix}", shot)
+        bad = tmp_path / f"cut{suffix}"
+        bad.write_bytes(path.read_bytes()[:200])
+        with pytest.raises(SystemExit) as exc:
+            main(["compare", str(bad), "--sim", str(result_dir), "--out",
+                  str(tmp_path / f"o{suffix}")])
+        _, err = capfd.readouterr()
+        assert exc.value.code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+        assert not (tmp_path / f"o{suffix}").exists()
+
+
+def test_raw_without_decodable_data_falls_back_to_its_preview_with_a_warning(tmp_path):
+    """A DNG whose raw sub-image LibRaw cannot decode (deflate-compressed CFA here) but
+    whose first image is an RGB preview: read as the 8-bit preview, with one warning."""
+    import tifffile
+
+    rng = np.random.default_rng(0)
+    thumb = (40 + 200 * rng.random((64, 96, 3))).astype(np.uint8)
+    dng = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),
+           (50708, "s", 0, "lightsim test", True)]
+    cfa = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
+           (50710, "B", 3, (0, 1, 2), True), (50711, "H", 1, 1, True),
+           (50714, "H", 1, 256, True), (50717, "H", 1, 4095, True)]
+    path = tmp_path / "preview-only.dng"
+    with tifffile.TiffWriter(path) as tif:
+        tif.write(thumb, photometric="rgb", subfiletype=1, subifds=1, extratags=dng,
+                  metadata=None)
+        tif.write(np.full((128, 192), 1000, np.uint16), photometric=32803, subfiletype=0,
+                  extratags=cfa, metadata=None, compression="zlib")
+    photo = read_photo(path)
+    assert photo.encoding == "srgb-8" and photo.info["preview"] and photo.shape == (64, 96)
+    np.testing.assert_allclose(photo.luminance, luminance(srgb_decode(thumb / 255)))
+    assert len(photo.info["warnings"]) == 1 and "preview" in photo.info["warnings"][0]

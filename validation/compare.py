@@ -59,6 +59,7 @@ from skimage.transform import ProjectiveTransform, warp
 from lightsim import __version__
 from lightsim.errors import InputError
 from lightsim.io.summary import read_json, write_json
+from lightsim.validation.photo_aim import AimResult, AngleSampler, cutoff_offset, test_points
 from lightsim.validation.photo_io import PhotoImage, Simulation, load_simulation, read_photo
 from lightsim.validation.photo_metrics import (
     HIGHER_IS_BETTER,
@@ -79,6 +80,7 @@ from lightsim.validation.photo_register import (
     register,
     registration_dict,
 )
+from lightsim.validation.screen_geometry import ScreenGeometry, fit_screen, parse_points, sim_matrix
 
 __all__ = [
     "OUTPUTS",
@@ -92,6 +94,9 @@ __all__ = [
     "warp_to_sim",
     "write_outputs",
 ]
+
+#: Markers whose corners disagree by more than this (RMS, photo px) are not used.
+MAX_MARKER_RESIDUAL_PX = 3.0
 
 #: Files written by :func:`write_outputs`.
 OUTPUTS = ("comparison.json", "overlay.png", "difference.png", "contours.png")
@@ -107,6 +112,11 @@ class CompareOptions:
     transform: NDArray | None = None
     registration: RegistrationOptions = field(default_factory=RegistrationOptions)
     credit: str | None = None
+    points: str | None = None
+    markers: str = "auto"
+    screen_distance_m: float | None = None
+    normalise_at: str | None = None
+    lamp: str | None = None
 
     def registration_options(self) -> RegistrationOptions:
         """Registration settings with this comparison's model."""
@@ -155,6 +165,8 @@ class Comparison:
     details: dict[str, Any]
     seconds: float
     options: CompareOptions = field(default_factory=CompareOptions)
+    geometry: ScreenGeometry | None = None
+    aim: AimResult | None = None
 
     def transform_dict(self) -> dict[str, Any]:
         """Decomposition and matrix of the transform (JSON-ready)."""
@@ -163,10 +175,22 @@ class Comparison:
         else:
             out = decompose(self.matrix, self.photo.shape)
             out.update(matrix=[[float(v) for v in row] for row in self.matrix / self.matrix[2, 2]],
-                       model="given")
+                       model=("screen " + self.geometry.source) if self.geometry is not None
+                       else "given")
         out["maps"] = "photo pixels (x = column, y = row) → simulation pixels"
         out["overlap_fraction"] = float(self.overlap.mean())
         return out
+
+    def _exif_gain(self) -> dict[str, Any]:
+        """With EXIF: the gain per unit relative exposure (t·ISO/N²), a camera constant
+        that carries the exposure fit to other photos of the same camera."""
+        exif = self.photo.info.get("exif") or {}
+        rel = exif.get("relative_exposure")
+        if not rel:
+            return {}
+        return {"gain_per_relative_exposure": self.photometric.gain / rel,
+                "relative_exposure": rel,
+                "relative_exposure_unit": exif.get("relative_exposure_unit")}
 
     def to_json(self) -> dict[str, Any]:
         """The content of ``comparison.json``."""
@@ -177,7 +201,7 @@ class Comparison:
                            "resolution": [int(self.sim.lux.shape[1]), int(self.sim.lux.shape[0])],
                            "peak_lx": float(np.nanmax(self.sim.lux)), "wall": self.sim.frame},
             "transform": self.transform_dict(),
-            "photometric": self.photometric.to_dict(),
+            "photometric": {**self.photometric.to_dict(), **self._exif_gain()},
             "metrics": self.metrics,
             "metric_info": {"higher_is_better": list(HIGHER_IS_BETTER),
                             "lower_is_better": list(LOWER_IS_BETTER),
@@ -185,6 +209,10 @@ class Comparison:
                                       "hotspot_dh_deg": "deg", "hotspot_dv_deg": "deg",
                                       "cutoff_v_photo_deg": "deg", "cutoff_v_sim_deg": "deg",
                                       "cutoff_offset_deg": "deg"}},
+            "geometry": (self.geometry.to_dict() if self.geometry is not None else
+                         {"source": "given transform" if self.registration is None
+                          else "beam registration"}),
+            "aim": self.aim.to_dict() if self.aim is not None else None,
             "details": self.details,
             "settings": {"model": self.options.model, "fit_gamma": self.options.fit_gamma,
                          "traffic": self.options.traffic,
@@ -266,7 +294,16 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
         raise InputError(f"traffic must be 'right' or 'left', got {opts.traffic!r}")
     t0 = time.perf_counter()
     reg = None
-    if opts.transform is not None:
+    photo, lamps = _one_lamp(photo, opts.lamp)
+    geometry = screen_geometry(photo, sim, opts)
+    if geometry is not None and geometry.source == "markers":
+        from lightsim.validation.screen_target import marker_mask
+
+        # marker pixels are paper and ink, not beam: they take no part in the comparison
+        photo = replace(photo, clipped=photo.clipped | marker_mask(geometry, photo.shape))
+    if geometry is not None:
+        matrix = sim_matrix(geometry, sim.frame)
+    elif opts.transform is not None:
         matrix = np.asarray(opts.transform, np.float64)
     else:
         reg = register(photo.luminance, ~photo.clipped, sim.lux, opts.registration_options())
@@ -274,7 +311,9 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
     values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
     overlap = np.isfinite(values) & np.isfinite(sim.lux)
     if overlap.sum() < max(25, 0.005 * overlap.size):
-        raise InputError("no overlap between the photo and the simulation after registration")
+        raise InputError("no overlap between the photo and the simulation after registration"
+                         if reg is not None else "the photo does not show the simulated part "
+                         "of the screen (no overlap through the screen geometry)")
     full_scale = 1.0 if photo.encoding.startswith("srgb") else math.inf
     phot = fit_photometric(values, sim.lux, overlap & ~clip_w, opts.fit_gamma,
                            full_scale=full_scale)
@@ -282,8 +321,183 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
     metrics, details = compute_metrics(photo_lux, sim.lux, overlap, clip_w, sim.frame,
                                        phot.clip_lx, opts.traffic,
                                        reg.blur_px if reg is not None else 0.0)
+    aim = measure_aim(photo, sim, matrix, geometry, reg, opts)
+    if aim.hotspot_dh_deg is not None:      # one hot-spot measure in the whole report
+        metrics.update(hotspot_dh_deg=aim.hotspot_dh_deg, hotspot_dv_deg=aim.hotspot_dv_deg,
+                       hotspot_offset_deg=math.hypot(aim.hotspot_dh_deg, aim.hotspot_dv_deg))
+    metrics["cutoff_dv_deg"] = aim.cutoff.offset_deg
+    metrics["cutoff_dv_abs_deg"] = (abs(aim.cutoff.offset_deg)
+                                    if aim.cutoff.offset_deg is not None else None)
+    metrics["cutoff_dv_interval_deg"] = aim.cutoff.interval_deg
+    metrics["geometry_residual_deg"] = (geometry.residual_deg[0] if geometry is not None
+                                        else None)
+    details["lamps"] = {"count": lamps.count, "hotspot_columns_px": list(lamps.peaks_px),
+                        "split_column_px": lamps.split_px, "kept": opts.lamp}
     return Comparison(photo, sim, matrix, reg, phot, photo_lux, clip_w, overlap, metrics,
-                      details, time.perf_counter() - t0, opts)
+                      details, time.perf_counter() - t0, opts, geometry, aim)
+
+
+def _one_lamp(photo: PhotoImage, lamp: str | None) -> tuple[PhotoImage, Any]:
+    """Find the lamps on the photo; keep one (``--lamp``) or warn that there are several."""
+    from lightsim.validation.photo_lamps import find_lamps, keep_lamp
+
+    lamps = find_lamps(photo)
+    if lamp is not None:
+        return keep_lamp(photo, lamp, lamps), lamps
+    if lamps.count >= 2:
+        cols = ", ".join(f"{c:.0f}" for c in lamps.peaks_px)
+        photo.info.setdefault("warnings", []).append(
+            f"photo {Path(photo.path).name}: {lamps.count} lamps found (hot spots at x = "
+            f"{cols} px) but the simulation is one lamp; pick one with --lamp left|right")
+    return photo, lamps
+
+
+def screen_geometry(photo: PhotoImage, sim: Simulation, opts: CompareOptions
+                    ) -> ScreenGeometry | None:
+    """The photo's screen geometry: ``--points``, else markers found on it, else None.
+
+    Raises
+    ------
+    InputError
+        Malformed or degenerate control points, or an unreadable marker layout.
+    """
+    distance = opts.screen_distance_m or sim.wall.distance_m
+    if opts.points:
+        xy, hv = parse_points(opts.points)
+        hp, wp = photo.shape
+        if np.any((xy < -0.5) | (xy > np.array([wp - 0.5, hp - 0.5]))):
+            raise InputError(f"--points: a photo pixel lies outside the {wp}×{hp} photo")
+        return fit_screen(xy, hv, distance, source="points")
+    if opts.markers == "off" or opts.transform is not None:
+        return None
+    from lightsim.validation.screen_target import detect_markers, load_layout
+
+    layout = None if opts.markers == "auto" else load_layout(opts.markers)
+    geo = detect_markers(photo.luminance, layout, distance)
+    name = Path(photo.path).name
+    if geo is None:
+        return None
+    warnings = photo.info.setdefault("warnings", [])
+    if len(geo.details["marker_ids"]) < 2:
+        # four corners fix a homography exactly, with nothing left to check it (a false
+        # detection in wall texture would pass): a second marker is required
+        warnings.append(f"photo {name}: only marker {geo.details['marker_ids'][0]} found; "
+                        "two or more are needed to check the screen geometry, so it is "
+                        "not used")
+        return None
+    if geo.residual_px[0] > MAX_MARKER_RESIDUAL_PX:
+        warnings.append(f"photo {name}: the markers found disagree (residual "
+                        f"{geo.residual_px[0]:.1f} px RMS > {MAX_MARKER_RESIDUAL_PX:g}): "
+                        "moved or misplaced markers, or a false detection; not used")
+        return None
+    return geo
+
+
+_NOT_JUDGEABLE = ("aim cannot be judged from this photo: without control points (--points) "
+                  "or screen markers the photo was registered by the beam itself, which moves "
+                  "it onto the simulated pattern and hides any aim error; the offsets below "
+                  "compare the pattern's shape only")
+
+
+def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
+                geometry: ScreenGeometry | None, reg: Registration | None,
+                opts: CompareOptions) -> AimResult:
+    """Cut-off offset, hot-spot offset and test points read off the photo (no fitting
+    of the photo onto the beam when the geometry comes from the screen)."""
+    sampler = AngleSampler(photo.luminance, photo.clipped, matrix, sim.lux, sim.frame)
+    sigma = geometry.sigma_deg if geometry is not None else None
+    cut = cutoff_offset(sampler, opts.traffic, sigma, geometry)
+    norm, points = test_points(sampler, opts.traffic, opts.normalise_at)
+    spots, spot_deg = _hotspot_offset(photo, sim, matrix)
+    if geometry is not None and spot_deg is not None:
+        x, y = geometry.deg_to_photo(np.array([spot_deg[0]]), np.array([spot_deg[1]]))
+        sig = geometry.sigma_at(x, y)
+        if sig is not None:
+            sigma = float(math.hypot(sig[0][0], sig[1][0]))
+    if geometry is not None:
+        judge = True
+        statement = (f"aim measured through the screen geometry from {len(geometry.photo_xy)} "
+                     f"{'control points' if geometry.source == 'points' else 'marker corners'}"
+                     f" (residual {geometry.residual_px[0]:.2f} px, "
+                     f"{geometry.residual_deg[0]:.3f}° RMS); the photo was not moved onto "
+                     "the beam")
+    elif reg is None:
+        judge = True
+        statement = ("aim measured through the given transform; lightsim cannot check it: "
+                     "it is only as good as the transform's source")
+    else:
+        judge, statement = False, _NOT_JUDGEABLE
+    # the core match resolves about a quarter of a simulation pixel; the geometry adds σ
+    step = float(np.mean(np.abs(np.diff(sim.wall.v_deg())))) if sim.wall.height > 1 else 0.0
+    h_int = 1.96 * math.hypot(sigma or 0.0, 0.25 * step) if judge else None
+    return AimResult(judge, statement, geometry.source if geometry is not None else
+                     ("given transform" if reg is None else "beam registration"), cut,
+                     spots[0], spots[1], h_int, norm, points)
+
+
+def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray,
+                    core_level: float = 0.3, max_shift_deg: float = 2.5
+                    ) -> tuple[tuple[float | None, float | None],
+                               tuple[float, float] | None]:
+    """Photo − simulation hot spot (deg): the shift of the photo's bright core that best
+    matches the simulation's.
+
+    The core is where the (σ = 1 px smoothed) simulation reaches ``core_level`` of its
+    maximum; every integer shift within ±``max_shift_deg`` is scored by the ZNCC of the
+    photo (on the simulation grid, clipped and masked pixels left out, at least half the
+    core covered) against the simulation over the core, and the best is refined by a
+    parabola along H and V. A shape measure robust to a noisy or clipped maximum (a
+    centroid of the top 10 % is not). Returns the offset and the photo's hot spot (the
+    simulation's core centroid moved by it).
+    """
+    from scipy.ndimage import gaussian_filter
+
+    values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
+    good = np.isfinite(values) & ~clip_w
+    s = gaussian_filter(np.nan_to_num(sim.lux), 1.0)
+    core = s >= core_level * float(s.max())
+    wall = sim.wall
+    step_h = abs(float(np.mean(np.diff(wall.h_deg())))) if wall.width > 1 else 1.0
+    step_v = abs(float(np.mean(np.diff(wall.v_deg())))) if wall.height > 1 else 1.0
+    mx, my = (max(1, round(max_shift_deg / st)) for st in (step_h, step_v))
+    rr, cc = np.nonzero(core)
+    if rr.size < 9 or not good.any():
+        return (None, None), None
+    ref = s[rr, cc]
+    pv = np.where(good, values, np.nan)
+    hs, ws = pv.shape
+    scores = np.full((2 * my + 1, 2 * mx + 1), -np.inf)
+    for iy, dy in enumerate(range(-my, my + 1)):
+        y = rr + dy
+        for ix, dx in enumerate(range(-mx, mx + 1)):
+            x = cc + dx
+            ok = (y >= 0) & (y < hs) & (x >= 0) & (x < ws)
+            v = np.full(rr.size, np.nan)
+            v[ok] = pv[y[ok], x[ok]]
+            use = np.isfinite(v)
+            if use.sum() < 0.5 * rr.size:
+                continue
+            a, b = v[use] - v[use].mean(), ref[use] - ref[use].mean()
+            den = math.sqrt(float(a @ a) * float(b @ b))
+            if den > 0:
+                scores[iy, ix] = float(a @ b) / den
+    if not np.isfinite(scores).any():
+        return (None, None), None
+    iy, ix = np.unravel_index(int(np.argmax(scores)), scores.shape)
+
+    def refine(c0: float, c1: float, c2: float) -> float:
+        den = c0 - 2 * c1 + c2
+        ok = all(math.isfinite(c) for c in (c0, c1, c2)) and den < 0
+        return 0.5 * (c0 - c2) / den if ok else 0.0
+
+    fx = refine(*scores[iy, ix - 1:ix + 2]) if 0 < ix < 2 * mx else 0.0
+    fy = refine(*scores[iy - 1:iy + 2, ix]) if 0 < iy < 2 * my else 0.0
+    dx, dy = ix - mx + fx, iy - my + fy
+    dh, dv = dx * step_h, -dy * step_v                  # rows grow downwards
+    w = ref / ref.sum()
+    hs_deg = float(np.interp(float(w @ cc), np.arange(wall.width), wall.h_deg()))
+    vs_deg = float(np.interp(float(w @ rr), np.arange(wall.height), wall.v_deg()))
+    return (dh, dv), (hs_deg + dh, vs_deg + dv)
 
 
 def write_outputs(result: Comparison, out_dir: str | os.PathLike) -> dict[str, Path]:

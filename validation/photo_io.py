@@ -9,6 +9,12 @@ Photographs (:func:`read_photo`)
     **clipped** (saturated) when any of its channels reaches ``clip_code`` of full scale
     (JPEG compression leaves saturated areas a few codes below 255, hence < 1). The result
     is relative: 1.0 = a pixel at full scale in every channel; the exposure is unknown.
+    Camera raw files (DNG, CR2, NEF, …) are read as linear sensor data with their black and
+    white levels (:mod:`~lightsim.validation.photo_raw`); EXIF exposure (time, f-number,
+    ISO) is kept in ``info["exif"]`` where the file has it. What the image libraries warn
+    or log while reading (e.g. tifffile on a bad tag) is collected into
+    ``info["warnings"]``, one line each, for the command line to print (or not, under
+    ``--quiet``) instead of reaching the terminal directly.
 
 Simulations (:func:`load_simulation`)
     A result folder holding ``wall_lux.exr`` (channel ``Y`` in lx, or ``R``/``G``/``B`` or a
@@ -31,8 +37,10 @@ black_level    1     2/255      a photo whose brightest pixels (99.9th percentil
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -227,8 +235,77 @@ def read_photo(path: str | os.PathLike, clip_code: float = 0.98,
         photo (one line each).
     """
     p = Path(path)
+    from lightsim.validation.photo_raw import exposure_info
+
+    with _library_messages() as messages:
+        photo = _read_photo(p, clip_code, black_level)
+        exif = exposure_info(p)
+    photo.info["warnings"] = photo.info.get("warnings", []) + [
+        f"photo {p.name}: {m}" for m in messages]
+    if exif is not None:
+        photo.info["exif"] = exif
+    return photo
+
+
+@contextlib.contextmanager
+def _library_messages() -> Iterator[list[str]]:
+    """Collect what image libraries print or warn (tifffile logs bad tags, Pillow and numpy
+    warn) as one-line messages instead of letting them reach the terminal."""
+    import logging
+    import warnings
+
+    messages: list[str] = []
+
+    class _Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            messages.append(f"{record.name.split('.')[0]}: {_one_line(record.getMessage())}")
+
+    handler = _Collect(level=logging.WARNING)
+    loggers = [logging.getLogger(n) for n in ("tifffile", "imageio", "PIL", "rawpy")]
+    saved = [(lg.propagate, lg.handlers[:]) for lg in loggers]
+    for lg in loggers:
+        lg.handlers = [handler]
+        lg.propagate = False
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield messages
+        for w in caught:
+            messages.append(_one_line(str(w.message)))
+    finally:
+        for lg, (prop, handlers) in zip(loggers, saved):
+            lg.handlers = handlers
+            lg.propagate = prop
+    # de-duplicate, keep order
+    seen: set[str] = set()
+    messages[:] = [m for m in messages if not (m in seen or seen.add(m))]
+
+
+def _one_line(text: str) -> str:
+    lines = [ln.strip() for ln in str(text).strip().splitlines() if ln.strip()]
+    return lines[0] if lines else "(empty message)"
+
+
+def _read_photo(p: Path, clip_code: float, black_level: float) -> PhotoImage:
+    from lightsim.validation.photo_raw import RAW_SUFFIXES, read_raw
+
     suffix = p.suffix.lower()
-    if suffix == ".exr":
+    extra: dict[str, Any] = {}
+    if suffix in RAW_SUFFIXES:
+        lum_or_codes, clip, encoding, extra, warns = read_raw(p, clip_code)
+        extra = {**extra, "warnings": warns}
+        if encoding == "raw-linear":
+            lum = lum_or_codes
+            if min(lum.shape) < 16:
+                raise InputError(f"photo {p}: too small ({lum.shape[1]}×{lum.shape[0]} pixels)")
+            if not float(np.percentile(lum, 99.9)) > 1e-4:
+                raise InputError(f"photo {p} is all black (no lit pixels): check the file "
+                                 "and the exposure")
+            info = {"width": int(lum.shape[1]), "height": int(lum.shape[0]), "channels": 1,
+                    "encoding": encoding, "clipped_fraction": float(clip.mean()), **extra}
+            return PhotoImage(lum, clip, str(p), encoding, info)
+        raw = _channels_last(lum_or_codes, p)
+    elif suffix == ".exr":
         raw = _channels_last(_read_exr_rgb(p), p)
     elif suffix in _RASTER_SUFFIXES or p.exists():
         raw = _channels_last(_read_raster(p), p)
@@ -261,7 +338,7 @@ def read_photo(path: str | os.PathLike, clip_code: float = 0.98,
                          "exposure")
     info = {"width": int(lum.shape[1]), "height": int(lum.shape[0]),
             "channels": 1 if raw.ndim == 2 else int(raw.shape[-1]), "encoding": encoding,
-            "clipped_fraction": float(clipped.mean())}
+            "clipped_fraction": float(clipped.mean()), **extra}
     return PhotoImage(lum, clipped, str(p), encoding, info)
 
 

@@ -93,10 +93,11 @@ LEVELS = (0.1, 0.3, 0.6)
 #: Metrics where a larger value means a closer match.
 HIGHER_IS_BETTER = ("zncc", "ssim", "psnr_db", "nmi", "iou_10", "iou_30", "iou_60")
 #: Metrics where a smaller value means a closer match.
-LOWER_IS_BETTER = ("rel_rmse", "hotspot_offset_deg", "cutoff_offset_deg")
+LOWER_IS_BETTER = ("rel_rmse", "hotspot_offset_deg", "cutoff_offset_deg", "cutoff_dv_abs_deg")
 #: Every metric name in ``comparison.json["metrics"]``.
 METRICS = (*HIGHER_IS_BETTER, *LOWER_IS_BETTER, "hotspot_dh_deg", "hotspot_dv_deg",
-           "cutoff_v_photo_deg", "cutoff_v_sim_deg", "cutoff_v_sim_blurred_deg")
+           "cutoff_v_photo_deg", "cutoff_v_sim_deg", "cutoff_v_sim_blurred_deg",
+           "cutoff_dv_deg", "cutoff_dv_interval_deg", "geometry_residual_deg")
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,7 @@ from lightsim.luminaires.regulations.units import WallFrame
 from lightsim.validation.photo_io import srgb_encode
 from lightsim.validation.photo_metrics import LEVELS
 
-__all__ = ["plot_contours", "plot_difference", "plot_overlay"]
+__all__ = ["plot_contours", "plot_difference", "plot_overlay", "plot_pair_difference"]
 
 
 def _figure(size: tuple[float, float]) -> Figure:
@@ -184,4 +184,33 @@ def plot_contours(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
                 Line2D([], [], color="k", ls="dashed", label="photo")]
     ax.legend(handles=handles, fontsize=8, loc="upper right")
     _label(ax, "isolux contours (levels relative to the simulation's peak)")
+    return _save(fig, path, dpi, credit)
+
+
+def plot_pair_difference(path: str | os.PathLike, rel_diff: NDArray,
+                         points: Sequence[dict[str, Any]] = (), geometry: Any = None,
+                         title: str = "", credit: str | None = None, dpi: int = 110) -> Path:
+    """Write ``relative_difference.png`` of photo B against photo A (``--against``).
+
+    The map is ``(k·B − A)/A`` in % on A's pixel grid (x right, y down, photo px),
+    diverging colour map clipped at ±50 %, grey where A is dark or either photo clipped;
+    test points (with A's screen geometry) are marked and labelled with their change.
+    """
+    h, w = rel_diff.shape
+    fig = _figure((9.0, 9.0 * h / w + 1.4))
+    ax = fig.add_subplot()
+    ax.set_facecolor("0.6")
+    im = ax.imshow(100 * rel_diff, cmap="RdBu_r", vmin=-50, vmax=50, interpolation="nearest")
+    fig.colorbar(im, ax=ax, shrink=0.8, label="(B − A) / A  (%)")
+    if geometry is not None:
+        for p in points:
+            x, y = geometry.deg_to_photo(np.array(p["h_deg"]), np.array(p["v_deg"]))
+            change = p.get("change")
+            text = p["name"] + ("" if change is None else f" {100 * change:+.0f}%")
+            ax.plot(float(x), float(y), "k+", ms=6)
+            ax.annotate(text, (float(x), float(y)), xytext=(3, 3), textcoords="offset points",
+                        fontsize=7)
+    ax.set_title(title or "relative difference", fontsize=10)
+    ax.set_xlabel("x (photo A px)")
+    ax.set_ylabel("y (photo A px)")
     return _save(fig, path, dpi, credit)

@@ -64,7 +64,7 @@ name                     unit  default     meaning
 =======================  ====  ==========  ================================================
 model                    –     similarity  ``"similarity"`` (rotation, scale, shift) or
                                            ``"homography"`` (photo taken at an angle)
-max_rotation_deg         deg   15          coarse search: rotations in ± this
+max_rotation_deg         deg   20          coarse search: rotations in ± this
 rotation_step_deg        deg   5           coarse search: rotation step
 scale_range              1     (0.5, 2)    coarse search: scales relative to equal widths
 scale_steps_per_octave   –     3           coarse search: scale steps per factor 2
@@ -73,7 +73,8 @@ log_floor                1     0.01        coarse search: floor of E before the 
 coarse_size              px    112         longest side of the coarse-search image
 finest_size              px    1024        longest side of the finest refinement level
 min_overlap              1     0.5         least overlap (fraction of the smaller image)
-candidates               –     3           coarse results screened
+candidates               –     6           coarse results screened (the best of each
+                                           scale step first, so that not all share a scale)
 screen_iter              –     10          solver iterations per screened candidate
 lit_level                1     0.01        refinement: simulation pixels used, relative
                                            to its 99.5th percentile
@@ -125,7 +126,7 @@ class RegistrationOptions:
     """Settings of :func:`register` (units and meaning in the module's table)."""
 
     model: str = "similarity"
-    max_rotation_deg: float = 15.0
+    max_rotation_deg: float = 20.0
     rotation_step_deg: float = 5.0
     scale_range: tuple[float, float] = (0.5, 2.0)
     scale_steps_per_octave: int = 3
@@ -133,7 +134,7 @@ class RegistrationOptions:
     coarse_size: int = 112
     finest_size: int = 1024
     min_overlap: float = 0.5
-    candidates: int = 3
+    candidates: int = 6
     lit_level: float = 0.01
     photo_floor: float = 1e-3
     photo_blur_px: float = 0.5
@@ -176,6 +177,9 @@ class Registration:
     blur_px : float
         How much blurrier the photo is than the simulation: Gaussian σ in simulation px
         (the smoothing the registration itself applies is taken out).
+    blur_at_cap : bool
+        The blur fit ended at its cap (``MAX_BLUR`` level px on the finest level): the
+        blur, and the cut-off offsets that depend on it, are then only a lower bound.
     """
 
     matrix: NDArray
@@ -185,6 +189,7 @@ class Registration:
     coarse: dict[str, Any] = field(default_factory=dict)
     levels: list[dict[str, Any]] = field(default_factory=list)
     blur_px: float = 0.0
+    blur_at_cap: bool = False
 
 
 # ---------------------------------------------------------------------------------------
@@ -509,22 +514,26 @@ def _coarse_search(sim: _Pyramid, photo: _Pyramid, opts: RegistrationOptions
 
 def _distinct(ranked: list[dict[str, Any]], n: int, photo_shape: tuple[int, int]
               ) -> list[dict[str, Any]]:
-    """The first ``n`` results that differ clearly from the ones already kept."""
-    kept: list[dict[str, Any]] = []
-    for r in ranked:
+    """Up to ``n`` clearly different results: the best of each scale step first (in order
+    of score), then the next best; a smooth pattern's NCC peaks at several scales and the
+    screening on the refinement level decides."""
+    def same(r: dict[str, Any], k: dict[str, Any]) -> bool:
         c = decompose(r["matrix"], photo_shape)["photo_centre_to_px"]
-        same = False
-        for k in kept:
-            ck = decompose(k["matrix"], photo_shape)["photo_centre_to_px"]
-            if (abs(r["rotation_deg"] - k["rotation_deg"]) < 4
-                    and abs(math.log(r["scale"] / k["scale"])) < 0.2
-                    and math.hypot(c[0] - ck[0], c[1] - ck[1]) < 0.05 * sum(photo_shape)):
-                same = True
-                break
-        if not same:
-            kept.append(r)
+        ck = decompose(k["matrix"], photo_shape)["photo_centre_to_px"]
+        return (abs(r["rotation_deg"] - k["rotation_deg"]) < 4
+                and abs(math.log(r["scale"] / k["scale"])) < 0.2
+                and math.hypot(c[0] - ck[0], c[1] - ck[1]) < 0.05 * sum(photo_shape))
+
+    per_scale: dict[float, dict[str, Any]] = {}
+    for r in ranked:
+        per_scale.setdefault(round(math.log2(r["scale"]), 3), r)
+    first = sorted(per_scale.values(), key=lambda r: -r["score"])[: max(1, n // 2)]
+    kept: list[dict[str, Any]] = []
+    for r in [*first, *ranked]:
         if len(kept) >= n:
             break
+        if not any(same(r, k) for k in kept):
+            kept.append(r)
     return kept
 
 
@@ -807,7 +816,8 @@ def _refine_level(sim: _Pyramid, photo: _Pyramid, matrix: NDArray, sim_factor: f
              "size": [int(s_lin.shape[1]), int(s_lin.shape[0])], "pixels": used,
              "zncc_log": score, "iterations": iters, "lit_level": lit_level,
              "overlap": used / yy.size,
-             "sim_blur_px": math.sqrt(2 * phot[4]) * sim_factor}
+             "sim_blur_px": math.sqrt(2 * phot[4]) * sim_factor,
+             "blur_at_cap": bool(phot[4] >= 0.999 * 0.5 * MAX_BLUR**2)}
     return m_new, phot, facts
 
 
@@ -952,7 +962,8 @@ def register(photo: NDArray, photo_valid: NDArray, sim: NDArray,
     last = levels[-1]
     own = opts.photo_blur_px * last["photo_factor"] * decompose(m, ppyr.linear.shape)["scale"]
     blur = math.sqrt(max(last["sim_blur_px"] ** 2 - own**2, 0.0))
-    return Registration(m, opts.model, float(last["zncc_log"]), overlap, coarse, levels, blur)
+    return Registration(m, opts.model, float(last["zncc_log"]), overlap, coarse, levels, blur,
+                        bool(last["blur_at_cap"]))
 
 
 def registration_dict(reg: Registration, photo_shape: tuple[int, int]) -> dict[str, Any]:
@@ -960,6 +971,8 @@ def registration_dict(reg: Registration, photo_shape: tuple[int, int]) -> dict[s
     out = decompose(reg.matrix, photo_shape)
     out.update({"matrix": [[float(v) for v in row] for row in _normalise(reg.matrix)],
                 "model": reg.model, "zncc_log": reg.score, "overlap": reg.overlap,
-                "photo_blur_px": reg.blur_px, "coarse": reg.coarse, "levels": reg.levels})
+                "photo_blur_px": reg.blur_px, "blur_at_cap": reg.blur_at_cap,
+                "blur_cap_px": MAX_BLUR * (reg.levels[-1]["sim_factor"] if reg.levels else 1.0),
+                "coarse": reg.coarse, "levels": reg.levels})
     return out
 

@@ -82,13 +82,16 @@ __all__ = [
     "camera_matrix",
     "lowbeam_lux",
     "render_photo",
+    "ring_caustic_lux",
+    "screen_scene",
     "truth_path",
+    "two_spots_lux",
     "wall_frame",
     "write_photo",
     "write_result",
 ]
 
-PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
+PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".dng")
 
 
 # ---------------------------------------------------------------------------------------
@@ -182,6 +185,37 @@ def lowbeam_lux(frame: Any, beam: LowBeam | None = None) -> NDArray:
     return lux * (b.peak_lx / lux.max())
 
 
+def two_spots_lux(frame: Any, peak_lx: float = 30.0) -> NDArray:
+    """Two round spots of different size and brightness (like lamps on a sheet of paper).
+
+    Discs of radius 3° at (−6°, −1°) and 2.2° at (7°, 1°), soft edges (logistic, 0.15°),
+    the second at 2/3 of the first's level, over a 1 % floor; lux at the wall.
+    """
+    wf = WallFrame.from_any(frame)
+    h, v = np.meshgrid(wf.h_deg(), wf.v_deg())
+
+    def disc(h0: float, v0: float, r: float) -> NDArray:
+        return 1.0 / (1.0 + np.exp((np.hypot(h - h0, v - v0) - r) / 0.15))
+
+    return peak_lx * (disc(-6, -1, 3.0) + 2 / 3 * disc(7, 1, 2.2) + 0.01)
+
+
+def ring_caustic_lux(frame: Any, peak_lx: float = 40.0) -> NDArray:
+    """A ring's caustic (the paper's RING scene seen from above): a bright cardioid.
+
+    Light reflected inside a ring focuses on a cardioid ``r = a(1 + cos φ)`` (a = 2.5°,
+    centred on (1°, −0.5°)), brightest towards its cusp side, filled dimly inside, with
+    the ring's own bright rim at 5.2°; lux at the wall.
+    """
+    wf = WallFrame.from_any(frame)
+    h, v = np.meshgrid(wf.h_deg(), wf.v_deg())
+    r, phi = np.hypot(h - 1.0, v + 0.5), np.arctan2(v + 0.5, h - 1.0)
+    rc = 2.5 * (1.0 + np.cos(phi))
+    e = (np.exp(-0.5 * ((r - rc) / 0.3) ** 2) * (0.6 + 0.4 * np.cos(phi / 2) ** 2)
+         + 0.15 * (r < rc) + 0.3 * np.exp(-0.5 * ((r - 5.2) / 0.25) ** 2) + 0.005)
+    return peak_lx * e / e.max()
+
+
 def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
                  description: str = "synthetic pattern", extra: dict[str, Any] | None = None
                  ) -> Path:
@@ -216,6 +250,71 @@ def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
                "lux": {"max_lx": float(np.nanmax(lux))}, **(extra or {})}
     write_json(out / "summary.json", summary)
     return out
+
+
+def screen_scene(lux: NDArray, frame: dict[str, Any], layout: Any = None, upsample: int = 4,
+                 ambient_lx: float = 0.5, texture_seed: int | None = None
+                 ) -> tuple[NDArray, dict[str, Any], NDArray]:
+    """The wall as a camera sees it with a marker board on it (for synthetic photos).
+
+    The lux map is resampled ``upsample`` times finer (bilinear between pixel centres) so
+    the markers' modules are resolved, ``ambient_lx`` of room light is added everywhere (a
+    camera needs some to see markers outside the beam) and the result is multiplied by the
+    board's reflectance (:func:`lightsim.validation.screen_target.board_reflectance`):
+    the wall's luminance up to the constant 1/π of a Lambertian screen.
+
+    Parameters
+    ----------
+    lux : ndarray, shape (H, W)
+        Illuminance on the wall (lx).
+    frame : dict
+        Its wall frame.
+    layout : ScreenLayout, optional
+        Board (default layout).
+    upsample : int, default 4
+        Fine-grid factor.
+    ambient_lx : float, default 0.5
+        Room light (lx).
+    texture_seed : int, optional
+        Give the wall a static texture (random grey rectangles, reflectance 0.45–0.9, like
+        posters and bricks) for photo-against-photo alignment; ``layout=False`` leaves the
+        markers off.
+
+    Returns
+    -------
+    scene : ndarray, shape (u·H, u·W)
+        Reflectance × illuminance (lx), to photograph with :func:`render_photo`.
+    fine_frame : dict
+        The fine grid's wall frame.
+    to_sim : ndarray, shape (3, 3)
+        Fine-grid px → ``frame`` px; a photo's true photo → simulation matrix is
+        ``to_sim @ shot.matrix``.
+    """
+    from lightsim.validation.photo_register import level_matrix
+    from lightsim.validation.screen_target import DEFAULT_LAYOUT, board_reflectance
+
+    u = int(upsample)
+    if u < 1 or not math.isfinite(ambient_lx) or ambient_lx < 0:
+        raise InputError("upsample must be ≥ 1 and ambient light ≥ 0 lx")
+    arr = np.nan_to_num(np.asarray(lux, np.float64))
+    hs, ws = arr.shape
+    rows = (np.arange(hs * u) + 0.5) / u - 0.5
+    cols = (np.arange(ws * u) + 0.5) / u - 0.5
+    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    fine = map_coordinates(arr, [rr, cc], order=1, mode="nearest")
+    fine_frame = {**frame, "resolution": [ws * u, hs * u]}
+    refl = (board_reflectance(layout or DEFAULT_LAYOUT, fine_frame) if layout is not False
+            else np.full(fine.shape, 0.9))
+    if texture_seed is not None:
+        rng = np.random.default_rng(texture_seed)
+        tex = np.ones_like(fine)
+        h, w = fine.shape
+        for _ in range(400):
+            r0, c0 = rng.integers(0, h), rng.integers(0, w)
+            dr, dc = rng.integers(4, max(5, h // 8)), rng.integers(4, max(5, w // 12))
+            tex[r0:r0 + dr, c0:c0 + dc] = rng.uniform(0.5, 1.0)
+        refl = np.where(refl >= 0.89, refl * tex, refl)     # markers stay as printed
+    return (fine + ambient_lx) * refl, fine_frame, level_matrix(u)
 
 
 # ---------------------------------------------------------------------------------------
@@ -432,6 +531,62 @@ def _write_raster(path: Path, codes: NDArray, suffix: str) -> None:
             iio.imwrite(tmp, codes, extension=suffix)
 
 
+#: Sensor levels and EXIF of the synthetic raw camera (12-bit, as many DSLRs).
+DNG_BLACK, DNG_WHITE = 256, 4095
+DNG_EXPOSURE = {"exposure_time_s": 1 / 50, "f_number": 2.8, "iso": 200}
+
+
+def write_dng(path: str | os.PathLike, linear: NDArray, black: int = DNG_BLACK,
+              white: int = DNG_WHITE, exposure: dict[str, float] | None = None) -> Path:
+    """Write a linear grey image as a raw DNG (RGGB mosaic, 2×2 sensor px per photo px).
+
+    The file is a TIFF with the DNG 1.4 tags LibRaw needs (CFA pattern, black and white
+    levels, an identity colour matrix, as-shot neutral) and EXIF-style exposure tags,
+    written by :mod:`tifffile`; every CFA sample of a cell holds the pixel's value, so a
+    reader that bins 2×2 cells gets the photo back.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.dng`` file (written atomically).
+    linear : ndarray, shape (H, W)
+        Linear values, 1 = the white level (clipped to [0, 1]).
+    black, white : int
+        Sensor black and white levels (codes).
+    exposure : dict, optional
+        ``exposure_time_s``, ``f_number``, ``iso`` (default :data:`DNG_EXPOSURE`).
+    """
+    import tifffile
+
+    ex = {**DNG_EXPOSURE, **(exposure or {})}
+    x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
+    codes = np.round(black + x * (white - black)).astype(np.uint16)
+    mosaic = np.kron(codes, np.ones((2, 2), np.uint16))
+    t_num, t_den = 1, round(1 / ex["exposure_time_s"])
+    tags = [
+        (50706, "B", 4, (1, 4, 0, 0), True),            # DNGVersion
+        (50707, "B", 4, (1, 1, 0, 0), True),            # DNGBackwardVersion
+        (50708, "s", 0, "lightsim synthetic camera", True),   # UniqueCameraModel
+        (33421, "H", 2, (2, 2), True),                  # CFARepeatPatternDim
+        (33422, "B", 4, (0, 1, 1, 2), True),            # CFAPattern: R G / G B
+        (50710, "B", 3, (0, 1, 2), True),               # CFAPlaneColor
+        (50711, "H", 1, 1, True),                       # CFALayout: rectangular
+        (50714, "H", 1, int(black), True),              # BlackLevel
+        (50717, "H", 1, int(white), True),              # WhiteLevel
+        (50721, "2i", 9, (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1), True),
+        (50778, "H", 1, 21, True),                      # CalibrationIlluminant1: D65
+        (50728, "2I", 3, (1, 1, 1, 1, 1, 1), True),     # AsShotNeutral
+        (33434, "2I", 1, (t_num, t_den), True),         # ExposureTime
+        (33437, "2I", 1, (round(10 * ex["f_number"]), 10), True),   # FNumber
+        (34855, "H", 1, int(ex["iso"]), True),          # ISOSpeedRatings
+    ]
+    p = Path(path)
+    with atomic_path(p) as tmp:
+        tifffile.imwrite(tmp, mosaic, photometric=32803, compression=None, subfiletype=0,
+                         extratags=tags, metadata=None)
+    return p
+
+
 def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
                 extra: dict[str, Any] | None = None) -> tuple[Path, Path]:
     """Write the photo (format from the suffix) and its ``.truth.json`` sidecar atomically.
@@ -440,7 +595,7 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     ----------
     path : path-like
         ``.png``, ``.jpg``/``.jpeg``, ``.tif``/``.tiff`` (sRGB-encoded, 8/16 bit RGB) or
-        ``.exr`` (linear float R, G, B).
+        ``.exr`` (linear float R, G, B) or ``.dng`` (a raw file: :func:`write_dng`).
     photo : SyntheticPhoto
         From :func:`render_photo`.
     extra : dict, optional
@@ -464,7 +619,9 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     bits = photo.settings.bits
     if suffix in (".jpg", ".jpeg") and bits != 8:
         raise InputError("JPEG photos are 8-bit; use --bits 8 or write PNG/TIFF")
-    if suffix == ".exr":
+    if suffix == ".dng":
+        write_dng(p, photo.linear)
+    elif suffix == ".exr":
         from lightsim.io.exr import write_exr
 
         lin = photo.linear.astype(np.float32)
