@@ -275,6 +275,9 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
                    f"checkpoint.json — continue with: lightsim simulate --resume "
                    f"{result.out_dir}", err=True)
         raise SystemExit(130)
+    ff_note = result.summary.get("farfield", {}).get("warning")
+    if ff_note:  # flux a written Type A file leaves out
+        click.echo(f"lightsim: warning: {ff_note}", err=True)
     if not quiet:
         s = result.summary
         e = s["energy_lm"]

@@ -22,7 +22,6 @@ option                 unit   default     meaning
 ``--lamps``            –      40          lamps in the coverage study
 ``--aperture``         deg    0.15        detector aperture of the coverage study
 ``--spt-points``       –      off         SPT aimed at the test points (coverage study)
-``--truth``            –      cell        ``cell`` (today's sampler) or ``bilinear``
 =====================  =====  ==========  ================================================
 
 ``lightsim converge SCENE``
@@ -87,20 +86,18 @@ def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
 @click.option("--aperture", type=float, default=0.15, show_default=True,
               help="Detector aperture (deg) of the coverage study.")
 @click.option("--spt-points", is_flag=True, help="Coverage study with SPT aimed at the points.")
-@click.option("--truth", type=click.Choice(["cell", "bilinear"]), default="cell",
-              show_default=True, help="Intensity the source samples (cell = today's sampler).")
 @click.option("--quiet", "-q", is_flag=True, help="Only the table.")
 def validate(full: bool, stability: bool, run_all: bool, cases: tuple[str, ...],
              estimators: tuple[str, ...], photons: int | None, seed: int,
              json_path: str | None, coverage: bool, lamps: int, aperture: float,
-             spt_points: bool, truth: str, quiet: bool) -> None:
+             spt_points: bool, quiet: bool) -> None:
     """Check the simulator against exact answers (and stiff, extreme cases).
 
     Prints case, quantity, expected, measured, error, uncertainty and pass for every
     check; exits with code 1 if any check fails.
     """
     if coverage:
-        _coverage(lamps, photons or 1_000_000, aperture, spt_points, truth, seed,
+        _coverage(lamps, photons or 1_000_000, aperture, spt_points, seed,
                   json_path, quiet)
         return
     from lightsim.validation import analytic
@@ -277,7 +274,7 @@ def converge(scene: str, budgets: str | None, full: bool, estimators: tuple[str,
     click.echo(f"wrote {paths['csv']}, {paths['json']}, {paths['png']}")
 
 
-def _coverage(lamps: int, photons: int, aperture: float, spt: bool, truth: str, seed: int,
+def _coverage(lamps: int, photons: int, aperture: float, spt: bool, seed: int,
               json_path: str | None, quiet: bool) -> None:
     """``validate --coverage``: print the rate, the worst biases and a per-point table."""
     from lightsim.validation.coverage import COVERAGE_BAND, coverage_study
@@ -293,15 +290,15 @@ def _coverage(lamps: int, photons: int, aperture: float, spt: bool, truth: str, 
         if not quiet:
             click.echo(f"  lamp {n + 1}/{lamps}: {run.seconds:.1f} s", err=True)
 
-    res = coverage_study(lamps, photons, aperture_deg=aperture, spt=spt, truth=truth,
-                         seed=seed, progress=progress)
+    res = coverage_study(lamps, photons, aperture_deg=aperture, spt=spt, seed=seed,
+                         progress=progress)
     lo, hi = res.band()
     ok = lo <= res.rate <= hi
     rows = [[name, f"{p['coverage']:.1%}", f"{p['mean_bias_halfwidths']:+.2f}"]
             for name, p in res.per_point.items()]
     _print_table(f"lightsim validate --coverage: {res.lamps} lamps × {photons:,} photons, "
                  f"aperture {aperture:g}°{' with SPT' if spt else ''} "
-                 f"(truth: {truth}), {res.seconds:.0f} s",
+                 f"(truth: the file's bilinear intensity), {res.seconds:.0f} s",
                  ["point", "coverage", "mean bias (half-widths)"], rows)
     click.echo(f"coverage {res.covered}/{res.evaluations} = {res.rate:.1%} "
                f"(target {COVERAGE_BAND[0]:.0%}–{COVERAGE_BAND[1]:.0%}, accepted "

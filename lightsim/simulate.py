@@ -355,9 +355,29 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
             out_a = float(grids["A"].metadata.get("flux_outside_lm", 0.0))
             summary["farfield"]["type_a_flux_lm"] = float(grids["A"].total_flux())
             summary["farfield"]["type_a_outside_lm"] = out_a
+            if opts.ies and ies_type == "A":
+                note = type_a_outside_warning(opts.ies, float(grids["A"].total_flux()), out_a)
+                if note:
+                    summary["farfield"]["warning"] = note
         for path, kind in wanted.items():
             write_photometric(path, grids[kind])
             summary["farfield"]["files"].append(str(path))
+
+
+TYPE_A_OUTSIDE_WARN = 0.01
+"""Share of the far-field flux outside a written Type A file above which we warn."""
+
+
+def type_a_outside_warning(path: str | os.PathLike, inside_lm: float, outside_lm: float,
+                           threshold: float = TYPE_A_OUTSIDE_WARN) -> str | None:
+    """One line when more than ``threshold`` of the far-field flux (lm) is not in the Type A
+    file at ``path`` (it holds only the front hemisphere, H and V within ±90°); else None."""
+    total = inside_lm + outside_lm
+    if not (total > 0 and math.isfinite(total)) or outside_lm <= threshold * total:
+        return None
+    return (f"{Path(path).name} (Type A) holds only the front hemisphere: {outside_lm:.3g} lm "
+            f"of the far field's {total:.4g} lm ({outside_lm / total:.1%}) leaves behind the "
+            "lamp and is not in it; --ies-type C keeps all of it")
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:

@@ -316,6 +316,23 @@ def test_relation_hv_vs_imax(tmp_path):
         == "uncertain"
 
 
+def test_relation_row_shows_factor_times_reference():
+    """The limit column of "HV ≥ 0.8·Imax" shows 0.8 × Imax (the threshold), not Imax."""
+    rs = load_ruleset("r112-b-driving")
+    pr = probe_points(rs, spacing_deg=1.0)
+    imax, hv = pr.indices("Imax"), pr.indices("HV")[0]
+    vals = np.full((5, len(pr)), 30000.0) + np.arange(5)[:, None]
+    vals[:, imax[len(imax) // 2]] = 157048.0 + np.array([-2.0, -1.0, 0.0, 1.0, 2.0])
+    vals[:, hv] = 140000.0
+    res = evaluate(rs, pr, vals)
+    rel = next(r for r in res if r["kind"] == "relation")
+    assert rel["limit"]["min"] == pytest.approx(0.8 * 157048.0)
+    console = Console(record=True, width=250, color_system=None)
+    console.print(format_table(res))
+    row = next(line for line in console.export_text().splitlines() if "0.8·Imax" in line)
+    assert "0.8·Imax = 125,638 (Imax 157,048)" in row and "pass" in row
+
+
 def test_zone_relation_every_point(tmp_path):
     rs = load_ruleset(write_rules(tmp_path, """
 [[point]]

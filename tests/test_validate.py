@@ -288,23 +288,37 @@ def test_full_suite_passes():
 # Coverage of the regulation points' intervals (validate --coverage)
 # ------------------------------------------------------------------------------------------
 
-def test_synthetic_lamp_truth_is_the_sampled_intensity():
-    from lightsim.validation.coverage import _cell_intensity, aperture_truth, synthetic_lamp
+def test_synthetic_lamp_is_type_a_and_truth_is_the_files_interpolant(tmp_path):
+    from lightsim.luminaires.photometric import HVGrid, read_ies, write_ies
+    from lightsim.validation.coverage import aperture_truth, lamp_intensity, synthetic_lamp
 
     grid, p = synthetic_lamp(np.random.default_rng(5))
-    # the cell-constant truth is a grid node's value, the aperture mean lies between
-    h, v = np.array([1.15, -3.43]), np.array([-0.57, 0.57])
-    t = aperture_truth(grid, h, v, 0.15, quad=64)
-    cell = _cell_intensity(grid, h, v)
-    assert t[0] == pytest.approx(cell[0], rel=0.2) and 0 < t[1] < 0.2 * t[0]
-    # a tiny aperture inside one cell returns that cell's value exactly
-    tiny = aperture_truth(grid, np.array([0.6]), np.array([-2.0]), 0.01, quad=8)
-    assert tiny[0] == pytest.approx(_cell_intensity(grid, np.array([0.6]),
-                                                    np.array([-2.0]))[0], rel=1e-9)
-    # the sharp cut-off: just below vc is bright, just above is glare
-    below = _cell_intensity(grid, np.array([-3.0]), np.array([p["vc"] - 0.2]))[0]
-    above = _cell_intensity(grid, np.array([-3.0]), np.array([p["vc"] + 0.2]))[0]
-    assert below > 8 * above > 0
+    # written as Type A (photometric type 3) and read back unchanged by the IES reader
+    write_ies(tmp_path / "l.ies", grid)
+    back = read_ies(tmp_path / "l.ies")
+    assert isinstance(back, HVGrid) and back.photometric_type == "A"
+    assert (tmp_path / "l.ies").read_text().splitlines()[8].split()[5] == "3"
+    np.testing.assert_allclose(back.candela, grid.candela, rtol=1e-6)
+    # at H = 0 the Type A node (0, V) is the wall angle (0, V): the node holds the formula
+    j = int(np.argmin(np.abs(grid.h_deg)))
+    i = int(np.argmin(np.abs(grid.v_deg + 2.0)))
+    assert grid.h_deg[j] == 0.0
+    assert grid.candela[j, i] == pytest.approx(
+        lamp_intensity(np.array(0.0), np.array(grid.v_deg[i]), p), rel=1e-12)
+    # a small aperture inside one bilinear cell returns the interpolant at its centre
+    h, v = np.array([0.625]), np.array([-2.05])
+    tiny = aperture_truth(back, h, v, 0.01, quad=4)
+    assert tiny[0] == pytest.approx(float(back.intensity_hv(h, v)[0]), rel=1e-6)
+    # a uniform lamp's aperture mean is its intensity whatever the aperture (exact dΩ)
+    flat = HVGrid(grid.h_deg, grid.v_deg, np.full(grid.shape, 1234.0), "A")
+    big = aperture_truth(flat, np.array([-20.0, 0.0]), np.array([5.0, 0.0]), 1.5, quad=16)
+    np.testing.assert_allclose(big, 1234.0, rtol=1e-6)
+    # the 95 % point's neighbourhood: the hot spot is bright, the glare just above the
+    # cut-off at least 8× dimmer
+    t = aperture_truth(back, np.array([1.15, -3.43]), np.array([-0.57, 0.57]), 0.15)
+    below = float(back.intensity_hv(np.array([-3.0]), np.array([p["vc"] - 0.2]))[0])
+    above = float(back.intensity_hv(np.array([-3.0]), np.array([p["vc"] + 0.2]))[0])
+    assert t[0] > 5 * t[1] > 0 and below > 8 * above > 0
 
 
 def test_coverage_study_small_within_a_binomial_band():

@@ -1,19 +1,19 @@
 """Coverage of the regulation test points' intervals on synthetic lamps with known answers.
 
 ``lightsim validate --coverage`` builds many synthetic low-beam intensity distributions
-with a sharp cut-off (:func:`synthetic_lamp`), writes each to an IES file in a temporary
-folder, loads it as a user would (``load_scene(path)``: a goniometric point source in
-front of the 25 m wall), runs the engine with detector apertures at the rule set's test
-points (:func:`lightsim.report.aperture_config`) and compares every point's 95 % Student-t
-interval with the exact answer: the aperture mean of the file's intensity,
+with a sharp cut-off (:func:`synthetic_lamp`), writes each to a Type A IES file (the
+headlamp type) in a temporary folder, loads it as a user would (``load_scene(path)``: a
+goniometric point source in front of the 25 m wall), runs the engine with detector
+apertures at the rule set's test points (:func:`lightsim.report.aperture_config`) and
+compares every point's 95 % Student-t interval with the exact answer: the aperture mean
+of the file's intensity,
 
     I_true = ∫_aperture I(ω) dΩ / Ω,
 
 integrated with ``quad`` × ``quad`` midpoints in (H, V) weighted by the exact
 dΩ = sec²H sec²V / (1 + tan²H + tan²V)^{3/2} dH dV. The intensity is the one the source
-*samples*: today constant over each grid cell (``truth="cell"``, the cells of
-:func:`~lightsim.luminaires.photometric.sampling.sample_directions`); once the sampler
-follows the bilinear :meth:`CandelaGrid.intensity_hv`, pass ``truth="bilinear"``.
+samples: the file's bilinear interpolant :meth:`HVGrid.intensity_hv` (the goniometric
+sampler draws exactly from it, see :mod:`~lightsim.luminaires.photometric.bilinear`).
 
 Reported: the share of (lamp, point) evaluations whose interval covers the truth (target
 93–97 % for 95 % intervals), the worst single evaluation's bias in units of its interval
@@ -28,7 +28,6 @@ photons         –      1 000 000         photons per lamp
 aperture_deg    deg    0.15              detector aperture side
 ruleset         –      r112-b-passing    whose points are tested (plus H-V)
 spt             –      False             Selective Photon Tracing aimed at the points
-truth           –      "cell"            "cell" (today's sampler) or "bilinear"
 quad            –      64                midpoints per aperture side for the truth
 seed            –      1                 lamp parameters and photon sequences
 ==============  =====  ================  ==============================================
@@ -84,16 +83,14 @@ def lamp_intensity(h: NDArray, v: NDArray, p: dict[str, float]) -> NDArray:
 
 
 def synthetic_lamp(rng: np.random.Generator) -> tuple[Any, dict[str, float]]:
-    """A random sharp cut-off low beam as a Type C :class:`CandelaGrid` and its parameters.
+    """A random sharp cut-off low beam as a Type A :class:`HVGrid` and its parameters.
 
-    Grid: C every 0.25° within ±25° of straight ahead (5° elsewhere), γ every 0.1° within
-    ±6° of the horizontal (1° to ±30°, 10° beyond); zero behind the lamp.
+    Grid (Type A, the headlamp type: front hemisphere only): H every 0.25° within ±25°
+    (5° out to ±90°), V every 0.1° within ±6° (1° to ±30°, 10° to ±90°). Each node's
+    value is :func:`lamp_intensity` at the node's wall angles.
     """
-    from lightsim.luminaires.photometric.candela import (
-        CandelaGrid,
-        directions_from_angles,
-        hv_from_directions,
-    )
+    from lightsim.luminaires.photometric import HVGrid, hv_directions
+    from lightsim.luminaires.photometric.candela import hv_from_directions
 
     p = {"I0": rng.uniform(15e3, 35e3), "h0": rng.uniform(0.5, 2.5),
          "v0": rng.uniform(-2.0, -1.0), "sh": rng.uniform(2.0, 5.0),
@@ -101,54 +98,38 @@ def synthetic_lamp(rng: np.random.Generator) -> tuple[Any, dict[str, float]]:
          "wh": rng.uniform(12.0, 25.0), "wv": rng.uniform(2.0, 4.0),
          "vc": rng.uniform(-0.7, -0.4), "rise": rng.uniform(0.8, 1.2),
          "glare": rng.uniform(0.03, 0.1)}
-    c_fwd = _axis(-25.0, 25.0, 0.25, -180.0, 180.0 - 1e-9, 5.0)
-    c = np.unique(np.round(c_fwd % 360.0, 9))
-    g = _axis(84.0, 96.0, 0.1, 0.0, 180.0, 1.0)
-    g = np.unique(np.concatenate([g[(g >= 60) & (g <= 120)], np.arange(0, 61, 10.0),
-                                  np.arange(120, 181, 10.0)]))
-    C, G = np.meshgrid(c, g, indexing="ij")
-    d = directions_from_angles(C, G)
+    h_ax = _axis(-25.0, 25.0, 0.25, -90.0, 90.0, 5.0)
+    v_ax = _axis(-30.0, 30.0, 1.0, -90.0, 90.0, 10.0)
+    v_ax = np.unique(np.concatenate([v_ax, _axis(-6.0, 6.0, 0.1, -6.0, 6.0, 1.0)]))
+    H, V = np.meshgrid(h_ax, v_ax, indexing="ij")
+    d = hv_directions(H, V, "A")
     h, v = hv_from_directions(d)
-    fwd = d[..., 2] > 1e-6
+    fwd = d[..., 2] > 1e-6  # H = ±90°, V = ±90° lie in the lamp's plane: zero there
     cd = np.where(fwd, lamp_intensity(np.nan_to_num(h), np.nan_to_num(v), p), 0.0)
     meta = {"luminaire": "lightsim synthetic low beam",
             "test": " ".join(f"{k}={val:.4g}" for k, val in p.items())}
-    return CandelaGrid(c, g, cd, None, meta), p
-
-
-def _cell_intensity(grid: Any, h: NDArray, v: NDArray) -> NDArray:
-    """The grid's intensity as today's sampler emits it: constant over each cell."""
-    from lightsim.luminaires.photometric.candela import angles_from_directions, direction_from_hv
-
-    c, g = angles_from_directions(direction_from_hv(h, v))
-    ce = grid.c_edges_deg()
-    ge = grid.gamma_edges_deg()
-    cc = np.where(c < ce[0], c + 360.0, c)
-    cc = np.where(cc >= ce[-1], cc - 360.0, cc)
-    j = np.clip(np.searchsorted(ce, cc, side="right") - 1, 0, len(grid.c_deg) - 1)
-    i = np.clip(np.searchsorted(ge, g, side="right") - 1, 0, len(grid.gamma_deg) - 1)
-    inside = (g >= ge[0]) & (g <= ge[-1])
-    return np.where(inside, grid.candela[j, i], 0.0)
+    return HVGrid(h_ax, v_ax, cd, "A", None, meta), p
 
 
 def aperture_truth(grid: Any, h_deg: NDArray, v_deg: NDArray, size_deg: float,
-                   truth: str = "cell", quad: int = 64) -> NDArray:
-    """Exact aperture-mean intensity (cd) of ``grid`` at the square apertures (deg)."""
+                   quad: int = 64) -> NDArray:
+    """Exact aperture-mean intensity (cd) of ``grid`` at the square apertures (deg).
+
+    ``grid`` is any photometric grid with ``intensity_hv`` (the interpolant its sampler
+    draws from); ``quad`` × ``quad`` midpoints per aperture, weighted by the exact dΩ.
+    """
     from lightsim.engine.apertures import rect_solid_angle
 
-    if truth not in ("cell", "bilinear"):
-        raise ValueError(f"truth must be 'cell' or 'bilinear', got {truth!r}")
     u = (np.arange(quad) + 0.5) / quad - 0.5
     out = np.zeros(len(h_deg))
     for n, (hc, vc) in enumerate(zip(h_deg, v_deg, strict=True)):
         H, V = np.meshgrid(hc + size_deg * u, vc + size_deg * u)
         th, tv = np.tan(np.radians(H)), np.tan(np.radians(V))
         w = (1 + th**2) * (1 + tv**2) / (1 + th**2 + tv**2) ** 1.5
-        inten = (_cell_intensity(grid, H, V) if truth == "cell"
-                 else grid.intensity_hv(H, V))
         omega = rect_solid_angle(hc - size_deg / 2, hc + size_deg / 2,
                                  vc - size_deg / 2, vc + size_deg / 2)
-        out[n] = float(np.sum(inten * w)) * math.radians(size_deg / quad) ** 2 / omega
+        out[n] = (float(np.sum(grid.intensity_hv(H, V) * w))
+                  * math.radians(size_deg / quad) ** 2 / omega)
     return out
 
 
@@ -184,8 +165,8 @@ def point_apertures(ruleset: str, traffic: str, frame: Any
 
 def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
              ruleset: str = "r112-b-passing", traffic: str = "right", spt: bool = False,
-             seed: int = 1, truth: str = "cell", quad: int = 64,
-             config: RunConfig | None = None, confidence: float = 0.95) -> LampRun:
+             seed: int = 1, quad: int = 64, config: RunConfig | None = None,
+             confidence: float = 0.95) -> LampRun:
     """Simulate the IES file at ``path`` as a point source and measure its test points."""
     from scipy.special import stdtrit
 
@@ -219,7 +200,7 @@ def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
     seconds = time.perf_counter() - t0
     grid = read_ies(path)
     return LampRun(names, h, v, cd, interval, n_eff,
-                   aperture_truth(grid, h, v, aperture_deg, truth, quad), seconds)
+                   aperture_truth(grid, h, v, aperture_deg, quad), seconds)
 
 
 @dataclass
@@ -230,7 +211,6 @@ class CoverageResult:
     photons: int
     aperture_deg: float
     spt: bool
-    truth: str
     evaluations: int
     covered: int
     worst_bias: float  # |mean − truth| / half-width, worst single evaluation
@@ -252,7 +232,7 @@ class CoverageResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"lamps": self.lamps, "photons": self.photons,
-                "aperture_deg": self.aperture_deg, "spt": self.spt, "truth": self.truth,
+                "aperture_deg": self.aperture_deg, "spt": self.spt,
                 "evaluations": self.evaluations, "covered": self.covered,
                 "rate": self.rate, "worst_bias_halfwidths": self.worst_bias,
                 "worst_bias_point": self.worst_bias_point,
@@ -262,8 +242,8 @@ class CoverageResult:
 
 
 def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: float = 0.15,
-                   ruleset: str = "r112-b-passing", spt: bool = False, truth: str = "cell",
-                   seed: int = 1, confidence: float = 0.95, quad: int = 64,
+                   ruleset: str = "r112-b-passing", spt: bool = False, seed: int = 1,
+                   confidence: float = 0.95, quad: int = 64,
                    progress: Callable[[int, LampRun], None] | None = None) -> CoverageResult:
     """Run ``lamps`` synthetic lamps and count interval coverage (see module docstring)."""
     from lightsim.luminaires.photometric import write_ies
@@ -279,7 +259,7 @@ def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: f
             path = Path(tmp) / f"lamp{n:03d}.ies"
             write_ies(path, grid)
             run = run_lamp(path, photons, aperture_deg=aperture_deg, ruleset=ruleset,
-                           spt=spt, seed=seed + n, truth=truth, quad=quad,
+                           spt=spt, seed=seed + n, quad=quad,
                            confidence=confidence)
             mean = run.per_set_cd.mean(axis=0)
             lo, hi = run.interval_cd[:, 0], run.interval_cd[:, 1]
@@ -308,7 +288,7 @@ def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: f
                          "infinite": int((~np.isfinite(b_all[sel])).sum())}
     worst_pt = max(per_point, key=lambda q: abs(per_point[q]["mean_bias_halfwidths"])
                    if math.isfinite(per_point[q]["mean_bias_halfwidths"]) else math.inf)
-    return CoverageResult(lamps, photons, aperture_deg, spt, truth, int(cov.size),
+    return CoverageResult(lamps, photons, aperture_deg, spt, int(cov.size),
                           int(cov.sum()), float(abs(b_all[k])), str(names[k]),
                           float(per_point[worst_pt]["mean_bias_halfwidths"]), worst_pt,
                           time.perf_counter() - t0, per_point)
@@ -346,7 +326,7 @@ class SptGain:
 
 
 def spt_gain(lamps: int = 4, photons: int = 1_000_000, *, aperture_deg: float = 0.15,
-             seed: int = 1, truth: str = "cell", quad: int = 48) -> SptGain:
+             seed: int = 1, quad: int = 48) -> SptGain:
     """Run the same synthetic lamps with and without SPT aimed at the test points."""
     from lightsim.luminaires.photometric import write_ies
 
@@ -361,7 +341,7 @@ def spt_gain(lamps: int = 4, photons: int = 1_000_000, *, aperture_deg: float = 
             write_ies(path, grid)
             for spt in (False, True):
                 run = run_lamp(path, photons, aperture_deg=aperture_deg, spt=spt,
-                               seed=seed + n, truth=truth, quad=quad)
+                               seed=seed + n, quad=quad)
                 secs[spt] += run.seconds
                 lo, hi = run.interval_cd[:, 0], run.interval_cd[:, 1]
                 cov[spt].extend(((lo <= run.truth_cd) & (run.truth_cd <= hi)).tolist())

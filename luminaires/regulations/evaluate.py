@@ -593,8 +593,12 @@ def format_table(results: Sequence[Mapping[str, Any]], title: str | None = None,
             name += " *"
             less = True
         if r.get("kind") == "relation":
-            parts = [f"{r['op'].replace('<=', '≤').replace('>=', '≥')} "
-                     f"{r['factor']:g}·{r['reference']} = {_fmt_cd(r['reference_cd'])}"]
+            # the limit is factor × reference (the verdict's threshold); the reference's own
+            # value follows in brackets
+            op = r["op"].replace("<=", "≤").replace(">=", "≥")
+            parts = [f"{op} {r['factor']:g}·{r['reference']} = "
+                     f"{_fmt_cd(r['factor'] * r['reference_cd'])} "
+                     f"({r['reference']} {_fmt_cd(r['reference_cd'])})"]
         verdict = str(r["verdict"])
         table.add_row(name, str(r.get("kind", "")), format_position(r["h_deg"], r["v_deg"]),
                       _fmt_cd(r["value_cd"]), f"{_fmt_cd(lo)} – {_fmt_cd(hi)}",
