@@ -347,8 +347,12 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
                                       seed=session.config.seed,
                                       photometric_types=tuple(sorted(set(wanted.values()))))
         grid = grids["C"] if "C" in grids else grids["A"]
+        # a Type A grid holds the front hemisphere only: the far field's flux adds what
+        # it leaves out, so the figure is the lamp's whatever file type was asked for
+        total_lm = float(grid.total_flux()) + (
+            0.0 if "C" in grids else float(grid.metadata.get("flux_outside_lm", 0.0)))
         summary["farfield"] = {"photons": opts.farfield_photons,
-                               "total_flux_lm": float(grid.total_flux()),
+                               "total_flux_lm": total_lm,
                                "max_cd": float(np.max(grid.candela)), "files": [],
                                "ies_type": ies_type if opts.ies else None}
         if "A" in grids:
