@@ -795,3 +795,149 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, photons: in
         if owned:
             shutil.rmtree(root, ignore_errors=True)
     return report
+
+
+# --------------------------------------------------------------------------------------
+# SIGKILL during the write phase
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class KillResult:
+    """What one SIGKILL during ``simulate``'s write phase left in the output folder.
+
+    ``state`` is ``complete`` (summary.json and every file it lists), ``unfinished`` (no
+    summary.json) or ``broken`` (summary.json without its set: the promise is broken).
+    ``problems`` lists everything wrong before and after the next run's clean-up.
+    """
+
+    delay_s: float
+    state: str
+    top_files: list[str]
+    notes: list[str]
+    problems: list[str]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def _simulate_argv(scene: Path, out: Path, photons: int, resolution: str, seed: int = 1
+                   ) -> list[str]:
+    import sys
+
+    return [sys.executable, "-c", "from lightsim.cli.main import main; main()", "simulate",
+            str(scene), "--photons", str(photons), "--frame-photons", str(photons),
+            "--resolution", resolution, "--seed", str(seed), "--quiet", "--out", str(out)]
+
+
+def _write_started(out: Path) -> bool:
+    from lightsim.io.atomic import STAGING_PREFIX
+
+    with contextlib.suppress(OSError):
+        for p in out.glob(STAGING_PREFIX + "*"):
+            if p.is_dir() and any(True for _ in p.iterdir()):
+                return True
+    return False
+
+
+def inspect_output(out: Path) -> tuple[str, list[str], list[str]]:
+    """(state, top-level files, problems) of a simulate output folder after a kill."""
+    from lightsim.io.atomic import _TEMP_RE
+
+    top = sorted(p.name for p in out.iterdir() if p.is_file()) if out.is_dir() else []
+    problems = [f"empty file {n}" for n in top if (out / n).stat().st_size == 0]
+    problems += [f"temporary file {n} in the folder" for n in top if _TEMP_RE.match(n)]
+    if "summary.json" not in top:
+        return "unfinished", top, problems
+    try:
+        listed = json.loads((out / "summary.json").read_text()).get("outputs", [])
+    except (OSError, ValueError) as exc:
+        return "broken", top, [*problems, f"summary.json unreadable ({exc})"]
+    missing = sorted((set(listed) | SIM_OUTPUTS) - set(top))
+    if missing:
+        return "broken", top, [*problems, "summary.json without " + ", ".join(missing)]
+    from lightsim.io.exr import read_exr
+
+    seed = json.loads((out / "summary.json").read_text()).get("seed")
+    exr_seed = read_exr(out / "wall_lux.exr")[1].get("seed")
+    if seed != exr_seed:  # runs differ by seed: one run's summary over another's map
+        return "broken", top, [*problems, f"mixed set: summary seed {seed}, EXR seed "
+                               f"{exr_seed}"]
+    return "complete", top, problems
+
+
+def kill_during_write(scene: Path, out: Path, delay_s: float, *, photons: int = 20_000,
+                      resolution: str = "64x32", timeout_s: float = 180.0) -> KillResult:
+    """Start ``simulate`` (seed 2), SIGKILL it ``delay_s`` after its first staged file
+    appears, and judge the folder before and after the clean-up the next run does
+    (:func:`lightsim.simulate.folder_notes`). A folder holding an earlier run of another
+    seed shows whether old and new files mixed."""
+    import signal
+    import subprocess
+
+    from lightsim.io.atomic import STAGING_PREFIX
+    from lightsim.simulate import folder_notes
+
+    proc = subprocess.Popen(_simulate_argv(scene, out, photons, resolution, seed=2),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    t0 = time.monotonic()
+    try:
+        while time.monotonic() - t0 < timeout_s and proc.poll() is None:
+            if _write_started(out):
+                break
+            time.sleep(0.002)
+        time.sleep(delay_s)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(30)
+    state, top, problems = inspect_output(out)
+    notes = folder_notes(out)
+    left = [p.name for p in out.glob(STAGING_PREFIX + "*")] if out.is_dir() else []
+    problems += [f"{n} left after the clean-up" for n in left]
+    if state == "unfinished" and [n for n in top if n in SIM_OUTPUTS] and not any(
+            "unfinished" in n for n in notes):
+        problems.append("an unfinished set was not reported")
+    return KillResult(delay_s, state, top, notes, problems)
+
+
+def write_phase_seconds(scene: Path, out: Path, *, photons: int = 20_000,
+                        resolution: str = "64x32", timeout_s: float = 180.0) -> float:
+    """Seconds from the first staged file to the end of an uninterrupted run (the window
+    the kill points are spread over)."""
+    import subprocess
+
+    proc = subprocess.Popen(_simulate_argv(scene, out, photons, resolution),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    t0 = time.monotonic()
+    start = None
+    try:
+        while time.monotonic() - t0 < timeout_s and proc.poll() is None:
+            if start is None and _write_started(out):
+                start = time.monotonic()
+            time.sleep(0.002)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(30)
+    if proc.returncode != 0 or start is None:
+        raise RuntimeError(f"simulate of {scene} did not finish (exit {proc.returncode})")
+    return time.monotonic() - start
+
+
+def kill_study(n: int, workdir: Path, *, photons: int = 20_000, resolution: str = "64x32",
+               timeout_s: float = 180.0) -> list[KillResult]:
+    """``n`` SIGKILLs spread evenly over the write phase of the small seed scene, each into
+    a folder holding a finished earlier run (so old and new sets could mix)."""
+    workdir = Path(workdir)
+    scene = workdir / "kill-scene.glb"
+    scene.write_bytes(small_scene_glb())
+    window = write_phase_seconds(scene, workdir / "kill-timing", photons=photons,
+                                 resolution=resolution, timeout_s=timeout_s)
+    results = []
+    for i, delay in enumerate(np.linspace(0.0, 1.1 * window, n)):
+        out = workdir / f"kill{i}"
+        shutil.copytree(workdir / "kill-timing", out)  # a finished set to be replaced
+        results.append(kill_during_write(scene, out, float(delay), photons=photons,
+                                         resolution=resolution, timeout_s=timeout_s))
+    return results
