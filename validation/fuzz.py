@@ -447,15 +447,41 @@ def _targeted_gltf_edits(doc: dict[str, Any]) -> list[tuple[str, Callable[[dict]
     return edits
 
 
+def _benign_gltf_edits(doc: dict[str, Any]) -> list[tuple[str, Callable[[dict], None]]]:
+    """Valid variations (the run must succeed): moves, scales, colours, fluxes."""
+    nodes = [i for i, n in enumerate(doc.get("nodes", [])) if "mesh" in n]
+    edits: list[tuple[str, Callable[[dict], None]]] = []
+    for i in nodes:
+        edits += [(f"node {i} scale 2", lambda d, i=i: d["nodes"][i].update(scale=[2.0] * 3)),
+                  (f"node {i} translation 1 cm", lambda d, i=i: d["nodes"][i].update(
+                      translation=[0.01, 0.0, 0.0])),
+                  (f"node {i} rotation 90° about y", lambda d, i=i: d["nodes"][i].update(
+                      rotation=[0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)])),
+                  (f"node {i} name 'wall'", lambda d, i=i: d["nodes"][i].update(name="wall"))]
+    for m in range(len(doc.get("materials", []))):
+        edits.append((f"material {m} baseColorFactor 0.3", lambda d, m=m: d["materials"][m]
+                      .setdefault("pbrMetallicRoughness", {}).update(
+                          baseColorFactor=[0.3, 0.4, 0.5, 1.0])))
+        edits.append((f"material {m} emissiveFactor 0.5", lambda d, m=m: d["materials"][m]
+                      .update(emissiveFactor=[0.5, 0.5, 0.5])))
+    return edits
+
+
 def _mutate_gltf(doc: dict[str, Any], blob: bytes, rng: np.random.Generator
                  ) -> tuple[bytes, str, str]:
     """(file bytes, description, suffix) of one glTF mutation."""
     r = rng.random()
-    if r < 0.3:
+    if r < 0.15:
         raw, what = _bytes_mutation(pack_glb(doc, blob), rng, header=20 + 4096)
         return raw, what, ".glb"
+    if r < 0.35:  # damage the geometry itself: coordinates, normals, indices
+        new_blob, what = flip_bytes(blob, rng)
+        return pack_glb(doc, new_blob), "BIN chunk: " + what, ".glb"
     d = json.loads(json.dumps(doc))
-    if r < 0.75:
+    if r < 0.45:
+        name, edit = _pick(rng, _benign_gltf_edits(d))
+        edit(d)
+    elif r < 0.8:
         name, edit = _pick(rng, _targeted_gltf_edits(d))
         with contextlib.suppress(KeyError, IndexError, TypeError, AttributeError):
             edit(d)
@@ -709,12 +735,15 @@ class _Worker:
 
     def run(self, argv: list[str], timeout: float) -> tuple[int | None, list[str], str]:
         """(code, stderr lines, failure class or "")."""
-        self.conn.send(argv)
+        try:
+            self.conn.send(argv)
+        except OSError:
+            return None, [], "crash"
         if not self.conn.poll(timeout):
             return None, [], "timeout"
         try:
             code, lines = self.conn.recv()
-        except EOFError:
+        except (EOFError, OSError):
             self.proc.join(5)
             return self.proc.exitcode, [], "crash"
         return code, lines, ""
