@@ -19,10 +19,13 @@ parameter                        unit   default    meaning
                                                    with a warning up to 0.5, error beyond
 ===============================  =====  =========  ========================================
 
-Rules are the glTF 2.0 specification's (§3.6 buffers and accessors: alignment, strides
-4…252 bytes in multiples of 4; §3.7 POSITION/NORMAL are float VEC3, indices unsigned
-SCALAR; §5 JSON schema ranges), except where lightsim is stricter: sparse accessors and
-accessors without a buffer view are not supported, and quantised positions need
+Only what is read is checked: the accessors (and their buffer views) of mesh primitives:
+``POSITION``, ``NORMAL`` and indices, the materials primitives use; texture coordinates,
+animations or unused materials may be anything. Rules are the glTF 2.0 specification's
+(§3.6 buffers and accessors: alignment, strides 4…252 bytes in multiples of 4; §3.7
+POSITION/NORMAL are float VEC3, indices unsigned SCALAR; §5 JSON schema ranges), except
+where lightsim is stricter: sparse accessors and accessors without a buffer view are not
+supported, and quantised positions need
 ``KHR_mesh_quantization`` declared.
 """
 
@@ -152,17 +155,51 @@ def check_document(doc: Any, buffers: list[bytes], warnings: list[str]) -> None:
     materials = _list(doc, "materials")
     _list(doc, "buffers")
 
-    for i, view in enumerate(views):
-        _check_view(i, view, buffers)
-    for i, acc in enumerate(accessors):
-        _check_accessor(i, acc, views)
-    for i, mat in enumerate(materials):
-        check_material(name_of("material", i, mat), mat)
+    # only what the loader reads: accessors and materials of mesh primitives (texture
+    # coordinates, animations, unused materials are not our business)
+    read_acc, read_mat = _referenced(meshes, len(accessors), len(materials))
+    read_views: set[int] = set()
+    for i in sorted(read_acc):
+        acc = _dict(accessors[i], name_of("accessor", i, accessors[i]))
+        if "bufferView" in acc:
+            read_views.add(_index(acc["bufferView"], len(views), name_of("accessor", i, acc),
+                                  "bufferView"))
+    for i in sorted(read_views):
+        _check_view(i, views[i], buffers)
+    for i in sorted(read_acc):
+        _check_accessor(i, accessors[i], views)
+    for i in sorted(read_mat):
+        check_material(name_of("material", i, materials[i]), materials[i])
     for i, mesh in enumerate(meshes):
         _check_mesh(i, mesh, accessors, len(materials), quantized, warnings)
     for i, node in enumerate(nodes):
         check_node(i, node, len(nodes), len(meshes), warnings)
     _check_scenes(doc, len(nodes), warnings)
+
+
+def _referenced(meshes: list[Any], n_acc: int, n_mat: int) -> tuple[set[int], set[int]]:
+    """Indices of the accessors (POSITION, NORMAL, indices) and materials of primitives."""
+    acc: set[int] = set()
+    mat: set[int] = set()
+    for i, mesh in enumerate(meshes):
+        what = name_of("mesh", i, mesh)
+        prims = _dict(mesh, what).get("primitives")
+        if not isinstance(prims, list):
+            raise InputError(f"{what}: primitives must be a list, got {prims!r}")
+        for j, prim in enumerate(prims):
+            pw = f"{what} primitive {j}"
+            prim = _dict(prim, pw)
+            attrs = prim.get("attributes")
+            if not isinstance(attrs, dict):
+                raise InputError(f"{pw}: attributes must be a JSON object, got {attrs!r}")
+            for key, label in (("POSITION", "POSITION accessor"), ("NORMAL", "NORMAL accessor")):
+                if key in attrs:
+                    acc.add(_index(attrs[key], n_acc, pw, label))
+            if "indices" in prim:
+                acc.add(_index(prim["indices"], n_acc, pw, "indices accessor"))
+            if "material" in prim:
+                mat.add(_index(prim["material"], n_mat, pw, "material"))
+    return acc, mat
 
 
 def _check_scenes(doc: dict[str, Any], n_nodes: int, warnings: list[str]) -> None:
