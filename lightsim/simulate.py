@@ -16,7 +16,8 @@ file                   content
                        ``B`` too for coloured scenes; metadata: units, wall frame, photons,
                        seed, estimator, lightsim version
 ``wall_lux.png``       false colour with a lux colour bar, axes H/V in degrees
-``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings
+``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings,
+                       ``outputs``: the files of this set (moved in last: the run finished)
 ``error_vs_time.png``  estimated relative error against seconds and photons (log-log)
 ``checkpoint.json``    only while a run is interrupted: ``--resume DIR`` continues it
 =====================  ====================================================================
