@@ -80,6 +80,7 @@ def test_bad_options_exit_2_with_one_line(point_lamp, tmp_path, capsys, argv, ma
     assert len(lines) == 1 and lines[0].startswith("lightsim: error:"), err
     assert match in lines[0]
     assert "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # bad input leaves nothing, not even the folder
     out = tmp_path / "o"  # nothing written: bad options fail before the run
     assert not out.exists() or not any(out.iterdir())
 
