@@ -719,7 +719,10 @@ def _worker(conn: Any) -> None:
     import lightsim.simulate  # noqa: F401 - pay the import once, not in the first case
 
     while True:
-        msg = conn.recv()
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):  # the parent is gone
+            return
         if msg is None:
             return
         conn.send(run_in_process(msg))
