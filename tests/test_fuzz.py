@@ -139,5 +139,6 @@ def test_fuzz_study(tmp_path):
 def test_kill_study(tmp_path):
     results = kill_study(32, tmp_path)
     states = [r.state for r in results]
-    print({s: states.count(s) for s in set(states)})
+    print({s: states.count(s) for s in set(states)},
+          sum(r.in_write_phase for r in results), "kills in the write phase")
     assert all(r.ok for r in results), [(r.delay_s, r.problems) for r in results if not r.ok]

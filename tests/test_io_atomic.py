@@ -89,3 +89,34 @@ def test_atomic_path_leaves_nothing_on_error(tmp_path):
         tmp.write_bytes(b"half")
         raise ValueError
     assert not list(tmp_path.iterdir())
+
+
+def test_crash_in_the_middle_of_publishing_leaves_an_unfinished_set(tmp_path, monkeypatch):
+    """A kill between two moves of the commit: no summary.json, reported, then replaced."""
+    for name in ("a.txt", "b.txt", "summary.json"):
+        (tmp_path / name).write_text("old")
+    real = os.replace
+    moves = []
+
+    def dies_after_one(src, dst):
+        if moves:
+            raise KeyboardInterrupt  # stands for the SIGKILL: nothing after this runs
+        moves.append(dst)
+        real(src, dst)
+
+    out = OutputSet(tmp_path, previous={"a.txt", "b.txt"})
+    for name in ("a.txt", "b.txt", "summary.json"):
+        write_text(out.dir / name, "new")
+    monkeypatch.setattr(os, "replace", dies_after_one)
+    with pytest.raises(KeyboardInterrupt):
+        out.commit()
+    monkeypatch.undo()
+    assert not (tmp_path / "summary.json").exists()  # the folder does not claim a finished run
+    assert unfinished_set(tmp_path, ["a.txt", "b.txt", "summary.json"]) == ["a.txt", "b.txt"]
+    with OutputSet(tmp_path, previous={"a.txt", "b.txt"}) as again:
+        write_text(again.dir / "a.txt", "newer")
+        write_text(again.dir / "summary.json", "newer")
+        again.commit()
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == [
+        "a.txt", "summary.json"]
+    assert (tmp_path / "a.txt").read_text() == "newer"

@@ -847,6 +847,7 @@ class KillResult:
     top_files: list[str]
     notes: list[str]
     problems: list[str]
+    in_write_phase: bool = True   # the staging folder existed when the kill was sent
 
     @property
     def ok(self) -> bool:
@@ -919,6 +920,7 @@ def kill_during_write(scene: Path, out: Path, delay_s: float, *, photons: int = 
                 break
             time.sleep(0.002)
         time.sleep(delay_s)
+        during = proc.poll() is None and _write_started(out)
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
     finally:
@@ -930,23 +932,25 @@ def kill_during_write(scene: Path, out: Path, delay_s: float, *, photons: int = 
     if state == "unfinished" and [n for n in top if n in SIM_OUTPUTS] and not any(
             "unfinished" in n for n in notes):
         problems.append("an unfinished set was not reported")
-    return KillResult(delay_s, state, top, notes, problems)
+    return KillResult(delay_s, state, top, notes, problems, during)
 
 
 def write_phase_seconds(scene: Path, out: Path, *, photons: int = 20_000,
                         resolution: str = "64x32", timeout_s: float = 180.0) -> float:
-    """Seconds from the first staged file to the end of an uninterrupted run (the window
-    the kill points are spread over)."""
+    """Seconds from the first staged file to the appearance of ``summary.json`` in an
+    uninterrupted run into the fresh folder ``out`` (the window the kills are spread over)."""
     import subprocess
 
     proc = subprocess.Popen(_simulate_argv(scene, out, photons, resolution),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     t0 = time.monotonic()
-    start = None
+    start = end = None
     try:
         while time.monotonic() - t0 < timeout_s and proc.poll() is None:
             if start is None and _write_started(out):
                 start = time.monotonic()
+            if start is not None and end is None and (out / "summary.json").exists():
+                end = time.monotonic()
             time.sleep(0.002)
     finally:
         if proc.poll() is None:
@@ -954,20 +958,21 @@ def write_phase_seconds(scene: Path, out: Path, *, photons: int = 20_000,
         proc.wait(30)
     if proc.returncode != 0 or start is None:
         raise RuntimeError(f"simulate of {scene} did not finish (exit {proc.returncode})")
-    return time.monotonic() - start
+    return (end or time.monotonic()) - start
 
 
 def kill_study(n: int, workdir: Path, *, photons: int = 20_000, resolution: str = "64x32",
                timeout_s: float = 180.0) -> list[KillResult]:
-    """``n`` SIGKILLs spread evenly over the write phase of the small seed scene, each into
-    a folder holding a finished earlier run (so old and new sets could mix)."""
+    """``n`` SIGKILLs spread evenly over the write phase of the small seed scene (as timed
+    in one uninterrupted run: load changes it, see ``KillResult.in_write_phase``), each
+    into a folder holding a finished earlier run (so old and new sets could mix)."""
     workdir = Path(workdir)
     scene = workdir / "kill-scene.glb"
     scene.write_bytes(small_scene_glb())
     window = write_phase_seconds(scene, workdir / "kill-timing", photons=photons,
                                  resolution=resolution, timeout_s=timeout_s)
     results = []
-    for i, delay in enumerate(np.linspace(0.0, 1.1 * window, n)):
+    for i, delay in enumerate(np.linspace(0.0, window, n)):
         out = workdir / f"kill{i}"
         shutil.copytree(workdir / "kill-timing", out)  # a finished set to be replaced
         results.append(kill_during_write(scene, out, float(delay), photons=photons,
