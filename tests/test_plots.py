@@ -123,6 +123,7 @@ def test_plots_survive_degenerate_data(tmp_path, kind):
     from lightsim.io.errorplot import error_vs_time_plot
     from lightsim.io.placeholder import image_problem
     from lightsim.io.plots import road_view_plot
+    from lightsim.io.png import write_lux_png
 
     h, w = 110, 300
     lux = {"zero": np.zeros((h, w)), "constant": np.full((h, w), 3.0),
@@ -134,6 +135,9 @@ def test_plots_survive_degenerate_data(tmp_path, kind):
         warnings.simplefilter("error")  # no matplotlib/numpy warning either
         out = isolux_plot(tmp_path / "iso.png", lux, FRAME)
         road_view_plot(tmp_path / "road.png", lux, FRAME)
+        for log in (False, True):
+            write_lux_png(tmp_path / "wall.png", lux, FRAME, log=log, contours=[1.0, 5.0])
+    assert (tmp_path / "wall.png").read_bytes()[:8] == PNG_MAGIC
     assert out.read_bytes()[:8] == PNG_MAGIC
     assert (tmp_path / "road.png").read_bytes()[:8] == PNG_MAGIC
     if kind != "one_pixel_lit":
