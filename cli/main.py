@@ -2,7 +2,8 @@
 
 Sub-commands are imported lazily so that ``lightsim --help`` and quick commands do not pay
 for numba, embree or Ray start-up. Errors caused by the user's input
-(:class:`lightsim.errors.LightsimError`) print one line and exit with code 2.
+(:class:`lightsim.errors.LightsimError`) and bad options or arguments (click's
+``UsageError``) print one line ``lightsim: error: …`` and exit with code 2.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "photo": "photo:photo",
     "view": "view:view",
     "screen-target": "screen_target:screen_target",
+    "fuzz": "fuzz:fuzz",
 }
 
 
@@ -66,6 +68,10 @@ def cli() -> None:
     """Simulate and check automotive headlight beam patterns with photon mapping."""
 
 
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script; maps input errors to one line and exit code 2."""
     try:
@@ -76,8 +82,15 @@ def main(argv: list[str] | None = None) -> None:
     except click.exceptions.Abort:
         click.echo("lightsim: aborted", err=True)
         sys.exit(130)
-    except click.ClickException as exc:
+    except click.exceptions.NoArgsIsHelpError as exc:  # bare `lightsim`: the help, as asked
         exc.show()
+        sys.exit(exc.exit_code)
+    except click.ClickException as exc:
+        if type(exc).show is not click.ClickException.show and not isinstance(
+                exc, click.UsageError):
+            exc.show()  # a command's own one-line report (e.g. compare's failed limits)
+        else:  # a bad option or argument: one line, not click's usage block
+            click.echo(f"lightsim: error: {_one_line(exc.format_message())}", err=True)
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
         click.echo("lightsim: interrupted", err=True)

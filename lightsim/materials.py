@@ -92,13 +92,25 @@ class Material:
 def material_from_gltf(name: str, mat: dict) -> tuple[Material, bool]:
     """Map a glTF material JSON to a :class:`Material`.
 
+    Every field read is checked first (:func:`lightsim.io.gltf_check.check_material`):
+    numbers must be finite and in the glTF range, ``emissiveFactor`` non-negative.
+
     Returns
     -------
     material : Material
     emissive : bool
         True if the material has a non-zero ``emissiveFactor`` (the part is an emitter).
+
+    Raises
+    ------
+    InputError
+        One line naming the material and the field.
     """
-    mat_name = mat.get("name") or name
+    from lightsim.io.gltf_check import check_material
+
+    mat_name = mat.get("name") if isinstance(mat, dict) else None
+    mat_name = mat_name if isinstance(mat_name, str) and mat_name else name
+    check_material(f"material '{mat_name}'", mat)
     pbr = mat.get("pbrMetallicRoughness", {})
     base = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0]), dtype=np.float64)[:3]
     if not mat:
@@ -113,13 +125,9 @@ def material_from_gltf(name: str, mat: dict) -> tuple[Material, bool]:
         vol = ext.get("KHR_materials_volume", {})
         sigma = np.zeros(3)
         dist = vol.get("attenuationDistance")
-        if dist is not None:
-            dist = float(dist)
+        if dist is not None and math.isfinite(dist):  # +inf (glTF's default): no absorption
             color = np.asarray(vol.get("attenuationColor", [1.0, 1.0, 1.0]), dtype=np.float64)
-            if dist <= 0 or np.any(color <= 0) or np.any(color > 1):
-                raise InputError(f"material '{mat_name}': KHR_materials_volume needs "
-                                 "attenuationDistance > 0 and attenuationColor in (0, 1]")
-            sigma = -np.log(color) / dist
+            sigma = np.maximum(-np.log(color) / float(dist), 0.0)
         return Material(mat_name, DIELECTRIC, np.ones(3), ior, sigma), is_emissive
     if metallic >= 0.5:
         return Material(mat_name, MIRROR, base), is_emissive

@@ -331,9 +331,10 @@ def _parse_part_material(name: str, spec: str) -> tuple[str, Material | None]:
                      "wall or ignore")
 
 
-def _read_parts(path: Path, tessellation: Any = None
+def _read_parts(path: Path, tessellation: Any = None, warnings: list[str] | None = None
                 ) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None, dict, dict]]:
-    """(name, vertices, faces, normals, material json, extras) for each mesh in ``path``."""
+    """(name, vertices, faces, normals, material json, extras) for each mesh in ``path``;
+    what the reader repaired is appended to ``warnings``."""
     if path.suffix.lower() in (".step", ".stp", ".iges", ".igs"):
         from lightsim.io.cad import read_cad
 
@@ -343,7 +344,7 @@ def _read_parts(path: Path, tessellation: Any = None
         from lightsim.io.gltf import read_gltf
 
         return [(p.name, p.vertices, p.faces, p.normals, p.material, p.extras)
-                for p in read_gltf(path)]
+                for p in read_gltf(path, warnings)]
     import trimesh
 
     try:
@@ -534,12 +535,12 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         from lightsim.materialmap import read_material_map
 
         mmap = read_material_map(materials)
-    raw = _read_parts(path, tessellation)
+    warnings: list[str] = []
+    raw = _read_parts(path, tessellation, warnings)
     unmatched: list[str] = []
     if not raw:
         raise InputError(f"{path}: contains no triangle meshes")
 
-    warnings: list[str] = []
     parts: list[Part] = []
     names_seen: dict[str, int] = {}
     for name, verts, faces, normals, mat_json, extras in raw:
@@ -603,10 +604,12 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                                  f"or collimated, got '{part.emission}'")
             f = ls.get("flux_lm")
             if f is not None:
-                try:
-                    part.flux_lm = float(f)
-                except (TypeError, ValueError):
-                    raise InputError(f"emitter '{pname}': flux_lm '{f}' is not a number") from None
+                if isinstance(f, bool) or not isinstance(f, int | float):
+                    raise InputError(f"emitter '{pname}': flux_lm {f!r} is not a number")
+                if not math.isfinite(f):
+                    raise InputError(f"emitter '{pname}': flux_lm must be a finite number of "
+                                     f"lumens, got {f}")
+                part.flux_lm = float(f)
         if role == SURFACE and material.kind == DIELECTRIC:
             part = _check_dielectric(part, warnings)
         parts.append(part)

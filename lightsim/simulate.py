@@ -4,7 +4,10 @@ The command line (``lightsim simulate``) only parses options into
 :class:`SimulateOptions` and shows progress; everything else is here so that scripts
 can call :func:`run_simulation` directly.
 
-Outputs in the output folder (all written atomically):
+Outputs in the output folder, written as a set: into a staging folder inside it
+(``.lightsim-staging-<pid>-…``), then moved in with ``summary.json`` last — its presence
+means the run finished. A run into a folder removes the staging folders and temporary
+files that killed runs left there and says so (a warning).
 
 =====================  ====================================================================
 file                   content
@@ -13,7 +16,8 @@ file                   content
                        ``B`` too for coloured scenes; metadata: units, wall frame, photons,
                        seed, estimator, lightsim version
 ``wall_lux.png``       false colour with a lux colour bar, axes H/V in degrees
-``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings
+``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings,
+                       ``outputs``: the files of this set (moved in last: the run finished)
 ``error_vs_time.png``  estimated relative error against seconds and photons (log-log)
 ``checkpoint.json``    only while a run is interrupted: ``--resume DIR`` continues it
 =====================  ====================================================================
@@ -21,10 +25,12 @@ file                   content
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import platform
+import tempfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -125,18 +131,39 @@ class SimulationResult:
     interrupted: bool = False
 
 
+OUTPUT_FILES = ("wall_lux.exr", "wall_lux.png", "error_vs_time.png", "isolux.png",
+                "road.png", "probes.npz", "summary.json")
+"""Files a finished run may have left in its folder (an older set's are replaced)."""
+
+
 def check_out_dir(path: str | os.PathLike) -> Path:
-    """Create the output folder and make sure files can be written there."""
+    """Create the output folder and make sure files can be written there.
+
+    The test writes a staging-named empty folder (removed at once; a kill in between leaves
+    only what the next run's clean-up removes).
+    """
+    from lightsim.io.atomic import STAGING_PREFIX
+
     out = Path(path)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".lightsim-write-test-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
+        os.rmdir(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-", dir=out))
     except OSError as exc:
         raise InputError(f"output directory {out} is not writable "
                          f"({exc.strerror or exc})") from None
     return out
+
+
+def folder_notes(out: Path) -> list[str]:
+    """Clean what killed runs left in ``out``; warnings saying what was found or done."""
+    from lightsim.io.atomic import clean_stale, unfinished_set
+
+    notes = clean_stale(out)
+    left = unfinished_set(out, OUTPUT_FILES)
+    if left:
+        notes.append(f"{out}: holds an unfinished run's outputs ({', '.join(left)}; no "
+                     "summary.json): this run replaces them")
+    return notes
 
 
 def load(opts: SimulateOptions) -> Scene:
@@ -161,6 +188,19 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
     ``should_stop`` is polled between frames; when it returns True the run writes
     ``checkpoint.json`` instead of final outputs and returns with ``interrupted``.
     """
+    from lightsim.errors import LightsimError
+
+    created = not Path(opts.out_dir).exists()
+    try:
+        return _run(opts, progress, should_stop, on_plan, resume)
+    except LightsimError:
+        if created:  # bad input leaves nothing behind, not even the folder
+            with contextlib.suppress(OSError):
+                Path(opts.out_dir).rmdir()
+        raise
+
+
+def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume) -> SimulationResult:
     from lightsim.engine.server import Session
 
     out = check_out_dir(opts.out_dir)
@@ -185,6 +225,7 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
 
         config = aperture_config(config, opts.regulation, opts.traffic, scene.wall,
                                  opts.aperture, opts.aim, opts.spt_points)
+    scene.warnings.extend(folder_notes(out))  # printed with the scene's warnings
     session = Session(scene, config, workers=opts.workers, address=opts.address,
                       checkpoint=(resume or {}).get("session"),
                       regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt))
@@ -250,7 +291,26 @@ def _lux_stats(lux: np.ndarray, frame) -> dict[str, Any]:
 
 
 def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationResult:
-    """Write wall_lux.exr, wall_lux.png, error_vs_time.png and summary.json."""
+    """Write wall_lux.exr, wall_lux.png, error_vs_time.png, the engineering outputs and
+    summary.json as one set (staged inside ``out``, summary.json published last)."""
+    from lightsim.io.atomic import OutputSet
+    from lightsim.io.summary import read_json
+
+    previous = set(OUTPUT_FILES)
+    if (out / "summary.json").is_file():  # the files an earlier run recorded as its set
+        with contextlib.suppress(Exception):
+            listed = read_json(out / "summary.json").get("outputs")
+            if isinstance(listed, list):
+                previous |= {str(n) for n in listed if "/" not in str(n)}
+    with OutputSet(out, "summary.json", previous) as staged:
+        result = _write_set(staged.dir, opts, session, est)
+        staged.commit()
+    result.out_dir = out
+    return result
+
+
+def _write_set(out: Path, opts: SimulateOptions, session, est) -> SimulationResult:
+    """Write every output file into ``out`` (the staging folder), summary.json last."""
     from lightsim.io.errorplot import error_vs_time_plot
     from lightsim.io.exr import wall_metadata, write_exr
     from lightsim.io.png import write_lux_png
@@ -312,6 +372,8 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationR
                   title=f"{Path(opts.scene_path).name}: {photons:,} photons")
     error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
     _engineering_outputs(out, opts, session, lux, summary)
+    summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
+                                 and not p.name.startswith(".")] + ["summary.json"])
     write_json(out / "summary.json", summary)
     return SimulationResult(lux, rgb, summary, out)
 

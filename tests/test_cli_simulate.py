@@ -63,6 +63,8 @@ def test_simulate_writes_outputs_in_lux(point_lamp, tmp_path, capsys):
     (["simulate", "{lamp}", "--target-error", "3"], "target error"),
     (["simulate", "{lamp}", "--filament", "H99", "--filament-at", "0,0,0"], "H99"),
     (["simulate", "{lamp}", "--out", "{file}/sub"], "not writable"),
+    (["simulate", "{lamp}", "--out", "{file}"], "is a file"),  # click's check, one line
+    (["simulate", "{lamp}", "--bogus-option"], "No such option"),
     (["simulate", "{lamp}", "--ies", "--ldt"], "must end in .ies"),  # checked before the run
     (["simulate", "{lamp}", "--ldt", "beam.txt"], "must end in .ldt"),
 ])
@@ -78,6 +80,7 @@ def test_bad_options_exit_2_with_one_line(point_lamp, tmp_path, capsys, argv, ma
     assert len(lines) == 1 and lines[0].startswith("lightsim: error:"), err
     assert match in lines[0]
     assert "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # bad input leaves nothing, not even the folder
     out = tmp_path / "o"  # nothing written: bad options fail before the run
     assert not out.exists() or not any(out.iterdir())
 

@@ -112,3 +112,54 @@ def test_road_from_an_intensity_function_and_mirror_symmetry():
     assert np.allclose(road.lux, road.lux[:, ::-1])
     with pytest.raises(InputError, match="mount_height_m"):
         road_illuminance_from(grid.intensity_hv, mount_height_m=0.0)
+
+
+# -- degenerate data: the image says why, nothing raises ---------------------------------
+
+@pytest.mark.parametrize("kind", ["zero", "constant", "one_pixel_lit", "nan", "negative"])
+def test_plots_survive_degenerate_data(tmp_path, kind):
+    import warnings
+
+    from lightsim.io.errorplot import error_vs_time_plot
+    from lightsim.io.placeholder import image_problem
+    from lightsim.io.plots import road_view_plot
+    from lightsim.io.png import write_lux_png
+
+    h, w = 110, 300
+    lux = {"zero": np.zeros((h, w)), "constant": np.full((h, w), 3.0),
+           "one_pixel_lit": np.zeros((h, w)), "nan": np.full((h, w), np.nan),
+           "negative": -np.ones((h, w))}[kind]
+    if kind == "one_pixel_lit":
+        lux[50, 150] = 7.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no matplotlib/numpy warning either
+        out = isolux_plot(tmp_path / "iso.png", lux, FRAME)
+        road_view_plot(tmp_path / "road.png", lux, FRAME)
+        for log in (False, True):
+            write_lux_png(tmp_path / "wall.png", lux, FRAME, log=log, contours=[1.0, 5.0])
+    assert (tmp_path / "wall.png").read_bytes()[:8] == PNG_MAGIC
+    assert out.read_bytes()[:8] == PNG_MAGIC
+    assert (tmp_path / "road.png").read_bytes()[:8] == PNG_MAGIC
+    if kind != "one_pixel_lit":
+        assert image_problem(lux, contours=True) is not None
+    logs = {"zero": [{"seconds": 1.0, "photons": 10, "rel_error": 0.0}],
+            "constant": [{"seconds": s, "photons": 10, "rel_error": 0.1} for s in (1, 2, 3)],
+            "one_pixel_lit": [{"seconds": 1.0, "photons": 10, "rel_error": 0.1}],
+            "nan": [{"seconds": float("nan"), "photons": 10, "rel_error": float("inf")}],
+            "negative": [{"seconds": 1.0, "photons": 10, "rel_error": -0.5}]}[kind]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        error_vs_time_plot(tmp_path / "err.png", logs)
+    assert (tmp_path / "err.png").read_bytes()[:8] == PNG_MAGIC
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_placeholder_names_the_reason(tmp_path):
+    from lightsim.io.placeholder import image_problem
+
+    assert "zero everywhere" in image_problem(np.zeros((4, 4)))
+    assert "constant" in image_problem(np.ones((4, 4)), contours=True)
+    assert image_problem(np.ones((4, 4))) is None  # a flat map can still be coloured
+    assert "too few" in image_problem(np.ones((1, 5)), contours=True)
+    assert "no finite" in image_problem(np.full((3, 3), np.inf))
+    assert image_problem(np.arange(16.0).reshape(4, 4), contours=True) is None

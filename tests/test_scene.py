@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import warnings
+
 import numpy as np
 import pytest
 import trimesh
@@ -162,3 +165,136 @@ def test_unknown_bulb_and_bad_wall(tmp_path):
                     np.array([[0, 2, 1], [0, 3, 2]]), None, GREY)
     with pytest.raises(InputError, match="not planar"):
         load_scene(_lamp(tmp_path, [bent], filename="bent.glb"))
+
+
+# -- glTF validation: every field the loader reads, one line naming the element ----------
+
+def _edited_glb(tmp_path, edit, suffix=".glb"):
+    """The fuzz seed scene (filament, lens, reflector) with one JSON edit applied."""
+    from lightsim.validation.fuzz import pack_glb, small_scene_glb, split_glb, to_gltf_text
+
+    doc, blob = split_glb(small_scene_glb())
+    edit(doc)
+    path = tmp_path / f"edited{suffix}"
+    path.write_bytes(pack_glb(doc, blob) if suffix == ".glb" else to_gltf_text(doc, blob))
+    return path
+
+
+def _node(doc, name):
+    return next(n for n in doc["nodes"] if n.get("name") == name)
+
+
+NAN = float("nan")
+INF = float("inf")
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda d: _node(d, "lens").update(scale=[0.0, 0.0, 0.0]), "node 1 'lens'.*singular"),
+    (lambda d: _node(d, "lens").update(scale=[1.0, 0.0, 1.0]), "singular"),
+    (lambda d: _node(d, "lens").update(scale=[1e30] * 3), "'lens'.*reach 1.05e\\+29 m"),
+    (lambda d: _node(d, "lens").update(scale=[1e-30] * 3), "'lens'.*shrinks the mesh"),
+    (lambda d: _node(d, "lens").update(translation=[1e30, 0, 0]), "'lens'.*from the origin"),
+    (lambda d: _node(d, "lens").update(matrix=[NAN] * 16), "'lens': matrix must be finite"),
+    (lambda d: _node(d, "lens").update(matrix=[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1]),
+     "'lens'.*singular"),
+    (lambda d: _node(d, "lens").update(rotation=[0, 0, 0, 0]), "not a unit quaternion"),
+    (lambda d: _node(d, "lens").update(scale=["a", 1, 1]), "scale must hold numbers"),
+    (lambda d: _node(d, "lens").update(children=[1]), "reached twice"),
+    (lambda d: _node(d, "lens").update(mesh=99), "mesh 99 does not exist"),
+    (lambda d: _node(d, "lens").update(name=123), "name must be a string"),
+    (lambda d: d["materials"][0].update(emissiveFactor="red"), "material 0 'filament': "
+     "emissiveFactor must be a list of 3 numbers"),
+    (lambda d: d["materials"][0].update(emissiveFactor=[INF, 1, 1]), "emissiveFactor must be "
+     "finite"),
+    (lambda d: d["materials"][0].update(emissiveFactor=[-1, -1, -1]), "emissiveFactor must lie"),
+    (lambda d: d["materials"][2]["pbrMetallicRoughness"].update(baseColorFactor=[2, 1, 1, 1]),
+     "'chrome': baseColorFactor must lie in \\[0, 1\\]"),
+    (lambda d: d["materials"][2]["pbrMetallicRoughness"].update(metallicFactor="shiny"),
+     "metallicFactor must be a number"),
+    (lambda d: d["materials"][1]["extensions"]["KHR_materials_transmission"].update(
+        transmissionFactor=""), "'glass': transmissionFactor must be a number"),
+    (lambda d: d["materials"][1]["extensions"]["KHR_materials_ior"].update(ior=NAN),
+     "ior must be finite"),
+    (lambda d: d["materials"][1]["extensions"]["KHR_materials_volume"].update(
+        attenuationDistance=0.0), "attenuationDistance must lie in \\(0"),
+    (lambda d: d["accessors"][0].update(componentType=5123), "accessor 0 \\(POSITION of mesh "
+     "0 'filament' primitive 0\\): componentType UNSIGNED_SHORT is not FLOAT"),
+    (lambda d: d["accessors"][1].update(componentType=5120), "accessor 1 \\(indices.*unsigned"),
+    (lambda d: d["accessors"][1].update(componentType=1234), "componentType must be one of"),
+    (lambda d: d["accessors"][0].update(count=43), "accessor 0: 43 × VEC3 FLOAT needs 516 "
+     "bytes of bufferView 0, which has 504"),
+    (lambda d: d["accessors"][0].update(count=2**31), "count must be an integer"),
+    (lambda d: d["accessors"][0].update(byteOffset=2), "misaligned"),
+    (lambda d: d["bufferViews"][2].update(byteOffset=1466), "accessor 2: starts at byte 1466"),
+    (lambda d: d["bufferViews"][0].update(byteStride=300), "byteStride must be 4…252"),
+    (lambda d: d["bufferViews"][6].update(byteLength=10**6), "bufferView 6: bytes .* run past"),
+    (lambda d: d["accessors"][0].pop("bufferView"), "has no bufferView"),
+    (lambda d: d["accessors"][0].update(sparse={}), "sparse accessors are not supported"),
+    (lambda d: d["meshes"][0]["primitives"][0].update(mode=99), "mode must be 0…6"),
+    (lambda d: d["meshes"][0]["primitives"][0].update(material=42), "material 42 does not"),
+    (lambda d: d["meshes"][0]["primitives"][0]["attributes"].pop("POSITION"),
+     "has no POSITION"),
+    (lambda d: d.update(scene=5), "the default scene: scene 5 does not exist"),
+    (lambda d: d["buffers"][0].update(byteLength=10**12), "buffer 0 is truncated"),
+    (lambda d: _node(d, "filament")["extras"]["lightsim"].update(flux_lm="abc"),
+     "flux_lm 'abc' is not a number"),
+    (lambda d: _node(d, "filament")["extras"]["lightsim"].update(flux_lm=INF),
+     "flux_lm must be a finite"),
+    (lambda d: _node(d, "filament").update(extras="x"), "extras must be a JSON object"),
+])
+def test_gltf_fields_are_validated_with_one_line(tmp_path, edit, match):
+    path = _edited_glb(tmp_path, edit)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy RuntimeWarning on the way
+        with pytest.raises(InputError, match=match) as err:
+            load_scene(path)
+    assert "\n" not in str(err.value)
+
+
+def test_gltf_data_uri_is_validated(tmp_path):
+    def corrupt(d):
+        d["buffers"][0]["uri"] = "data:application/octet-stream;base64,@@@"
+
+    from lightsim.validation.fuzz import pack_glb, small_scene_glb, split_glb
+
+    doc, blob = split_glb(small_scene_glb())
+    corrupt(doc)
+    path = tmp_path / "x.gltf"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="corrupt base64"):
+        load_scene(path)
+    assert pack_glb(doc, blob)[:4] == b"glTF"
+
+
+@pytest.mark.parametrize("edit,warning", [
+    (lambda d: d.update(scenes=[]), "'scenes' is empty: every root node is loaded"),
+    (lambda d: _node(d, "lens").update(scale=[-1.0, 1.0, 1.0]), "'lens': mirroring transform"),
+    (lambda d: _node(d, "lens").update(rotation=[0, 0, 0, 1.01]), "normalised"),
+    (lambda d: d["meshes"][2]["primitives"][0].update(mode=0), "POINTS primitive skipped"),
+])
+def test_gltf_repairs_are_warnings(tmp_path, edit, warning):
+    path = _edited_glb(tmp_path, edit, suffix=".gltf")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = load_scene(path)
+    assert any(warning in w for w in scene.warnings), scene.warnings
+    assert scene.total_flux == pytest.approx(1000.0)
+
+
+def test_gltf_mirroring_transform_keeps_outward_winding(tmp_path):
+    plain = load_scene(_edited_glb(tmp_path, lambda d: None))
+    mirrored = load_scene(_edited_glb(
+        tmp_path, lambda d: _node(d, "lens").update(scale=[-1.0, 1.0, 1.0])))
+    a = next(p for p in plain.parts if p.name == "lens")
+    b = next(p for p in mirrored.parts if p.name == "lens")
+
+    def normals(p):
+        t = p.triangles
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        return n / np.linalg.norm(n, axis=1, keepdims=True), t.mean(axis=1)
+
+    na, ca = normals(a)
+    nb, cb = normals(b)
+    # a box mirrored in x is the same box: outward normals stay outward
+    assert np.all(np.einsum("ij,ij->i", na, ca - ca.mean(axis=0)) > 0)
+    assert np.all(np.einsum("ij,ij->i", nb, cb - cb.mean(axis=0)) > 0)

@@ -3,11 +3,13 @@
 The left panel shows the relative error estimated from the interleave sets against
 seconds, the right one against photons with a 1/√N reference through the last point —
 noise-limited estimates follow it — each with its two parts, noise and blur, where the
-log has them.
+log has them. A log with no positive, finite error (nothing lit, or an error of exactly
+zero) gives an image that says so instead of a plot.
 """
 
 from __future__ import annotations
 
+import numbers
 import os
 from collections.abc import Sequence
 from typing import Any
@@ -15,6 +17,12 @@ from typing import Any
 import numpy as np
 
 from lightsim.io.atomic import atomic_path
+
+
+def _loggable(*values: object) -> bool:
+    """All values are finite numbers > 0 (what a log-log axis can show)."""
+    return all(isinstance(v, numbers.Real) and not isinstance(v, bool) and np.isfinite(v)
+               and v > 0 for v in values)
 
 
 def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
@@ -26,7 +34,7 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
     from matplotlib.figure import Figure
 
     pts = [(e["seconds"], e["photons"], e["rel_error"]) for e in log
-           if e.get("rel_error") is not None and e.get("photons")]
+           if _loggable(e.get("rel_error"), e.get("photons"), e.get("seconds"))]
     fig = Figure(figsize=(9.0, 3.6))
     ax1, ax2 = fig.subplots(1, 2)
     if pts:
@@ -36,7 +44,8 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
         # its two parts, where the log has them (noise from the sets, blur from the windows)
         for key, style, label in (("rel_noise", ":", "noise"), ("rel_bias", "-.", "blur")):
             part = [(e["seconds"], e["photons"], e[key]) for e in log
-                    if e.get(key) and e.get("rel_error") is not None and e.get("photons")]
+                    if _loggable(e.get(key), e.get("photons"), e.get("seconds"))
+                    and _loggable(e.get("rel_error"))]
             if part:
                 tp, n_p, vp = (np.asarray(x, dtype=np.float64) for x in zip(*part, strict=True))
                 ax1.loglog(tp, vp * 100, style, lw=1, label=label)
@@ -47,8 +56,10 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
         ax2.legend(loc="upper right", fontsize=8)
     else:
         for ax in (ax1, ax2):
-            ax.text(0.5, 0.5, "no error estimate (nothing lit)", ha="center",
-                    transform=ax.transAxes)
+            ax.text(0.5, 0.5, "no error estimate to plot\n(nothing lit, or no error above 0)",
+                    ha="center", va="center", transform=ax.transAxes)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
     ax1.set_xlabel("run time (s)")
     ax2.set_xlabel("photons emitted")
     from matplotlib.ticker import EngFormatter, FuncFormatter, LogLocator, NullFormatter

@@ -11,6 +11,23 @@ Every mesh primitive of every node in the default scene becomes one :class:`Gltf
 with world-space vertices (node transforms applied), per-vertex world normals (if the file
 has ``NORMAL``), triangle indices (strips and fans converted) and the material/extras as
 plain dicts. Units are whatever the file uses; glTF prescribes metres.
+
+Before any geometry is read, :func:`lightsim.io.gltf_check.check_document` validates every
+field used here (types, ranges, finiteness, accessor counts and offsets against their
+buffers); while the node hierarchy is walked, each mesh node's world transform must be
+finite and invertible and put its vertices within ``MAX_COORD_M`` of the origin. Problems
+raise :class:`~lightsim.errors.InputError` with one line naming the node, accessor or
+material; repairs are reported through the ``warnings`` list.
+
+==================  =====  =======  =====================================================
+parameter           unit   default  meaning
+==================  =====  =======  =====================================================
+``MAX_COORD_M``     m      1e6      largest world coordinate accepted (the lamp sits at
+                                    the origin, the wall tens of metres away)
+``MIN_SIZE_M``      m      1e-9     smallest part a transform may shrink a mesh to
+``SINGULAR_RATIO``  –      1e-12    smallest/largest singular value of a transform below
+                                    which it is singular (flattens the mesh)
+==================  =====  =======  =====================================================
 """
 
 from __future__ import annotations
@@ -24,6 +41,11 @@ from typing import Any
 import numpy as np
 
 from lightsim.errors import InputError
+from lightsim.io.gltf_check import check_document, name_of
+
+MAX_COORD_M = 1e6
+MIN_SIZE_M = 1e-9
+SINGULAR_RATIO = 1e-12
 
 _COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16,
               5125: np.uint32, 5126: np.float32}
@@ -91,34 +113,51 @@ def _load_json_and_buffers(path: Path) -> tuple[dict[str, Any], list[bytes]]:
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{path}: not a glTF file ({exc.__class__.__name__})") from None
         blob = b""
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: the glTF JSON is a {type(doc).__name__}, not an object")
+    bufs = doc.get("buffers", [])
+    if not isinstance(bufs, list):
+        raise InputError(f"{path}: 'buffers' must be a list")
     buffers: list[bytes] = []
-    for i, buf in enumerate(doc.get("buffers", [])):
+    for i, buf in enumerate(bufs):
+        if not isinstance(buf, dict):
+            raise InputError(f"{path}: buffer {i} must be a JSON object")
         uri = buf.get("uri")
+        length = buf.get("byteLength")
+        if not isinstance(length, int) or isinstance(length, bool) or length < 1:
+            raise InputError(f"{path}: buffer {i}: byteLength must be a positive integer, "
+                             f"got {length!r}")
         if uri is None:
             data = blob
+        elif not isinstance(uri, str):
+            raise InputError(f"{path}: buffer {i}: uri must be a string, got {uri!r}")
         elif uri.startswith("data:"):
-            data = base64.b64decode(uri.split(",", 1)[1])
+            try:
+                data = base64.b64decode(uri.split(",", 1)[1], validate=True)
+            except (IndexError, ValueError):
+                raise InputError(f"{path}: buffer {i}: corrupt base64 data URI") from None
         else:
             ext = path.parent / uri
-            if not ext.is_file():
+            try:
+                found = ext.is_file()
+            except (OSError, ValueError):
+                found = False
+            if not found:
                 raise InputError(f"{path}: buffer {i} file '{uri}' not found")
             data = ext.read_bytes()
-        if len(data) < buf.get("byteLength", 0):
+        if len(data) < length:
             raise InputError(f"{path}: buffer {i} is truncated "
-                             f"({len(data)} of {buf['byteLength']} bytes)")
-        buffers.append(data)
+                             f"({len(data)} of {length} bytes)")
+        buffers.append(data[:length])
     return doc, buffers
 
 
 def _read_accessor(doc: dict[str, Any], buffers: list[bytes], index: int) -> np.ndarray:
+    """An accessor's elements as a (count, components) array (checked by gltf_check)."""
     acc = doc["accessors"][index]
-    if "sparse" in acc:
-        raise InputError(f"accessor {index}: sparse accessors are not supported")
-    dtype = np.dtype(_COMPONENT[acc["componentType"]])
+    dtype = np.dtype(_COMPONENT[acc["componentType"]]).newbyteorder("<")
     ncomp = _NCOMP[acc["type"]]
     count = acc["count"]
-    if "bufferView" not in acc:
-        return np.zeros((count, ncomp), dtype=dtype)
     view = doc["bufferViews"][acc["bufferView"]]
     data = buffers[view["buffer"]]
     start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
@@ -130,8 +169,8 @@ def _read_accessor(doc: dict[str, Any], buffers: list[bytes], index: int) -> np.
                          "(truncated file?)")
     arr = np.ndarray((count, ncomp), dtype=dtype, buffer=data, offset=start,
                      strides=(stride, dtype.itemsize)).copy()
-    if acc.get("normalized") and dtype.kind in "iu":
-        arr = arr.astype(np.float64) / np.iinfo(dtype).max
+    if acc.get("normalized") and dtype.kind in "iu":  # glTF §3.11: signed ones clamp at −1
+        arr = np.maximum(arr.astype(np.float64) / np.iinfo(dtype).max, -1.0)
     return arr
 
 
@@ -140,7 +179,8 @@ def _node_matrix(node: dict[str, Any]) -> np.ndarray:
         return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major
     m = np.eye(4)
     t = node.get("translation", [0.0, 0.0, 0.0])
-    x, y, z, w = node.get("rotation", [0.0, 0.0, 0.0, 1.0])
+    q = np.asarray(node.get("rotation", [0.0, 0.0, 0.0, 1.0]), dtype=np.float64)
+    x, y, z, w = q / np.linalg.norm(q)  # gltf_check warned if it was off unit length
     s = node.get("scale", [1.0, 1.0, 1.0])
     r = np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -168,13 +208,15 @@ def _triangulate(indices: np.ndarray, mode: int) -> np.ndarray:
     return np.zeros((0, 3), dtype=np.int64)
 
 
-def read_gltf(path: str | Path) -> list[GltfPrimitive]:
+def read_gltf(path: str | Path, warnings: list[str] | None = None) -> list[GltfPrimitive]:
     """Read the default scene of a glTF/GLB file as world-space triangle primitives.
 
     Parameters
     ----------
     path : path-like
         ``.glb`` or ``.gltf`` file.
+    warnings : list of str, optional
+        What was repaired or skipped is appended here (one line each).
 
     Returns
     -------
@@ -187,19 +229,57 @@ def read_gltf(path: str | Path) -> list[GltfPrimitive]:
         Missing, truncated or malformed file.
     """
     path = Path(path)
+    warnings = [] if warnings is None else warnings
     try:
         doc, buffers = _load_json_and_buffers(path)
-    except (KeyError, IndexError, ValueError, struct.error) as exc:
-        raise InputError(f"{path}: corrupt glTF ({exc})") from None
+    except (KeyError, IndexError, ValueError, struct.error, RecursionError) as exc:
+        raise InputError(f"{path}: corrupt glTF ({_one_line(exc)})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     try:
-        return _collect(doc, buffers)
+        check_document(doc, buffers, warnings)
+        with np.errstate(all="ignore"):  # overflow is detected below, not printed
+            return _collect(doc, buffers, warnings)
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
     except (KeyError, IndexError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: corrupt glTF ({exc.__class__.__name__}: {exc})") from None
+        raise InputError(f"{path}: corrupt glTF ({exc.__class__.__name__}: "
+                         f"{_one_line(exc)})") from None
 
 
-def _collect(doc: dict[str, Any], buffers: list[bytes]) -> list[GltfPrimitive]:
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:200]
+
+
+def _check_world(what: str, world: np.ndarray, local: np.ndarray, warnings: list[str]) -> None:
+    """A mesh node's world transform must be finite, invertible and keep it in range."""
+    if not np.all(np.isfinite(world)):
+        raise InputError(f"{what}: world transform is not finite (overflowing scale or "
+                         "translation)")
+    s = np.linalg.svd(world[:3, :3], compute_uv=False)
+    if not s[0] > 0 or s[-1] <= SINGULAR_RATIO * s[0]:
+        raise InputError(f"{what}: transform is singular (scale {s[-1]:.3g} along one axis: "
+                         "it flattens the mesh)")
+    if len(local):
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
+                            for c in (lo[2], hi[2])])
+        world_pts = corners @ world[:3, :3].T + world[:3, 3]
+        reach = float(np.abs(world_pts).max())
+        if not reach <= MAX_COORD_M:
+            raise InputError(f"{what}: vertices reach {reach:.3g} m from the origin (more than "
+                             f"{MAX_COORD_M:g} m; glTF lengths are metres)")
+        size = float(np.ptp(world_pts, axis=0).max())
+        if float(np.ptp(local, axis=0).max()) > 0 and size < MIN_SIZE_M:
+            raise InputError(f"{what}: transform shrinks the mesh to {size:.3g} m (below "
+                             f"{MIN_SIZE_M:g} m: scale {s[0]:.3g}?)")
+    if np.linalg.det(world[:3, :3]) < 0:
+        warnings.append(f"{what}: mirroring transform (negative determinant): triangle "
+                        "winding reversed to keep the front faces")
+
+
+def _collect(doc: dict[str, Any], buffers: list[bytes], warnings: list[str]
+             ) -> list[GltfPrimitive]:
     nodes = doc.get("nodes", [])
     scenes = doc.get("scenes", [])
     if scenes:
@@ -211,8 +291,13 @@ def _collect(doc: dict[str, Any], buffers: list[bytes]) -> list[GltfPrimitive]:
     meshes = doc.get("meshes", [])
     out: list[GltfPrimitive] = []
     stack = [(i, np.eye(4), 0) for i in roots]
+    seen: set[int] = set()
     while stack:
         idx, parent, depth = stack.pop()
+        if idx in seen:
+            raise InputError(f"{name_of('node', idx, nodes[idx])} is reached twice (a cycle "
+                             "in the hierarchy, or two parents)")
+        seen.add(idx)
         if depth > 256:
             raise InputError("node hierarchy deeper than 256 (cycle?)")
         node = nodes[idx]
@@ -226,8 +311,8 @@ def _collect(doc: dict[str, Any], buffers: list[bytes]) -> list[GltfPrimitive]:
         extras = dict(mesh.get("extras") or {})
         extras.update(node.get("extras") or {})
         lin = world[:3, :3]
-        normal_m = np.linalg.inv(lin).T if abs(np.linalg.det(lin)) > 0 else lin
-        flip = np.linalg.det(lin) < 0
+        what = name_of("node", idx, node)
+        checked = False
         for prim in mesh.get("primitives", []):
             mode = prim.get("mode", _TRIANGLES)
             if mode not in (_TRIANGLES, _TRIANGLE_STRIP, _TRIANGLE_FAN):
@@ -236,13 +321,24 @@ def _collect(doc: dict[str, Any], buffers: list[bytes]) -> list[GltfPrimitive]:
             if "POSITION" not in attrs:
                 continue
             pos = _read_accessor(doc, buffers, attrs["POSITION"]).astype(np.float64)
+            if not np.all(np.isfinite(pos)):
+                bad = int((~np.isfinite(pos)).any(axis=1).sum())
+                raise InputError(f"{what}: accessor {attrs['POSITION']} (POSITION) has {bad} "
+                                 "vertices with NaN/inf coordinates")
+            # the transform is the node's: warn once, check every primitive's extent
+            _check_world(what, world, pos, [] if checked else warnings)
+            normal_m = np.linalg.inv(lin).T
+            flip = bool(np.linalg.det(lin) < 0)
+            checked = True
             if "indices" in prim:
                 ind = _read_accessor(doc, buffers, prim["indices"]).reshape(-1).astype(np.int64)
             else:
                 ind = np.arange(len(pos), dtype=np.int64)
             faces = _triangulate(ind, mode)
             if len(faces) and (faces.max() >= len(pos) or faces.min() < 0):
-                raise InputError(f"node '{name}': triangle index out of range")
+                raise InputError(f"{what}: triangle index {int(faces.max())} out of range "
+                                 f"(POSITION accessor {attrs['POSITION']} has {len(pos)} "
+                                 "vertices)")
             verts = pos @ lin.T + world[:3, 3]
             normals = None
             if "NORMAL" in attrs:

@@ -9,6 +9,9 @@
   given height: lateral position (m) across, distance ahead (m) up, iso-lux lines
   (default 1, 3, 5, 10, 20 lx); physics in :mod:`lightsim.render.road`.
 
+Degenerate data (nothing finite, nothing above zero, a constant image, fewer than 2 × 2
+pixels) gives an image that says so (:mod:`lightsim.io.placeholder`) instead of raising.
+
 Figures are drawn on a private :class:`matplotlib.figure.Figure` with the Agg canvas (no
 pyplot state, safe in threads) and saved through :func:`lightsim.io.atomic.atomic_path`.
 
@@ -43,6 +46,7 @@ from numpy.typing import ArrayLike
 
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.io.placeholder import image_problem, placeholder_png
 from lightsim.luminaires.regulations.units import WallFrame
 
 __all__ = ["VERDICT_COLOURS", "auto_levels", "isolux_levels", "isolux_noise_floor",
@@ -180,6 +184,12 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     from matplotlib.colors import LogNorm
     from matplotlib.lines import Line2D
 
+    if levels is not None:
+        _levels_checked(levels)  # a bad option is an error even when nothing is lit
+    problem = image_problem(lux, contours=True)
+    if problem is not None:  # a plot that cannot show anything says so
+        WallFrame.from_any(frame).check_image(lux)
+        return placeholder_png(path, problem, title=title or "iso-lux on the wall", dpi=dpi)
     wf = WallFrame.from_any(frame)
     img = np.nan_to_num(wf.check_image(lux), nan=0.0)
     h = wf.h_deg()
@@ -307,6 +317,12 @@ def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame:
     """
     from lightsim.render.road import road_illuminance
 
+    _levels_checked(levels)
+    problem = image_problem(road.lux if road is not None else lux, contours=True)
+    if problem is not None and (road is not None or lux is not None):
+        placeholder_png(path, problem, title=title or "road illuminance", figsize=figsize,
+                        dpi=dpi)
+        return road
     if road is None:
         if lux is None or frame is None:
             raise InputError("road_view_plot needs a wall lux map and its frame, or road=")
