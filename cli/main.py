@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "converge": "validate:converge",
     "report": "report:report",
     "photo": "photo:photo",
+    "tolerance": "tolerance:tolerance",
 }
 
 
