@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "report": "report:report",
     "photo": "photo:photo",
     "tolerance": "tolerance:tolerance",
+    "design": "design:design",
 }
 
 
