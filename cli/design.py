@@ -32,10 +32,12 @@ from lightsim.errors import InputError
               show_default=True)
 @click.option("--out", "check_dir", type=click.Path(file_okay=False), default="design-check",
               show_default=True, help="Folder of the final check run.")
+@click.option("--aim", is_flag=True,
+              help="Aim every candidate's cut-off at 0.57° D before evaluating (and check).")
 @click.option("--quiet", "-q", is_flag=True)
 def design(out_glb: str, bulb: str, regulation: str, facets: int, focal_length: float,
            opening: float, evaluations: int, photons: int, check_photons: int, seed: int,
-           safety: float, traffic: str, check_dir: str, quiet: bool) -> None:
+           safety: float, traffic: str, check_dir: str, aim: bool, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens), then simulate it and print the regulation table."""
     from rich.console import Console
@@ -63,7 +65,7 @@ def design(out_glb: str, bulb: str, regulation: str, facets: int, focal_length: 
     res = design_lowbeam(regulation, bulb=name, facets=facets,
                          focal_length_m=focal_length * 1e-3, aperture_m=opening * 1e-3,
                          photons=photons, evaluations=evaluations, seed=seed, safety=safety,
-                         traffic=traffic, progress=progress)
+                         traffic=traffic, aim=aim, progress=progress)
     size = write_design(out_glb, res.x, facets, name, focal_length * 1e-3, opening * 1e-3,
                         traffic)
     click.echo(f"design: {len(res.history)} evaluations in {res.seconds:.1f} s; best "
@@ -71,7 +73,7 @@ def design(out_glb: str, bulb: str, regulation: str, facets: int, focal_length: 
                f"J = {res.objective:.4f}; wrote {out_glb} ({size:,} bytes)")
     if check_photons:
         opts = SimulateOptions(out_glb, out_dir=check_dir, photons=check_photons,
-                               regulation=regulation, traffic=traffic,
+                               regulation=regulation, traffic=traffic, aim=aim,
                                config={"seed": seed})
         sim = run_simulation(opts)
         Console(width=120).print(format_regulation(sim.summary["regulation"]))

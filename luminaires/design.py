@@ -42,6 +42,9 @@ resolution        px     160×64       wall pixels per evaluation
 evaluations       –      30           Nelder–Mead function-evaluation budget
 seed              –      1            photon seed of every evaluation
 safety            –      0.10         relative margin asked beyond every limit
+aim               –      False        aim every candidate's cut-off at 0.57° D before
+                                      evaluating (as ``simulate --aim``): v0 then only
+                                      moves the pattern relative to its own cut-off
 ================  =====  ===========  =====================================================
 """
 
@@ -169,7 +172,7 @@ def design_lowbeam(regulation: str, *, bulb: str = "H4-low", facets: int = 8,
                    focal_length_m: float = 0.025, aperture_m: float = 0.160,
                    photons: int = 100_000, resolution: tuple[int, int] = (160, 64),
                    evaluations: int = 30, seed: int = 1, safety: float = 0.10,
-                   traffic: str = "right",
+                   traffic: str = "right", aim: bool = False,
                    progress: Callable[[int, dict[str, Any]], None] | None = None
                    ) -> DesignResult:
     """Optimise the facet aims against ``regulation`` (see the module docstring)."""
@@ -200,7 +203,8 @@ def design_lowbeam(regulation: str, *, bulb: str = "H4-low", facets: int = 8,
                 return 1e6  # an infeasible lamp (facets through the lens)
             opts = SimulateOptions(str(glb), out_dir=tmp, photons=photons,
                                    resolution=resolution, regulation=regulation,
-                                   traffic=traffic, aperture=0.0, config={"seed": seed})
+                                   traffic=traffic, aperture=0.0, config={"seed": seed},
+                                   aim=aim)
             s = run_sample(opts, np.zeros(5))
             values = dict(zip(s.names, s.value_cd))
             j, failing = objective(values, dict(zip(s.names, s.limits)), safety)
