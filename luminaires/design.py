@@ -208,6 +208,8 @@ def design_lowbeam(regulation: str, *, bulb: str = "H4-low", facets: int = 8,
             s = run_sample(opts, np.zeros(5))
             values = dict(zip(s.names, s.value_cd))
             j, failing = objective(values, dict(zip(s.names, s.limits)), safety)
+            if s.verdicts and s.verdicts[0].startswith("not aimable"):
+                j, failing = j + 100.0, ["no cut-off to aim"]  # worse than any aimable lamp
             entry = {"x": [float(t) for t in x], "objective": j, "failing": failing,
                      "seconds": time.perf_counter() - t1}
             history.append(entry)

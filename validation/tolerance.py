@@ -243,11 +243,29 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
     try:
         est = session.run(photons=opts.photons, seconds=opts.seconds,
                           target_error=opts.target_error)
-        reg = regulation_check(session, luminous(est.lux), opts.regulation, opts.traffic,
-                               opts.aim)
+        lux = luminous(est.lux)
+        failed = None
+        try:
+            reg = regulation_check(session, lux, opts.regulation, opts.traffic, opts.aim)
+        except InputError as exc:
+            if not opts.aim:
+                raise
+            # a lamp whose cut-off cannot be found cannot be aimed: it fails every point
+            # (the values shown are the unaimed ones)
+            failed = f"not aimable: {exc}"
+            reg = regulation_check(session, lux, opts.regulation, opts.traffic, False)
     finally:
         session.close()
     rows = [r for r in reg["results"] if r.get("limit") and r.get("verdict") != "info"]
+    if failed is not None:
+        return SampleResult(
+            offset=[float(v) for v in offset], names=[str(r["name"]) for r in rows],
+            value_cd=[float(r["value_cd"]) for r in rows],
+            lo_cd=[float(r["interval_cd"][0]) for r in rows],
+            hi_cd=[float(r["interval_cd"][1]) for r in rows],
+            value_pass=[False] * len(rows), sure_pass=[False] * len(rows),
+            verdicts=[failed] * len(rows), limits=[dict(r["limit"]) for r in rows],
+            seconds=time.perf_counter() - t0)
     return SampleResult(
         offset=[float(v) for v in offset],
         names=[str(r["name"]) for r in rows],
