@@ -167,6 +167,7 @@ def test_bad_input_is_one_line_and_exit_2(args, needle, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.ray
 def test_ray_workers_give_the_same_samples(nominal_study, tmp_path):
     pytest.importorskip("ray")
     study = run_tolerance(_opts(tmp_path), samples=2, seed=1, workers=2)
