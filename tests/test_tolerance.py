@@ -174,3 +174,39 @@ def test_ray_workers_give_the_same_samples(nominal_study, tmp_path):
     for a, b in zip(study.samples, nominal_study.samples):
         assert a.offset == b.offset
         assert np.allclose(a.value_cd, b.value_cd, rtol=1e-12)
+
+
+def test_a_sample_that_cannot_be_aimed_fails_every_point(monkeypatch, tmp_path):
+    import lightsim.report as report
+    from lightsim.validation.tolerance import run_sample
+
+    real = report.regulation_check
+
+    def no_cutoff(session, lux, ruleset, traffic="right", aim=False, **kw):
+        if aim:
+            raise InputError("--aim: no cut-off found")
+        return real(session, lux, ruleset, traffic, aim, **kw)
+
+    monkeypatch.setattr(report, "regulation_check", no_cutoff)
+    opts = SimulateOptions(str(LAMP), out_dir=str(tmp_path), photons=20_000,
+                           resolution=(80, 32), regulation=RULES, aperture=0.0, aim=True)
+    s = run_sample(opts, np.zeros(5))
+    assert s.names and not any(s.value_pass) and not any(s.sure_pass)
+    assert all(v.startswith("not aimable") for v in s.verdicts)
+    with pytest.raises(InputError):  # without --aim the same error is the user's problem
+        monkeypatch.setattr(report, "regulation_check",
+                            lambda *a, **k: (_ for _ in ()).throw(InputError("bad")))
+        run_sample(SimulateOptions(str(LAMP), out_dir=str(tmp_path), photons=20_000,
+                                   resolution=(80, 32), regulation=RULES, aperture=0.0),
+                   np.zeros(5))
+
+
+def test_cli_study_writes_its_files_and_table(tmp_path):
+    out = tmp_path / "study"
+    r = _cli(str(LAMP), "--regulation", RULES, "--samples", "1", "--photons", "20000",
+             "--resolution", "80x32", "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "pass rate" in r.stdout and "75R" in r.stdout and "ASSUMPTION" in r.stdout
+    doc = json.loads((out / "tolerance.json").read_text())
+    assert len(doc["samples"]) == 2 and doc["photons"] == 20000
+    assert (out / "tolerance.csv").stat().st_size > 0 and (out / "tolerance.png").exists()
