@@ -29,6 +29,8 @@ COMMANDS: dict[str, str] = {
     "view": "view:view",
     "screen-target": "screen_target:screen_target",
     "fuzz": "fuzz:fuzz",
+    "tolerance": "tolerance:tolerance",
+    "design": "design:design",
 }
 
 

@@ -1,0 +1,156 @@
+"""``lightsim tolerance``: bulb-tolerance study (parse, call
+:func:`lightsim.validation.tolerance.run_tolerance`, print)."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import click
+
+from lightsim.errors import InputError
+
+
+def _box(text: str | None, tilt_deg: float | None):
+    """``DX,DY,DZ`` half-widths in mm → a ToleranceBox (None: the bulb's)."""
+    from lightsim.validation.tolerance import MM, ToleranceBox
+
+    if text is None:
+        return None
+    try:
+        vals = [float(p) for p in text.split(",")]
+    except ValueError:
+        raise InputError(f"--box must be DX,DY,DZ in mm, got '{text}'") from None
+    if len(vals) != 3 or not all(math.isfinite(v) and v >= 0 for v in vals):
+        raise InputError(f"--box must be three half-widths ≥ 0 mm, got '{text}'")
+    return ToleranceBox("given", tuple(v * MM for v in vals),  # type: ignore[arg-type]
+                        1.0 if tilt_deg is None else tilt_deg, "given by the user (--box)")
+
+
+def _centre(text: str | None) -> tuple[float, float, float]:
+    """``DX,DY,DZ`` in mm → metres."""
+    if text is None:
+        return (0.0, 0.0, 0.0)
+    try:
+        vals = [float(p) * 1e-3 for p in text.split(",")]
+    except ValueError:
+        raise InputError(f"--centre must be DX,DY,DZ in mm, got '{text}'") from None
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise InputError(f"--centre must be three finite numbers in mm, got '{text}'")
+    return (vals[0], vals[1], vals[2])
+
+
+@click.command()
+@click.argument("scene_file", type=click.Path(dir_okay=False))
+@click.option("--regulation", required=True, help="Rule set, e.g. r112-b-passing.")
+@click.option("--samples", type=int, default=50, show_default=True,
+              help="Latin-hypercube samples over the tolerance box (plus the nominal).")
+@click.option("--photons", "-n", type=int, default=200_000, show_default=True,
+              help="Photons per sample (the same photons for every sample).")
+@click.option("--seed", type=int, default=1, show_default=True,
+              help="Photon seed (common to all samples).")
+@click.option("--design-seed", type=int, default=1, show_default=True,
+              help="Seed of the Latin-hypercube design.")
+@click.option("--tilt", is_flag=True, help="Also tilt the filament (about X and Y).")
+@click.option("--box", "box_mm", metavar="DX,DY,DZ",
+              help="Half-widths of the box in mm (default: the bulb category's).")
+@click.option("--tilt-deg", type=float, help="Half-width of the tilt in degrees.")
+@click.option("--bulb", help="Bulb category when the scene does not name one (H1, H4, H7).")
+@click.option("--resolution", default="160x64", show_default=True, help="Wall pixels WxH.")
+@click.option("--frame-photons", type=int, default=200_000, show_default=True)
+@click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
+              show_default=True)
+@click.option("--aim", is_flag=True, help="Aim every sample's cut-off at 0.57° D first.")
+@click.option("--aperture", type=float, default=0.0, show_default=True,
+              help="Detector aperture of the test points in degrees; 0 = the kNN estimate "
+                   "at the points (smooth, so common random numbers cancel the noise).")
+@click.option("--centre", "centre_mm", metavar="DX,DY,DZ",
+              help="Shift the whole box by this much in mm (a misplaced bulb holder).")
+@click.option("--workers", type=int, default=0, show_default=True,
+              help="Ray workers (each sample one task); 0 runs in this process.")
+@click.option("--address", help="Ray cluster address HOST:PORT.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="tolerance-out",
+              show_default=True)
+@click.option("--quiet", "-q", is_flag=True)
+def tolerance(scene_file: str, regulation: str, samples: int, photons: int, seed: int,
+              design_seed: int, tilt: bool, box_mm: str | None, tilt_deg: float | None,
+              bulb: str | None, resolution: str, frame_photons: int, traffic: str, aim: bool,
+              aperture: float, centre_mm: str | None, workers: int, address: str | None,
+              out_dir: str,
+              quiet: bool) -> None:
+    """Move the filament of SCENE_FILE within its bulb's tolerance box, simulate every
+    sample with common random numbers and report regulation pass rates."""
+    from lightsim.cli.simulate import _pair
+    from lightsim.luminaires.regulations import load_ruleset
+    from lightsim.simulate import SimulateOptions, check_out_dir, load
+    from lightsim.validation.tolerance import box_for_scene, run_tolerance, write_study
+
+    if samples < 1:
+        raise InputError(f"--samples must be ≥ 1, got {samples}")
+    if photons < 1:
+        raise InputError(f"--photons must be ≥ 1, got {photons}")
+    if workers < 0:
+        raise InputError(f"--workers must be ≥ 0, got {workers}")
+    if tilt_deg is not None and not (math.isfinite(tilt_deg) and tilt_deg >= 0):
+        raise InputError(f"--tilt-deg must be ≥ 0, got {tilt_deg}")
+    load_ruleset(regulation)
+    opts = SimulateOptions(scene_path=scene_file, out_dir=out_dir, photons=photons,
+                           resolution=_pair(resolution, "--resolution", int),
+                           config={"seed": seed, "frame_photons": frame_photons},
+                           regulation=regulation, traffic=traffic, aim=aim,
+                           aperture=aperture)
+    opts.run_config()
+    box = _box(box_mm, tilt_deg)
+    if box is None:
+        from dataclasses import replace
+
+        box = box_for_scene(load(opts), bulb)
+        if tilt_deg is not None:
+            box = replace(box, tilt_deg=tilt_deg)
+    out = check_out_dir(out_dir)
+    t0 = time.perf_counter()
+
+    def progress(i: int, s) -> None:
+        if not quiet:
+            o = s.offset
+            fails = [n for n, ok in zip(s.names, s.value_pass) if not ok]
+            click.echo(f"sample {i:3d}  d=({o[0] * 1e3:+.3f}, {o[1] * 1e3:+.3f}, "
+                       f"{o[2] * 1e3:+.3f}) mm tilt=({o[3]:+.2f}, {o[4]:+.2f})°  "
+                       f"{s.seconds:5.1f} s  fails: {', '.join(fails) or '-'}", err=True)
+
+    study = run_tolerance(opts, samples=samples, seed=design_seed, tilt=tilt, box=box,
+                          centre_m=_centre(centre_mm),
+                          workers=workers, address=address or os.environ.get("RAY_ADDRESS"),
+                          progress=progress)
+    files = write_study(study, out)
+    _print(study)
+    click.echo(f"{len(study.samples) - 1} samples + nominal, {photons:,} photons each, in "
+               f"{time.perf_counter() - t0:.1f} s; wrote "
+               + ", ".join(str(f.name) for f in files) + f" in {out}")
+
+
+def _print(study) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    b = study.box
+    rate, ci = study.all_pass_rate()
+    table = Table(title=f"{study.regulation}: filament box ±{b.half_m[0] * 1e3:.2f} × "
+                  f"±{b.half_m[1] * 1e3:.2f} × ±{b.half_m[2] * 1e3:.2f} mm"
+                  + (f", tilt ±{b.tilt_deg:g}°" if study.tilt else "")
+                  + f" ({b.category}); all points pass in {rate:.0%} "
+                  f"[{ci[0]:.0%}–{ci[1]:.0%}]")
+    for col in ("rule", "limit cd", "centre cd", "centre", "pass rate",
+                f"{int(study.confidence * 100)}% interval", "sure pass", "worst cd",
+                "worst at (mm)"):
+        table.add_column(col)
+    for p in study.points:
+        lim = " ".join(f"{'≥' if k == 'min' else '≤'} {v:,.0f}" for k, v in p.limit.items())
+        o = p.worst_offset
+        table.add_row(p.name, lim, f"{p.nominal_cd:,.0f}", p.nominal_verdict,
+                      f"{p.pass_rate:.0%}", f"{p.pass_interval[0]:.0%}–{p.pass_interval[1]:.0%}",
+                      f"{p.sure_pass_rate:.0%}", f"{p.worst_cd:,.0f}",
+                      f"{o[0] * 1e3:+.2f},{o[1] * 1e3:+.2f},{o[2] * 1e3:+.2f}")
+    Console(width=160).print(table)
+    click.echo(f"box source: {b.source}")
