@@ -78,6 +78,8 @@ class EstimatorSpec:
 SPECS: tuple[EstimatorSpec, ...] = (
     EstimatorSpec("knn M=4", {"estimator": "knn", "interleave": 4, "spt": False},
                   needs_photonmap=True),
+    EstimatorSpec("knn M=4 rk", {"estimator": "knn", "interleave": 4, "spt": False,
+                                 "bandwidth": "knn"}, needs_photonmap=True),
     EstimatorSpec("knn M=1", {"estimator": "knn", "interleave": 1, "spt": False},
                   needs_photonmap=True),
     EstimatorSpec("bin", {"estimator": "bin", "interleave": 4, "spt": False}),
@@ -130,6 +132,7 @@ ANALYTIC_TARGETS: dict[str, Callable[[], an.AnalyticScene]] = {
     "slab": an.slab_case,
     "slab-absorbing": lambda: an.slab_case(sigma=10.0),
     "lambertian": an.lambertian_case,
+    "shield": an.shield_case,
 }
 
 
@@ -145,7 +148,9 @@ def analytic_target(name: str, resolution: tuple[int, int] | None = None) -> Tar
                       scene.warnings, scene.channels)
         case.scene = scene
     assert case.exact is not None
-    return Target(f"analytic:{name}", scene, exact_px=an.pixel_average(case.exact, case.frame))
+    exact_px = (case.pixel_means(case.frame) if case.pixel_means is not None
+                else an.pixel_average(case.exact, case.frame))
+    return Target(f"analytic:{name}", scene, exact_px=exact_px)
 
 
 def _probe_all_pixels(frame) -> np.ndarray:
