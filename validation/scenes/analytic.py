@@ -718,10 +718,10 @@ def shield_case(flux: float = 1000.0, wall_distance: float = 1.0, shield_z: floa
     """Isotropic point source behind a black shield with a straight edge: an exact cut-off.
 
     The shield (albedo 0, in the plane z = ``shield_z``) covers y ≥ tan(slope) h +
-    offset · z_s / D (h = −x, the wall's horizontal axis), so the wall at z = D is lit by the direct light
-    E = Φ D / (4π ρ³), ρ = √(h² + v² + D²), below the line v = tan(slope) h + offset
-    and is dark above it: a step of the full E, tilted so that pixels straddle it at
-    every offset (the 15° shoulder of a low beam is of this kind).
+    offset · z_s / D (h = −x, the wall's horizontal axis), so the wall at z = D is lit
+    by the direct light E = Φ D / (4π ρ³), ρ = √(h² + v² + D²), below the line
+    v = tan(slope) h + offset and is dark above it: a step of the full E, tilted so
+    that pixels straddle it at every offset (like the 15° shoulder of a low beam).
     """
     D = float(wall_distance)
     if not (0 < shield_z < D):
