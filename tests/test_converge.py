@@ -185,3 +185,19 @@ def test_consistent_estimation_study(target, tmp_path):
     assert knn[-1].actual < 0.5 * knn[0].actual
     for s in knn:
         assert 0.8 <= s.ratio <= 1.25, s
+
+
+@pytest.mark.slow
+def test_consistent_estimation_on_the_shipped_headlight(tmp_path):
+    """Against a long bin reference (25 × the photons): error falls, estimate honest."""
+    from pathlib import Path
+
+    glb = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
+    r = cv.run_converge(str(glb), budgets=(250_000, 1_000_000, 4_000_000),
+                        estimators=["knn M=4"], frame_photons=250_000, by_photons=True,
+                        reference_factor=25)
+    cv.write_outputs(r, tmp_path)
+    knn = r.steps()
+    assert all(b.actual < a.actual for a, b in itertools.pairwise(knn))
+    for s in knn:
+        assert 0.8 <= s.ratio <= 1.25, s
