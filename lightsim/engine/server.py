@@ -206,11 +206,14 @@ class Session:
             moments.update(r.get("moments", {}))
         t2 = time.perf_counter()
         emitted = self.emitted_per_set()
+        ici_err, counts_only = None, False
+        if probe_rungs and len(probe_rungs) == len(emitted):
+            ici_err, counts_only = self._ici_error(probe_rungs, moments, emitted)
         lux = raw = rung_map = None
         if image and subs:
             lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
         elif image and full_rungs:
-            lux, rung_map = self._ici_image(full_rungs, moments, emitted)
+            lux, rung_map = self._ici_image(full_rungs, moments, emitted, counts_only)
             raw = lux
         elif image and fulls:
             lux = raw = pool_full_images(fulls, emitted)
@@ -225,7 +228,7 @@ class Session:
             windows.update(r.get("windows", {}))
         stats = probe_stats(probes, windows) if probes else None
         if probe_rungs and len(probe_rungs) == len(emitted):
-            err = self._ici_error(probe_rungs, moments, emitted)
+            err = ici_err
         else:
             err = estimate_error(stats, self.grid_count) if stats is not None else None
         return Estimate(lux, raw, stats, None if err is None else err.total,
@@ -252,13 +255,15 @@ class Session:
                                     ici.wall_photons(moments) / (W * H)))
 
     def _ici_image(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """The written map: every pixel at its ICI rung over all sets, (H, W, C) lx."""
+                   emitted: dict[int, int], counts_only: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """The written map: every pixel at its ICI rung over all sets, (H, W, C) lx
+        (``counts_only``: every pixel at rung 0, its own photon count)."""
         from lightsim.render import ici
 
         first = next(iter(rungs.values()))
         J1, H, W, C = first.shape
-        J1 = self._ici_rungs_now(J1, moments)
+        J1 = 1 if counts_only else self._ici_rungs_now(J1, moments)
         flat = {s: np.asarray(v)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
         rows, cols = np.divmod(np.arange(H * W), W)
         choice = ici.choose(flat, emitted, ici.power_moment(moments),
@@ -266,8 +271,14 @@ class Session:
         return choice.lux.reshape(H, W, C), choice.rung.reshape(H, W)
 
     def _ici_error(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int]) -> ErrorEstimate | None:
-        """The error figure of the ICI map from the pixels under the grid probes."""
+                   emitted: dict[int, int]) -> tuple[ErrorEstimate | None, bool]:
+        """The error figure of the written map from the pixels under the grid probes, and
+        whether that map is the plain pixel counts.
+
+        Both maps are consistent; where ICI keeps a blur that no single pixel can see but
+        the figure (averaged over the lit probes) does, the pixel counts' own estimated
+        error (their noise, no blur) can be the lower one — then the map is the counts.
+        """
         from lightsim.render import ici
 
         grid = self.probes_hv[:self.grid_count]
@@ -276,7 +287,12 @@ class Session:
         rungs = {s: np.asarray(v)[:J1] for s, v in rungs.items()}
         choice = ici.choose(rungs, emitted, ici.power_moment(moments),
                             self._ici_areas(rows, cols), self.config.ici_gamma)
-        return ici.estimate_error(rungs, choice)
+        err = ici.estimate_error(rungs, choice)
+        zero = np.zeros_like(choice.rung)
+        counts = ici.estimate_error(rungs, ici.IciChoice(zero, choice.lux))
+        if err is not None and counts is not None and counts.total < err.total:
+            return counts, True
+        return err, False
 
     def probe(self, points_hv: np.ndarray) -> ProbeStats:
         """Estimates of every set at wall points (h, v in m): mean, standard error, values."""
