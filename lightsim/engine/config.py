@@ -28,8 +28,10 @@ parameter               unit   default     meaning
                                            smaller ones' (:mod:`lightsim.render.ici`):
                                            the radius shrinks as photons grow wherever
                                            blur would show, so the map converges to the
-                                           pixel means; ``knn`` = r_k clamped to
-                                           [r_min, r_max] (the paper; its error levels off)
+                                           pixel means (or the plain pixel counts when
+                                           their estimated error is the lower one);
+                                           ``knn`` = r_k clamped to [r_min, r_max] (the
+                                           paper; its error levels off)
 ``ici_gamma``           –      2.0         Γ: interval half-width in standard errors
 ``kernel``              –      ``box``     ``box``, ``cone`` or ``epanechnikov`` weights
 ``final``               –      ``pooled``  the written lux map: ``pooled`` = every set
