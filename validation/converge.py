@@ -555,6 +555,10 @@ def plot(result: ConvergeResult, path: str | Path) -> None:
     ax2.set_xlabel("actual relative RMSE (%)")
     ax2.set_ylabel("estimated relative error (%)")
     ax2.set_title("is the estimate honest? (dashed: 0.8 and 1.25)", fontsize=9)
+    from matplotlib.ticker import NullFormatter
+
+    ax2.xaxis.set_minor_formatter(NullFormatter())  # minor labels overlap on a short span
+    ax2.yaxis.set_minor_formatter(NullFormatter())
     ax2.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     with atomic_path(path, suffix=".png") as tmp:
