@@ -120,6 +120,9 @@ class _Progress:
               help="Largest kNN radius (m); default 2 × min radius; 'inf' = unlimited.")
 @click.option("--min-radius", type=float,
               help="Smallest kNN radius (m); default: the filter window's area.")
+@click.option("--bandwidth", type=click.Choice(["ici", "knn"]), default="ici", show_default=True,
+              help="Written map's radius: ici = per pixel, the largest window the photon "
+                   "counts do not contradict (consistent); knn = r_k in [pixel disk, 4×].")
 @click.option("--kernel", type=click.Choice(["box", "cone", "epanechnikov"]), default="box",
               show_default=True)
 @click.option("--interleave", "-M", type=int, default=4, show_default=True,
@@ -202,7 +205,7 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
              explain: bool, quiet: bool, rayfile: str | None = None,
              rayfile_at: str | None = None, rayfile_axis: str = "0,0,1",
              materials: str | None = None, cad_linear_tol: float = 0.01,
-             cad_angular_tol: float = 2.0) -> None:
+             cad_angular_tol: float = 2.0, bandwidth: str = "ici") -> None:
     """Simulate SCENE_FILE (GLB/glTF/OBJ/STL/PLY, STEP/IGES, a .tm25ray ray file) and write
     the wall illuminance in lux."""
     import os
@@ -225,7 +228,7 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
             "kernel": kernel, "filter_size": filter_size, "final": final,
             "frame_photons": frame_photons,
             "structure": structure, "spt": spt, "min_radius": min_radius,
-            "max_radius": max_radius}
+            "max_radius": max_radius, "bandwidth": bandwidth}
         opts = SimulateOptions(
             scene_path=scene_file, out_dir=out_dir, photons=photons, seconds=seconds,
             target_error=target_error, flux=flux, emission=emission, filament=filament,

@@ -29,6 +29,8 @@ option                 unit   default     meaning
 option                  unit   default          meaning
 ======================  =====  ===============  ============================================
 ``--budgets``           s      0.25,0.5,…,8     time budgets (``--full``: up to 64)
+``--photons``           –      none             photon budgets instead (e.g. 250k,1M,4M;
+                                                reproducible whatever the machine's load)
 ``--estimator``         –      all five         knnM=4, knnM=1, bin, radius, knnM=4SPT
 ``--out``               –      converge-out     folder for converge.csv/.json/.png
 ``--frame-photons``     –      50 000           photons per frame (all sets)
@@ -183,6 +185,40 @@ def _budgets(text: str | None, full: bool) -> list[float]:
     return vals
 
 
+def _photon_budgets(text: str) -> list[float]:
+    vals = []
+    for part in (x.strip().lower() for x in text.split(",") if x.strip()):
+        scale = {"k": 1e3, "m": 1e6, "g": 1e9}.get(part[-1:], 1.0)
+        try:
+            v = float(part[:-1] if scale != 1.0 else part) * scale
+        except ValueError:
+            raise InputError(f"--photons must be photon counts separated by commas "
+                             f"(250k, 1M, 4e6), got '{text}'") from None
+        if not (math.isfinite(v) and v >= 1):
+            raise InputError(f"--photons must be positive photon counts, got '{text}'")
+        vals.append(float(round(v)))
+    if not vals:
+        raise InputError(f"--photons must list photon counts, got '{text}'")
+    return vals
+
+
+def _print_steps(result) -> None:
+    """Error against photons and seconds at every step, with estimated / actual."""
+    def pct(x):
+        return "–" if x is None else f"{x:.2%}"
+
+    def num(x, f="{:+.2f}"):
+        return "–" if x is None else f.format(x)
+
+    rows = [[st.estimator, f"{st.photons:,}", f"{st.seconds:.1f}", pct(st.actual),
+             pct(st.estimated), pct(st.noise), pct(st.blur), num(st.ratio, "{:.2f}"),
+             num(st.slope_photons), num(st.slope_seconds)] for st in result.steps()]
+    _print_table("error against photons and seconds (slopes: d log error / d log photons, "
+                 "seconds since the previous step; −0.50 = 1/√N)",
+                 ("estimator", "photons", "s", "actual", "estimated", "noise", "blur",
+                  "est/actual", "slope N", "slope s"), rows)
+
+
 def _resolution(text: str | None) -> tuple[int, int] | None:
     if text is None:
         return None
@@ -201,6 +237,8 @@ def _resolution(text: str | None) -> tuple[int, int] | None:
 @click.option("--budgets", help="Time budgets in s, comma-separated (default 0.25 … 8; "
                                 "--full: 0.25 … 64).")
 @click.option("--full", is_flag=True, help="Budgets up to a minute.")
+@click.option("--photons", "photon_budgets",
+              help="Photon budgets instead of seconds, comma-separated (250k, 1M, 4e6).")
 @click.option("--estimator", "estimators", multiple=True,
               help="knnM=4, knnM=1, bin, radius, knnM=4SPT (repeatable; default all).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="converge-out",
@@ -212,9 +250,9 @@ def _resolution(text: str | None) -> tuple[int, int] | None:
               help="Reference run length / longest budget (scene files).")
 @click.option("--seed", type=int, default=1, show_default=True)
 @click.option("--quiet", "-q", is_flag=True)
-def converge(scene: str, budgets: str | None, full: bool, estimators: tuple[str, ...],
-             out_dir: str, frame_photons: int, resolution: str | None,
-             reference_factor: float, seed: int, quiet: bool) -> None:
+def converge(scene: str, budgets: str | None, full: bool, photon_budgets: str | None,
+             estimators: tuple[str, ...], out_dir: str, frame_photons: int,
+             resolution: str | None, reference_factor: float, seed: int, quiet: bool) -> None:
     """Error against run time for every estimator on SCENE.
 
     SCENE is analytic:NAME (isotropic, paraboloid, slab, slab-absorbing, lambertian:
@@ -227,7 +265,8 @@ def converge(scene: str, budgets: str | None, full: bool, estimators: tuple[str,
         raise InputError(f"--frame-photons must be at least 16, got {frame_photons}")
     if not (reference_factor >= 1 and math.isfinite(reference_factor)):
         raise InputError(f"--reference-factor must be ≥ 1, got {reference_factor}")
-    bl = _budgets(budgets, full)
+    by_photons = photon_budgets is not None
+    bl = _photon_budgets(photon_budgets) if by_photons else _budgets(budgets, full)
     for e in estimators:
         cv.spec_by_label(e)
 
@@ -237,7 +276,8 @@ def converge(scene: str, budgets: str | None, full: bool, estimators: tuple[str,
 
     result = cv.run_converge(scene, bl, list(estimators) or None, seed=seed,
                              frame_photons=frame_photons, reference_factor=reference_factor,
-                             resolution=_resolution(resolution), progress=progress)
+                             resolution=_resolution(resolution), progress=progress,
+                             by_photons=by_photons)
     for s in result.skipped:
         click.echo(f"lightsim: note: skipped {s}", err=True)
     paths = cv.write_outputs(result, out_dir)
@@ -266,6 +306,7 @@ def converge(scene: str, budgets: str | None, full: bool, estimators: tuple[str,
                  f"lit region {result.lit_pixels} px)",
                  ("estimator", "5 %", "2 %", "1 %", "last error", "last rel L1",
                   "estimated/actual"), rows)
+    _print_steps(result)
     if result.mode == "reference":
         ref = result.reference
         click.echo(f"reference: bin, {ref['photons']:,} photons in {ref['seconds']:.0f} s, "

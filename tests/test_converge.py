@@ -133,3 +133,71 @@ def test_full_study(target, tmp_path):
     bins = [p for p in r.points if p.estimator == "bin"]
     # an unbiased estimator keeps converging: the last error is well below the first
     assert bins[-1].metrics["rel_rmse"] < 0.3 * bins[0].metrics["rel_rmse"]
+
+
+# -- issue 12: the default written map converges, and its error figure stays honest ------
+
+@pytest.fixture(scope="module")
+def paraboloid_by_photons():
+    return cv.run_converge("analytic:paraboloid", budgets=(250_000, 1_000_000),
+                           estimators=["knn M=4"], frame_photons=250_000, by_photons=True)
+
+
+@pytest.mark.skipif(not knn_available(), reason="needs the photon map")
+def test_default_estimator_error_falls_with_photons(paraboloid_by_photons):
+    """4× the photons: clearly lower error (deterministic seeds, no timing); the tool's
+    own figure within 0.8–1.25 of the actual error at both steps."""
+    steps = paraboloid_by_photons.steps()
+    assert [s.photons for s in steps] == [250_000, 1_000_000]
+    assert steps[1].actual < 0.7 * steps[0].actual
+    assert steps[1].slope_photons < -0.25
+    for s in steps:
+        assert 0.8 <= s.ratio <= 1.25, s
+
+
+def test_steps_table_and_photon_budgets_cli(tmp_path, capsys):
+    code, out, err = _run(["converge", "analytic:lambertian", "--photons", "100k,200k",
+                           "--estimator", "bin", "--frame-photons", "50000",
+                           "--out", str(tmp_path / "c"), "-q"], capsys)
+    assert code == 0, err
+    assert "error against photons and seconds" in out and "200,000" in out
+    doc = json.loads((tmp_path / "c" / "converge.json").read_text())
+    assert [s["photons"] for s in doc["steps"]] == [100_000, 200_000]
+    assert doc["steps"][1]["slope_photons"] is not None
+
+
+@pytest.mark.parametrize("photons", ["x", "0", "-5k", ","])
+def test_bad_photon_budgets_exit_2(photons, capsys):
+    code, _, err = _run(["converge", "analytic:lambertian", "--photons", photons], capsys)
+    assert code == 2 and err.startswith("lightsim: error:")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("target", ["analytic:paraboloid", "analytic:shield"])
+def test_consistent_estimation_study(target, tmp_path):
+    """Error against photons without a floor, honest at every step (issue 12)."""
+    r = cv.run_converge(target, budgets=(250_000, 1_000_000, 4_000_000, 16_000_000),
+                        estimators=["knn M=4", "bin"], frame_photons=250_000,
+                        by_photons=True)
+    cv.write_outputs(r, tmp_path)
+    knn = [s for s in r.steps() if s.estimator == "knn M=4"]
+    assert all(b.actual < a.actual for a, b in itertools.pairwise(knn))
+    assert knn[-1].actual < 0.5 * knn[0].actual
+    for s in knn:
+        assert 0.8 <= s.ratio <= 1.25, s
+
+
+@pytest.mark.slow
+def test_consistent_estimation_on_the_shipped_headlight(tmp_path):
+    """Against a long bin reference (25 × the photons): error falls, estimate honest."""
+    from pathlib import Path
+
+    glb = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
+    r = cv.run_converge(str(glb), budgets=(250_000, 1_000_000, 4_000_000),
+                        estimators=["knn M=4"], frame_photons=250_000, by_photons=True,
+                        reference_factor=25)
+    cv.write_outputs(r, tmp_path)
+    knn = r.steps()
+    assert all(b.actual < a.actual for a, b in itertools.pairwise(knn))
+    for s in knn:
+        assert 0.8 <= s.ratio <= 1.25, s

@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +78,8 @@ class EstimatorSpec:
 SPECS: tuple[EstimatorSpec, ...] = (
     EstimatorSpec("knn M=4", {"estimator": "knn", "interleave": 4, "spt": False},
                   needs_photonmap=True),
+    EstimatorSpec("knn M=4 rk", {"estimator": "knn", "interleave": 4, "spt": False,
+                                 "bandwidth": "knn"}, needs_photonmap=True),
     EstimatorSpec("knn M=1", {"estimator": "knn", "interleave": 1, "spt": False},
                   needs_photonmap=True),
     EstimatorSpec("bin", {"estimator": "bin", "interleave": 4, "spt": False}),
@@ -130,6 +132,7 @@ ANALYTIC_TARGETS: dict[str, Callable[[], an.AnalyticScene]] = {
     "slab": an.slab_case,
     "slab-absorbing": lambda: an.slab_case(sigma=10.0),
     "lambertian": an.lambertian_case,
+    "shield": an.shield_case,
 }
 
 
@@ -145,7 +148,9 @@ def analytic_target(name: str, resolution: tuple[int, int] | None = None) -> Tar
                       scene.warnings, scene.channels)
         case.scene = scene
     assert case.exact is not None
-    return Target(f"analytic:{name}", scene, exact_px=an.pixel_average(case.exact, case.frame))
+    exact_px = (case.pixel_means(case.frame) if case.pixel_means is not None
+                else an.pixel_average(case.exact, case.frame))
+    return Target(f"analytic:{name}", scene, exact_px=exact_px)
 
 
 def _probe_all_pixels(frame) -> np.ndarray:
@@ -154,9 +159,11 @@ def _probe_all_pixels(frame) -> np.ndarray:
     return np.stack([hh.ravel(), vv.ravel()], axis=1)
 
 
-def reference_run(target: Target, seconds: float, seed: int, frame_photons: int,
-                  progress: Callable[[str], None] | None = None) -> None:
-    """Fill ``target.ref_px``/``ref_se`` with a long ``bin`` run (probes at every pixel)."""
+def reference_run(target: Target, seconds: float | None, seed: int, frame_photons: int,
+                  progress: Callable[[str], None] | None = None,
+                  photons: int | None = None) -> None:
+    """Fill ``target.ref_px``/``ref_se`` with a long ``bin`` run (probes at every pixel):
+    ``seconds`` long, or ``photons`` photons when given."""
     from lightsim.engine.server import Session
 
     frame = target.scene.wall
@@ -165,9 +172,10 @@ def reference_run(target: Target, seconds: float, seed: int, frame_photons: int,
     cfg = RunConfig(seed=seed + 7919, interleave=4, estimator="bin",
                     frame_photons=frame_photons)
     if progress:
-        progress(f"reference: bin, {seconds:.0f} s")
+        progress(f"reference: bin, {photons:,} photons" if photons is not None
+                 else f"reference: bin, {seconds:.0f} s")
     with Session(target.scene, cfg, extra_probes=_probe_all_pixels(frame)) as s:
-        est = s.run(seconds=seconds)
+        est = s.run(photons=photons) if photons is not None else s.run(seconds=seconds)
         grid = s.grid_count
     vals = luminous(est.probes.values[:, grid:, :])  # (S, H·W)
     S = vals.shape[0]
@@ -263,11 +271,14 @@ class Point:
     frames: int
     metrics: dict[str, float]
     est_rel_error: float | None
+    est_noise: float | None = None
+    est_blur: float | None = None
 
     def row(self, target: str) -> dict[str, Any]:
         return {"target": target, "estimator": self.estimator, "budget_s": self.budget_s,
                 "seconds": self.seconds, "photons": self.photons, "frames": self.frames,
-                **self.metrics, "est_rel_error": self.est_rel_error}
+                **self.metrics, "est_rel_error": self.est_rel_error,
+                "est_noise": self.est_noise, "est_blur": self.est_blur}
 
 
 def warm_up(scene: Scene, config: RunConfig) -> float:
@@ -286,8 +297,11 @@ def warm_up(scene: Scene, config: RunConfig) -> float:
 
 def sweep(target: Target, spec: EstimatorSpec, budgets: Sequence[float], seed: int = 1,
           frame_photons: int = 50_000, lit_fraction: float = 0.1,
-          progress: Callable[[str], None] | None = None) -> tuple[list[Point], dict[str, Any]]:
-    """Run one estimator through all budgets in one accumulating Session."""
+          progress: Callable[[str], None] | None = None, by_photons: bool = False
+          ) -> tuple[list[Point], dict[str, Any]]:
+    """Run one estimator through all budgets in one accumulating Session (``budgets`` in
+    s, or photons with ``by_photons``: the same photons for every estimator and machine
+    load, so the errors are reproducible to the bit)."""
     from lightsim.engine.server import Session
 
     cfg = RunConfig(seed=seed, frame_photons=frame_photons, **spec.settings)
@@ -301,7 +315,8 @@ def sweep(target: Target, spec: EstimatorSpec, budgets: Sequence[float], seed: i
         setup = time.perf_counter() - t_setup
         charged_elsewhere = 0.0
         for b in sorted(budgets):
-            est = session.run(seconds=b + charged_elsewhere)
+            est = (session.run(photons=int(b)) if by_photons
+                   else session.run(seconds=b + charged_elsewhere))
             final = est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0)
             seconds = est.seconds - charged_elsewhere
             charged_elsewhere += final
@@ -309,8 +324,10 @@ def sweep(target: Target, spec: EstimatorSpec, budgets: Sequence[float], seed: i
                 continue  # the previous frame already overshot this budget
             lux = luminous(est.lux)
             m = error_metrics(lux, truth, lit, var)
+            e = est.error
             p = Point(spec.label, float(b), float(seconds), int(est.photons), session.frames,
-                      m, est.rel_error)
+                      m, est.rel_error, None if e is None else e.noise,
+                      None if e is None else e.bias)
             points.append(p)
             if progress:
                 err = "–" if p.est_rel_error is None else f"{p.est_rel_error:.2%}"
@@ -319,6 +336,29 @@ def sweep(target: Target, spec: EstimatorSpec, budgets: Sequence[float], seed: i
         plan = session.plan.explain()
     return points, {"setup_seconds": setup, "warmup_seconds": warm, "plan": plan,
                     "config": cfg.to_dict()}
+
+
+@dataclass
+class Step:
+    """One row of the error-against-photons table.
+
+    ``actual`` (fraction): relative RMSE against the exact answer (noise-corrected
+    against the reference for scene files); ``estimated``: the tool's own figure with its
+    ``noise`` and ``blur`` parts; ``ratio`` = estimated / actual; ``slope_photons`` and
+    ``slope_seconds``: d log(actual) / d log(photons resp. seconds) since the previous
+    row of the estimator (−½ for an unbiased Monte Carlo estimate).
+    """
+
+    estimator: str
+    photons: int
+    seconds: float
+    actual: float | None
+    estimated: float | None
+    noise: float | None
+    blur: float | None
+    ratio: float | None
+    slope_photons: float | None
+    slope_seconds: float | None
 
 
 @dataclass
@@ -354,13 +394,36 @@ class ConvergeResult:
             out[label] = float(np.median(r)) if r else None
         return out
 
+    def steps(self) -> list[Step]:
+        """Every point with its local rate: the log-log slope of the actual error against
+        photons (and seconds) from the previous point of the same estimator."""
+        key = "rel_rmse_corrected" if self.mode == "reference" else "rel_rmse"
+        out: list[Step] = []
+        prev: dict[str, Point] = {}
+        for p in self.points:
+            a = p.metrics.get(key)
+            q = prev.get(p.estimator)
+            slope_n = slope_t = None
+            if q is not None and a and q.metrics.get(key):
+                la = math.log(a / q.metrics[key])
+                if p.photons > q.photons:
+                    slope_n = la / math.log(p.photons / q.photons)
+                if p.seconds > q.seconds > 0:
+                    slope_t = la / math.log(p.seconds / q.seconds)
+            ratio = (p.est_rel_error / a) if (a and p.est_rel_error is not None) else None
+            out.append(Step(p.estimator, p.photons, p.seconds, a, p.est_rel_error,
+                            p.est_noise, p.est_blur, ratio, slope_n, slope_t))
+            prev[p.estimator] = p
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         return {"target": self.target, "mode": self.mode, "reference": self.reference,
                 "lit_pixels": self.lit_pixels, "skipped": self.skipped,
                 "time_to_rel_rmse": self.times("rel_rmse"),
                 "time_to_rel_l1": self.times("rel_l1"),
                 "honesty_estimated_over_actual": self.honesty(),
-                "runs": self.runs, "points": [p.row(self.target) for p in self.points]}
+                "runs": self.runs, "points": [p.row(self.target) for p in self.points],
+                "steps": [asdict(st) for st in self.steps()]}
 
 
 def run_converge(target_spec: str, budgets: Sequence[float] = QUICK_BUDGETS,
@@ -368,11 +431,13 @@ def run_converge(target_spec: str, budgets: Sequence[float] = QUICK_BUDGETS,
                  frame_photons: int = 50_000, lit_fraction: float = 0.1,
                  reference_factor: float = 20.0, resolution: tuple[int, int] | None = None,
                  progress: Callable[[str], None] | None = None,
-                 target: Target | None = None) -> ConvergeResult:
-    """The whole study for one target (see the module docstring)."""
+                 target: Target | None = None, by_photons: bool = False) -> ConvergeResult:
+    """The whole study for one target (see the module docstring); ``by_photons``: the
+    budgets are photon counts (the reference then has ``reference_factor`` × the most)."""
     budgets = sorted(float(b) for b in budgets)
     if not budgets or budgets[0] <= 0:
-        raise InputError("time budgets must be positive seconds")
+        raise InputError("budgets must be positive " + ("photon counts" if by_photons
+                                                         else "seconds"))
     target = target or resolve_target(target_spec, resolution)
     specs = list(SPECS) if estimators is None else [spec_by_label(e) for e in estimators]
     skipped = []
@@ -386,14 +451,20 @@ def run_converge(target_spec: str, budgets: Sequence[float] = QUICK_BUDGETS,
             runnable.append(s)
     mode = "exact" if target.exact_px is not None else "reference"
     if mode == "reference" and target.ref_px is None:
-        reference_run(target, reference_factor * budgets[-1], seed, frame_photons, progress)
+        if by_photons:
+            reference_run(target, None, seed, frame_photons, progress,
+                          photons=int(reference_factor * budgets[-1]))
+        else:
+            reference_run(target, reference_factor * budgets[-1], seed, frame_photons,
+                          progress)
     lit = lit_mask(target.truth, lit_fraction, robust=mode == "reference")
     if not lit.any():
         raise InputError(f"{target.name}: nothing on the wall is lit")
     points: list[Point] = []
     runs: dict[str, dict[str, Any]] = {}
     for s in runnable:
-        pts, info = sweep(target, s, budgets, seed, frame_photons, lit_fraction, progress)
+        pts, info = sweep(target, s, budgets, seed, frame_photons, lit_fraction, progress,
+                          by_photons)
         points.extend(pts)
         runs[s.label] = info
     return ConvergeResult(target.name, mode, points, runs, target.reference, skipped,
@@ -405,7 +476,8 @@ def run_converge(target_spec: str, budgets: Sequence[float] = QUICK_BUDGETS,
 # ------------------------------------------------------------------------------------------
 
 CSV_COLUMNS = ("target", "estimator", "budget_s", "seconds", "photons", "frames", "rmse_lx",
-               "rel_rmse", "rel_l1", "est_rel_error", "rmse_corrected_lx",
+               "rel_rmse", "rel_l1", "est_rel_error", "est_noise", "est_blur",
+               "rmse_corrected_lx",
                "rel_rmse_corrected", "reference_rel_noise", "mean_lit_lx")
 
 
@@ -422,8 +494,8 @@ def csv_text(result: ConvergeResult) -> str:
 
 
 def plot(result: ConvergeResult, path: str | Path) -> None:
-    """Log-log error vs seconds (one line per estimator; dashed: the tool's own estimate)
-    and estimated vs actual error."""
+    """Log-log error against photons and against seconds (one line per estimator; dashed:
+    the tool's own estimate; dotted: N^(−1/2)) and estimated against actual error."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -432,42 +504,61 @@ def plot(result: ConvergeResult, path: str | Path) -> None:
     from lightsim.io.atomic import atomic_path
 
     key = "rel_rmse_corrected" if result.mode == "reference" else "rel_rmse"
-    fig = Figure(figsize=(11.0, 4.2))
-    ax1, ax2 = fig.subplots(1, 2)
+    fig = Figure(figsize=(15.0, 4.2))
+    ax0, ax1, ax2 = fig.subplots(1, 3)
     labels = list(dict.fromkeys(p.estimator for p in result.points))
     colours = matplotlib.colormaps["tab10"]
     lo, hi = math.inf, 0.0
     for i, label in enumerate(labels):
         pts = [p for p in result.points if p.estimator == label]
         t = np.array([p.seconds for p in pts])
+        n = np.array([p.photons for p in pts], dtype=float)
         e = np.array([max(p.metrics[key], 1e-6) for p in pts])
+        ax0.loglog(n, e * 100, "o-", ms=3, color=colours(i), label=label)
         ax1.loglog(t, e * 100, "o-", ms=3, color=colours(i), label=label)
-        est = [(p.seconds, p.est_rel_error, p.metrics[key]) for p in pts
+        est = [(p.seconds, p.photons, p.est_rel_error, p.metrics[key]) for p in pts
                if p.est_rel_error is not None]
         if est:
-            te, ee, aa = (np.array(x, dtype=float) for x in zip(*est))
+            te, ne, ee, aa = (np.array(x, dtype=float) for x in zip(*est))
+            ax0.loglog(ne, ee * 100, "--", color=colours(i), alpha=0.7)
             ax1.loglog(te, ee * 100, "--", color=colours(i), alpha=0.7)
             ax2.loglog(np.maximum(aa, 1e-6) * 100, ee * 100, "o", ms=4, color=colours(i),
                        label=label)
             lo, hi = min(lo, aa.min(), ee.min()), max(hi, aa.max(), ee.max())
-    for lvl in THRESHOLDS:
-        ax1.axhline(lvl * 100, color="grey", lw=0.6, ls=":")
+    if result.points:  # the Monte Carlo rate for reference: N^(-1/2) through the first point
+        p0 = result.points[0]
+        n_all = np.array([p.photons for p in result.points], dtype=float)
+        span_n = np.array([n_all.min(), n_all.max()])
+        ax0.loglog(span_n, 100 * p0.metrics[key] * (span_n / p0.photons) ** -0.5, ":",
+                   color="black", lw=0.8, label="∝ N^(−1/2)")
+    for ax in (ax0, ax1):
+        for lvl in THRESHOLDS:
+            ax.axhline(lvl * 100, color="grey", lw=0.6, ls=":")
+        ax.set_ylabel(("relative RMSE vs reference (noise-corrected)"
+                       if result.mode == "reference" else "relative RMSE vs exact")
+                      + ", lit region (%)", fontsize=8)
+        ax.grid(True, which="both", alpha=0.3)
+    ax0.set_xlabel("photons")
     ax1.set_xlabel("run time (s)")
-    ax1.set_ylabel(("relative RMSE vs reference (noise-corrected)" if result.mode == "reference"
-                    else "relative RMSE vs exact") + ", lit region (%)")
-    ax1.set_title(f"{result.target}: solid = actual, dashed = estimated", fontsize=9)
-    ax1.grid(True, which="both", alpha=0.3)
+    ax0.set_title(f"{result.target}: solid = actual, dashed = estimated", fontsize=9)
+    ax1.set_title("against run time (this machine's load)", fontsize=9)
     if labels:
-        ax1.legend(fontsize=8)
+        ax0.legend(fontsize=8)
     if hi > 0:
         span = np.array([max(lo, 1e-5) * 0.7, hi * 1.4]) * 100
         ax2.loglog(span, span, color="grey", lw=0.8, label="honest (estimated = actual)")
+        for f in (0.8, 1.25):
+            ax2.loglog(span, f * span, color="grey", lw=0.5, ls="--")
         ax2.legend(fontsize=8)
     else:
         ax2.text(0.5, 0.5, "no error estimate", ha="center", transform=ax2.transAxes)
     ax2.set_xlabel("actual relative RMSE (%)")
     ax2.set_ylabel("estimated relative error (%)")
-    ax2.set_title("is the estimate honest?", fontsize=9)
+    ax2.set_title("is the estimate honest? (dashed: 0.8 and 1.25)", fontsize=9)
+    from matplotlib.ticker import NullFormatter
+
+    ax2.xaxis.set_minor_formatter(NullFormatter())  # minor labels overlap on a short span
+    ax2.yaxis.set_minor_formatter(NullFormatter())
     ax2.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     with atomic_path(path, suffix=".png") as tmp:

@@ -61,6 +61,8 @@ class SetState:
     windows: np.ndarray | None = None  # (G, C) power in the pixel window of each grid probe
     apertures: Any = None  # ApertureCounter of the run's detector apertures, if any
     aperture_hits: np.ndarray | None = None  # sources of this frame's target-aperture photons
+    lattice: np.ndarray | None = None  # (2H·2W, C) power per half-pixel cell (ICI windows)
+    wall_moments: np.ndarray | None = None  # ΣΦ (lm), ΣΦ² (lm²), count of wall photons
 
     def __post_init__(self) -> None:
         if self.ledger is None:
@@ -182,6 +184,10 @@ class Client:
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._probe_points = self.frame.to_world(self.probes_hv[:, 0], self.probes_hv[:, 1])
         self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
+        from lightsim.render.ici import pixel_of
+
+        grid = self.probes_hv[:self._grid_count()]
+        self._grid_pixels = pixel_of(self.frame, grid[:, 0], grid[:, 1])
 
     def reset(self) -> None:
         """Discard all photons (interaction mode: the next frame starts afresh)."""
@@ -204,6 +210,7 @@ class Client:
             st.photonmap = self._new_map()
             nh, nv = self._grid_shape
             st.windows = np.zeros((nh * nv, self.channels))
+            st.wall_moments = np.zeros(3)
         return st
 
     def _new_map(self):
@@ -323,6 +330,44 @@ class Client:
         if len(rec):
             st.photonmap.add(rec.position, rec.normal, rec.power)
             self._add_to_windows(st, rec)
+            self._keep_for_ici(st, rec)
+
+    def _keep_for_ici(self, st: SetState, rec: PhotonRecords) -> None:
+        """Add the wall photons to the set's half-pixel lattice (the ICI windows) and to
+        ΣΦ, ΣΦ² (their standard errors)."""
+        from lightsim.render import ici
+        from lightsim.render.frame import luminous
+
+        if not self.config.uses_ici:
+            return
+        on_wall = np.isin(rec.part, self._wall_part_ids)
+        if not on_wall.any():
+            return
+        h, v = self.frame.to_hv(rec.position[on_wall])
+        flat, ok = ici.lattice_index(h, v, self.frame)
+        power = rec.power[on_wall][ok].astype(np.float64)
+        W, H = self.frame.resolution
+        if st.lattice is None:
+            st.lattice = np.zeros((4 * H * W, self.channels))
+        for c in range(self.channels):
+            st.lattice[:, c] += np.bincount(flat[ok], weights=power[:, c],
+                                            minlength=4 * H * W)
+        lum = luminous(power)
+        st.wall_moments += (float(lum.sum()), float((lum * lum).sum()), float(ok.sum()))
+
+    def ici_rungs(self, st: SetState, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The set's rung estimates (lx) at pixels: (J+1, Q, C) (see
+        :mod:`lightsim.render.ici`): rung 0 the pixel, then squares 2, 3, … pixels a side."""
+        from lightsim.render import ici
+
+        sides = ici.rung_sides(self.frame.pixel_size_m, self._radii["pooled"][1])
+        W, H = self.frame.resolution
+        if st.emitted == 0 or st.lattice is None:
+            return np.zeros((len(sides), len(rows), self.channels))
+        dh, dv = self.frame.pixel_size_m
+        sums, cells = ici.window_sums(st.lattice.reshape(2 * H, 2 * W, self.channels),
+                                      rows, cols, sides)
+        return sums / (st.emitted * np.maximum(cells, 1.0)[..., None] * (0.25 * dh * dv))
 
     def _add_to_windows(self, st: SetState, rec: PhotonRecords) -> None:
         """Add the wall photons to the pixel-sized windows centred on the grid probes.
@@ -427,7 +472,9 @@ class Client:
         """
         t0 = time.perf_counter()
         out: dict[str, Any] = {"sub_images": {}, "probes": {}, "full_images": {},
-                               "camera_sub_images": {}, "windows": {}}
+                               "camera_sub_images": {}, "windows": {}, "full_rungs": {},
+                               "probe_rungs": {}, "moments": {}}
+        ici = self.config.uses_ici
         normal = np.broadcast_to(self.frame.normal, (1, 3))
         for s in self.set_indices:
             st = self.sets[s]
@@ -437,12 +484,20 @@ class Client:
                 est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape),
                                      "interleaved")
                 out["sub_images"][s] = est.reshape((*shape, self.channels))
-            if full_image:
+            if full_image and ici:  # the server picks each pixel's rung from all sets
+                W, H = self.frame.resolution
+                rows, cols = np.divmod(np.arange(H * W), W)
+                r = self.ici_rungs(st, rows, cols)
+                out["full_rungs"][s] = r.reshape((len(r), H, W, self.channels))
+            elif full_image:
                 h_all, v_all = self.frame.pixel_centres()
                 hh, vv = np.meshgrid(h_all, v_all)
                 pts = self.frame.to_world(hh, vv).reshape(-1, 3)
                 est = self._estimate(st, pts, np.broadcast_to(normal, pts.shape), "pooled")
                 out["full_images"][s] = est.reshape((*hh.shape, self.channels))
+            if ici and probes and st.wall_moments is not None:
+                out["probe_rungs"][s] = self.ici_rungs(st, *self._grid_pixels)
+                out["moments"][s] = st.wall_moments.copy()
             if camera is not None:
                 pts, nrm, weight, seen = self._camera_queries(s, camera)
                 W, H = camera.resolution
@@ -459,10 +514,16 @@ class Client:
                     dh, dv = self.frame.pixel_size_m
                     out["windows"][s] = st.windows / (st.emitted * dh * dv)
         # float32 over the wire (the lux map is float32 anyway): half the bytes per frame
-        for key in ("sub_images", "full_images", "camera_sub_images", "probes", "windows"):
+        for key in ("sub_images", "full_images", "camera_sub_images", "probes", "windows",
+                    "full_rungs", "probe_rungs"):
             out[key] = {s: v.astype(np.float32) for s, v in out[key].items()}
         out["seconds"] = time.perf_counter() - t0
         return out
+
+    def _grid_count(self) -> int:
+        """The probes are the regular grid first, then any extra points."""
+        nh, nv = self._grid_shape
+        return min(nh * nv, len(self.probes_hv))
 
     def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:
         """Every owned set's illuminance (lx) at wall points (h, v in m): {set: (P, C)}."""

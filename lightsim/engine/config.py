@@ -21,6 +21,18 @@ parameter               unit   default     meaning
                                            to a cut-off stay honest); ``inf`` = the paper's
                                            unlimited kNN. The ``radius`` estimator's fixed
                                            radius is the min radius
+``bandwidth``           –      ``ici``     how the written (pooled) kNN map picks its radius:
+                                           ``ici`` = per pixel, the largest of the nested
+                                           estimates (the pixel itself, disks r_min·2^(j/2)
+                                           … r_max) whose confidence interval overlaps all
+                                           smaller ones' (:mod:`lightsim.render.ici`):
+                                           the radius shrinks as photons grow wherever
+                                           blur would show, so the map converges to the
+                                           pixel means (or the plain pixel counts when
+                                           their estimated error is the lower one);
+                                           ``knn`` = r_k clamped to [r_min, r_max] (the
+                                           paper; its error levels off)
+``ici_gamma``           –      2.0         Γ: interval half-width in standard errors
 ``kernel``              –      ``box``     ``box``, ``cone`` or ``epanechnikov`` weights
 ``final``               –      ``pooled``  the written lux map: ``pooled`` = every set
                                            estimates every pixel (radius ≥ the pixel's own
@@ -61,6 +73,7 @@ from typing import Any
 from lightsim.errors import InputError
 
 ESTIMATORS = ("knn", "bin", "radius")
+BANDWIDTHS = ("ici", "knn")
 KERNELS = ("box", "cone", "epanechnikov")
 STRUCTURES = ("middle", "median", "grid-lo", "grid-hi")
 
@@ -76,6 +89,8 @@ class RunConfig:
     max_radius: float | None = None
     min_radius: float | None = None
     kernel: str = "box"
+    bandwidth: str = "ici"
+    ici_gamma: float = 2.0
     filter_size: int | None = None
     final: str = "pooled"
     frame_photons: int = 200_000
@@ -108,6 +123,11 @@ class RunConfig:
             raise InputError(f"interleave M must be between 1 and 16, got {self.interleave}")
         if self.k < 1:
             raise InputError(f"k must be at least 1, got {self.k}")
+        if self.bandwidth not in BANDWIDTHS:
+            raise InputError(f"bandwidth must be one of {', '.join(BANDWIDTHS)}, "
+                             f"got '{self.bandwidth}'")
+        if not (0 < self.ici_gamma < math.inf):
+            raise InputError(f"ICI gamma must be positive and finite, got {self.ici_gamma}")
         if self.max_radius is not None and not (self.max_radius > 0):
             raise InputError(f"max radius must be positive, got {self.max_radius}")
         if self.min_radius is not None and not (0 <= self.min_radius < math.inf):
@@ -140,6 +160,11 @@ class RunConfig:
     def photons_per_set(self) -> int:
         """Photons each set shoots per frame (plain sampling; SPT passes aim at it)."""
         return max(1, self.frame_photons // self.n_sets)
+
+    @property
+    def uses_ici(self) -> bool:
+        """Whether the written (pooled) map picks its radius by ICI."""
+        return self.estimator == "knn" and self.bandwidth == "ici"
 
     @property
     def filter_n(self) -> int:

@@ -72,6 +72,7 @@ class Estimate:
     timings: dict[str, float] = field(default_factory=dict)
     camera: np.ndarray | None = None  # (H, W, C) luminance, cd/m², with a camera view
     error: ErrorEstimate | None = None  # rel_error's parts: noise and blur bias
+    rungs: np.ndarray | None = None  # (H, W) ICI rung of every written pixel (0 = the pixel)
 
     def error_entry(self) -> dict[str, Any]:
         """The error-vs-time log entry of this estimate (fractions, s)."""
@@ -209,16 +210,28 @@ class Session:
         subs: dict[int, np.ndarray] = {}
         fulls: dict[int, np.ndarray] = {}
         cams: dict[int, np.ndarray] = {}
+        full_rungs: dict[int, np.ndarray] = {}
+        probe_rungs: dict[int, np.ndarray] = {}
+        moments: dict[int, np.ndarray] = {}
         for r in results:
             probes.update(r["probes"])
             subs.update(r["sub_images"])
             fulls.update(r["full_images"])
             cams.update(r.get("camera_sub_images", {}))
+            full_rungs.update(r.get("full_rungs", {}))
+            probe_rungs.update(r.get("probe_rungs", {}))
+            moments.update(r.get("moments", {}))
         t2 = time.perf_counter()
         emitted = self.emitted_per_set()
-        lux = raw = None
+        ici_err, counts_only = None, False
+        if probe_rungs and len(probe_rungs) == len(emitted):
+            ici_err, counts_only = self._ici_error(probe_rungs, moments, emitted)
+        lux = raw = rung_map = None
         if image and subs:
             lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
+        elif image and full_rungs:
+            lux, rung_map = self._ici_image(full_rungs, moments, emitted, counts_only)
+            raw = lux
         elif image and fulls:
             lux = raw = pool_full_images(fulls, emitted)
         cam_img = None
@@ -231,10 +244,72 @@ class Session:
         for r in results:
             windows.update(r.get("windows", {}))
         stats = probe_stats(probes, windows) if probes else None
-        err = estimate_error(stats, self.grid_count) if stats is not None else None
+        if probe_rungs and len(probe_rungs) == len(emitted):
+            err = ici_err
+        else:
+            err = estimate_error(stats, self.grid_count) if stats is not None else None
         return Estimate(lux, raw, stats, None if err is None else err.total,
                         sum(emitted.values()), self.elapsed, timings, camera=cam_img,
-                        error=err)
+                        error=err, rungs=rung_map)
+
+    def _ici_areas(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(J+1, Q) window areas (m²) of the ICI rungs at pixels (clipped to the wall)."""
+        from lightsim.engine.client import effective_radii
+        from lightsim.render import ici
+
+        frame = self.scene.wall
+        dh, dv = frame.pixel_size_m
+        W, H = frame.resolution
+        sides = ici.rung_sides((dh, dv), effective_radii(self.config, frame, "pooled")[1])
+        return ici.window_cells(H, W, rows, cols, sides) * (0.25 * dh * dv)
+
+    def _ici_rungs_now(self, n_rungs: int, moments: dict[int, np.ndarray]) -> int:
+        """How many rungs the ladder has at the photons so far (:func:`ici.shrink_sides`)."""
+        from lightsim.render import ici
+
+        W, H = self.scene.wall.resolution
+        return len(ici.shrink_sides(np.arange(1, n_rungs + 1),
+                                    ici.wall_photons(moments) / (W * H)))
+
+    def _ici_image(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
+                   emitted: dict[int, int], counts_only: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """The written map: every pixel at its ICI rung over all sets, (H, W, C) lx
+        (``counts_only``: every pixel at rung 0, its own photon count)."""
+        from lightsim.render import ici
+
+        first = next(iter(rungs.values()))
+        J1, H, W, C = first.shape
+        J1 = 1 if counts_only else self._ici_rungs_now(J1, moments)
+        flat = {s: np.asarray(v)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
+        rows, cols = np.divmod(np.arange(H * W), W)
+        choice = ici.choose(flat, emitted, ici.power_moment(moments),
+                            self._ici_areas(rows, cols), self.config.ici_gamma)
+        return choice.lux.reshape(H, W, C), choice.rung.reshape(H, W)
+
+    def _ici_error(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
+                   emitted: dict[int, int]) -> tuple[ErrorEstimate | None, bool]:
+        """The error figure of the written map from the pixels under the grid probes, and
+        whether that map is the plain pixel counts.
+
+        Both maps are consistent; where ICI keeps a blur that no single pixel can see but
+        the figure (averaged over the lit probes) does, the pixel counts' own estimated
+        error (their noise, no blur) can be the lower one — then the map is the counts.
+        """
+        from lightsim.render import ici
+
+        grid = self.probes_hv[:self.grid_count]
+        rows, cols = ici.pixel_of(self.scene.wall, grid[:, 0], grid[:, 1])
+        J1 = self._ici_rungs_now(next(iter(rungs.values())).shape[0], moments)
+        rungs = {s: np.asarray(v)[:J1] for s, v in rungs.items()}
+        choice = ici.choose(rungs, emitted, ici.power_moment(moments),
+                            self._ici_areas(rows, cols), self.config.ici_gamma)
+        err = ici.estimate_error(rungs, choice)
+        zero = np.zeros_like(choice.rung)
+        counts = ici.estimate_error(rungs, ici.IciChoice(zero, choice.lux))
+        if err is not None and counts is not None and counts.total < err.total:
+            return counts, True
+        return err, False
 
     def probe(self, points_hv: np.ndarray) -> ProbeStats:
         """Estimates of every set at wall points (h, v in m): mean, standard error, values."""

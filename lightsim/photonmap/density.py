@@ -207,3 +207,14 @@ class PhotonMap:
             raise InputError("the 'hash' photon map answers fixed-radius queries only")
         return self.index.query(points, k, max_radius=max_radius, normals=normals,
                                 normal_cos=normal_cos)
+
+    def query_radius(self, points: np.ndarray, radius: float, *,
+                     normals: np.ndarray | None = None, normal_cos: float = 0.5):
+        """All photons within ``radius`` (m) of each query point, CSR
+        (:class:`~lightsim.photonmap.common.RadiusNeighbours`: insertion-order indices and
+        squared distances in m²). The normal filter works as in :meth:`query`."""
+        if self.index is None:
+            return self._hash_grid(check_radius(radius)).query_radius(
+                points, radius, normals=normals, normal_cos=normal_cos)
+        return self.index.query_radius(points, radius, normals=normals,
+                                       normal_cos=normal_cos)

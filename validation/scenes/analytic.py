@@ -21,6 +21,9 @@ parameter                 unit   default    meaning
 ``elevation`` (ring)      deg    30         elevation α of the distant (collimated) light
 ``disk_radius``           m      0.05       radius a of the Lambertian disk emitter
 ``albedo`` (box)          –      0.7        albedo ρ of the closed diffuse box
+``shield_z`` (shield)     m      0.25       plane of the black shield's straight edge
+``slope``, ``offset``     °, m   10, 0.05   the shadow line on the wall: v = tan(slope) h
+                                            + offset (lit below it, as a low beam)
 ``resolution``            px     64 × 64    wall pixels W × H
 ========================  =====  =========  ===============================================
 
@@ -38,7 +41,10 @@ Exact answers (derivations in the docstrings of the functions below):
 * Lambertian polygon emitter: Lambert's contour integral (exact for the mesh), equal to
   the disk formula E = πL a² / (a² + d²) on the axis, L = Φ / (π A);
 * closed box of albedo ρ: nothing escapes; the flux arriving at the walls, summed over all
-  bounces, is Φ (1 − ρᴰ) / (1 − ρ) for a depth limit D.
+  bounces, is Φ (1 − ρᴰ) / (1 − ρ) for a depth limit D;
+* shield cut-off: a black half-plane between an isotropic point source and the wall
+  casts an exact step — E = Φ D / (4π ρ³) below the projected edge, 0 above — whose
+  pixel means are integrated exactly (:func:`step_pixel_average`).
 """
 
 from __future__ import annotations
@@ -53,7 +59,7 @@ import numpy as np
 
 from lightsim.errors import InputError
 from lightsim.materials import DIFFUSE, Material
-from lightsim.scene import EMITTER, Part, Scene, WallFrame, make_wall
+from lightsim.scene import EMITTER, SURFACE, Part, Scene, WallFrame, make_wall
 from lightsim.validation.scenes import primitives as prim
 
 LuxFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -328,6 +334,9 @@ class AnalyticScene:
     radial : bool
         ``exact`` and ``density`` depend on √(h² + v²) only (to 1e-5 for the 256-gon
         emitter), so they may be tabulated along r.
+    pixel_means : callable (frame) → (H, W) lx, optional
+        Exact pixel means where ``exact`` has a discontinuity inside pixels (the
+        generic :func:`pixel_average` quadrature assumes a smooth answer).
     """
 
     name: str
@@ -343,6 +352,7 @@ class AnalyticScene:
     params: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
     radial: bool = False
+    pixel_means: Callable[[WallFrame], np.ndarray] | None = None
 
     @property
     def frame(self) -> WallFrame:
@@ -379,6 +389,79 @@ def pixel_average(fn: LuxFn, frame: WallFrame, n: int = 4) -> np.ndarray:
             hh, vv = np.meshgrid(h + xi * dh, v - yj * dv)
             out += wi * wj * fn(hh, vv)
     return out
+
+
+def step_pixel_average(fn: LuxFn, frame: WallFrame, slope: float, offset: float,
+                       n: int = 6) -> np.ndarray:
+    """Exact mean over every pixel of ``fn`` (lx, smooth) times the step [v < s h + c].
+
+    Each pixel [h0, h1] × [v0, v1] is cut where the line v = s h + c crosses v0 and v1, so
+    that on every piece the clipped upper limit min(v1, max(v0, s h + c)) is linear in h;
+    on each piece n × n Gauss–Legendre points (in h, and in v over the clipped interval)
+    integrate the smooth E — exact to rounding for polynomials of degree < 2n.
+    """
+    hc, vc = frame.pixel_centres()
+    dh, dv = frame.pixel_size_m
+    x, w = np.polynomial.legendre.leggauss(n)
+    out = np.zeros((len(vc), len(hc)))
+    H0, V0 = np.meshgrid(hc - dh / 2, vc - dv / 2)
+    H1, V1 = H0 + dh, V0 + dv
+    # breakpoints in h (per pixel), sorted: h0, crossings clipped into the pixel, h1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if slope != 0:
+            ca = np.clip((V0 - offset) / slope, H0, H1)
+            cb = np.clip((V1 - offset) / slope, H0, H1)
+        else:
+            ca, cb = H0, H0
+    brk = np.sort(np.stack([H0, np.minimum(ca, cb), np.maximum(ca, cb), H1]), axis=0)
+    for a, b in itertools.pairwise(brk):
+        half, mid = 0.5 * (b - a), 0.5 * (b + a)
+        for xi, wi in zip(x, w):
+            h = mid + half * xi
+            top = np.clip(slope * h + offset, V0, V1)
+            vh, vm = 0.5 * (top - V0), 0.5 * (top + V0)
+            acc = np.zeros_like(h)
+            for yj, wj in zip(x, w):
+                acc += wj * fn(h, vm + vh * yj)
+            out += wi * half * acc * vh
+    return out / (dh * dv)
+
+
+def circle_pixel_average(fn: LuxFn, frame: WallFrame, radius: float, n: int = 6
+                         ) -> np.ndarray:
+    """Exact mean over every pixel of ``fn`` (lx), smooth except across the circle
+    √(h² + v²) = ``radius`` (a beam's rim), (H, W).
+
+    Each pixel is cut in h where the circle crosses its top and bottom edges or is
+    vertical, and at every h node the v-interval is cut where the circle crosses it, so
+    that ``fn`` is smooth on every piece; n × n Gauss–Legendre points per piece.
+    """
+    hc, vc = frame.pixel_centres()
+    dh, dv = frame.pixel_size_m
+    x, w = np.polynomial.legendre.leggauss(n)
+    H0, V0 = np.meshgrid(hc - dh / 2, vc - dv / 2)
+    H1, V1 = H0 + dh, V0 + dv
+    R2 = radius * radius
+    cand = [H0, H1]
+    for vv in (V0, V1):
+        root = np.sqrt(np.maximum(R2 - vv * vv, 0.0))
+        cand += [-root, root]
+    cand += [np.full_like(H0, -radius), np.full_like(H0, radius)]
+    brk = np.sort(np.clip(np.stack(cand), H0, H1), axis=0)
+    out = np.zeros_like(H0)
+    for a, b in itertools.pairwise(brk):
+        half, mid = 0.5 * (b - a), 0.5 * (b + a)
+        for xi, wi in zip(x, w):
+            h = mid + half * xi
+            root = np.sqrt(np.maximum(R2 - h * h, 0.0))
+            vb = np.sort(np.clip(np.stack([V0, -root, root, V1]), V0, V1), axis=0)
+            for c, d in itertools.pairwise(vb):
+                vh, vm = 0.5 * (d - c), 0.5 * (d + c)
+                acc = np.zeros_like(h)
+                for yj, wj in zip(x, w):
+                    acc += wj * fn(h, vm + vh * yj)
+                out += wi * half * acc * vh
+    return out / (dh * dv)
 
 
 def binomial_sigma(flux: float, p: float) -> float:
@@ -531,7 +614,7 @@ def paraboloid_case(flux: float = 1000.0, f: float = 0.1, rim: float = 0.15,
                 "reflectance": reflectance, "wall_distance_m": wall_distance,
                 "wall_size_m": wall_size, "mesh": [radial, azimuthal]},
         extra={"psi_rim_rad": psi_rim, "reflected_flux_lm": reflectance * flux * p_refl},
-        radial=True)
+        radial=True, pixel_means=lambda fr: circle_pixel_average(exact, fr, rim))
 
 
 def slab_case(flux: float = 1000.0, wall_distance: float = 1.0, thickness: float = 0.02,
@@ -662,6 +745,60 @@ def lambertian_case(flux: float = 100.0, disk_radius: float = 0.05, distance: fl
         extra={"luminance": lum,
                "axis_lux": float(disk_lux(lum, disk_radius, distance, np.zeros(1))[0])},
         radial=True)
+
+
+def shield_case(flux: float = 1000.0, wall_distance: float = 1.0, shield_z: float = 0.25,
+                slope_deg: float = 10.0, offset: float = 0.05,
+                wall_size: tuple[float, float] = (1.0, 0.5),
+                resolution: tuple[int, int] = (64, 32), source_radius: float = 1e-5
+                ) -> AnalyticScene:
+    """Isotropic point source behind a black shield with a straight edge: an exact cut-off.
+
+    The shield (albedo 0, in the plane z = ``shield_z``) covers y ≥ tan(slope) h +
+    offset · z_s / D (h = −x, the wall's horizontal axis), so the wall at z = D is lit
+    by the direct light E = Φ D / (4π ρ³), ρ = √(h² + v² + D²), below the line
+    v = tan(slope) h + offset and is dark above it: a step of the full E, tilted so
+    that pixels straddle it at every offset (like the 15° shoulder of a low beam).
+    """
+    D = float(wall_distance)
+    if not (0 < shield_z < D):
+        raise InputError("the shield must lie between the source and the wall")
+    t = math.tan(math.radians(slope_deg))
+    wall, frame = make_wall(D, wall_size, resolution=resolution)
+    src = prim.point_source(flux, radius=source_radius)
+    # the shield reaches beyond every wall point's line of sight above the cut-off
+    X = 1.5 * (0.5 * wall_size[0]) * shield_z / D + abs(t) * wall_size[0]
+    Y = 1.5 * (0.5 * wall_size[1] + abs(t) * wall_size[0]) * shield_z / D + X
+    c_s = offset * shield_z / D
+    # wall h runs along −x (seen from behind the lamp, looking along +Z): h = −x
+    verts = np.array([[X, -t * X + c_s, shield_z], [-X, t * X + c_s, shield_z],
+                      [-X, Y, shield_z], [X, Y, shield_z]], dtype=np.float64)
+    faces = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
+    n = np.cross(verts[1] - verts[0], verts[2] - verts[0])
+    if n[2] > 0:  # face the source (−Z side)
+        faces = faces[:, ::-1].copy()
+    shield = Part("shield", SURFACE, verts, faces, None,
+                  Material("shield", DIFFUSE, np.zeros(3)))
+    scene = Scene([src, shield, wall], frame, channels=1)
+
+    def direct(h, v):
+        return flux * D / (4 * math.pi * (h * h + v * v + D * D) ** 1.5)
+
+    def exact(h, v):
+        return np.where(v < t * h + offset, direct(h, v), 0.0)
+
+    px = max(frame.pixel_size_m)
+    near = lambda h, v: np.abs(v - (t * h + offset)) * math.cos(math.atan(t)) < 1.5 * px  # noqa: E731
+    regions = [("lit side", lambda h, v: (v < t * h + offset) & ~near(h, v)),
+               ("shadow side", lambda h, v: (v >= t * h + offset) & ~near(h, v))]
+    return AnalyticScene(
+        "shield", "point source behind a straight black shield edge: "
+        "E = Φ D / (4π ρ³) below v = tan(α) h + c, 0 above", scene, flux, exact, None,
+        regions, None, None,
+        params={"flux_lm": flux, "wall_distance_m": D, "shield_z_m": shield_z,
+                "slope_deg": slope_deg, "offset_m": offset, "wall_size_m": list(wall_size)},
+        extra={"slope": t, "offset_m": offset},
+        pixel_means=lambda fr: step_pixel_average(direct, fr, t, offset))
 
 
 def closed_box(flux: float = 10.0, albedo: float = 0.7, size: float = 2.0) -> Scene:
