@@ -369,7 +369,11 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
                              "noise_floor_rule": "levels where an estimate holds < 16 "
                                                  "photons (relative noise > 25 %) are "
                                                  "not drawn"}
-        summary["road"] = {**road.summary(REACH_LEVELS), "text": road.reach_text()}
+        if road is None:  # nothing to show (the plot says why): no reach either
+            summary["road"] = {"mount_height_m": mount_height_m, "reach_m": None,
+                               "text": "no road illuminance to show (see road.png)"}
+        else:
+            summary["road"] = {**road.summary(REACH_LEVELS), "text": road.reach_text()}
     return paths
 
 

@@ -96,3 +96,21 @@ def test_failed_run_keeps_earlier_outputs(point_lamp, tmp_path, capsys):
     assert _run(args[:2] + ["--flux", "nan"] + args[2:], capsys)[0] == 2
     after = {p.name: p.read_bytes() for p in out.iterdir()}
     assert before == after
+
+
+def test_lamp_that_lights_no_road_still_finishes(tmp_path, capsys):
+    """All light backwards: wall and road have nothing to show; the run must still write its
+    set and say so (found by the fuzz study: a traceback after the plots)."""
+    from lightsim.luminaires.photometric import CandelaGrid, write_ies
+
+    c = np.arange(0.0, 360.0, 10.0)
+    g = np.arange(0.0, 181.0, 5.0)
+    backwards = (c > 100.0) & (c < 260.0)  # C = 180° is straight behind the lamp
+    cd = np.where(backwards[:, None], 1000.0, 0.0) * np.ones((1, len(g)))
+    lamp = write_ies(tmp_path / "back.ies", CandelaGrid(c, g, cd, None, {}))
+    out = tmp_path / "run"
+    code, _, err = _run(["simulate", str(lamp), "--photons", "20000", "--resolution", "64x32",
+                         "--out", str(out), "--quiet"], capsys)
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["road"]["reach_m"] is None and (out / "road.png").exists()
