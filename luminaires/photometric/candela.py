@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 from lightsim.errors import InputError
 
 from .bilinear import PolarTable
+from .checks import freeze_grid
 
 __all__ = [
     "CandelaGrid",
@@ -163,21 +164,8 @@ class CandelaGrid:
             raise InputError("candela grid: C angles must increase strictly within [0, 360)")
         if np.any(np.diff(g) <= 0) or g[0] < 0 or g[-1] > 180:
             raise InputError("candela grid: γ angles must increase strictly within [0, 180]")
-        if cd.shape != (c.size, g.size):
-            raise InputError(f"candela grid: intensities have shape {cd.shape}, expected "
-                             f"({c.size}, {g.size}) (C planes × γ angles)")
-        if not np.all(np.isfinite(cd)) or np.any(cd < 0):
-            raise InputError("candela grid: intensities must be finite and ≥ 0 cd")
-        if self.lamp_lumens is not None and not (np.isfinite(self.lamp_lumens)
-                                                 and self.lamp_lumens > 0):
-            raise InputError(f"candela grid: lamp_lumens must be > 0 or None, "
-                             f"got {self.lamp_lumens!r}")
-        for name, arr in (("c_deg", c), ("gamma_deg", g), ("candela", cd)):
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
-        object.__setattr__(self, "metadata", {str(k): str(v) for k, v in
-                                              dict(self.metadata).items()})
-        object.__setattr__(self, "warnings", tuple(str(w) for w in self.warnings))
+        freeze_grid(self, "candela grid", {"c_deg": c, "gamma_deg": g}, cd,
+                    "C planes × γ angles")
 
     @cached_property
     def table(self) -> PolarTable:

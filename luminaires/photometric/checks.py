@@ -26,7 +26,8 @@ from numpy.typing import NDArray
 
 from lightsim.errors import InputError
 
-__all__ = ["MAX_COUNT", "check_angles", "check_count", "check_number", "check_values"]
+__all__ = ["MAX_COUNT", "check_angles", "check_count", "check_number", "check_values",
+           "freeze_grid"]
 
 MAX_COUNT = 100_000
 
@@ -76,3 +77,29 @@ def check_angles(a: NDArray, where: str, what: str, lo: float, hi: float) -> NDA
         raise InputError(f"{where}: {what} must increase strictly ({a[k]:g}° is followed by "
                          f"{a[k + 1]:g}°)")
     return a
+
+
+def freeze_grid(grid: object, what: str, axes: dict[str, NDArray], cd: NDArray,
+                layout: str) -> None:
+    """Check a goniometer grid's intensities and rated flux, then store its arrays read-only.
+
+    Shared by the Type C :class:`CandelaGrid` and the Type A/B ``HVGrid`` (frozen
+    dataclasses): ``axes`` maps the two angle fields' names to their arrays (deg), ``cd``
+    is the (n0, n1) intensity table (cd), ``what`` starts every message and ``layout``
+    names the table's axes in it.
+    """
+    (n0, a0), (n1, a1) = axes.items()
+    if cd.shape != (a0.size, a1.size):
+        raise InputError(f"{what}: intensities have shape {cd.shape}, expected "
+                         f"({a0.size}, {a1.size}) ({layout})")
+    if not np.all(np.isfinite(cd)) or np.any(cd < 0):
+        raise InputError(f"{what}: intensities must be finite and ≥ 0 cd")
+    lamp_lumens = grid.lamp_lumens  # type: ignore[attr-defined]
+    if lamp_lumens is not None and not (np.isfinite(lamp_lumens) and lamp_lumens > 0):
+        raise InputError(f"{what}: lamp_lumens must be > 0 or None, got {lamp_lumens!r}")
+    for name, arr in ((n0, a0), (n1, a1), ("candela", cd)):
+        arr.setflags(write=False)
+        object.__setattr__(grid, name, arr)
+    object.__setattr__(grid, "metadata", {str(k): str(v) for k, v in
+                                          dict(grid.metadata).items()})  # type: ignore[attr-defined]
+    object.__setattr__(grid, "warnings", tuple(str(w) for w in grid.warnings))  # type: ignore[attr-defined]

@@ -57,6 +57,7 @@ from lightsim.errors import InputError
 
 from .bilinear import PolarTable
 from .candela import direction_from_hv
+from .checks import freeze_grid
 
 __all__ = ["HVGrid", "hv_directions"]
 
@@ -119,21 +120,8 @@ class HVGrid:
             if np.any(np.diff(a) <= 0) or a[0] < -90 or a[-1] > 90:
                 raise InputError(f"Type {kind} grid: {name} angles must increase strictly "
                                  "within [−90°, 90°]")
-        if cd.shape != (h.size, v.size):
-            raise InputError(f"Type {kind} grid: intensities have shape {cd.shape}, expected "
-                             f"({h.size}, {v.size}) (horizontal × vertical angles)")
-        if not np.all(np.isfinite(cd)) or np.any(cd < 0):
-            raise InputError(f"Type {kind} grid: intensities must be finite and ≥ 0 cd")
-        if self.lamp_lumens is not None and not (np.isfinite(self.lamp_lumens)
-                                                 and self.lamp_lumens > 0):
-            raise InputError(f"Type {kind} grid: lamp_lumens must be > 0 or None, "
-                             f"got {self.lamp_lumens!r}")
-        for name, arr in (("h_deg", h), ("v_deg", v), ("candela", cd)):
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
-        object.__setattr__(self, "metadata", {str(k): str(v) for k, v in
-                                              dict(self.metadata).items()})
-        object.__setattr__(self, "warnings", tuple(str(w) for w in self.warnings))
+        freeze_grid(self, f"Type {kind} grid", {"h_deg": h, "v_deg": v}, cd,
+                    "horizontal × vertical angles")
 
     # ---- the table -----------------------------------------------------------------------
     @cached_property
