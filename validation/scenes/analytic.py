@@ -391,6 +391,16 @@ def pixel_average(fn: LuxFn, frame: WallFrame, n: int = 4) -> np.ndarray:
     return out
 
 
+def _gauss_v(fn: LuxFn, h: np.ndarray, c: np.ndarray, d: np.ndarray, x: np.ndarray,
+             w: np.ndarray) -> np.ndarray:
+    """∫_c^d fn(h, v) dv by Gauss–Legendre nodes ``x`` and weights ``w`` (lx·m)."""
+    vh, vm = 0.5 * (d - c), 0.5 * (d + c)
+    acc = np.zeros_like(h)
+    for yj, wj in zip(x, w):
+        acc += wj * fn(h, vm + vh * yj)
+    return acc * vh
+
+
 def step_pixel_average(fn: LuxFn, frame: WallFrame, slope: float, offset: float,
                        n: int = 6) -> np.ndarray:
     """Exact mean over every pixel of ``fn`` (lx, smooth) times the step [v < s h + c].
@@ -419,11 +429,7 @@ def step_pixel_average(fn: LuxFn, frame: WallFrame, slope: float, offset: float,
         for xi, wi in zip(x, w):
             h = mid + half * xi
             top = np.clip(slope * h + offset, V0, V1)
-            vh, vm = 0.5 * (top - V0), 0.5 * (top + V0)
-            acc = np.zeros_like(h)
-            for yj, wj in zip(x, w):
-                acc += wj * fn(h, vm + vh * yj)
-            out += wi * half * acc * vh
+            out += wi * half * _gauss_v(fn, h, V0, top, x, w)
     return out / (dh * dv)
 
 
@@ -456,11 +462,7 @@ def circle_pixel_average(fn: LuxFn, frame: WallFrame, radius: float, n: int = 6
             root = np.sqrt(np.maximum(R2 - h * h, 0.0))
             vb = np.sort(np.clip(np.stack([V0, -root, root, V1]), V0, V1), axis=0)
             for c, d in itertools.pairwise(vb):
-                vh, vm = 0.5 * (d - c), 0.5 * (d + c)
-                acc = np.zeros_like(h)
-                for yj, wj in zip(x, w):
-                    acc += wj * fn(h, vm + vh * yj)
-                out += wi * half * acc * vh
+                out += wi * half * _gauss_v(fn, h, c, d, x, w)
     return out / (dh * dv)
 
 
