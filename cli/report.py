@@ -31,6 +31,11 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
 
         for rs in _list():
             click.echo(f"{rs['id']:<20} {rs.get('title', '')}  [{rs.get('path', '')}]")
+            if "error" in rs:
+                click.echo(f"{'':<20} error: {rs['error']}")
+                continue
+            click.echo(f"{'':<20} version: {rs.get('version', '')}")
+            click.echo(f"{'':<20} source: {rs.get('source', '')}")
         return
     if result_dir is None:
         raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")

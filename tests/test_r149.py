@@ -33,13 +33,52 @@ def test_driving_beam_minimum_imax_per_class():
         assert zone.min == imin and zone.certainty == "sure"
 
 
-def test_passing_beam_values_are_marked_less_sure():
-    """The R149 passing-beam points carried over from R112 01 say so, rule by rule."""
-    r149, r112 = load_ruleset("r149-b-passing"), load_ruleset("r112-b-passing")
-    for name in ("B50L", "75R", "50V", "50R", "25L", "25R", "III"):
-        a, b = r149.geometry(name), r112.geometry(name)
-        assert (a.min, a.max, a.h, a.v) == (b.min, b.max, b.h, b.v)
-        assert a.certainty == "less-sure" and "R112" in a.note
+def test_passing_beam_table8_values():
+    """R149 00 Table 8 Part A: class A and B columns differ where the table says so."""
+    a, b = load_ruleset("r149-a-passing"), load_ruleset("r149-b-passing")
+    for name, lim_a, lim_b in (("50R", 5100, 10100), ("75R", 5100, 10100),
+                               ("25L2", 1250, 1700), ("25R1", 1250, 1700)):
+        assert a.geometry(name).min == lim_a and b.geometry(name).min == lim_b
+    assert b.geometry("50V").min == 5100
+    with pytest.raises(KeyError):
+        a.geometry("50V")                      # class A has no 50V row
+    for rs in (a, b):
+        fifty_l = rs.geometry("50L")
+        assert fifty_l.max == 13200 and fifty_l.min is None  # minima deleted by Supplement 1
+        assert rs.geometry("IV").polygon[0] == (-5.15, -0.86)
+    assert a.geometry("IV").min == 1700 and b.geometry("IV").min == 2500
+    assert a.geometry("I").max == 17600 and b.geometry("I").max is None
+
+
+def test_passing_beam_certainty_and_sources():
+    """Sure rules name Table 8 and a second source; single-source rules say so."""
+    rs = load_ruleset("r149-b-passing")
+    r112 = load_ruleset("r112-b-passing")
+    for name, old in (("B50L", "B50L"), ("75R", "75R"), ("50V", "50V"), ("50R", "50R"),
+                      ("25L2", "25L"), ("25R1", "25R"), ("III", "III")):
+        g, o = rs.geometry(name), r112.geometry(old)
+        assert (g.min, g.max, g.h, g.v) == (o.min, o.max, o.h, o.v)
+        assert g.certainty == "sure" and "Table 8" in g.source
+    for name in ("IV", "I"):
+        g = rs.geometry(name)
+        assert g.certainty == "less-sure" and "one transcription" in g.note
+
+
+def _low_beam(h, v, above=300.0):
+    """A synthetic cut-off beam (cd): dim above H, bright below, brighter right of V."""
+    return np.where(v >= 0, above, np.where(v <= -1.72, 5000.0, np.where(h < 0, 9000.0, 12000.0)))
+
+
+@pytest.mark.parametrize("cls", ["a", "b"])
+def test_passing_beam_verdicts(cls):
+    """The synthetic beam passes every tested rule; 400 cd above H fails B50L only."""
+    rs = load_ruleset(f"r149-{cls}-passing")
+    pr = probe_points(rs)
+    for above, failing in ((300.0, set()), (400.0, {"B50L"})):
+        vals = np.tile(_low_beam(pr.h_deg, pr.v_deg, above), (4, 1))
+        res = {r["name"]: r["verdict"] for r in evaluate(rs, pr, vals)}
+        assert {n for n, v in res.items() if v == "fail"} == failing, res
+        assert all(v == "pass" for n, v in res.items() if n not in failing), res
 
 
 def test_r149_driving_verdicts():

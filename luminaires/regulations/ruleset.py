@@ -209,7 +209,7 @@ def list_rulesets() -> list[dict[str, str]]:
     Returns
     -------
     list of dict
-        One ``{"id", "title", "version", "path"}`` per loadable file, sorted by id. Files
+        One ``{"id", "title", "version", "source", "path"}`` per loadable file, sorted by id. Files
         that fail to load are listed with ``"error"`` instead of title/version.
     """
     out = []
@@ -217,7 +217,7 @@ def list_rulesets() -> list[dict[str, str]]:
         try:
             rs = _load_file(path)
             out.append({"id": rs.id, "title": rs.title, "version": rs.version,
-                        "path": str(path)})
+                        "source": rs.source, "path": str(path)})
         except InputError as exc:
             out.append({"id": ident, "error": str(exc), "path": str(path)})
     return out
