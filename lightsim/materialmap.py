@@ -28,6 +28,15 @@ The first rule whose pattern matches a part decides; parts no rule matches keep 
 file's own material (glTF) or the default diffuse grey. A ``--part-material`` given on
 the command line wins over the map.
 
+Single CAD faces: with OpenCASCADE's XCAF reader (``cadquery-ocp``) every face of a STEP
+or IGES part has an address ``"<part>/<face>"`` — its CAD name, or ``face-<k>`` — and a
+rule (or ``--part-material``) that matches the address but not the part splits that face
+off into a part of its own (:func:`split_cad_faces`)::
+
+    [[rule]]
+    match = "reflector/face-3"   # before "reflector*": the first matching rule decides
+    kind = "diffuse"
+
 ==============  =====  =======  =====================================================
 key             unit   default  meaning
 ==============  =====  =======  =====================================================
@@ -49,6 +58,7 @@ import fnmatch
 import math
 import os
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -159,3 +169,67 @@ def read_material_map(path: str | os.PathLike) -> MaterialMap:
     if not rules:
         raise InputError(f"{p}: the material map has no [[rule]]")
     return MaterialMap(str(p), tuple(rules))
+
+
+def split_cad_faces(raw: list[tuple], mmap: MaterialMap | None,
+                    explicit: Iterable[str] = ()) -> list[tuple]:
+    """Split CAD parts so that single faces named by a rule or option become parts.
+
+    Parts read through OpenCASCADE's XCAF document (:mod:`lightsim.io.cad_xcaf`) carry
+    ``extras["cad_faces"]``: the name of the CAD face each triangle came from. A face is
+    addressed as ``"<part>/<face>"`` (``"reflector/face-3"``, ``"reflector/hot-spot"``).
+    It becomes a part of its own when ``--part-material`` names it (``explicit``) or when
+    the first map rule matching its address exists and differs from the first rule
+    matching the part (first match decides, as for parts: ``match = "reflector/face-3"``
+    must come before ``match = "reflector*"``). The rest of the part keeps the part's
+    name. The face labels are removed from ``extras`` either way.
+
+    Parameters
+    ----------
+    raw : list of (name, vertices, faces, normals, material json, extras)
+        Parts as read by ``lightsim.scene``.
+    mmap : MaterialMap or None
+        The material map, if any.
+    explicit : iterable of str
+        Names given on the command line (``--part-material NAME=…``).
+
+    Returns
+    -------
+    list of (name, vertices, faces, normals, material json, extras)
+    """
+    wanted = {n.lower() for n in explicit}
+    out = []
+    for name, verts, faces, normals, mat, extras in raw:
+        labels = extras.get("cad_faces") if isinstance(extras, dict) else None
+        if labels is None:
+            out.append((name, verts, faces, normals, mat, extras))
+            continue
+        extras = {k: v for k, v in extras.items() if k != "cad_faces"}
+        whole = mmap.rule_for(name) if mmap is not None else None
+        own = []
+        for i, face in enumerate(labels.names):
+            addr = f"{name}/{face}"
+            rule = mmap.rule_for(addr) if mmap is not None else None
+            if addr.lower() in wanted or (rule is not None and rule is not whole):
+                own.append((i, addr))
+        if not own:
+            out.append((name, verts, faces, normals, mat, extras))
+            continue
+        tri_face = np.asarray(labels.triangle_face)
+        rest = np.ones(len(faces), dtype=bool)
+        for i, addr in own:
+            sel = tri_face == i
+            rest &= ~sel
+            out.append((addr, *_subset(verts, faces, normals, sel), mat, dict(extras)))
+        if rest.any():
+            out.append((name, *_subset(verts, faces, normals, rest), mat, extras))
+    return out
+
+
+def _subset(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
+            keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The triangles ``keep`` of a mesh with only the vertices they use (re-indexed)."""
+    sub = np.asarray(faces)[keep]
+    used, inverse = np.unique(sub.ravel(), return_inverse=True)
+    return (np.asarray(verts)[used], inverse.reshape(sub.shape).astype(np.int64),
+            None if normals is None else np.asarray(normals)[used])

@@ -537,6 +537,9 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
         mmap = read_material_map(materials)
     warnings: list[str] = []
     raw = _read_parts(path, tessellation, warnings)
+    from lightsim.materialmap import split_cad_faces
+
+    raw = split_cad_faces(raw, mmap, part_materials)  # CAD faces a rule/option names
     unmatched: list[str] = []
     if not raw:
         raise InputError(f"{path}: contains no triangle meshes")

@@ -1,25 +1,27 @@
-"""STEP and IGES import: OpenCASCADE tessellation (through ``cascadio``) to named parts.
+"""STEP and IGES import: OpenCASCADE tessellation to named parts.
 
-A headlamp arrives from CAD as exact surfaces (B-rep). ``cascadio`` (OpenCASCADE's
-reader and mesher, a trimesh companion) tessellates them into a glTF binary in memory,
-which :func:`lightsim.io.gltf.read_gltf` then reads like any GLB: one part per solid or
-free face, named as in the CAD tree (STEP product names), with **vertex normals taken
-from the exact surface** by the mesher — so a reflector's shading normals are the CAD
-normals at the vertices, and only their interpolation between vertices and the facets'
-positions carry the tessellation error.
+A headlamp arrives from CAD as exact surfaces (B-rep). Two readers, both OpenCASCADE:
+
+* with its Python binding (``cadquery-ocp``, the ``cad-names`` extra) the file is read
+  into an XCAF document (:mod:`lightsim.io.cad_xcaf`): parts keep their CAD names for STEP
+  *and* IGES, every face keeps its name (``"<part>/<face>"``, ``face-<k>`` for unnamed
+  faces) so a material map can target single faces, and vertex normals are evaluated on
+  the exact surface at each mesh node;
+* without it, ``cascadio`` (OpenCASCADE's mesher, a trimesh companion, the ``cad``
+  extra) tessellates into a glTF binary in memory, read by
+  :func:`lightsim.io.gltf.read_gltf`: one part per solid or free face named as in the
+  STEP tree (faces inside a solid are not named), normals from the mesher's surface
+  evaluation; IGES parts are named ``iges-1``, ``iges-2``, … and its unit is read from
+  the IGES global section (parameter 14, the unit flag).
+
+``read_cad(..., backend=)`` picks one: ``"auto"`` (default: XCAF when ``cadquery-ocp``
+is importable), ``"xcaf"`` or ``"cascadio"``.
 
 A reflector's facet error is a beam error: the mesher's tolerances are therefore fine by
 default. The linear tolerance bounds the distance between facet and surface, the
 angular one the angle between neighbouring facet normals; both are given in CAD terms
 (mm, degrees). The beam error they leave on an exact paraboloid is measured by
 ``tests/test_cad.py`` and tabulated in ``docs/cad.md``.
-
-STEP units come from the file (converted to metres by the reader). IGES: with
-OpenCASCADE's Python binding (``cadquery-ocp``, finer control) the file is read with its
-names and units into an OpenCASCADE document and handed on as STEP; with ``cascadio``
-alone it is tessellated in its own unit, which this module reads from the IGES global
-section (parameter 14, the unit flag) and converts, and the names are lost (parts are
-named ``iges-1``, ``iges-2``, …).
 
 =================  =====  =======  =====================================================
 parameter          unit   default  meaning
@@ -149,8 +151,9 @@ def tessellate(path: str | os.PathLike, tess: Tessellation | None = None) -> Pat
     try:
         import cascadio
     except ImportError:
-        raise InputError("STEP/IGES import needs the 'cascadio' package: pip install "
-                         "'lightsim[cad]'") from None
+        raise InputError("STEP/IGES import needs OpenCASCADE: pip install "
+                         "'lightsim[cad-names]' (cadquery-ocp) or 'lightsim[cad]' "
+                         "(cascadio)") from None
     data = p.read_bytes()
     kind = "step" if suffix in STEP_SUFFIXES else "iges"
     if kind == "iges":
@@ -174,29 +177,60 @@ def tessellate(path: str | os.PathLike, tess: Tessellation | None = None) -> Pat
 
 
 def _has_ocp() -> bool:
-    try:
-        import OCP.IGESCAFControl  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    from lightsim.io.cad_xcaf import have_ocp
+
+    return have_ocp()
 
 
-def read_cad(path: str | os.PathLike, tess: Tessellation | None = None) -> list:
+BACKENDS = ("auto", "xcaf", "cascadio")
+
+
+def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
+             backend: str = "auto") -> list:
     """Parts of a STEP/IGES file as :class:`lightsim.io.gltf.GltfPrimitive` records.
 
-    Names are the CAD names (STEP); positions in metres; normals from the exact surface.
+    Parameters
+    ----------
+    path : path-like
+        ``.step``/``.stp``/``.iges``/``.igs`` file.
+    tess : Tessellation, optional
+        Mesher tolerances (mm, deg); the defaults when omitted.
+    backend : {"auto", "xcaf", "cascadio"}
+        Reader (see the module docstring).
+
+    Returns
+    -------
+    list of GltfPrimitive
+        Names are the CAD names; positions in metres; normals from the exact surface.
+        The XCAF reader adds ``extras["cad_faces"]``
+        (:class:`lightsim.io.cad_xcaf.FaceLabels`).
     """
     import numpy as np
 
     from lightsim.io.gltf import read_gltf
 
+    tess = tess or Tessellation()
+    if backend not in BACKENDS:
+        raise InputError(f"CAD backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     p = Path(path)
+    if p.suffix.lower() not in CAD_SUFFIXES:
+        raise InputError(f"{p}: not a STEP or IGES file")
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    ocp = _has_ocp()
+    if backend == "xcaf" and not ocp:
+        raise InputError("the XCAF CAD reader needs OpenCASCADE's Python binding: pip "
+                         "install 'lightsim[cad-names]' (cadquery-ocp)")
+    if backend == "xcaf" or (backend == "auto" and ocp):
+        from lightsim.io.cad_xcaf import read_xcaf
+
+        return read_xcaf(p, tess)
     glb = tessellate(p, tess)
     try:
         parts = read_gltf(glb)
     finally:
         glb.unlink(missing_ok=True)
-    if p.suffix.lower() in IGES_SUFFIXES and not _has_ocp():
+    if p.suffix.lower() in IGES_SUFFIXES and not ocp:
         scale = iges_unit_m(p.read_bytes())
         out = []
         for i, part in enumerate(parts):
