@@ -60,17 +60,30 @@ def write_paraboloid_step(path: Path, focal_mm: float, rim_mm: float, hole_mm: f
 
 def beam_error(step: Path, focal_mm: float, rim_mm: float, hole_mm: float,
                linear_tol_mm: float, angular_tol_deg: float, rays: int = 200_000,
-               seed: int = 1) -> BeamError:
-    """Trace ``rays`` rays from the focus off the imported reflector; see the module."""
-    from lightsim.io.cad import Tessellation
+               seed: int = 1, backend: str = "auto") -> BeamError:
+    """Trace ``rays`` rays from the focus off the imported reflector; see the module.
+
+    ``backend`` is the CAD reader of :func:`lightsim.io.cad.read_cad` ("auto", "xcaf",
+    "cascadio"); "auto" goes through :func:`lightsim.scene.load_scene` as a user's file.
+    """
+    from types import SimpleNamespace
+
+    from lightsim.io.cad import Tessellation, read_cad
     from lightsim.materials import MIRROR, Material
     from lightsim.scene import Part, Scene, load_scene
     from lightsim.tracer import PhotonTracer
 
-    scene = load_scene(step, part_materials={"reflector": "mirror:1.0"},
-                       filament="H7", filament_at=(0.0, 0.0, focal_mm * 1e-3),
-                       tessellation=Tessellation(linear_tol_mm, angular_tol_deg))
-    refl = next(p for p in scene.parts if p.name == "reflector")
+    tess = Tessellation(linear_tol_mm, angular_tol_deg)
+    if backend == "auto":
+        scene = load_scene(step, part_materials={"reflector": "mirror:1.0"},
+                           filament="H7", filament_at=(0.0, 0.0, focal_mm * 1e-3),
+                           tessellation=tess)
+        refl = next(p for p in scene.parts if p.name == "reflector")
+    else:
+        prim = next(p for p in read_cad(step, tess, backend=backend) if p.name == "reflector")
+        refl = SimpleNamespace(vertices=np.asarray(prim.vertices, dtype=np.float64),
+                               faces=np.asarray(prim.faces), normals=np.asarray(
+                                   prim.normals, dtype=np.float64))
     f = focal_mm * 1e-3
     # vertex normals against the exact paraboloid normal (−x/2f, −y/2f, 1)
     v = refl.vertices
@@ -101,11 +114,11 @@ def beam_error(step: Path, focal_mm: float, rim_mm: float, hole_mm: float,
 
 
 def study(focal_mm: float = 25.0, rim_mm: float = 80.0, hole_mm: float = 10.0,
-          tolerances=TOLS, rays: int = 200_000) -> list[BeamError]:
+          tolerances=TOLS, rays: int = 200_000, backend: str = "auto") -> list[BeamError]:
     with tempfile.TemporaryDirectory() as tmp:
         step = write_paraboloid_step(Path(tmp) / "paraboloid.step", focal_mm, rim_mm,
                                      hole_mm)
-        return [beam_error(step, focal_mm, rim_mm, hole_mm, lin, ang, rays)
+        return [beam_error(step, focal_mm, rim_mm, hole_mm, lin, ang, rays, backend=backend)
                 for lin, ang in tolerances]
 
 
@@ -121,4 +134,8 @@ def format_table(rows: list[BeamError]) -> str:
 
 
 if __name__ == "__main__":
-    print(format_table(study()))
+    import sys
+
+    for b in sys.argv[1:] or ["auto"]:
+        print(f"CAD reader: {b}")
+        print(format_table(study(backend=b)))
