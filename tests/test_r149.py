@@ -10,11 +10,58 @@ from lightsim.luminaires.regulations.ruleset import iter_rule_names
 
 R149 = ["r149-a-passing", "r149-b-passing", "r149-a-driving", "r149-b-driving",
         "r149-d-driving"]
+R149_01 = ["r149-01-c-passing", "r149-01-a-driving", "r149-01-b-driving"]
 
 
 def test_r149_listed_beside_r112():
     ids = [r["id"] for r in list_rulesets()]
-    assert set(R149) <= set(ids) and "r112-b-passing" in ids
+    assert set(R149 + R149_01) <= set(ids) and "r112-b-passing" in ids
+    for r in list_rulesets():
+        assert r["version"] and r["source"], r    # --list-rulesets shows both
+
+
+def test_list_rulesets_cli_shows_versions_and_sources(capsys):
+    from helpers import run_cli
+
+    code, out, _ = run_cli(["report", "--list-rulesets"], capsys)
+    assert code in (0, None)
+    block = out.split("r149-b-passing", 1)[1].split("\n")[:3]
+    assert "version: 00 series" in block[1] and "ECE/TRANS/WP.29/2018/158" in block[2]
+    assert "version: 01 series" in out.split("r149-01-c-passing", 1)[1]
+
+
+@pytest.mark.parametrize("rid", R149_01)
+def test_r149_01_sets_load_with_sources(rid):
+    rs = load_ruleset(rid)
+    assert rs.regulation == "UN R149" and rs.version.startswith("01 series")
+    assert "ECE/TRANS/WP.29/2022/93" in rs.source
+    probe_points(rs)
+
+
+def test_r149_01_driving_points_two_sources():
+    """01 series Table 5: H-12L…H-12R per class (sure), IM less-sure."""
+    a, b = load_ruleset("r149-01-a-driving"), load_ruleset("r149-01-b-driving")
+    for name, lim_a, lim_b in (("H-12L", 600, 1500), ("H-9R", 2000, 3400),
+                               ("H-6L", 3400, 5000), ("H-3R", 12000, 17500)):
+        assert a.geometry(name).min == lim_a and b.geometry(name).min == lim_b
+        assert b.geometry(name).certainty == "sure"
+    assert b.geometry("Imax").min == 40000 and b.geometry("Imax").certainty == "less-sure"
+
+
+def test_r149_01_class_c_verdicts():
+    """A synthetic class C beam: passes every tested rule; dimming it fails 75R."""
+    rs = load_ruleset("r149-01-c-passing")
+    pr = probe_points(rs)
+
+    def beam(h, v, gain):
+        below = np.where(np.abs(h) <= 9.0, 13000.0, 3000.0)
+        val = np.where(v >= 0, 300.0, np.where(v < -3.5, 1000.0, below))
+        return gain * val
+
+    for gain, failing in ((1.0, set()), (0.9, {"75R"})):
+        vals = np.tile(beam(pr.h_deg, pr.v_deg, gain), (4, 1))
+        res = {r["name"]: r["verdict"] for r in evaluate(rs, pr, vals)}
+        assert {n for n, v in res.items() if v == "fail"} == failing, res
 
 
 @pytest.mark.parametrize("rid", R149)
