@@ -358,8 +358,10 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
 
     fd = _frame_dict(frame)
     floor = noise_floor_from_summary(summary, fd) if summary is not None else None
+    area_px = estimate_area_px_from_summary(summary, fd) if summary is not None else None
     paths = [isolux_plot(Path(out) / "isolux.png", lux, fd, results=results,
-                         title="iso-lux on the screen", noise_floor_lx=floor)]
+                         title="iso-lux on the screen", noise_floor_lx=floor,
+                         estimate_area_px=area_px)]
     road = road_view_plot(Path(out) / "road.png", lux, fd, mount_height_m=mount_height_m)
     paths.append(Path(out) / "road.png")
     if summary is not None:
@@ -375,6 +377,24 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
         else:
             summary["road"] = {**road.summary(REACH_LEVELS), "text": road.reach_text()}
     return paths
+
+
+def estimate_area_px_from_summary(summary: dict[str, Any], frame: dict[str, Any]
+                                  ) -> float | None:
+    """Area (wall pixels) the largest estimate of a run averages over: the kNN/radius
+    disk π r_max², or one pixel when binning; None when the summary does not say."""
+    try:
+        w, h = frame["resolution"]
+        px = ((frame["h_range_m"][1] - frame["h_range_m"][0]) / w
+              * (frame["v_range_m"][1] - frame["v_range_m"][0]) / h)
+        est = summary.get("estimator", {})
+        if est.get("name") == "bin":
+            return 1.0
+        r = est.get("max_radius_m")
+        area = math.pi * float(r) ** 2 / px if r is not None else math.inf
+        return area if math.isfinite(area) and area > 0 else None
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        return None
 
 
 def noise_floor_from_summary(summary: dict[str, Any], frame: dict[str, Any]) -> float | None:

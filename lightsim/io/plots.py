@@ -148,7 +148,8 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
                 results: Sequence[Mapping[str, Any]] | None = None,
                 levels: Sequence[float] | None = None, *, title: str | None = None,
                 dpi: int = 120, figsize: tuple[float, float] | None = None,
-                noise_floor_lx: float | None = None) -> Path:
+                noise_floor_lx: float | None = None,
+                estimate_area_px: float | None = None) -> Path:
     """Iso-lux plot of a wall lux image with regulation test points and zones.
 
     Parameters
@@ -174,6 +175,10 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     noise_floor_lx : float, optional
         Levels below this illuminance (lx, see :func:`isolux_noise_floor`) are left out;
         the automatic levels then span from the floor to the maximum.
+    estimate_area_px : float, optional
+        Area (pixels) an estimate at the noise floor averages over. With the floor it makes
+        each level be drawn on the map smoothed just enough for a clean line
+        (:mod:`lightsim.io.contour_noise`); without it levels are drawn on the raw map.
 
     Returns
     -------
@@ -207,12 +212,22 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     ax = fig.add_subplot(1, 1, 1)
     if lv:
         fill_lv = [*lv, vmax * 1.0001]
-        cf = ax.contourf(H, V, np.maximum(img, lv[0] * 1e-3), levels=fill_lv,
+        fill_img, line_imgs, sigmas = np.maximum(img, lv[0] * 1e-3), [img] * len(lv), []
+        if floor is not None and estimate_area_px is not None:
+            from lightsim.io.contour_noise import smoothed_for_levels
+
+            line_imgs, band, sigmas = smoothed_for_levels(img, lv, floor, estimate_area_px)
+            # the fill shows the same bands as the lines: a value inside each band
+            mids = [*(np.sqrt(a * b) for a, b in zip(lv, fill_lv[1:], strict=True))]
+            fill_img = np.where(band < 0, lv[0] * 1e-3,
+                                np.asarray(mids)[np.clip(band, 0, None).astype(int)])
+        cf = ax.contourf(H, V, fill_img, levels=fill_lv,
                          norm=LogNorm(vmin=lv[0], vmax=fill_lv[-1]), cmap="YlOrRd",
                          alpha=0.55, extend="neither")
-        cs = ax.contour(H, V, img, levels=lv, colors="0.15", linewidths=0.7)
-        ax.clabel(cs, fmt=lambda x: f"{x:g} lx · {x * d2:,.0f} cd", fontsize=7,
-                  inline=True)
+        for x, limg in zip(lv, line_imgs, strict=True):
+            cs = ax.contour(H, V, limg, levels=[x], colors="0.15", linewidths=0.7)
+            ax.clabel(cs, fmt=lambda x: f"{x:g} lx · {x * d2:,.0f} cd", fontsize=7,
+                      inline=True)
         cb = fig.colorbar(cf, ax=ax, label="illuminance on the wall (lx)",
                           location="bottom", shrink=0.6, aspect=40)
         cb.set_ticks(lv)
@@ -222,8 +237,12 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
         top.set_xticklabels([f"{x * d2:,.0f}" for x in lv], fontsize=7)
         top.set_xlabel(f"intensity I = E·D² (cd, D = {wf.distance_m:g} m)", fontsize=8)
         if floor is not None:
+            smooth = max(sigmas, default=0.0)
+            px_deg = float(np.ptp(h)) / max(len(h) - 1, 1)
+            extra = (f"; lines near it drawn on the map smoothed by σ ≤ {smooth * px_deg:.2g}°"
+                     if smooth > 0 else "")
             ax.text(0.99, 0.02, f"levels below the noise floor {floor:.2g} lx "
-                    "not drawn", transform=ax.transAxes, fontsize=7, ha="right",
+                    f"not drawn{extra}", transform=ax.transAxes, fontsize=7, ha="right",
                     va="bottom", color="0.3")
     else:
         ax.text(0.5, 0.5, "no light on the wall", transform=ax.transAxes, ha="center",
