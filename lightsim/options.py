@@ -24,7 +24,8 @@ record field       unit    meaning
 ``kind``           –       how the text form is read: ``value`` (click's type),
                            ``pair`` ``AxB``, ``triple`` ``X,Y,Z``, ``flag``
                            (``--x``), ``onoff`` (``--x/--no-x``), ``assign``
-                           (repeatable ``NAME=SPEC`` → dict), ``file``, ``dir``
+                           (repeatable ``NAME=SPEC`` → dict), ``file``, ``dir``,
+                           ``tuple`` (numbers or points, set by code only)
 ``resume``         –       may change on ``--resume`` (budgets, where it runs);
                            every other option must match the checkpoint
 =================  ======  ========================================================
@@ -35,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import numbers
 import re
 import typing
 from collections.abc import Callable, Iterable
@@ -43,7 +45,7 @@ from typing import Any
 
 from lightsim.errors import InputError
 
-KINDS = ("value", "pair", "triple", "flag", "onoff", "assign", "file", "dir")
+KINDS = ("value", "pair", "triple", "flag", "onoff", "assign", "file", "dir", "tuple")
 
 
 @dataclass(frozen=True)
@@ -138,19 +140,23 @@ class Option:
                 raise InputError(f"{self.label} {value}: the file name must end in "
                                  f"{' or '.join(self.suffixes)}")
         if self.kind in ("pair", "triple"):
-            if isinstance(value, list | tuple):
-                for v in value:
-                    self._check_number(v, value)
+            n = 2 if self.kind == "pair" else 3
+            if not isinstance(value, list | tuple) or len(value) != n:
+                raise InputError(f"{self.label} must be {n} numbers, got {value!r}")
+            for v in value:
+                self._check_number(v, value)
             return
-        if isinstance(value, int | float) and not isinstance(value, bool):
+        if self.kind == "value" and self.cast in (int, float):
             self._check_number(value, value)
 
     def _check_number(self, v: Any, shown: Any) -> None:
         unit = f" {self.unit}" if self.unit else ""
-        try:
-            x = float(v)
-        except (TypeError, ValueError):
-            raise InputError(f"{self.label} must be a number, got {shown!r}") from None
+        whole = self.cast is int
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or (
+                whole and math.isfinite(v) and v != int(v)):
+            raise InputError(f"{self.label} must be a {'whole ' if whole else ''}number, "
+                             f"got {shown!r}")
+        x = float(v)
         if math.isnan(x) or (math.isinf(x) and not self.allow_inf):
             raise InputError(f"{self.label} must be finite, got {shown}")
         lo, hi = self.low, self.high

@@ -110,10 +110,11 @@ class RunConfig:
     threads: int | None = option(None, "numba threads per client.", low=1,
                                  internal="set by the Ray backend per actor")
     extra_probes: tuple[tuple[float, float], ...] = option(
-        (), "More probe points (h, v).", unit="m", internal="set by callers (view, tests)")
+        (), "More probe points (h, v).", unit="m", kind="tuple",
+        internal="set by callers (view, tests)")
     apertures: tuple[tuple[float, float], ...] = option(
         (), "(H, V) of detector apertures every set counts photons in "
-        "(lightsim.engine.apertures).", unit="deg", internal=_APERTURES)
+        "(lightsim.engine.apertures).", unit="deg", kind="tuple", internal=_APERTURES)
     aperture_deg: float = option(0.15, "Side of the square aperture (≈ 65 mm at 25 m).",
                                  unit="deg", low=0, high=10, low_open=True, high_open=True,
                                  internal=_APERTURES)
@@ -122,13 +123,14 @@ class RunConfig:
     aperture_substeps: int = option(1, "Strip bins per aperture side.", low=1,
                                     internal=_APERTURES)
     aperture_targets: tuple[int, ...] = option(
-        (), "Aperture indices that Selective Photon Tracing refines.", internal=_APERTURES)
+        (), "Aperture indices that Selective Photon Tracing refines.", kind="tuple",
+        internal=_APERTURES)
     aperture_spt_share: float = option(0.5, "Share of each SPT pass given to refined "
                                        "cells.", low=0, high=1, low_open=True,
                                        high_open=True, internal=_APERTURES)
     aperture_raster: tuple[float, float, float, float] | None = option(
         None, "(H lo, H hi, V lo, V hi) tiled with apertures for the beam maximum Imax.",
-        unit="deg", internal=_APERTURES)
+        unit="deg", kind="tuple", internal=_APERTURES)
 
     def __post_init__(self) -> None:
         options.check_fields(self)  # choices and ranges, from the declarations above
