@@ -329,8 +329,9 @@ def parse_assign(items: Iterable[str] | dict, what: str, metavar: str) -> dict[s
 
 # -- click ----------------------------------------------------------------------------------
 def click_option(opt: Option, **override: Any) -> Callable:
-    """The click decorator of ``opt``; ``override`` may change ``default`` (another command's
-    default for the same setting) — the help then says that default."""
+    """The click decorator of ``opt``: the command receives the parsed value, checked
+    against the record (one :class:`InputError` line otherwise). ``override`` may change
+    ``default`` (another command's default for the same setting; the help says it)."""
     import click
 
     if "default" in override:
@@ -361,7 +362,13 @@ def click_option(opt: Option, **override: Any) -> Callable:
         kw["metavar"] = metavar
     if opt.envvar:
         kw.update(envvar=opt.envvar, show_envvar=True)
-    return click.option(*decls, opt.name, **kw)
+
+    def checked(_ctx: click.Context, _param: click.Parameter, raw: Any) -> Any:
+        value = opt.parse(raw)  # the typed value, checked against the record
+        opt.check(value)
+        return value
+
+    return click.option(*decls, opt.name, callback=checked, **kw)
 
 
 def click_options(*classes: type, skip: Iterable[str] = ()) -> Callable:
