@@ -47,10 +47,6 @@ from lightsim.scene import Scene, load_scene
 CHECKPOINT = "checkpoint.json"
 
 
-_EMITTER = "Only for a mesh without emitter"
-_WHERE = "may change on --resume"
-
-
 @dataclass
 class SimulateOptions:
     """Everything a simulation run depends on (stored in checkpoints for ``--resume``).
@@ -81,10 +77,10 @@ class SimulateOptions:
     flux: float | None = option(None, "Luminous flux of the emitter(s).", unit="lm",
                                 flag=("--flux",), low=0, low_open=True,
                                 default_text="the scene's")
-    emission: str | None = option(None, f"{_EMITTER}: the filament's emission.",
-                                  flag=("--emission",), choices=(None, "isotropic",
-                                                                 "lambertian"),
-                                  default_text="the preset's")
+    emission: str | None = option(None, "Angular emission of the emitters (overrides the "
+                                  "file's).", flag=("--emission",),
+                                  choices=(None, "isotropic", "lambertian"),
+                                  default_text="the file's, else isotropic")
     filament: str | None = option(None, "Bulb preset for a mesh without emitter (e.g. H7).",
                                   flag=("--filament",))
     filament_at: tuple[float, float, float] | None = option(
