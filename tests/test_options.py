@@ -359,3 +359,44 @@ def test_other_commands_share_the_records():
     res = CliRunner().invoke(cmd, ["--help"], terminal_width=10_000, max_content_width=10_000)
     assert "Photons per frame (all sets). [≥ 1; default: 20000]" in res.output
     assert CliRunner().invoke(cmd, []).output.strip() == "20000"
+
+
+@pytest.mark.parametrize("path,name,default", [
+    (("view",), "frame_photons", 20_000), (("view",), "resolution", None),
+    (("view",), "workers", None), (("view",), "traffic", None),
+    (("validate",), "seed", None), (("converge",), "seed", None),
+    (("converge",), "frame_photons", 50_000),
+    (("bench", "frames"), "frame_photons", 50_000), (("bench", "plan"), "frame_photons", 100_000),
+    (("bench", "scaling"), "resolution", None), (("bench", "view"), "frame_photons", 20_000),
+])
+def test_other_commands_show_the_same_record(path, name, default):
+    """Commands that take a run option take its record: the same help, unit and range as
+    ``simulate``; only the default may be theirs."""
+    from lightsim.cli.main import cli
+
+    cmd: Any = cli
+    for word in path:
+        cmd = cmd.get_command(None, word)
+    opt = next(o for o in CLI if o.name == name)
+    if default is not None:
+        import dataclasses
+
+        opt = dataclasses.replace(opt, default=default, default_text=None)
+    param = next(p for p in cmd.params if p.name == name)
+    assert param.help == opt.help_text() and param.default == (
+        opt.default_str() if opt.kind == "pair" else opt.default)
+    flags = [f for f in opt.flag if "/" not in f]
+    assert set(param.opts) == set(flags)
+
+
+def test_view_sliders_stay_inside_the_run_config_ranges():
+    """The view's k / interleave / frame-photons sliders feed RunConfig: their ranges must be
+    ones RunConfig accepts."""
+    from lightsim.view.controls import CONFIG_CONTROLS, SPEC_BY_NAME
+
+    for name in CONFIG_CONTROLS:
+        spec = SPEC_BY_NAME[name]
+        for end in (spec.lo, spec.hi):
+            assert getattr(RunConfig(**{name: int(end)}), name) == end
+        opt = options.lookup(RunConfig, name)
+        assert spec.unit == opt.unit, name
