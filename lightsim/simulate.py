@@ -33,16 +33,17 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lightsim import __version__, options
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
-from lightsim.io.cad import Tessellation
 from lightsim.options import option
-from lightsim.scene import Scene, load_scene
+
+if TYPE_CHECKING:
+    from lightsim.scene import Scene
 
 CHECKPOINT = "checkpoint.json"
 
@@ -260,6 +261,9 @@ def folder_notes(out: Path) -> list[str]:
 
 
 def load(opts: SimulateOptions) -> Scene:
+    from lightsim.io.cad import Tessellation
+    from lightsim.scene import load_scene  # numba: not needed to parse options or --help
+
     return load_scene(opts.scene_path, flux=opts.flux, emission=opts.emission,
                       filament=opts.filament, filament_at=opts.filament_at,
                       filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
