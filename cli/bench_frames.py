@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import click
 
+from lightsim.engine.config import RunConfig
+from lightsim.options import click_option, lookup
 from lightsim.validation.bench.table import print_table, write_json
 
 
 @click.command("frames")
 @click.option("--scenes", default="ring,headlight", show_default=True,
               help="Comma-separated: ring, egg, glass, headlight.")
-@click.option("--frame-photons", type=int, default=50_000, show_default=True,
-              help="Photons per interaction frame.")
+@click_option(lookup(RunConfig, "frame_photons"), default=50_000)  # interaction frames
 @click.option("--accumulate", type=int, default=500_000, show_default=True,
               help="Photons accumulated before walkthrough frames.")
 @click.option("--frames", type=int, default=3, show_default=True, help="Frames timed per row.")

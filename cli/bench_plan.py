@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import click
 
+from lightsim.engine.config import RunConfig
+from lightsim.options import click_option, lookup
 from lightsim.validation.bench.table import print_table, write_json
 
 
 @click.command("plan")
 @click.argument("scene_file", required=False, type=click.Path(dir_okay=False))
-@click.option("--frame-photons", type=int, default=100_000, show_default=True)
+@click_option(lookup(RunConfig, "frame_photons"), default=100_000)
 @click.option("--frames", type=int, default=3, show_default=True)
 @click.option("--repeats", type=int, default=3, show_default=True,
               help="Planned and forced runs alternate this many times; the best counts.")

@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import click
 
+from lightsim.engine.config import RunConfig
+from lightsim.options import click_option, lookup
+from lightsim.simulate import SimulateOptions
 from lightsim.validation.bench.table import print_table, write_json
 
 
 @click.command("view")
 @click.argument("scene_file", required=False, type=click.Path(dir_okay=False))
-@click.option("--resolution", default="640x256", show_default=True)
-@click.option("--frame-photons", type=int, default=20_000, show_default=True)
+@click_option(lookup(SimulateOptions, "resolution"))
+@click_option(lookup(RunConfig, "frame_photons"), default=20_000)
 @click.option("--changes", type=int, default=5, show_default=True, help="Latency samples.")
 @click.option("--drag-seconds", type=float, default=6.0, show_default=True)
 @click.option("--converge-timeout", type=float, default=40.0, show_default=True)
@@ -20,14 +23,13 @@ from lightsim.validation.bench.table import print_table, write_json
 @click.option("--screenshots", type=click.Path(file_okay=False),
               help="Save the page (interaction, converged) as PNG here.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
-def command(scene_file: str | None, resolution: str, frame_photons: int, changes: int,
+def command(scene_file: str | None, resolution: tuple[int, int], frame_photons: int, changes: int,
             drag_seconds: float, converge_timeout: float, chromium: str,
             screenshots: str | None, json_path: str | None) -> None:
     """Time from a control change to the drawn image, interaction frames/s, convergence."""
     from pathlib import Path
 
     from lightsim.cli.bench_tracer import example_headlight
-    from lightsim.cli.simulate import _pair
     from lightsim.errors import InputError
     from lightsim.validation.bench.view import bench_view
 
@@ -36,7 +38,7 @@ def command(scene_file: str | None, resolution: str, frame_photons: int, changes
     except ImportError:
         raise InputError("bench view needs Playwright for Python: pip install playwright") \
             from None
-    w, h = _pair(resolution, "--resolution", int)
+    w, h = resolution
     if changes < 1 or drag_seconds <= 0 or converge_timeout <= 0:
         raise InputError("--changes, --drag-seconds and --converge-timeout must be positive")
     path = scene_file or str(example_headlight())

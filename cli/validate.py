@@ -38,6 +38,9 @@ option                  unit   default          meaning
 ``--reference-factor``  –      20               reference length / longest budget
 ``--seed``              –      1
 ======================  =====  ===============  ============================================
+
+``--seed`` (both commands) and ``--frame-photons`` are the run options' own records
+(:mod:`lightsim.options`): the same help, unit and range as ``simulate``'s.
 """
 
 from __future__ import annotations
@@ -48,7 +51,9 @@ from collections.abc import Sequence
 
 import click
 
+from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.options import click_option, lookup
 
 
 def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]]) -> None:
@@ -77,7 +82,7 @@ def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
               type=click.Choice(["bin", "knn", "radius"]),
               help="Density estimators for the image cases (default: bin and knn).")
 @click.option("--photons", type=int, help="Photons per case (default 400 000; --full 4 M).")
-@click.option("--seed", type=int, default=1, show_default=True)
+@click_option(lookup(RunConfig, "seed"))
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Write every check (with its σ and allowance) as JSON.")
 @click.option("--coverage", is_flag=True,
@@ -243,12 +248,11 @@ def _resolution(text: str | None) -> tuple[int, int] | None:
               help="knnM=4, knnM=1, bin, radius, knnM=4SPT (repeatable; default all).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="converge-out",
               show_default=True, help="Folder for converge.csv/.json/.png.")
-@click.option("--frame-photons", type=int, default=50_000, show_default=True,
-              help="Photons per frame (all sets).")
+@click_option(lookup(RunConfig, "frame_photons"), default=50_000)
 @click.option("--resolution", help="Wall pixels WxH (scene files: default 160x64).")
 @click.option("--reference-factor", type=float, default=20.0, show_default=True,
               help="Reference run length / longest budget (scene files).")
-@click.option("--seed", type=int, default=1, show_default=True)
+@click_option(lookup(RunConfig, "seed"))
 @click.option("--quiet", "-q", is_flag=True)
 def converge(scene: str, budgets: str | None, full: bool, photon_budgets: str | None,
              estimators: tuple[str, ...], out_dir: str, frame_photons: int,

@@ -14,7 +14,10 @@ from typing import Any
 import click
 import numpy as np
 
+from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.options import click_option, lookup
+from lightsim.simulate import SimulateOptions
 
 
 def bulb_presets() -> dict[str, Any]:
@@ -223,18 +226,15 @@ def start_view(scene_path: str, port: int = 0, **kw: Any):
 
 @click.command("view")
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--workers", type=int, default=0, show_default=True,
-              help="0: in-process; N: N Ray actors on a local Ray runtime.")
+@click_option(lookup(SimulateOptions, "workers"))
 @click.option("--address", help="Ray cluster address HOST:PORT (instead of --workers).")
 @click.option("--port", type=int, default=8765, show_default=True,
               help="Port on 127.0.0.1 (0 = any free port).")
 @click.option("--regulation", default="r112-b-passing", show_default=True,
               help="Rule set drawn on the pattern ('none' for no table).")
-@click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
-              show_default=True)
-@click.option("--resolution", default="640x256", show_default=True, help="Wall pixels WxH.")
-@click.option("--frame-photons", type=int, default=20_000, show_default=True,
-              help="Photons per frame at start (a control on the page).")
+@click_option(lookup(SimulateOptions, "traffic"))
+@click_option(lookup(SimulateOptions, "resolution"))
+@click_option(lookup(RunConfig, "frame_photons"), default=20_000)  # a control on the page
 @click.option("--out", "out_dir", default="lightsim-view", show_default=True,
               type=click.Path(file_okay=False),
               help="Session folder: edits.jsonl, state.json, saved runs.")
@@ -242,20 +242,17 @@ def start_view(scene_path: str, port: int = 0, **kw: Any):
               help="Restore the controls of a state.json (e.g. after a crash).")
 @click.option("--no-camera", is_flag=True, help="Leave out the camera tab.")
 def view(scene: str, workers: int, address: str | None, port: int, regulation: str,
-         traffic: str, resolution: str, frame_photons: int, out_dir: str,
+         traffic: str, resolution: tuple[int, int], frame_photons: int, out_dir: str,
          state_file: str | None, no_camera: bool) -> None:
     """Interactive session in the browser: live lux, controls, regulation, save run."""
-    from lightsim.cli.simulate import _pair
     from lightsim.io.summary import read_json
     from lightsim.simulate import check_out_dir
 
-    if workers < 0:
-        raise InputError(f"--workers must be ≥ 0, got {workers}")
     if workers and address:
         raise InputError("give --workers or --address, not both")
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be 0–65535, got {port}")
-    res = _pair(resolution, "--resolution", int)
+    res = resolution
     state = None
     if state_file is not None:
         if not Path(state_file).is_file():

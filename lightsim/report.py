@@ -474,7 +474,3 @@ def format_regulation(reg: dict[str, Any]):
     return format_table(reg["results"], title=f"{reg['ruleset']} ({reg['traffic']}-hand "
                         f"traffic{note}; {int(reg['confidence'] * 100)}% intervals)",
                         unevaluated=reg.get("unevaluated"))
-
-
-def finite(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else float(x)

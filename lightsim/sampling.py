@@ -226,10 +226,3 @@ class SelectiveSampler:
             self.refined[:] = False
         if len(indices):
             self.refined[(indices[caustic] % self.n_cells)] = True
-
-    def state(self) -> dict:
-        return {"refined": self.refined.copy(), "passes_done": self.passes_done}
-
-    def restore(self, state: dict) -> None:
-        self.refined = np.asarray(state["refined"], dtype=np.bool_).copy()
-        self.passes_done = int(state["passes_done"])

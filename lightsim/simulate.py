@@ -26,100 +26,194 @@ file                   content
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import os
 import platform
 import tempfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from lightsim import __version__
+from lightsim import __version__, options
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
-from lightsim.io.cad import Tessellation
-from lightsim.scene import Scene, load_scene
+from lightsim.options import option
+
+if TYPE_CHECKING:
+    from lightsim.scene import Scene
 
 CHECKPOINT = "checkpoint.json"
 
 
 @dataclass
 class SimulateOptions:
-    """Everything a simulation run depends on (stored in checkpoints for ``--resume``)."""
+    """Everything a simulation run depends on (stored in checkpoints for ``--resume``).
 
-    scene_path: str
-    out_dir: str = "lightsim-out"
-    photons: int | None = None
-    seconds: float | None = None
-    target_error: float | None = None
-    flux: float | None = None
-    emission: str | None = None
-    filament: str | None = None
-    filament_at: tuple[float, float, float] | None = None
-    filament_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    wall_distance: float = 25.0
-    wall_size: tuple[float, float] = (30.0, 12.0)
-    resolution: tuple[int, int] = (640, 256)
-    part_materials: dict[str, str] = field(default_factory=dict)
+    Every field is declared once with its :class:`~lightsim.options.Option` record (flag,
+    unit, default, range, help): ``lightsim simulate``'s options, the range checks and the
+    checkpoint come from these declarations and :class:`~lightsim.engine.config.RunConfig`'s
+    (``config`` holds RunConfig settings by name, ``{}`` = all defaults).
+    """
+
+    scene_path: str = option(MISSING, "GLB/glTF/OBJ/STL/PLY, STEP/IGES or a photometric or ray "
+                             "file to simulate.", internal="the SCENE_FILE argument")
+    photons: int | None = option(None, "Photons to shoot in total.", flag=("--photons", "-n"),
+                                 low=1, default_text="1 frame", resume=True)
+    seconds: float | None = option(None, "Stop after this much time.", unit="s",
+                                   flag=("--time",), low=0, low_open=True, resume=True)
+    target_error: float | None = option(
+        None, "Stop when the estimated relative error over the lit region is at most this.",
+        flag=("--target-error",), low=0, high=1, low_open=True, high_open=True, resume=True)
+    out_dir: str = option("lightsim-out", "Output folder.", flag=("--out",), kind="dir")
+    resolution: tuple[int, int] = option((640, 256), "Wall pixels WxH.", unit="px",
+                                         flag=("--resolution",), kind="pair", low=1)
+    wall_distance: float = option(25.0, "Distance of the added wall, if the file has none.",
+                                  unit="m", flag=("--wall-distance",), low=0, low_open=True)
+    wall_size: tuple[float, float] = option(
+        (30.0, 12.0), "Size WxH of the added wall, centred on H-V.", unit="m",
+        flag=("--wall-size",), kind="pair", low=0, low_open=True)
+    flux: float | None = option(None, "Luminous flux of the emitter(s).", unit="lm",
+                                flag=("--flux",), low=0, low_open=True,
+                                default_text="the scene's")
+    emission: str | None = option(None, "Angular emission of the emitters (overrides the "
+                                  "file's).", flag=("--emission",),
+                                  choices=(None, "isotropic", "lambertian"),
+                                  default_text="the file's, else isotropic")
+    filament: str | None = option(None, "Bulb preset for a mesh without emitter (e.g. H7).",
+                                  flag=("--filament",))
+    filament_at: tuple[float, float, float] | None = option(
+        None, "Filament centre X,Y,Z.", unit="m", flag=("--filament-at",), kind="triple")
+    filament_axis: tuple[float, float, float] = option(
+        (0.0, 0.0, 1.0), "Filament axis X,Y,Z.", flag=("--filament-axis",), kind="triple")
+    rayfile: str | None = option(
+        None, "LED/bulb ray file (IES TM-25 .tm25ray or Zemax binary .dat/.ray) as the "
+        "light source, replacing the scene's emitters.", flag=("--rayfile",), kind="file")
+    rayfile_at: tuple[float, float, float] | None = option(
+        None, "Where the ray file's origin goes, X,Y,Z.", unit="m", flag=("--rayfile-at",),
+        kind="triple")
+    rayfile_axis: tuple[float, float, float] = option(
+        (0.0, 0.0, 1.0), "Where the ray file's +Z points, X,Y,Z.", flag=("--rayfile-axis",),
+        kind="triple")
+    materials: str | None = option(
+        None, "Material map (TOML): part-name pattern → mirror/glass/diffuse/emitter/"
+        "ignore, for CAD files without optics.", flag=("--materials",), kind="file")
+    cad_linear_tol_mm: float = option(
+        0.01, "STEP/IGES tessellation: largest facet-to-surface distance.", unit="mm",
+        flag=("--cad-linear-tol",), low=0, low_open=True)
+    cad_angular_tol_deg: float = option(
+        2.0, "STEP/IGES tessellation: largest angle between facet normals.", unit="deg",
+        flag=("--cad-angular-tol",), low=0, high=90, low_open=True, high_open=True)
+    part_materials: dict[str, str] = option(  # noqa: RUF009 - a dataclasses.field
+        help="NAME=mirror[:R]|glass[:n]|diffuse[:ρ]|wall|ignore (repeatable).",
+        default_factory=dict, flag=("--part-material",), kind="assign",
+        metavar="NAME=KIND[:VALUE]")
     config: dict[str, Any] = field(default_factory=dict)
-    log_scale: bool = False
-    workers: int = 0
-    address: str | None = None
-    regulation: str | None = None
-    traffic: str = "right"
-    aim: bool = False
-    ies: str | None = None
-    ldt: str | None = None
-    farfield_photons: int = 1_000_000
-    mount_height: float = 0.65
-    ies_type: str = "auto"
-    lamp_set: int | None = None
-    aperture: float = 0.15
-    spt_points: bool = False
-    rayfile: str | None = None
-    rayfile_at: tuple[float, float, float] | None = None
-    rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    materials: str | None = None
-    cad_linear_tol_mm: float = 0.01
-    cad_angular_tol_deg: float = 2.0
+    regulation: str | None = option(
+        None, "Rule set to check, e.g. r112-b-passing (see `lightsim report "
+        "--list-rulesets`).", flag=("--regulation",))
+    traffic: str = option("right", "Traffic side of the regulation check and cut-off.",
+                          flag=("--traffic",), choices=("right", "left"))
+    aim: bool = option(False, "Aim the cut-off at 0.57° D before checking.",
+                       flag=("--aim",), kind="flag")
+    aperture: float = option(
+        0.15, "Side of the square detector aperture each regulation test point counts "
+        "photons in (0.15° ≈ 65 mm at 25 m); 0 = kNN estimate instead.", unit="deg",
+        flag=("--aperture",), low=0, high=2)
+    spt_points: bool = option(False, "Aim Selective Photon Tracing at the regulation's "
+                              "test points.", flag=("--spt-points/--no-spt-points",),
+                              kind="onoff")
+    ies: str | None = option(None, "Write the far-field intensity as IES LM-63-2002.",
+                             flag=("--ies",), kind="file", suffixes=(".ies",))
+    ldt: str | None = option(None, "Write the far-field intensity as EULUMDAT.",
+                             flag=("--ldt",), kind="file", suffixes=(".ldt", ".eul"))
+    ies_type: str = option(
+        "auto", "Photometric type of --ies: A (vehicle lamps: H right, V up), C; auto = A "
+        "for lamp models and Type A inputs, else C.", flag=("--ies-type",),
+        choices=("auto", "A", "C"))
+    lamp_set: int | None = option(
+        None, "EULUMDAT scene file: which lamp set (1-based) scales the intensities.",
+        flag=("--lamp-set",), low=1, metavar="N",
+        default_text="the first, with a warning when there are several")
+    farfield_photons: int = option(1_000_000, "Photons of the far-field (IES/LDT) run.",
+                                   flag=("--farfield-photons",), low=1)
+    mount_height: float = option(0.65, "Lamp height above the road for the road view.",
+                                 unit="m", flag=("--mount-height",), low=0, low_open=True)
+    log_scale: bool = option(False, "Logarithmic colour scale in the PNG.",
+                             flag=("--log",), kind="flag")
+    workers: int = option(0, "0: in-process; N: N Ray actors on this machine.",
+                          flag=("--workers",), low=0, resume=True)
+    address: str | None = option(None, "Ray cluster address HOST:PORT.",
+                                 flag=("--address",), envvar="RAY_ADDRESS", resume=True)
+
+    def __post_init__(self) -> None:
+        options.check_fields(self)
 
     def run_config(self) -> RunConfig:
-        """The engine settings (validated); also checks the photometric output names, so
-        a misspelt option fails before the run rather than after it."""
-        for opt, path, suffixes in (("--ies", self.ies, (".ies",)),
-                                    ("--ldt", self.ldt, (".ldt", ".eul"))):
-            if path is not None and Path(path).suffix.lower() not in suffixes:
-                raise InputError(f"{opt} {path}: the file name must end in "
-                                 f"{' or '.join(suffixes)}")
-        from lightsim.luminaires.photometric import resolve_ies_type
-
-        resolve_ies_type(self.ies_type, None)  # a misspelt --ies-type fails here
-        if self.lamp_set is not None and not self.lamp_set >= 1:
-            raise InputError(f"--lamp-set must be ≥ 1, got {self.lamp_set}")
-        cfg = dict(self.config)
-        if cfg.get("max_radius") == "inf":
-            cfg["max_radius"] = math.inf
-        if "probe_grid" in cfg:
-            cfg["probe_grid"] = tuple(cfg["probe_grid"])
-        if "extra_probes" in cfg:
-            cfg["extra_probes"] = tuple(tuple(p) for p in cfg["extra_probes"])
-        return RunConfig(**cfg)
+        """The engine settings (validated)."""
+        return RunConfig.from_dict(self.config)
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        return options.to_json(self)
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> SimulateOptions:
-        d = dict(d)
-        for key in ("filament_at", "filament_axis", "wall_size", "resolution", "rayfile_at",
-                    "rayfile_axis"):
-            if d.get(key) is not None:
-                d[key] = tuple(d[key])
-        return cls(**d)
+        return cls(**options.from_json(cls, d))
+
+    @classmethod
+    def from_command_line(cls, scene_path: str, values: dict[str, Any]) -> SimulateOptions:
+        """Options from the click values of :func:`lightsim.options.click_options`
+        (SimulateOptions and RunConfig fields by name; text forms not yet parsed)."""
+        sim, run = _split(values)
+        return cls(scene_path=scene_path, config=run, **sim)
+
+    def resumed(self, values: dict[str, Any], where: str) -> SimulateOptions:
+        """These (a checkpoint's) options with the command line's ``values`` (the options
+        given explicitly) applied: budgets and workers may change; any other option that
+        differs from the checkpoint is refused in one line."""
+        from dataclasses import replace
+
+        sim, run = _split(values)
+        stored_run = RunConfig.from_dict(self.config)
+        conflicts = []
+        for name, value in sim.items():
+            opt = options.lookup(SimulateOptions, name)
+            if not opt.resume and value != getattr(self, name):
+                conflicts.append(f"{opt.label} {_text(getattr(self, name))} (not {_text(value)})")
+        for name, value in run.items():
+            opt = options.lookup(RunConfig, name)
+            if value != getattr(stored_run, name):
+                conflicts.append(f"{opt.label} {_text(getattr(stored_run, name))} "
+                                 f"(not {_text(value)})")
+        if conflicts:
+            raise InputError(f"--resume {where}: the checkpoint was run with "
+                             f"{', '.join(conflicts)}: leave those options out or start a "
+                             "new run")
+        return replace(self, **{n: v for n, v in sim.items()
+                                if options.lookup(SimulateOptions, n).resume})
+
+
+def _split(values: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Click values → parsed (SimulateOptions fields, RunConfig fields)."""
+    sim_names = {o.name: o for o in options.table(SimulateOptions)}
+    run_names = {o.name: o for o in options.table(RunConfig)}
+    sim, run = {}, {}
+    for name, raw in values.items():
+        if name in sim_names:
+            sim[name] = sim_names[name].parse(raw)
+        elif name in run_names:
+            run[name] = run_names[name].parse(raw)
+        else:
+            raise KeyError(f"not a run option: {name}")
+    return sim, run
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value)
+    return "none" if value is None else str(value)
 
 
 @dataclass
@@ -167,6 +261,9 @@ def folder_notes(out: Path) -> list[str]:
 
 
 def load(opts: SimulateOptions) -> Scene:
+    from lightsim.io.cad import Tessellation
+    from lightsim.scene import load_scene  # numba: not needed to parse options or --help
+
     return load_scene(opts.scene_path, flux=opts.flux, emission=opts.emission,
                       filament=opts.filament, filament_at=opts.filament_at,
                       filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
@@ -203,15 +300,7 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
 def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume) -> SimulationResult:
     from lightsim.engine.server import Session
 
-    out = check_out_dir(opts.out_dir)
-    if opts.photons is not None and opts.photons < 1:
-        raise InputError(f"--photons must be at least 1, got {opts.photons}")
-    if opts.seconds is not None and not (opts.seconds > 0):
-        raise InputError(f"--time must be positive, got {opts.seconds}")
-    if opts.target_error is not None and not (0 < opts.target_error < 1):
-        raise InputError(f"target error must lie in (0, 1), got {opts.target_error}")
-    if opts.traffic not in ("right", "left"):
-        raise InputError(f"traffic must be 'right' or 'left', got '{opts.traffic}'")
+    out = check_out_dir(opts.out_dir)  # the options were checked when they were made
     if opts.regulation is not None:
         from lightsim.luminaires.regulations import load_ruleset
 
@@ -225,6 +314,8 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume) -> Simul
 
         config = aperture_config(config, opts.regulation, opts.traffic, scene.wall,
                                  opts.aperture, opts.aim, opts.spt_points)
+    if resume is not None:  # the photons are replayed with the settings they were shot with
+        config = resumed_config(resume, config, out)
     scene.warnings.extend(folder_notes(out))  # printed with the scene's warnings
     session = Session(scene, config, workers=opts.workers, address=opts.address,
                       checkpoint=(resume or {}).get("session"),
@@ -272,9 +363,24 @@ def read_checkpoint(out_dir: str | os.PathLike) -> tuple[SimulateOptions, dict[s
         opts = SimulateOptions.from_json(doc["options"])
         session = doc["session"]
         session["counters"] = {int(k): int(v) for k, v in session["counters"].items()}
-    except (KeyError, TypeError, ValueError) as exc:
+        RunConfig.from_dict(session["config"])
+    except (KeyError, TypeError, ValueError, InputError) as exc:
         raise InputError(f"{path}: corrupt checkpoint ({exc})") from None
-    return opts, {"session": session}
+    return opts, {"session": session, "lightsim_version": doc.get("lightsim_version")}
+
+
+def resumed_config(resume: dict[str, Any], config: RunConfig, out: Path) -> RunConfig:
+    """The checkpoint's engine settings, after checking that the stored options still give
+    them (a lightsim of other defaults would replay different photons: refused)."""
+    stored = RunConfig.from_dict(resume["session"]["config"])
+    if stored != config:
+        diff = [f"{o.label} {getattr(stored, o.name)!r} (now {getattr(config, o.name)!r})"
+                for o in options.table(RunConfig)
+                if getattr(stored, o.name) != getattr(config, o.name)]
+        raise InputError(f"{out / CHECKPOINT}: written by lightsim "
+                         f"{resume.get('lightsim_version') or '?'} with other settings than "
+                         f"its options give now ({'; '.join(diff)}): start a new run")
+    return stored
 
 
 def _lux_stats(lux: np.ndarray, frame) -> dict[str, Any]:
@@ -465,6 +571,3 @@ def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any
         out["interval"] = ci.to_dict()
     return out
 
-
-def describe_options(opts: SimulateOptions) -> str:
-    return json.dumps(opts.to_json(), default=str)

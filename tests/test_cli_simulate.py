@@ -56,11 +56,11 @@ def test_simulate_writes_outputs_in_lux(point_lamp, tmp_path, capsys):
 
 @pytest.mark.parametrize("argv,match", [
     (["simulate", "missing.glb"], "no such file"),
-    (["simulate", "{lamp}", "--flux", "-3"], "flux must be a positive"),
+    (["simulate", "{lamp}", "--flux", "-3"], "--flux must be > 0 lm"),
     (["simulate", "{lamp}", "--resolution", "0x5"], "--resolution"),
     (["simulate", "{lamp}", "--interleave", "0"], "interleave"),
     (["simulate", "{lamp}", "--photons", "0"], "--photons"),
-    (["simulate", "{lamp}", "--target-error", "3"], "target error"),
+    (["simulate", "{lamp}", "--target-error", "3"], "--target-error must be in (0, 1)"),
     (["simulate", "{lamp}", "--filament", "H99", "--filament-at", "0,0,0"], "H99"),
     (["simulate", "{lamp}", "--out", "{file}/sub"], "not writable"),
     (["simulate", "{lamp}", "--out", "{file}"], "is a file"),  # click's check, one line
