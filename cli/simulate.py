@@ -246,6 +246,9 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
             materials=materials, cad_linear_tol_mm=cad_linear_tol,
             cad_angular_tol_deg=cad_angular_tol)
         opts.run_config()  # validate the settings before any work
+    from lightsim.luminaires.analyses import for_options
+
+    analyses = for_options(opts)  # regulation table, far-field files (checked here)
 
     stop = {"signal": None}
 
@@ -269,7 +272,8 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
     try:
         with _Progress(quiet, opts.photons, opts.seconds, opts.target_error) as prog:
             result = run_simulation(opts, progress=prog, should_stop=lambda: stop["signal"]
-                                    is not None, on_plan=on_plan, resume=resume)
+                                    is not None, on_plan=on_plan, resume=resume,
+                                    analyses=analyses)
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -297,7 +301,7 @@ def simulate(scene_file: str | None, photons: int | None, seconds: float | None,
         if "regulation" in s:
             from rich.console import Console
 
-            from lightsim.report import format_regulation
+            from lightsim.luminaires.regulations.check import format_regulation
 
             Console(width=None if sys.stdout.isatty() else 160).print(
                 format_regulation(s["regulation"]))

@@ -57,8 +57,12 @@ def analytic_snapshot(out: Path, photons: int = 100_000, seed: int = 1) -> Path:
     return path
 
 
-def _json_diffs(a: Any, b: Any, where: str = "") -> Iterator[str]:
-    """Paths at which two JSON documents differ, timing keys left out."""
+def _json_diffs(a: Any, b: Any, where: str = "", roots: tuple[str, str] = ("", "")
+                ) -> Iterator[str]:
+    """Paths at which two JSON documents differ, timing keys left out; strings are compared
+    with the two folders ``roots`` written as ``<root>`` (file names of the outputs)."""
+    if isinstance(a, str) and isinstance(b, str) and all(roots):
+        a, b = a.replace(roots[0], "<root>"), b.replace(roots[1], "<root>")
     if isinstance(a, dict) and isinstance(b, dict):
         for key in sorted(set(a) | set(b)):
             if key in TIMING_KEYS:
@@ -66,12 +70,12 @@ def _json_diffs(a: Any, b: Any, where: str = "") -> Iterator[str]:
             if key not in a or key not in b:
                 yield f"{where}/{key}: only in {'after' if key not in a else 'before'}"
             else:
-                yield from _json_diffs(a[key], b[key], f"{where}/{key}")
+                yield from _json_diffs(a[key], b[key], f"{where}/{key}", roots)
     elif isinstance(a, list) and isinstance(b, list):
         if len(a) != len(b):
             yield f"{where}: {len(a)} items before, {len(b)} after"
         for i, (x, y) in enumerate(zip(a, b)):
-            yield from _json_diffs(x, y, f"{where}[{i}]")
+            yield from _json_diffs(x, y, f"{where}[{i}]", roots)
     elif a != b and not (isinstance(a, float) and isinstance(b, float) and a != a and b != b):
         yield f"{where}: {a!r} before, {b!r} after"
 
@@ -87,7 +91,7 @@ def _npz_diffs(a: Path, b: Path) -> Iterator[str]:
                 yield f"{a.name}:{key}: arrays differ (shape {u.shape} vs {v.shape})"
 
 
-def compare(before: Path, after: Path) -> list[str]:
+def compare(before: Path, after: Path, roots: tuple[str, str] | None = None) -> list[str]:
     """Every difference between two snapshot or simulate folders (empty: identical).
 
     Lux maps and probe arrays are compared bit for bit, ``summary.json`` key by key
@@ -96,13 +100,14 @@ def compare(before: Path, after: Path) -> list[str]:
     """
     from lightsim.io.exr import read_exr
 
+    roots = roots or (str(before), str(after))
     diffs: list[str] = []
     names = sorted({p.name for p in before.iterdir()} | {p.name for p in after.iterdir()})
     for name in names:
         a, b = before / name, after / name
         if a.is_dir() or b.is_dir():
             if a.is_dir() and b.is_dir():
-                diffs += [f"{name}/{d}" for d in compare(a, b)]
+                diffs += [f"{name}/{d}" for d in compare(a, b, roots)]
             else:
                 diffs.append(f"{name}: folder on one side only")
             continue
@@ -119,7 +124,8 @@ def compare(before: Path, after: Path) -> list[str]:
                       if ca[c].tobytes() != cb[c].tobytes()]
         elif name.endswith(".json"):
             diffs += [f"{name}{d}" for d in _json_diffs(json.loads(a.read_text()),
-                                                         json.loads(b.read_text()))]
+                                                         json.loads(b.read_text()),
+                                                         roots=roots)]
         elif not name.endswith(".png") and not name.endswith(".log"):
             if a.read_bytes() != b.read_bytes():
                 diffs.append(f"{name}: bytes differ")
