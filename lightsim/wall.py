@@ -227,6 +227,20 @@ class WallFrame:
             self.hv_offset = hv_point_offset(self.centre, self.h_axis, self.v_axis,
                                              self.normal) or (0.0, 0.0)
 
+    def __eq__(self, other: object) -> bool:
+        """Same wall and pixel grid (the description it was read from is not compared)."""
+        if not isinstance(other, WallFrame):
+            return NotImplemented
+        return (all(np.array_equal(getattr(self, k), getattr(other, k))
+                    for k in ("centre", "h_axis", "v_axis", "normal"))
+                and tuple(self.h_range_m) == tuple(other.h_range_m)
+                and tuple(self.v_range_m) == tuple(other.v_range_m)
+                and self.distance_m == other.distance_m
+                and tuple(self.resolution) == tuple(other.resolution)
+                and tuple(self.hv_offset_m) == tuple(other.hv_offset_m))
+
+    __hash__ = None  # type: ignore[assignment]  # mutable arrays inside
+
     # ---- construction and serialisation ------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """The JSON description (``summary.json["wall"]``, EXR metadata)."""

@@ -57,6 +57,7 @@ def test_hv_point_of_a_tilted_wall_is_on_the_lamp_axis():
     assert he[0] < 0 < he[-1] and np.all(np.diff(he) > 0) and np.all(np.diff(ve) < 0)
     # the same frame through its JSON description
     again = WallFrame.from_any(wf.to_dict())
+    assert again == wf and again != wf.with_resolution(64, 16)
     assert again.hv_offset_m == pytest.approx(off)
     assert np.allclose(again.h_deg(), wf.h_deg())
 
