@@ -30,9 +30,11 @@ def for_options(opts: Any) -> list[Analysis]:
     Building them checks their options (an unknown rule set, a misspelt ``--ies-type``
     raise :class:`~lightsim.errors.InputError` before any work).
     """
+    from .photometric import resolve_ies_type
     from .photometric.analysis import FarfieldAnalysis
     from .regulations.check import RegulationAnalysis
 
+    resolve_ies_type(opts.ies_type, None)  # a misspelt --ies-type fails even without --ies
     out: list[Analysis] = []
     if opts.regulation is not None:
         out.append(RegulationAnalysis(opts.regulation, opts.traffic, opts.aim, opts.aperture,
