@@ -42,9 +42,10 @@ def design(out_glb: str, bulb: str, regulation: str, facets: int, focal_length: 
     (reflector, bulb, shield, lens), then simulate it and print the regulation table."""
     from rich.console import Console
 
+    from lightsim.luminaires.analyses import for_options
     from lightsim.luminaires.bulbs import get_bulb
     from lightsim.luminaires.design import design_lowbeam, write_design
-    from lightsim.report import format_regulation
+    from lightsim.luminaires.regulations.check import format_regulation
     from lightsim.simulate import SimulateOptions, check_out_dir, run_simulation
 
     name = "H4-low" if bulb.strip().upper() == "H4" else get_bulb(bulb).name
@@ -75,6 +76,6 @@ def design(out_glb: str, bulb: str, regulation: str, facets: int, focal_length: 
         opts = SimulateOptions(out_glb, out_dir=check_dir, photons=check_photons,
                                regulation=regulation, traffic=traffic, aim=aim,
                                config={"seed": seed})
-        sim = run_simulation(opts)
+        sim = run_simulation(opts, analyses=for_options(opts))
         Console(width=120).print(format_regulation(sim.summary["regulation"]))
     click.echo(f"total {time.perf_counter() - t0:.1f} s")

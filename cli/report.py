@@ -46,6 +46,7 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     from lightsim.io.exr import read_exr
     from lightsim.io.png import write_lux_png
     from lightsim.io.summary import read_json, write_json
+    from lightsim.luminaires.regulations import check
 
     out = Path(result_dir)
     summary = read_json(out / "summary.json")
@@ -65,11 +66,11 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     error_vs_time_plot(out / "error_vs_time.png", summary.get("error_vs_time", []))
     written.append(out / "error_vs_time.png")
     results = None
-    if regulation or (out / rp.PROBES_FILE).exists():
-        reg = rp.recheck_from_probes(out, summary, lux, regulation, confidence)
+    if regulation or (out / check.PROBES_FILE).exists():
+        reg = check.recheck_from_probes(out, summary, lux, regulation, confidence)
         summary["regulation"] = reg
         results = reg["results"]
-        console.print(rp.format_regulation(reg))
+        console.print(check.format_regulation(reg))
         write_json(out / "summary.json", summary)
     written += rp.engineering_plots(out, lux, wall, results, mount_height, summary=summary)
     write_json(out / "summary.json", summary)  # noise floor and road reach

@@ -101,6 +101,9 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
     else:
         opts = SimulateOptions.from_command_line(scene_file, values)
         opts.run_config()  # validate the settings before any work
+    from lightsim.luminaires.analyses import for_options
+
+    analyses = for_options(opts)  # regulation table, far-field files (checked here)
 
     stop = {"signal": None}
 
@@ -124,7 +127,8 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
     try:
         with _Progress(quiet, opts.photons, opts.seconds, opts.target_error) as prog:
             result = run_simulation(opts, progress=prog, should_stop=lambda: stop["signal"]
-                                    is not None, on_plan=on_plan, resume=resume)
+                                    is not None, on_plan=on_plan, resume=resume,
+                                    analyses=analyses)
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -152,7 +156,7 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
         if "regulation" in s:
             from rich.console import Console
 
-            from lightsim.report import format_regulation
+            from lightsim.luminaires.regulations.check import format_regulation
 
             Console(width=None if sys.stdout.isatty() else 160).print(
                 format_regulation(s["regulation"]))

@@ -51,8 +51,8 @@ def bulb_presets() -> dict[str, Any]:
 
 def regulation_hook(ruleset: str, traffic: str):
     """Regulation table of a live session: every set estimates the rule set's probes."""
-    from lightsim import report
     from lightsim.luminaires.regulations import load_ruleset, probe_points
+    from lightsim.luminaires.regulations.check import evaluate_probe_values
     from lightsim.render.frame import luminous
     from lightsim.view.live import RegulationTable
 
@@ -70,8 +70,7 @@ def regulation_hook(ruleset: str, traffic: str):
             cache[d] = (probes, hv)
         probes, hv = cache[d]
         values = luminous(session.probe(hv).values) if len(hv) else np.zeros((1, 0))
-        results, unevaluated, _ = report.evaluate_probe_values(rs, probes, hv, values, d,
-                                                               traffic)
+        results, unevaluated, _ = evaluate_probe_values(rs, probes, hv, values, d, traffic)
         rows, points = [], []
         for r in results:
             lim = r.get("limit") or {}
@@ -139,6 +138,7 @@ def save_hook(scene_path: str, ruleset: str | None, traffic: str, workers: int,
               address: str | None):
     """Writes a normal run folder (as ``simulate``) plus ``scene.glb`` and ``controls.json``."""
     from lightsim.io.summary import write_json
+    from lightsim.luminaires.analyses import for_options
     from lightsim.luminaires.gltf_writer import write_glb
     from lightsim.simulate import SimulateOptions, write_outputs
 
@@ -152,7 +152,7 @@ def save_hook(scene_path: str, ruleset: str | None, traffic: str, workers: int,
             regulation=ruleset, traffic=traffic,
             config={"k": controls.k, "interleave": controls.interleave,
                     "frame_photons": controls.frame_photons})
-        write_outputs(folder, opts, session, est)
+        write_outputs(folder, opts, session, est, for_options(opts))
         write_glb(folder / "scene.glb", scene_gltf_parts(scene),
                   asset_extras={"lightsim": {"edited_by": "lightsim view",
                                              "controls": controls.to_dict()}})

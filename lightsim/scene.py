@@ -51,6 +51,7 @@ from lightsim.materials import (
     MaterialTable,
     material_from_gltf,
 )
+from lightsim.wall import WallFrame  # the measuring wall's frame (re-exported here)
 
 log = logging.getLogger("lightsim.scene")
 
@@ -108,77 +109,6 @@ class Part:
             normals = nm / np.maximum(np.linalg.norm(nm, axis=1, keepdims=True), 1e-300)
         faces = self.faces[:, ::-1].copy() if np.linalg.det(lin) < 0 else self.faces
         return replace(self, vertices=verts, normals=normals, faces=faces)
-
-
-@dataclass
-class WallFrame:
-    """The measurement wall's coordinate frame (see docs/conventions.md).
-
-    ``centre`` is the foot of the lamp reference point (the world origin) on the wall
-    plane, so (h, v) = (0, 0) is H-V; angles are h_deg = atan(h / D), v_deg = atan(v / D).
-    """
-
-    centre: np.ndarray
-    h_axis: np.ndarray
-    v_axis: np.ndarray
-    normal: np.ndarray
-    h_range_m: tuple[float, float]
-    v_range_m: tuple[float, float]
-    distance_m: float
-    resolution: tuple[int, int] = (640, 256)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "centre": [float(x) for x in self.centre],
-            "h_axis": [float(x) for x in self.h_axis],
-            "v_axis": [float(x) for x in self.v_axis],
-            "normal": [float(x) for x in self.normal],
-            "h_range_m": [float(x) for x in self.h_range_m],
-            "v_range_m": [float(x) for x in self.v_range_m],
-            "distance_m": float(self.distance_m),
-            "resolution": [int(x) for x in self.resolution],
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> WallFrame:
-        return cls(np.asarray(d["centre"], float), np.asarray(d["h_axis"], float),
-                   np.asarray(d["v_axis"], float), np.asarray(d["normal"], float),
-                   tuple(d["h_range_m"]), tuple(d["v_range_m"]), float(d["distance_m"]),
-                   tuple(int(x) for x in d["resolution"]))
-
-    @property
-    def pixel_size_m(self) -> tuple[float, float]:
-        """(dh, dv): pixel width and height on the wall (m)."""
-        w, h = self.resolution
-        return ((self.h_range_m[1] - self.h_range_m[0]) / w,
-                (self.v_range_m[1] - self.v_range_m[0]) / h)
-
-    def with_resolution(self, width: int, height: int) -> WallFrame:
-        return replace(self, resolution=(int(width), int(height)))
-
-    def to_hv(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World points (n, 3) → wall coordinates h, v (m)."""
-        d = np.asarray(points, dtype=np.float64) - self.centre
-        return d @ self.h_axis, d @ self.v_axis
-
-    def to_world(self, h: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Wall coordinates h, v (m) → world points (…, 3)."""
-        h = np.asarray(h, dtype=np.float64)[..., None]
-        v = np.asarray(v, dtype=np.float64)[..., None]
-        return self.centre + h * self.h_axis + v * self.v_axis
-
-    def pixel_centres(self) -> tuple[np.ndarray, np.ndarray]:
-        """h (W,) and v (H,) of pixel centres: column 0 = smallest h, row 0 = largest v."""
-        w, hres = self.resolution
-        dh, dv = self.pixel_size_m
-        h = self.h_range_m[0] + (np.arange(w) + 0.5) * dh
-        v = self.v_range_m[1] - (np.arange(hres) + 0.5) * dv
-        return h, v
-
-    def degrees(self, h: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Wall metres → angles (deg): atan(h / D), atan(v / D)."""
-        return (np.degrees(np.arctan2(h, self.distance_m)),
-                np.degrees(np.arctan2(v, self.distance_m)))
 
 
 @dataclass

@@ -30,7 +30,7 @@ import math
 import os
 import platform
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import MISSING, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lightsim import __version__, options
+from lightsim.analysis import Analysis, FinishedRun
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
 from lightsim.options import option
@@ -279,17 +280,26 @@ def load(opts: SimulateOptions) -> Scene:
 def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,
                    should_stop: Callable[[], bool] | None = None,
                    on_plan: Callable[[Any], None] | None = None,
-                   resume: dict[str, Any] | None = None) -> SimulationResult:
+                   resume: dict[str, Any] | None = None,
+                   analyses: Sequence[Analysis] | None = None) -> SimulationResult:
     """Run a simulation to its budget and write the outputs (see the module docstring).
 
     ``should_stop`` is polled between frames; when it returns True the run writes
     ``checkpoint.json`` instead of final outputs and returns with ``interrupted``.
+    ``analyses`` (:class:`~lightsim.analysis.Analysis`) prepare the run and report on it:
+    what ``opts.regulation``/``ies``/``ldt`` ask for, built by
+    :func:`lightsim.luminaires.analyses.for_options`.
     """
     from lightsim.errors import LightsimError
 
+    analyses = list(analyses or ())
+    if not analyses and (opts.regulation is not None or opts.ies or opts.ldt):
+        raise LightsimError("run_simulation: the options ask for a regulation check or "
+                            "far-field files but no analyses were given (build them with "
+                            "lightsim.luminaires.analyses.for_options)")
     created = not Path(opts.out_dir).exists()
     try:
-        return _run(opts, progress, should_stop, on_plan, resume)
+        return _run(opts, progress, should_stop, on_plan, resume, analyses)
     except LightsimError:
         if created:  # bad input leaves nothing behind, not even the folder
             with contextlib.suppress(OSError):
@@ -297,23 +307,17 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
         raise
 
 
-def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume) -> SimulationResult:
+def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
+         analyses: Sequence[Analysis]) -> SimulationResult:
     from lightsim.engine.server import Session
 
     out = check_out_dir(opts.out_dir)  # the options were checked when they were made
-    if opts.regulation is not None:
-        from lightsim.luminaires.regulations import load_ruleset
-
-        load_ruleset(opts.regulation)  # an unknown rule set fails before any work
     if opts.aim and opts.regulation is None:
         raise InputError("--aim aims the pattern for a regulation check: give --regulation")
     scene = load(opts)
     config = opts.run_config()
-    if opts.regulation is not None:  # test points counted in detector apertures
-        from lightsim.report import aperture_config
-
-        config = aperture_config(config, opts.regulation, opts.traffic, scene.wall,
-                                 opts.aperture, opts.aim, opts.spt_points)
+    for analysis in analyses:  # e.g. test points counted in detector apertures
+        config = analysis.prepare(config, scene)
     if resume is not None:  # the photons are replayed with the settings they were shot with
         config = resumed_config(resume, config, out)
     scene.warnings.extend(folder_notes(out))  # printed with the scene's warnings
@@ -334,7 +338,7 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume) -> Simul
         if stopped["flag"]:
             write_checkpoint(out, opts, session)
             return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
-        result = write_outputs(out, opts, session, est)
+        result = write_outputs(out, opts, session, est, analyses)
         ckpt = out / CHECKPOINT
         if ckpt.exists():
             ckpt.unlink()
@@ -396,7 +400,8 @@ def _lux_stats(lux: np.ndarray, frame) -> dict[str, Any]:
             "flux_on_map_lm": float(lux.sum() * dh * dv)}
 
 
-def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationResult:
+def write_outputs(out: Path, opts: SimulateOptions, session, est,
+                  analyses: Sequence[Analysis] = ()) -> SimulationResult:
     """Write wall_lux.exr, wall_lux.png, error_vs_time.png, the engineering outputs and
     summary.json as one set (staged inside ``out``, summary.json published last)."""
     from lightsim.io.atomic import OutputSet
@@ -409,13 +414,14 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est) -> SimulationR
             if isinstance(listed, list):
                 previous |= {str(n) for n in listed if "/" not in str(n)}
     with OutputSet(out, "summary.json", previous) as staged:
-        result = _write_set(staged.dir, opts, session, est)
+        result = _write_set(staged.dir, opts, session, est, analyses)
         staged.commit()
     result.out_dir = out
     return result
 
 
-def _write_set(out: Path, opts: SimulateOptions, session, est) -> SimulationResult:
+def _write_set(out: Path, opts: SimulateOptions, session, est,
+               analyses: Sequence[Analysis]) -> SimulationResult:
     """Write every output file into ``out`` (the staging folder), summary.json last."""
     from lightsim.io.errorplot import error_vs_time_plot
     from lightsim.io.exr import wall_metadata, write_exr
@@ -477,7 +483,7 @@ def _write_set(out: Path, opts: SimulateOptions, session, est) -> SimulationResu
     write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
                   title=f"{Path(opts.scene_path).name}: {photons:,} photons")
     error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
-    _engineering_outputs(out, opts, session, lux, summary)
+    _engineering_outputs(out, opts, session, lux, summary, analyses)
     summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
                                  and not p.name.startswith(".")] + ["summary.json"])
     write_json(out / "summary.json", summary)
@@ -485,71 +491,19 @@ def _write_set(out: Path, opts: SimulateOptions, session, est) -> SimulationResu
 
 
 def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndarray,
-                         summary: dict[str, Any]) -> None:
-    """Regulation check, isolux and road plots, far-field files (see lightsim.report)."""
+                         summary: dict[str, Any], analyses: Sequence[Analysis]) -> None:
+    """Cut-off, the analyses (regulation table, far-field files), isolux and road plots."""
     from lightsim import report
 
     frame = session.scene.wall
-    results = None
-    if opts.regulation is not None:
-        reg = report.regulation_check(session, lux, opts.regulation, opts.traffic, opts.aim)
-        report.save_probes(out, reg)
-        summary["regulation"] = report.public(reg)
-        results = reg["results"]
     summary["cutoff"] = _cutoff(lux, frame, opts.traffic, session)
-    if results is not None and summary["regulation"].get("aim", {}).get("applied"):
-        summary["regulation"]["aim"]["cutoff_interval_deg"] = summary["cutoff"].get(
-            "v_cutoff_interval_deg")
-    report.engineering_plots(out, lux, frame, results, opts.mount_height,
-                            summary=summary)
-    if opts.ies or opts.ldt:
-        from lightsim.luminaires.photometric import resolve_ies_type, write_photometric
-
-        src = next((p.distribution for p in session.scene.parts
-                    if p.distribution is not None), None)
-        ies_type = resolve_ies_type(opts.ies_type, None if src is None
-                                    else src.photometric_type)
-        wanted = {path: (ies_type if path == opts.ies else "C")
-                  for path in (opts.ies, opts.ldt) if path}
-        grids = report.farfield_grids(session.scene, opts.farfield_photons,
-                                      seed=session.config.seed,
-                                      photometric_types=tuple(sorted(set(wanted.values()))))
-        grid = grids["C"] if "C" in grids else grids["A"]
-        # a Type A grid holds the front hemisphere only: the far field's flux adds what
-        # it leaves out, so the figure is the lamp's whatever file type was asked for
-        total_lm = float(grid.total_flux()) + (
-            0.0 if "C" in grids else float(grid.metadata.get("flux_outside_lm", 0.0)))
-        summary["farfield"] = {"photons": opts.farfield_photons,
-                               "total_flux_lm": total_lm,
-                               "max_cd": float(np.max(grid.candela)), "files": [],
-                               "ies_type": ies_type if opts.ies else None}
-        if "A" in grids:
-            out_a = float(grids["A"].metadata.get("flux_outside_lm", 0.0))
-            summary["farfield"]["type_a_flux_lm"] = float(grids["A"].total_flux())
-            summary["farfield"]["type_a_outside_lm"] = out_a
-            if opts.ies and ies_type == "A":
-                note = type_a_outside_warning(opts.ies, float(grids["A"].total_flux()), out_a)
-                if note:
-                    summary["farfield"]["warning"] = note
-        for path, kind in wanted.items():
-            write_photometric(path, grids[kind])
-            summary["farfield"]["files"].append(str(path))
-
-
-TYPE_A_OUTSIDE_WARN = 0.01
-"""Share of the far-field flux outside a written Type A file above which we warn."""
-
-
-def type_a_outside_warning(path: str | os.PathLike, inside_lm: float, outside_lm: float,
-                           threshold: float = TYPE_A_OUTSIDE_WARN) -> str | None:
-    """One line when more than ``threshold`` of the far-field flux (lm) is not in the Type A
-    file at ``path`` (it holds only the front hemisphere, H and V within ±90°); else None."""
-    total = inside_lm + outside_lm
-    if not (total > 0 and math.isfinite(total)) or outside_lm <= threshold * total:
-        return None
-    return (f"{Path(path).name} (Type A) holds only the front hemisphere: {outside_lm:.3g} lm "
-            f"of the far field's {total:.4g} lm ({outside_lm / total:.1%}) leaves behind the "
-            "lamp and is not in it; --ies-type C keeps all of it")
+    run = FinishedRun(session, lux, opts.traffic, summary["cutoff"])
+    marks = None
+    for analysis in analyses:
+        result = analysis.report(run, out)
+        summary[analysis.name] = result.summary
+        marks = result.marks if result.marks is not None else marks
+    report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary)
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:

@@ -9,7 +9,7 @@ import pytest
 
 from lightsim.cli.main import main
 from lightsim.luminaires.photometric import CandelaGrid, read_photometric, write_ies
-from lightsim.simulate import type_a_outside_warning
+from lightsim.luminaires.photometric.analysis import type_a_outside_warning
 
 
 def _simulate(scene, out, capsys, *extra):

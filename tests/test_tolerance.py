@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from lightsim.errors import InputError
+from lightsim.luminaires.analyses import for_options
 from lightsim.simulate import SimulateOptions, load, run_simulation
 from lightsim.validation.tolerance import (
     MM,
@@ -103,7 +104,8 @@ def misplaced_study(tmp_path_factory):
 
 
 def test_common_random_numbers_nominal_sample_equals_a_plain_run(nominal_study, tmp_path):
-    res = run_simulation(_opts(tmp_path / "plain"))
+    opts = _opts(tmp_path / "plain")
+    res = run_simulation(opts, analyses=for_options(opts))
     plain = {r["name"]: r["value_cd"] for r in res.summary["regulation"]["results"]}
     nom = nominal_study.nominal
     assert nom.offset == [0.0] * 5
@@ -177,7 +179,7 @@ def test_ray_workers_give_the_same_samples(nominal_study, tmp_path):
 
 
 def test_a_sample_that_cannot_be_aimed_fails_every_point(monkeypatch, tmp_path):
-    import lightsim.report as report
+    import lightsim.luminaires.regulations.check as report
     from lightsim.validation.tolerance import run_sample
 
     real = report.regulation_check

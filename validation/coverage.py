@@ -4,7 +4,8 @@
 with a sharp cut-off (:func:`synthetic_lamp`), writes each to a Type A IES file (the
 headlamp type) in a temporary folder, loads it as a user would (``load_scene(path)``: a
 goniometric point source in front of the 25 m wall), runs the engine with detector
-apertures at the rule set's test points (:func:`lightsim.report.aperture_config`) and
+apertures at the rule set's test points
+(:func:`lightsim.luminaires.regulations.check.aperture_config`) and
 compares every point's 95 % Student-t interval with the exact answer: the aperture mean
 of the file's intensity,
 
@@ -172,7 +173,8 @@ def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
 
     from lightsim.engine.server import Session
     from lightsim.luminaires.photometric import read_ies
-    from lightsim.report import aperture_config, aperture_values
+    from lightsim.luminaires.regulations.check import aperture_config
+    from lightsim.report import aperture_values
     from lightsim.scene import load_scene
 
     scene = load_scene(str(path), resolution=(160, 64))

@@ -53,8 +53,8 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter, gaussian_filter1d, map_coordinates
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import WallFrame, wall_m_from_deg
 from lightsim.validation.photo_register import apply_matrix
+from lightsim.wall import WallFrame, wall_m_from_deg
 
 __all__ = [
     "AIM_POINTS",

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import WallFrame
+from lightsim.wall import WallFrame
 
 __all__ = [
     "REC709",

@@ -75,7 +75,7 @@ from skimage.metrics import (
 )
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import WallFrame, wall_m_from_deg
+from lightsim.wall import WallFrame, wall_m_from_deg
 
 __all__ = [
     "HIGHER_IS_BETTER",

@@ -47,9 +47,9 @@ from numpy.typing import NDArray
 
 from lightsim.io.atomic import atomic_path
 from lightsim.io.png import wall_angles
-from lightsim.luminaires.regulations.units import WallFrame
 from lightsim.validation.photo_io import srgb_encode
 from lightsim.validation.photo_metrics import LEVELS
+from lightsim.wall import WallFrame
 
 __all__ = ["plot_contours", "plot_difference", "plot_overlay", "plot_pair_difference"]
 

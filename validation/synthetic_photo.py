@@ -70,10 +70,10 @@ from scipy.ndimage import gaussian_filter, map_coordinates
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
 from lightsim.io.summary import write_json
-from lightsim.luminaires.regulations.units import WallFrame, wall_m_from_deg
 from lightsim.validation.photo_io import srgb_encode
 from lightsim.validation.photo_png16 import write_png16
 from lightsim.validation.photo_register import apply_matrix, decompose
+from lightsim.wall import WallFrame, wall_m_from_deg
 
 __all__ = [
     "CameraSettings",

@@ -229,8 +229,8 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
     import time
 
     from lightsim.engine.server import Session
+    from lightsim.luminaires.regulations.check import aperture_config, regulation_check
     from lightsim.render.frame import luminous
-    from lightsim.report import aperture_config, regulation_check
     from lightsim.simulate import load
 
     t0 = time.perf_counter()

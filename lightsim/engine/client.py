@@ -317,9 +317,7 @@ class Client:
         if st.bins is not None:
             W, H = self.frame.resolution
             h, v = self.frame.to_hv(rec.position)
-            dh, dv = self.frame.pixel_size_m
-            col = np.floor((h - self.frame.h_range_m[0]) / dh).astype(np.int64)
-            row = np.floor((self.frame.v_range_m[1] - v) / dv).astype(np.int64)
+            row, col = self.frame.pixel_index(h, v)
             ok = ((col >= 0) & (col < W) & (row >= 0) & (row < H)
                   & np.isin(rec.part, self._wall_part_ids))
             flat = row[ok] * W + col[ok]
@@ -413,10 +411,8 @@ class Client:
             return np.zeros((len(points), self.channels))
         if st.bins is not None:
             h, v = self.frame.to_hv(points)
-            W, H = self.frame.resolution
             dh, dv = self.frame.pixel_size_m
-            col = np.clip(np.floor((h - self.frame.h_range_m[0]) / dh).astype(np.int64), 0, W - 1)
-            row = np.clip(np.floor((self.frame.v_range_m[1] - v) / dv).astype(np.int64), 0, H - 1)
+            row, col = self.frame.pixel_index(h, v, clip=True)
             return st.bins[row, col] / (st.emitted * dh * dv)
         if len(st.photonmap) == 0:  # no photon on the wall yet (or ever)
             return np.zeros((len(points), self.channels))

@@ -47,7 +47,7 @@ from numpy.typing import ArrayLike
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
 from lightsim.io.placeholder import image_problem, placeholder_png
-from lightsim.luminaires.regulations.units import WallFrame
+from lightsim.wall import WallFrame
 
 __all__ = ["VERDICT_COLOURS", "auto_levels", "isolux_levels", "isolux_noise_floor",
            "isolux_plot", "road_view_plot"]

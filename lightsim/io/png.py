@@ -46,7 +46,9 @@ from matplotlib import colors as mcolors
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.wall import WallFrame
 
 __all__ = ["LOG_FLOOR", "wall_angles", "write_lux_png", "write_preview_png"]
 
@@ -62,32 +64,25 @@ def wall_angles(wall_frame: Mapping[str, Any], width: int, height: int
 
     Parameters
     ----------
-    wall_frame : mapping
+    wall_frame : mapping or WallFrame
         ``h_range_m`` and ``v_range_m`` ([min, max], m, relative to the wall centre) and
-        ``distance_m`` (m, lamp to wall).
+        ``distance_m`` (m, lamp to wall); see :meth:`lightsim.wall.WallFrame.from_any`.
     width, height : int
         Image size in pixels.
 
     Returns
     -------
     h_edges : ndarray, shape (width + 1,)
-        ``atan(h / D)`` in degrees at the column edges, increasing (column 0 at left).
+        ``atan(h_m / D)`` in degrees at the column edges (h_m from H-V), increasing
+        (column 0 at left).
     v_edges : ndarray, shape (height + 1,)
-        ``atan(v / D)`` in degrees at the row edges, decreasing (row 0 at the top).
+        ``atan(v_m / D)`` in degrees at the row edges, decreasing (row 0 at the top).
     """
     try:
-        h0, h1 = (float(x) for x in wall_frame["h_range_m"])
-        v0, v1 = (float(x) for x in wall_frame["v_range_m"])
-        D = float(wall_frame["distance_m"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError("wall_frame needs h_range_m, v_range_m ([min, max] in m) and "
-                         f"distance_m (m): {exc}") from exc
-    if not (h1 > h0 and v1 > v0 and D > 0 and math.isfinite(D)):
-        raise ValueError(f"bad wall frame: h_range_m={[h0, h1]}, v_range_m={[v0, v1]}, "
-                         f"distance_m={D}")
-    h = np.linspace(h0, h1, width + 1)
-    v = np.linspace(v1, v0, height + 1)
-    return np.degrees(np.arctan(h / D)), np.degrees(np.arctan(v / D))
+        frame = WallFrame.from_any(wall_frame, resolution=(width, height))
+    except InputError as exc:
+        raise ValueError(f"bad wall frame: {exc}") from None
+    return frame.edges_deg()
 
 
 def _figure(figsize: tuple[float, float], dpi: float) -> Figure:

@@ -1,7 +1,7 @@
 """Views: the orthographic wall detector and a pinhole camera traced with embree.
 
 The **wall detector** is the measurement screen: W×H pixels over the wall's H/V extent,
-each the illuminance E (lx) at the pixel centre (see :class:`lightsim.scene.WallFrame`).
+each the illuminance E (lx) at the pixel centre (see :class:`lightsim.wall.WallFrame`).
 
 The **pinhole camera** sees what a photograph of the scene sees. Eye rays are cast with
 embree; at a diffuse surface the pixel is its luminance L = ρ E / π (cd/m²), with E from

@@ -67,7 +67,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import gaussian_filter1d, map_coordinates
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import (
+from lightsim.wall import (
     WallFrame,
     candela_from_lux,
     lux_from_candela,
@@ -161,7 +161,7 @@ def _scan(lux: NDArray, wf: WallFrame, h_deg: float, v_lo: float, v_hi: float,
         return ScanResult(h_deg, False, message="scan window outside the wall image")
     v = np.arange(v_lo, v_hi + 0.5 * step_deg, step_deg)
     e = _profile(lux, wf, h_deg, v, band_deg)
-    pix_deg = float(np.degrees(wf.pixel_size_m[1] / wf.distance_m))
+    pix_deg = wf.pixel_pitch_deg[1]
     return _scan_profile(v, e, h_deg, pix_deg, step_deg, smooth_deg, g_smooth_deg,
                          floor_rel, min_sharpness, min_contrast)
 
@@ -431,7 +431,7 @@ def cutoff_interval(values: ArrayLike, frame: Any, centre_deg: float | None,
     if len(v) < 10 or vals.shape[1] != len(hs) * len(v) * (5 if band_deg > 0 else 1):
         return CutoffInterval(0, S, centre_deg, None, (), confidence)
     prof = vals.reshape(S, len(hs), len(v), -1).mean(axis=-1)
-    pix_deg = float(np.degrees(wf.pixel_size_m[1] / wf.distance_m))
+    pix_deg = wf.pixel_pitch_deg[1]
     # jackknife: the pooled image is the mean of the sets' estimates, so leaving one set
     # out gives a nearly as good image; the spread of those positions is the variance of
     # a nonlinear statistic of a mean (a single set's own scan is far noisier)

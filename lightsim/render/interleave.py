@@ -43,7 +43,8 @@ from typing import Any
 
 import numpy as np
 
-from lightsim.errors import LightsimError
+from lightsim.errors import InputError, LightsimError
+from lightsim.wall import WallFrame
 
 __all__ = ["InterleavePattern"]
 
@@ -219,8 +220,18 @@ class InterleavePattern:
     def pixel_size(self, h_range_m: Sequence[float], v_range_m: Sequence[float]
                    ) -> tuple[float, float]:
         """(dh, dv): pixel width and height on the wall in metres."""
+        return self._frame(h_range_m, v_range_m).pixel_size_m
+
+    def _frame(self, h_range_m: Sequence[float], v_range_m: Sequence[float],
+               wall: Mapping[str, Any] | None = None) -> WallFrame:
+        """The core wall frame of this pattern's image (only the pixel grid matters)."""
         (h0, h1), (v0, v1) = _ranges(h_range_m, v_range_m)
-        return (h1 - h0) / self.width, (v1 - v0) / self.height
+        desc = {"distance_m": 1.0, **(wall or {}), "h_range_m": [h0, h1],
+                "v_range_m": [v0, v1]}
+        try:
+            return WallFrame.from_any(desc, resolution=(self.width, self.height))
+        except InputError as exc:
+            raise ValueError(str(exc)) from None
 
     def set_wall_coords(self, s: int, h_range_m: Sequence[float],
                         v_range_m: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
@@ -237,13 +248,11 @@ class InterleavePattern:
         -------
         h, v : ndarray, float64, shape :meth:`sub_shape`
             H (m, to the right) and V (m, up) of each sub-image pixel centre:
-            ``h = h_min + (col + 0.5)·dh``, ``v = v_max − (row + 0.5)·dv``.
+            ``h = h_min + (col + 0.5)·dh``, ``v = v_max − (row + 0.5)·dv``
+            (:meth:`lightsim.wall.WallFrame.cell_centres`).
         """
-        (h0, _), (_, v1) = _ranges(h_range_m, v_range_m)
-        dh, dv = self.pixel_size(h_range_m, v_range_m)
         rows, cols = self.set_pixels(s)
-        h = h0 + (cols.astype(np.float64) + 0.5) * dh
-        v = v1 - (rows.astype(np.float64) + 0.5) * dv
+        h, v = self._frame(h_range_m, v_range_m).cell_centres(rows, cols)
         return np.broadcast_to(h[None, :], (rows.size, cols.size)).copy(), \
             np.broadcast_to(v[:, None], (rows.size, cols.size)).copy()
 
@@ -259,10 +268,7 @@ class InterleavePattern:
             raise ValueError(f"wall resolution {[W, H]} does not match the pattern "
                              f"{[self.width, self.height]}")
         h, v = self.set_wall_coords(s, wall["h_range_m"], wall["v_range_m"])
-        c = np.asarray(wall["centre"], dtype=np.float64).reshape(3)
-        ha = np.asarray(wall["h_axis"], dtype=np.float64).reshape(3)
-        va = np.asarray(wall["v_axis"], dtype=np.float64).reshape(3)
-        return c + h[..., None] * ha + v[..., None] * va
+        return self._frame(wall["h_range_m"], wall["v_range_m"], wall).to_world(h, v)
 
 
 def _ranges(h_range_m: Sequence[float], v_range_m: Sequence[float]

@@ -3,10 +3,10 @@
 The lamp sits at the origin shining along +Z (``docs/conventions.md``), mounted
 ``mount_height_m`` above a flat road, the plane y = −height. Its intensity towards
 direction (h_deg, v_deg) is derived from the wall lux map: ``I = E·r²/cos θ = E·r³/D`` at
-every pixel centre (bilinear between them; :func:`~lightsim.luminaires.regulations.units.
-sample_wall`). A road point at lateral position x (m, to the driver's right, i.e. world −X)
-and distance z ahead (m) is seen under ``h = atan(x/z)``, ``v = atan(−height/z)``, at
-distance ``r = sqrt(x² + height² + z²)``; the road normal is +Y, so the angle of incidence
+every pixel centre (bilinear between them; :func:`~lightsim.wall.sample_wall`). A road
+point at lateral position x (m, to the driver's right, i.e. world −X) and distance z
+ahead (m) is seen under ``h = atan(x/z)``, ``v = atan(−height/z)``, at distance
+``r = sqrt(x² + height² + z²)``; the road normal is +Y, so the angle of incidence
 has ``cos = height / r`` and
 
     E_road = I·cos(incidence) / r² = I·height / r³   (lx).
@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import sample_wall
+from lightsim.wall import sample_wall
 
 __all__ = ["REACH_LEVELS", "RoadIlluminance", "road_illuminance", "road_illuminance_from"]
 

@@ -247,14 +247,14 @@ class CandelaGrid:
         Parameters
         ----------
         frame : WallFrame or mapping
-            Wall description (see ``lightsim.luminaires.regulations.units.WallFrame``).
+            Wall description (see ``lightsim.wall.WallFrame``).
 
         Returns
         -------
         ndarray, shape (H, W)
             ``E = I·D / r³`` at the pixel centres.
         """
-        from lightsim.luminaires.regulations.units import WallFrame, lux_from_candela
+        from lightsim.wall import WallFrame, lux_from_candela
 
         wf = WallFrame.from_any(frame)
         hm, vm = np.meshgrid(wf.h_m(), wf.v_m())

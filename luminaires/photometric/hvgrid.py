@@ -189,7 +189,7 @@ class HVGrid:
 
     def wall_lux(self, frame: Any) -> NDArray:
         """Illuminance (lx) this lamp, at the origin, gives on a wall image (H, W)."""
-        from lightsim.luminaires.regulations.units import WallFrame, lux_from_candela
+        from lightsim.wall import WallFrame, lux_from_candela
 
         wf = WallFrame.from_any(frame)
         hm, vm = np.meshgrid(wf.h_m(), wf.v_m())

@@ -1,0 +1,100 @@
+"""What a run is checked against: the protocol that regulation tables and photometric files
+implement, so the engine calls them without importing them.
+
+``lightsim simulate`` composes a list of analyses from its options (a rule set, IES/LDT
+files: :mod:`lightsim.luminaires.analyses`) and hands it to
+:func:`lightsim.simulate.run_simulation`. The run calls each one twice:
+
+1. :meth:`Analysis.prepare` before shooting, to add what it needs measured to the run's
+   configuration (detector apertures at a rule set's test points, SPT targets);
+2. :meth:`Analysis.report` after the last frame, with the :class:`FinishedRun` (the session,
+   the lux map, the cut-off found on it), to measure, evaluate and write its files. Its
+   :class:`AnalysisReport` goes into ``summary.json`` under :attr:`Analysis.name`.
+
+The engine (``lightsim/``) never imports ``lightsim.luminaires``: the data flows one way,
+scene → photons → maps → lux image → analyses.
+
+=================  =====  ========  =========================================================
+name               unit   default   meaning
+=================  =====  ========  =========================================================
+``name``           –      –         the analysis's key in ``summary.json``
+``lux``            lx     –         (H, W) luminous wall illuminance of the finished run
+``traffic``        –      right     right- or left-hand traffic of the run
+``cutoff``         –      –         ``summary.json["cutoff"]`` of the run (position, interval)
+``marks``          –      None      rows to mark on the iso-lux plot (name, h/v deg, verdict)
+=================  =====  ========  =========================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["Analysis", "AnalysisReport", "FinishedRun"]
+
+
+@dataclass(frozen=True)
+class FinishedRun:
+    """What an analysis may read of a finished run.
+
+    Attributes
+    ----------
+    session : lightsim.engine.server.Session
+        The finished (still open) session: per-set estimates at any wall point
+        (``session.probe``), detector apertures, the scene.
+    lux : ndarray, shape (H, W)
+        Luminous wall illuminance (lx) of the written map.
+    traffic : str
+        ``right`` or ``left``.
+    cutoff : dict
+        The run's cut-off summary (``summary.json["cutoff"]``).
+    """
+
+    session: Any
+    lux: np.ndarray
+    traffic: str = "right"
+    cutoff: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def frame(self) -> Any:
+        """The wall frame (:class:`lightsim.wall.WallFrame`)."""
+        return self.session.scene.wall
+
+
+@dataclass
+class AnalysisReport:
+    """An analysis's result.
+
+    Attributes
+    ----------
+    summary : dict
+        JSON-ready figures, stored as ``summary.json[analysis.name]``.
+    marks : list of dict or None
+        Rows (``name``, ``h_deg``, ``v_deg``, ``verdict``, …) to draw on the iso-lux plot.
+    files : list of Path
+        Files written (inside or outside the output folder).
+    """
+
+    summary: dict[str, Any]
+    marks: list[dict[str, Any]] | None = None
+    files: list[Path] = field(default_factory=list)
+
+
+@runtime_checkable
+class Analysis(Protocol):
+    """A check or product of a run (see the module docstring)."""
+
+    name: str
+
+    def prepare(self, config: Any, scene: Any) -> Any:
+        """The run's :class:`~lightsim.engine.config.RunConfig` with what this analysis
+        needs measured (unchanged if nothing)."""
+        ...
+
+    def report(self, run: FinishedRun, out: Path) -> AnalysisReport:
+        """Measure and evaluate the finished run; write files into ``out`` (the output
+        set being staged) or where the user asked."""
+        ...

@@ -1,0 +1,44 @@
+"""The analyses a run's options ask for: the rule set's table, the far-field files.
+
+``lightsim simulate`` (and everything that runs a simulation the same way: ``lightsim
+design``, the tolerance study, ``lightsim view``'s save) turns its options into this list
+and passes it to :func:`lightsim.simulate.run_simulation`; the engine calls them through
+the :class:`lightsim.analysis.Analysis` protocol without importing this package.
+
+==================  =====  ==========================================================
+option              unit   analysis
+==================  =====  ==========================================================
+``regulation``      –      :class:`~.regulations.check.RegulationAnalysis` (with
+                           ``traffic``, ``aim``, ``aperture`` deg, ``spt_points``)
+``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
+                           ``ies_type``, ``farfield_photons``)
+==================  =====  ==========================================================
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lightsim.analysis import Analysis
+
+__all__ = ["for_options"]
+
+
+def for_options(opts: Any) -> list[Analysis]:
+    """The analyses of a :class:`~lightsim.simulate.SimulateOptions`, in report order.
+
+    Building them checks their options (an unknown rule set, a misspelt ``--ies-type``
+    raise :class:`~lightsim.errors.InputError` before any work).
+    """
+    from .photometric import resolve_ies_type
+    from .photometric.analysis import FarfieldAnalysis
+    from .regulations.check import RegulationAnalysis
+
+    resolve_ies_type(opts.ies_type, None)  # a misspelt --ies-type fails even without --ies
+    out: list[Analysis] = []
+    if opts.regulation is not None:
+        out.append(RegulationAnalysis(opts.regulation, opts.traffic, opts.aim, opts.aperture,
+                                      opts.spt_points))
+    if opts.ies or opts.ldt:
+        out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons))
+    return out
