@@ -468,7 +468,14 @@ def case_coincident(settings: StabilitySettings) -> list[Check]:
     finite = bool(np.all(np.isfinite(E)) and np.all(np.isfinite(r)) and np.all(r > 0))
     expect0 = total / (math.pi * r[0] ** 2) if r[0] > 0 else math.inf
     per_photon = peak / n
-    budget_s = 60.0 * n / 1e7  # generous: the measured build is ~1 s per 10⁶ on 2 cores
+    # Work is judged by the tree's shape, not by seconds: coincident points must not split
+    # into a chain of empty nodes (a balanced tree has at most 2 n / leaf nodes).
+    from lightsim.photonmap.kdtree import KdTree
+
+    tree = KdTree(channels=1)
+    tree.add(pos[: min(n, 100_000)], nrm[: min(n, 100_000)], pw[: min(n, 100_000)])
+    nodes = int(tree.n_nodes)
+    node_cap = 2 * min(n, 100_000) // tree.leaf_size + 1
     return [
         Check(name, f"{kind}: estimate finite, r > 0", "finite", "finite" if finite else
               f"E={E.tolist()} r={r.tolist()}", ok=finite,
@@ -482,9 +489,11 @@ def case_coincident(settings: StabilitySettings) -> list[Check]:
                    f"r = {r[1] * 1e3:.4f} mm; the k-th on the circle counts half"),
         Check(name, "r 1 mm away", 1e-3, float(r[1]), "m", tolerance=1e-7,
               note="r_k = distance to the point (float32 positions: 0.1 µm)"),
-        Check(name, "build + query time", f"< {budget_s:.0f} s", t_build + t_query, "s",
-              ok=t_build + t_query < budget_s,
-              note=f"build {t_build:.2f} s, 3 queries {t_query:.3f} s"),
+        Check(name, "kd-tree nodes (bounded work)", f"≤ {node_cap}", nodes, "",
+              ok=nodes <= node_cap,
+              note=f"one zero-extent leaf, not a degenerate split chain; build "
+                   f"{t_build:.2f} s, 3 queries {t_query:.3f} s (shown, not judged: "
+                   "timing depends on the machine's load)"),
         Check(name, "peak memory per photon", "< 256 B", per_photon, "B",
               ok=per_photon < 256, note="input 28 B/photon; tracemalloc peak during "
                                         "build and query (numpy allocations)"),
