@@ -47,11 +47,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from lightsim.emitters import EmitterMix
 from lightsim.materials import (
     DIFFUSE,
     MIRROR,
     WALL,
-    cosine_direction,
     dielectric_bsdf,
     diffuse_bsdf,
     mirror_bsdf,
@@ -65,139 +65,12 @@ LEDGER = ("wall", "absorbed_diffuse", "absorbed_mirror", "absorbed_volume", "esc
           "roulette", "max_depth")
 L_WALL, L_ABS_DIFF, L_ABS_MIRR, L_ABS_VOL, L_ESC, L_RR, L_MAXD = range(len(LEDGER))
 
-EMISSION_MODES = ("isotropic", "lambertian", "collimated", "goniometric", "rayfile")
-
 # photon flags
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
 F_DIFFUSE = np.uint8(2)   # the path had at least one diffuse bounce (indirect light)
 
 # ray status after an interaction
 ALIVE, ENDED = 0, 1
-
-
-# ------------------------------------------------------------------------------------------
-# Emission
-# ------------------------------------------------------------------------------------------
-
-@dataclass
-class EmitterTable:
-    """All emitters as arrays: mesh triangles with a flux × area CDF, and point sources
-    with an intensity distribution (IES/LDT).
-
-    Attributes
-    ----------
-    triangles : (E, 3, 3) float64
-    normals : (E, 3) float64
-        Outward face normals (Lambertian and collimated emission).
-    mode : (E,) int8
-        0 isotropic, 1 Lambertian, 2 collimated (along the face normal: a distant source).
-    cdf : (E,) float64
-        Cumulative probability of emitting from each triangle.
-    flux : float
-        Total luminous flux Φ (lm) of all emitters.
-    mesh_share : float
-        Fraction of Φ that mesh emitters carry; the rest comes from ``points``.
-    points : list of (position (3,), CandelaGrid, flux lm)
-    """
-
-    triangles: np.ndarray
-    normals: np.ndarray
-    mode: np.ndarray
-    cdf: np.ndarray
-    flux: float
-    mesh_share: float = 1.0
-    points: list = field(default_factory=list)
-
-    @classmethod
-    def from_scene(cls, scene) -> EmitterTable:
-        tris, norms, modes, weights, points = [], [], [], [], []
-        for p in scene.emitters:
-            if p.distribution is not None:
-                points.append((p.vertices.mean(axis=0), p.distribution, p.flux_lm))
-                continue
-            t = p.triangles
-            n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-            area = 0.5 * np.linalg.norm(n, axis=1)
-            tris.append(t)
-            norms.append(n / np.maximum(2 * area[:, None], 1e-300))
-            modes.append(np.full(len(t), EMISSION_MODES.index(p.emission), np.int8))
-            weights.append(p.flux_lm * area / area.sum())
-        total = float(scene.total_flux)
-        if tris:
-            w = np.concatenate(weights)
-            cdf = np.cumsum(w) / w.sum()
-            cdf[-1] = 1.0
-            mesh_flux = float(w.sum())
-            return cls(np.concatenate(tris), np.concatenate(norms), np.concatenate(modes), cdf,
-                       total, mesh_flux / total, points)
-        return cls(np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0),
-                   total, 0.0, points)
-
-
-@njit(cache=True, nogil=True)
-def _emit_kernel(u, tris, normals, mode, cdf):
-    n = u.shape[0]
-    origin = np.empty((n, 3))
-    direction = np.empty((n, 3))
-    for i in range(n):
-        k = np.searchsorted(cdf, u[i, 2], side="right")
-        if k >= cdf.shape[0]:
-            k = cdf.shape[0] - 1
-        s = math.sqrt(u[i, 3])
-        b1 = s * (1.0 - u[i, 4])
-        b2 = s * u[i, 4]
-        b0 = 1.0 - b1 - b2
-        for j in range(3):
-            origin[i, j] = b0 * tris[k, 0, j] + b1 * tris[k, 1, j] + b2 * tris[k, 2, j]
-        phi = 2.0 * math.pi * u[i, 1]
-        if mode[k] == 2:
-            for j in range(3):
-                direction[i, j] = normals[k, j]
-        elif mode[k] == 1:
-            dx, dy, dz = cosine_direction(normals[k, 0], normals[k, 1], normals[k, 2],
-                                           u[i, 0], u[i, 1])
-            direction[i, 0], direction[i, 1], direction[i, 2] = dx, dy, dz
-        else:
-            z = 1.0 - 2.0 * u[i, 0]
-            r = math.sqrt(max(0.0, 1.0 - z * z))
-            direction[i, 0] = r * math.cos(phi)
-            direction[i, 1] = r * math.sin(phi)
-            direction[i, 2] = z
-    return origin, direction
-
-
-def emit(table: EmitterTable, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Photon origins (m) and unit directions from sample points (n, 5) in [0, 1).
-
-    Dimension 2 first chooses between mesh emitters and point sources by flux, then the
-    triangle (or the point source); its remainder is reused so the choice stays
-    stratified.
-    """
-    u = np.ascontiguousarray(points, dtype=np.float64)
-    if not table.points:
-        return _emit_kernel(u, table.triangles, table.normals, table.mode, table.cdf)
-    from lightsim.luminaires.photometric import sample_directions
-
-    origin = np.empty((len(u), 3))
-    direction = np.empty((len(u), 3))
-    share = table.mesh_share
-    mesh = u[:, 2] < share
-    if np.any(mesh):
-        um = u[mesh].copy()
-        um[:, 2] = np.minimum(um[:, 2] / share, np.nextafter(1.0, 0.0))
-        origin[mesh], direction[mesh] = _emit_kernel(um, table.triangles, table.normals,
-                                                     table.mode, table.cdf)
-    fluxes = np.array([f for _, _, f in table.points])
-    edges = share + (1.0 - share) * np.concatenate([[0.0], np.cumsum(fluxes) / fluxes.sum()])
-    for k, (pos, grid, _) in enumerate(table.points):
-        sel = (~mesh) & (u[:, 2] >= edges[k]) & ((u[:, 2] < edges[k + 1])
-                                                  | (k == len(table.points) - 1))
-        if np.any(sel) and hasattr(grid, "sample_rays"):  # a ray file (lightsim.raysource)
-            origin[sel], direction[sel] = grid.sample_rays(u[sel])
-        elif np.any(sel):
-            origin[sel] = pos
-            direction[sel] = sample_directions(grid, u[sel, 0], u[sel, 1])[0]
-    return origin, direction
 
 
 # ------------------------------------------------------------------------------------------
@@ -556,7 +429,7 @@ class PhotonTracer:
         self.record_all = record == "all"
         self.batch = int(batch)
         self.caster = caster or RayCaster(scene.triangles, threads=threads)
-        self.emitters = EmitterTable.from_scene(scene)
+        self.emitters = EmitterMix.from_scene(scene)
         mats = scene.materials
         self.channels = mats.channels
         self._geom = Geometry(np.ascontiguousarray(scene.triangles),
@@ -601,12 +474,12 @@ class PhotonTracer:
             Group (interleave set) of each photon; bookkeeping is returned per group.
         """
         points = np.ascontiguousarray(points, dtype=np.float64)
-        power = np.full((len(points), self.channels), self.emitters.flux)
+        power = np.full((len(points), self.channels), self.emitters.flux_lm)
         if weight is not None:
             power *= np.asarray(weight, dtype=np.float64)[:, None]
 
         def source(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-            return emit(self.emitters, points[lo:hi])  # each photon from its own point
+            return self.emitters.sample(points[lo:hi])  # photon i from point i only
 
         return self._trace(source, len(points), power, keys, group, n_groups, record_escaped)
 

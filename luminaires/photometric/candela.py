@@ -48,9 +48,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from lightsim.emitters.polar import PolarTable
 from lightsim.errors import InputError
 
-from .bilinear import PolarTable
 from .checks import freeze_grid
 
 __all__ = [

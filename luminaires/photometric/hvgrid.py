@@ -53,9 +53,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from lightsim.emitters.polar import PolarTable
 from lightsim.errors import InputError
 
-from .bilinear import PolarTable
 from .candela import direction_from_hv
 from .checks import freeze_grid
 

@@ -30,9 +30,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from lightsim.emitters.polar import sample_table
 from lightsim.errors import InputError
-
-from .bilinear import sample_table
 
 __all__ = ["sample_directions"]
 
