@@ -1,7 +1,16 @@
 """Wavefront photon tracer: emission, embree ray casting, surface interaction, bookkeeping.
 
-Each bounce casts the whole active wavefront with embree (threads, GIL released), then one
-parallel numba kernel applies the surface optics to every ray:
+A batch of photons is cut into chunks, one chunk per Python thread at a time. Each thread
+emits its chunk (:mod:`lightsim.emitters`) and traces it to the end: per bounce one embree
+cast of its live rays (GIL released) and one serial numba kernel (GIL released) that
+applies the surface optics to every ray and compacts the survivors in place, writing the
+float32 rays embree casts next. No OpenMP region runs in the loop, so no spinning worker
+competes with embree for the two cores; chunks are independent, so the result does not
+depend on the number of threads or chunks (photon i is a function of its sample point and
+key). Records come back bounce-major, in photon order, as one wavefront would give them.
+
+The interaction (:func:`_interact_one`) only dispatches to the BSDF kernel of the surface
+hit (:mod:`lightsim.materials`, one signature for all) and books the ledger:
 
 * **wall** (detector): the photon is recorded and ends there;
 * **diffuse**: the photon is recorded (if recording all surfaces), (1 − ρ) of its flux is
@@ -30,6 +39,8 @@ parameter          unit   default   meaning
 ``record``         –      ``wall``  ``wall``: record only wall photons; ``all``: every
                                     diffuse hit (needed by camera views)
 ``batch``          photon 262144    photons per wavefront batch (memory bound)
+``min_chunk``      photon 8192      smallest chunk a thread traces (4 chunks per thread
+                                    and batch otherwise: load balance)
 =================  =====  ========  ===================================================
 
 Ray origins are pushed off the surface by ε = 2⁻¹⁸ · (|p|∞ + 0.01 · scene scale) along the
@@ -507,7 +518,9 @@ class PhotonTracer:
         so a set's bookkeeping is bit-identical however sets are batched together.
         """
         def source(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
-            return origins[lo:hi], directions[lo:hi]
+            # copies: the tracer moves its rays in place
+            return (np.array(origins[lo:hi], dtype=np.float64),
+                    np.array(directions[lo:hi], dtype=np.float64))
 
         return self._trace(source, len(origins), power, keys, group, n_groups, record_escaped)
 
@@ -578,13 +591,14 @@ class PhotonTracer:
 
     def _trace_chunk(self, source, lo: int, hi: int, power, keys, ledger, record_escaped):
         """Trace photons lo..hi to the end in this thread: emit, then per bounce one embree
-        cast and one fused interaction + compaction kernel. Returns per-bounce records,
-        escaped photons and the ray count."""
+        cast and one fused interaction + compaction kernel. ``source(lo, hi)`` returns new
+        arrays of origins and directions (they become the wavefront). Returns per-bounce
+        records, escaped photons and the ray count."""
         n = hi - lo
         C = self.channels
-        origins, directions = source(lo, hi)
-        o = np.array(origins, dtype=np.float64).reshape(n, 3)
-        d = np.array(directions, dtype=np.float64).reshape(n, 3)
+        origins, directions = source(lo, hi)  # fresh arrays: traced in place
+        o = np.ascontiguousarray(origins, dtype=np.float64).reshape(n, 3)
+        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(n, 3)
         pw = power[lo:hi].copy()
         wf = Wavefront(o, d, pw, pw.max(axis=1) if n else np.zeros(0),
                        np.zeros(n, np.uint8), keys[lo:hi].copy(),
