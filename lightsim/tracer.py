@@ -204,11 +204,12 @@ def _book(ledger, j, row, power):
 
 
 @njit(cache=True, inline="always")
-def _interact_one(i, wf, hits, geom, mats, prm, depth, last_bounce, rec, r, ledger):
+def _interact_one(i, wf, hits, g, mats, prm, depth, last_bounce, rec, r, ledger):
     """One ray's surface interaction: dispatch to the BSDF of the surface hit, roulette.
 
-    Writes a record at row ``r`` of ``rec`` if the photon is detected (wall, or any
-    diffuse surface when recording all). Returns (status, recorded, origin, direction)
+    ``g`` is the packed row of the triangle hit (:class:`Geometry`). Writes a record at
+    row ``r`` of ``rec`` if the photon is detected (wall, or any diffuse surface when
+    recording all). Returns (status, recorded, origin, direction)
     of the continuing ray; the ray's flux is updated in ``wf.power[i]``.
     """
     j = wf.lid[i]
@@ -220,7 +221,6 @@ def _interact_one(i, wf, hits, geom, mats, prm, depth, last_bounce, rec, r, ledg
     t = float(hits.tfar[i])
     dx, dy, dz = wf.d[i, 0], wf.d[i, 1], wf.d[i, 2]
     bu, bv = hits.u[i], hits.v[i]
-    g = geom.packed[k]
     # the hit point from barycentrics lies on the triangle (o + t·d with a float32 t
     # can land just outside a neighbouring face at an edge and leak out of a box)
     b1 = min(max(float(bu), 0.0), 1.0)
@@ -318,10 +318,19 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
 
     Returns (alive, records, escaped) counts.
     """
+    C = wf.power.shape[1]
+    # gather the hit triangles' rows first: independent loads the CPU overlaps (a hit is a
+    # cache miss on a large mesh, and Halton-ordered photons hit scattered triangles)
+    packed = geom.packed
+    rows = np.empty((m, packed.shape[1]))
+    for i in range(m):
+        k = hits.prim[i]
+        if k >= 0:
+            for q in range(packed.shape[1]):
+                rows[i, q] = packed[k, q]
     w = 0
     r = 0
     e = 0
-    C = wf.power.shape[1]
     for i in range(m):
         if record_escaped and hits.prim[i] < 0:
             for q in range(3):
@@ -329,8 +338,8 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
             for c in range(C):
                 esc_p[e, c] = wf.power[i, c]
             e += 1
-        st, recd, ox, oy, oz, wx, wy, wz = _interact_one(i, wf, hits, geom, mats, prm, depth,
-                                                         last_bounce, rec, r, ledger)
+        st, recd, ox, oy, oz, wx, wy, wz = _interact_one(i, wf, hits, rows[i], mats, prm,
+                                                         depth, last_bounce, rec, r, ledger)
         if recd:
             r += 1
         if st != ALIVE:
