@@ -26,7 +26,7 @@ the intensity is zero.
 
 Interpolation is bilinear in (H, V) — the table's own angles — and :meth:`HVGrid.total_flux`
 is its exact integral; sampling draws from the same interpolant (see
-:mod:`~lightsim.luminaires.photometric.bilinear`).
+:mod:`~lightsim.emitters.polar`).
 
 Parameters
 ----------
