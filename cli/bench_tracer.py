@@ -22,14 +22,25 @@ def example_headlight():
 @click.option("--repeats", type=int, default=3, show_default=True)
 @click.option("--threads", type=int, help="Ray-casting threads (default: all cores).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
+@click.option("--analytic", type=click.Choice(["paraboloid", "slab", "shield"]),
+              help="Bench an analytic validation scene instead of SCENE_FILE (the "
+                   "paraboloid: point source at the focus of a mirror).")
 def command(scene_file: str | None, photons: int, repeats: int, threads: int | None,
-            json_path: str | None) -> None:
+            json_path: str | None, analytic: str | None) -> None:
     """Photon tracing vs raw embree on SCENE_FILE (default: the shipped headlight)."""
     from lightsim.scene import load_scene
     from lightsim.validation.bench.tracer import bench_tracer
 
-    path = scene_file or str(example_headlight())
-    scene = load_scene(path)
+    if analytic is not None:
+        if scene_file is not None:
+            raise click.UsageError("give either SCENE_FILE or --analytic, not both")
+        from lightsim.validation.scenes import analytic as cases
+
+        path = f"analytic {analytic}"
+        scene = getattr(cases, f"{analytic}_case")().scene
+    else:
+        path = scene_file or str(example_headlight())
+        scene = load_scene(path)
     rows = bench_tracer(scene, photons=photons, repeats=repeats, threads=threads)
     print_table(f"tracer: {path} ({scene.n_triangles} triangles)", rows)
     if json_path:

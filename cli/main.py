@@ -68,6 +68,8 @@ class LazyGroup(click.Group):
 @click.version_option(__version__, prog_name="lightsim")
 def cli() -> None:
     """Simulate and check automotive headlight beam patterns with photon mapping."""
+    # wire the application: photometric readers and bulbs register with the core's emitters
+    import lightsim.luminaires  # noqa: F401
 
 
 def _one_line(text: str) -> str:

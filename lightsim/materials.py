@@ -20,20 +20,49 @@ distance t inside a dielectric keeps exp(−σ t) of its flux (Beer–Lambert).
 The tracer runs one luminous channel unless a material is coloured (RGB albedo or
 attenuation not grey); then three channels. With one channel a material's value is its
 luminance-weighted mean (Rec. 709 weights), which is exact for grey materials.
+
+BSDF kernels
+------------
+Each kind of surface is one numba function with one signature (see :data:`BSDF_SIGNATURE`),
+plus the wall detector (kind :data:`WALL`, a diffuse surface that records and ends the
+photon). A kernel samples the outgoing direction of one photon, scales its flux (C,) in
+place by the surface's throughput and adds what it took to the ledger row it is given;
+the tracer's interaction kernel only dispatches on the kind and books the ledger.
+
+=================  ========================================================  ==========
+argument           meaning                                                   unit
+=================  ========================================================  ==========
+``mats``           :class:`MaterialArrays` (kind, value, ior, sigma)          –, 1/m
+``m``              material index                                            –
+``d``              incident unit direction (dx, dy, dz)                      –
+``ng``             unit geometric normal on the side the photon came from    –
+``ns``             unit shading normal on that side (= ng for diffuse)        –
+``front``          the photon arrives on the front (outside) face             –
+``t``              distance travelled to the hit (Beer–Lambert inside glass)  m
+``key``, ``ctr``   random-number key and counter base of this bounce          –
+``power``          (C,) photon flux, scaled in place                          tracer units
+``loss``           (C,) ledger row the absorbed flux is added to              tracer units
+returns            (wx, wy, wz, side): outgoing direction (not normalised)    –
+                   and side +1 reflected, −1 transmitted, 0 ended
+=================  ========================================================  ==========
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from lightsim.errors import InputError
+from lightsim.sampling import uniform
 
 DIFFUSE, MIRROR, DIELECTRIC = 0, 1, 2
-KIND_NAMES = {DIFFUSE: "diffuse", MIRROR: "mirror", DIELECTRIC: "dielectric"}
+WALL = 3  # the measurement wall: a detector, not a material of the table
+KIND_NAMES = {DIFFUSE: "diffuse", MIRROR: "mirror", DIELECTRIC: "dielectric", WALL: "wall"}
+BSDF_SIGNATURE = "(mats, m, d, ng, ns, front, t, key, ctr, power, loss) -> (wx, wy, wz, side)"
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance weights of linear RGB
 
 
@@ -134,6 +163,27 @@ def material_from_gltf(name: str, mat: dict) -> tuple[Material, bool]:
     return Material(mat_name, DIFFUSE, base), is_emissive
 
 
+class MaterialArrays(NamedTuple):
+    """The material table as the numba kernels read it (one row per material).
+
+    Attributes
+    ----------
+    kind : (n,) int32
+        DIFFUSE, MIRROR or DIELECTRIC.
+    value : (n, C) float64
+        Albedo (diffuse) or reflectance (mirror) per channel, in [0, 1].
+    ior : (n,) float64
+        Index of refraction (dielectric; outside is air).
+    sigma : (n, C) float64
+        Absorption coefficient per channel (1/m, dielectric).
+    """
+
+    kind: np.ndarray
+    value: np.ndarray
+    ior: np.ndarray
+    sigma: np.ndarray
+
+
 @dataclass
 class MaterialTable:
     """Materials as flat arrays for the numba kernels.
@@ -177,6 +227,11 @@ class MaterialTable:
         return any(m.coloured for m in self.materials)
 
     @property
+    def arrays(self) -> MaterialArrays:
+        """The table for the numba kernels."""
+        return MaterialArrays(self.kind, self.value, self.ior, self.sigma)
+
+    @property
     def has_volume(self) -> bool:
         return bool(np.any(self.sigma > 0))
 
@@ -215,3 +270,123 @@ def slab_transmittance(n: float, cos_i: float = 1.0, absorption: float = 1.0) ->
     """
     r = fresnel_dielectric(cos_i, 1.0, n)
     return (1.0 - r) ** 2 * absorption / (1.0 - r * r * absorption * absorption)
+
+
+# --------------------------------------------------------------------------------------
+# BSDF kernels: one per kind, one signature (see the module docstring)
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def cosine_direction(nx: float, ny: float, nz: float, u1: float, u2: float
+                     ) -> tuple[float, float, float]:
+    """Cosine-distributed unit direction about the unit normal n (Lambert), u1, u2 in [0, 1)."""
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    lx, ly, lz = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
+    # orthonormal basis around n without branches on the axes (Duff et al. 2017)
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (lx * (1.0 + sign * nx * nx * a) + ly * b + lz * nx,
+            lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny,
+            lx * (-sign * nx) + ly * (-ny) + lz * nz)
+
+
+@njit(cache=True, inline="always")
+def wall_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
+    """The measurement wall: all flux is detected (booked to ``loss``), the photon ends."""
+    for c in range(power.shape[0]):
+        loss[c] += power[c]
+        power[c] = 0.0
+    return d[0], d[1], d[2], 0.0
+
+
+@njit(cache=True, inline="always")
+def diffuse_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
+    """Lambertian reflection: (1 − ρ) absorbed, the rest leaves cosine-distributed about ng.
+
+    Reflection only, on the side the photon came from; the shading normal is not used.
+    """
+    for c in range(power.shape[0]):
+        rho = mats.value[m, c]
+        loss[c] += (1.0 - rho) * power[c]
+        power[c] *= rho
+    wx, wy, wz = cosine_direction(ng[0], ng[1], ng[2], uniform(key, ctr + np.uint64(2)),
+                                  uniform(key, ctr + np.uint64(3)))
+    return wx, wy, wz, 1.0
+
+
+@njit(cache=True, inline="always")
+def mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
+    """Perfect specular reflection about ns with reflectance R; (1 − R) absorbed.
+
+    Where the shading normal would reflect the photon through the geometric surface, the
+    reflection is about ng instead.
+    """
+    for c in range(power.shape[0]):
+        rr_ = mats.value[m, c]
+        loss[c] += (1.0 - rr_) * power[c]
+        power[c] *= rr_
+    dx, dy, dz = d
+    sx, sy, sz = ns
+    fgx, fgy, fgz = ng
+    c_i = dx * sx + dy * sy + dz * sz
+    wx, wy, wz = dx - 2 * c_i * sx, dy - 2 * c_i * sy, dz - 2 * c_i * sz
+    if wx * fgx + wy * fgy + wz * fgz <= 0.0:
+        c_i = dx * fgx + dy * fgy + dz * fgz
+        wx, wy, wz = dx - 2 * c_i * fgx, dy - 2 * c_i * fgy, dz - 2 * c_i * fgz
+    return wx, wy, wz, 1.0
+
+
+@njit(cache=True, inline="always")
+def dielectric_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
+    """Smooth dielectric (air outside): Beer–Lambert for a path inside, then Fresnel.
+
+    A photon arriving from inside (``front`` false) first keeps exp(−σ t) of its flux
+    (the rest goes to ``loss``). It then reflects with probability F (exact unpolarised
+    Fresnel; F = 1 beyond the critical angle) or refracts by Snell's law; the flux is
+    unchanged by the choice (the choice is the weighting). Shading normals that would
+    send the photon to the wrong side are replaced by the geometric normal.
+    """
+    if not front:  # we travelled inside this material: Beer–Lambert
+        for c in range(power.shape[0]):
+            s_ = mats.sigma[m, c]
+            if s_ > 0.0:
+                keep = math.exp(-s_ * t)
+                loss[c] += (1.0 - keep) * power[c]
+                power[c] *= keep
+    dx, dy, dz = d
+    sx, sy, sz = ns
+    fgx, fgy, fgz = ng
+    eta_i, eta_t = (1.0, mats.ior[m]) if front else (mats.ior[m], 1.0)
+    cos_i = -(dx * sx + dy * sy + dz * sz)
+    nsx, nsy, nsz = sx, sy, sz
+    if cos_i <= 0.0:  # shading normal faces away: use the geometric one
+        nsx, nsy, nsz = fgx, fgy, fgz
+        cos_i = -(dx * fgx + dy * fgy + dz * fgz)
+    F = fresnel_dielectric(cos_i, eta_i, eta_t)
+    if uniform(key, ctr) < F:
+        wx, wy, wz = dx + 2 * cos_i * nsx, dy + 2 * cos_i * nsy, dz + 2 * cos_i * nsz
+        side = 1.0
+        if wx * fgx + wy * fgy + wz * fgz <= 0.0:
+            c_g = -(dx * fgx + dy * fgy + dz * fgz)
+            wx, wy, wz = dx + 2 * c_g * fgx, dy + 2 * c_g * fgy, dz + 2 * c_g * fgz
+        return wx, wy, wz, side
+    eta = eta_i / eta_t
+    cos_t = math.sqrt(max(0.0, 1.0 - eta * eta * (1.0 - cos_i * cos_i)))
+    f = eta * cos_i - cos_t
+    wx, wy, wz = eta * dx + f * nsx, eta * dy + f * nsy, eta * dz + f * nsz
+    side = -1.0
+    if wx * fgx + wy * fgy + wz * fgz >= 0.0:
+        # the shading normal bent the ray back: refract about the geometry
+        c_g = -(dx * fgx + dy * fgy + dz * fgz)
+        s2 = eta * eta * (1.0 - c_g * c_g)
+        if s2 < 1.0:
+            f = eta * c_g - math.sqrt(1.0 - s2)
+            wx = eta * dx + f * fgx
+            wy = eta * dy + f * fgy
+            wz = eta * dz + f * fgz
+        else:
+            wx, wy, wz = dx + 2 * c_g * fgx, dy + 2 * c_g * fgy, dz + 2 * c_g * fgz
+            side = 1.0
+    return wx, wy, wz, side

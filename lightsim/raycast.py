@@ -90,6 +90,21 @@ class RayCaster:
             list(self._pool.map(lambda k: run(bounds[k], bounds[k + 1]), range(pieces)))
         return prim, t, u, v
 
+    def cast(self, origins: np.ndarray, directions: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Closest hits of one batch in the calling thread, as embree returns them.
+
+        Like :meth:`intersect` without the thread pool and the copies: for callers that
+        run their own threads (the photon tracer casts one wavefront chunk per thread).
+        ``origins``/``directions`` must be C-contiguous (n, 3) float32.
+        """
+        n = len(origins)
+        if n == 0 or self._scene is None:
+            return (np.full(n, -1, dtype=np.int32), np.full(n, np.inf, dtype=np.float32),
+                    np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32))
+        res = self._scene.run(origins, directions, output=1)
+        return res["primID"], res["tfar"], res["u"], res["v"]
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=False)

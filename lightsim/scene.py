@@ -42,6 +42,9 @@ from typing import Any
 
 import numpy as np
 
+from lightsim.emitters.goniometric import GoniometricEmitter
+from lightsim.emitters.rayfile import RaySource
+from lightsim.emitters.registry import filament_factory, photometric_reader
 from lightsim.errors import InputError
 from lightsim.materials import (
     DIELECTRIC,
@@ -92,7 +95,8 @@ class Part:
     flux_lm: float = 0.0
     emission: str = "isotropic"
     extras: dict[str, Any] = field(default_factory=dict)
-    distribution: Any = None  # CandelaGrid of a goniometric point source (IES/LDT)
+    distribution: Any = None  # what a point source came from (IES/LDT grid, ray file)
+    emitter: Any = None  # core emitter (lightsim.emitters) that samples a point source
 
     @property
     def triangles(self) -> np.ndarray:
@@ -611,11 +615,9 @@ def goniometric_source(path: str | Path, flux: float | None = None,
     intensity (IES Types A, B, C or EULUMDAT; lamp axes +Z ahead, +Y up); the flux is the
     interpolant's integral, or ``flux`` (lm) with the distribution's shape kept.
     """
-    from lightsim.luminaires.photometric import read_photometric
-
     if flux is not None and not (math.isfinite(flux) and flux > 0):
         raise InputError(f"flux must be a positive number of lumens, got {flux}")
-    grid = read_photometric(path, lamp_set=lamp_set)
+    grid = photometric_reader(Path(path).suffix)(path, lamp_set=lamp_set)
     total = float(grid.total_flux())
     if not total > 0:
         raise InputError(f"{path}: the intensity distribution emits no flux")
@@ -627,7 +629,8 @@ def goniometric_source(path: str | Path, flux: float | None = None,
     verts = p + 1e-6 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1.0]])
     faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
     return Part(Path(path).stem, EMITTER, verts, faces, None, Material("source", DIFFUSE),
-                flux_lm=total, emission="goniometric", distribution=grid)
+                flux_lm=total, emission="goniometric", distribution=grid,
+                emitter=GoniometricEmitter(p, grid.table, total, Path(path).name))
 
 
 def ray_source_part(path: str | Path, at: tuple[float, float, float] = (0.0, 0.0, 0.0),
@@ -636,10 +639,8 @@ def ray_source_part(path: str | Path, at: tuple[float, float, float] = (0.0, 0.0
     """An emitter part that draws its photons from a TM-25 or Zemax ray file.
 
     The file's origin is placed at ``at`` (m) and its +Z turned to ``axis``; the flux is
-    the file's luminous flux or ``flux`` (lm). See :mod:`lightsim.raysource`.
+    the file's luminous flux or ``flux`` (lm). See :mod:`lightsim.emitters.rayfile`.
     """
-    from lightsim.raysource import RaySource
-
     src = RaySource(path, at, axis, flux)
     # a tiny tetrahedron stands for the source in size and bookkeeping; never traced
     p = src.position
@@ -647,24 +648,22 @@ def ray_source_part(path: str | Path, at: tuple[float, float, float] = (0.0, 0.0
     faces = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
     return Part(f"rayfile-{Path(path).stem}", EMITTER, verts, faces, None,
                 Material("source", DIFFUSE), flux_lm=src.flux_lm, emission="rayfile",
-                distribution=src)
+                distribution=src, emitter=src)
 
 
 def _filament_part(bulb: str, at: tuple[float, float, float] | None,
                    axis: tuple[float, float, float], flux: float | None,
                    emission: str | None) -> Part:
-    """An emitter part built from a bulb preset for meshes without their own emitter."""
-    from lightsim.luminaires import bulbs, filament
-
+    """An emitter part built from a bulb preset for meshes without their own emitter (the
+    bulb catalogue is registered by ``lightsim.luminaires``: :mod:`lightsim.emitters.registry`)."""
     if at is None:
         raise InputError("--filament needs --filament-at X,Y,Z (m)")
-    spec = bulbs.get_bulb(bulb)
+    make = filament_factory()
     axis_v = np.asarray(axis, dtype=np.float64)
     if not np.all(np.isfinite(axis_v)) or np.linalg.norm(axis_v) == 0:
         raise InputError(f"--filament-axis must be a non-zero vector, got {axis}")
-    verts, faces = filament.filament_mesh(spec.filament_length_m, spec.filament_diameter_m,
-                                          np.asarray(at, float), axis_v / np.linalg.norm(axis_v))
-    return Part(f"filament-{spec.name}", EMITTER, np.asarray(verts, float),
-                np.asarray(faces, np.int64), None, Material("filament", DIFFUSE),
-                flux_lm=float(flux if flux is not None else spec.flux_lm),
+    verts, faces, bulb_flux, name = make(bulb, np.asarray(at, float),
+                                         axis_v / np.linalg.norm(axis_v))
+    return Part(f"filament-{name}", EMITTER, verts, faces, None, Material("filament", DIFFUSE),
+                flux_lm=float(flux if flux is not None else bulb_flux),
                 emission=emission or "isotropic")

@@ -1,7 +1,16 @@
 """Wavefront photon tracer: emission, embree ray casting, surface interaction, bookkeeping.
 
-Each bounce casts the whole active wavefront with embree (threads, GIL released), then one
-parallel numba kernel applies the surface optics to every ray:
+A batch of photons is cut into chunks, one chunk per Python thread at a time. Each thread
+emits its chunk (:mod:`lightsim.emitters`) and traces it to the end: per bounce one embree
+cast of its live rays (GIL released) and one serial numba kernel (GIL released) that
+applies the surface optics to every ray and compacts the survivors in place, writing the
+float32 rays embree casts next. No OpenMP region runs in the loop, so no spinning worker
+competes with embree for the two cores; chunks are independent, so the result does not
+depend on the number of threads or chunks (photon i is a function of its sample point and
+key). Records come back bounce-major, in photon order, as one wavefront would give them.
+
+The interaction (:func:`_interact_one`) only dispatches to the BSDF kernel of the surface
+hit (:mod:`lightsim.materials`, one signature for all) and books the ledger:
 
 * **wall** (detector): the photon is recorded and ends there;
 * **diffuse**: the photon is recorded (if recording all surfaces), (1 − ρ) of its flux is
@@ -30,6 +39,8 @@ parameter          unit   default   meaning
 ``record``         –      ``wall``  ``wall``: record only wall photons; ``all``: every
                                     diffuse hit (needed by camera views)
 ``batch``          photon 262144    photons per wavefront batch (memory bound)
+``min_chunk``      photon 8192      smallest chunk a thread traces (4 chunks per thread
+                                    and batch otherwise: load balance)
 =================  =====  ========  ===================================================
 
 Ray origins are pushed off the surface by ε = 2⁻¹⁸ · (|p|∞ + 0.01 · scene scale) along the
@@ -40,12 +51,23 @@ glass wall at 0.1 m from the origin.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from lightsim.materials import DIFFUSE, LUMA, MIRROR, fresnel_dielectric
+from lightsim.emitters import EmitterMix
+from lightsim.materials import (
+    DIFFUSE,
+    MIRROR,
+    WALL,
+    dielectric_bsdf,
+    diffuse_bsdf,
+    mirror_bsdf,
+    wall_bsdf,
+)
 from lightsim.raycast import RayCaster
 from lightsim.sampling import uniform
 
@@ -53,8 +75,6 @@ from lightsim.sampling import uniform
 LEDGER = ("wall", "absorbed_diffuse", "absorbed_mirror", "absorbed_volume", "escaped",
           "roulette", "max_depth")
 L_WALL, L_ABS_DIFF, L_ABS_MIRR, L_ABS_VOL, L_ESC, L_RR, L_MAXD = range(len(LEDGER))
-
-EMISSION_MODES = ("isotropic", "lambertian", "collimated", "goniometric", "rayfile")
 
 # photon flags
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
@@ -65,148 +85,109 @@ ALIVE, ENDED = 0, 1
 
 
 # ------------------------------------------------------------------------------------------
-# Emission
+# Surface interaction: what the kernels read, the ledger helper, the per-ray dispatch
 # ------------------------------------------------------------------------------------------
 
-@dataclass
-class EmitterTable:
-    """All emitters as arrays: mesh triangles with a flux × area CDF, and point sources
-    with an intensity distribution (IES/LDT).
+class Geometry(NamedTuple):
+    """The traced triangle soup as the kernels read it.
 
     Attributes
     ----------
-    triangles : (E, 3, 3) float64
-    normals : (E, 3) float64
-        Outward face normals (Lambertian and collimated emission).
-    mode : (E,) int8
-        0 isotropic, 1 Lambertian, 2 collimated (along the face normal: a distant source).
-    cdf : (E,) float64
-        Cumulative probability of emitting from each triangle.
-    flux : float
-        Total luminous flux Φ (lm) of all emitters.
-    mesh_share : float
-        Fraction of Φ that mesh emitters carry; the rest comes from ``points``.
-    points : list of (position (3,), CandelaGrid, flux lm)
+    tri_v : (T, 3, 3) float64
+        Triangle corners (m).
+    face_n : (T, 3) float64
+        Unit geometric normals (winding order).
+    corner_n : (T, 3, 3) float64
+        Unit shading normals at the corners.
+    tri_part : (T,) int32
+        Material (part) index of each triangle.
+    is_wall : (T,) bool
+        The triangle belongs to the measurement wall (detector).
+    packed : (T, 24) float64
+        All of the above per triangle in one row (corners 0–8, face normal 9–11, corner
+        normals 12–20, part 21, wall 22): the interaction reads one 192-byte row per hit
+        instead of five scattered ones (a hit is a cache miss on a large mesh).
     """
 
-    triangles: np.ndarray
-    normals: np.ndarray
-    mode: np.ndarray
-    cdf: np.ndarray
-    flux: float
-    mesh_share: float = 1.0
-    points: list = field(default_factory=list)
+    tri_v: np.ndarray
+    face_n: np.ndarray
+    corner_n: np.ndarray
+    tri_part: np.ndarray
+    is_wall: np.ndarray
+    packed: np.ndarray
 
     @classmethod
-    def from_scene(cls, scene) -> EmitterTable:
-        tris, norms, modes, weights, points = [], [], [], [], []
-        for p in scene.emitters:
-            if p.distribution is not None:
-                points.append((p.vertices.mean(axis=0), p.distribution, p.flux_lm))
-                continue
-            t = p.triangles
-            n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-            area = 0.5 * np.linalg.norm(n, axis=1)
-            tris.append(t)
-            norms.append(n / np.maximum(2 * area[:, None], 1e-300))
-            modes.append(np.full(len(t), EMISSION_MODES.index(p.emission), np.int8))
-            weights.append(p.flux_lm * area / area.sum())
-        total = float(scene.total_flux)
-        if tris:
-            w = np.concatenate(weights)
-            cdf = np.cumsum(w) / w.sum()
-            cdf[-1] = 1.0
-            mesh_flux = float(w.sum())
-            return cls(np.concatenate(tris), np.concatenate(norms), np.concatenate(modes), cdf,
-                       total, mesh_flux / total, points)
-        return cls(np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0),
-                   total, 0.0, points)
+    def from_scene(cls, scene) -> Geometry:
+        tri_v = np.ascontiguousarray(scene.triangles, dtype=np.float64)
+        face_n = np.ascontiguousarray(scene.face_normals, dtype=np.float64)
+        corner_n = np.ascontiguousarray(scene.corner_normals, dtype=np.float64)
+        part = scene.tri_part.astype(np.int32)
+        wall = scene.tri_is_wall.astype(np.bool_)
+        packed = np.zeros((len(tri_v), 24))
+        packed[:, 0:9] = tri_v.reshape(-1, 9)
+        packed[:, 9:12] = face_n
+        packed[:, 12:21] = corner_n.reshape(-1, 9)
+        packed[:, 21] = part
+        packed[:, 22] = wall
+        return cls(tri_v, face_n, corner_n, part, wall, packed)
 
 
-@njit(cache=True, inline="always")
-def _cosine_direction(nx, ny, nz, u1, u2):
-    """Cosine-distributed unit direction about the unit normal n (Lambert)."""
-    r = math.sqrt(u1)
-    phi = 2.0 * math.pi * u2
-    lx, ly, lz = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
-    # orthonormal basis around n without branches on the axes (Duff et al. 2017)
-    sign = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (sign + nz)
-    b = nx * ny * a
-    return (lx * (1.0 + sign * nx * nx * a) + ly * b + lz * nx,
-            lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny,
-            lx * (-sign * nx) + ly * (-ny) + lz * nz)
+class Wavefront(NamedTuple):
+    """The rays in flight (one row each; the first ``m`` rows are live).
 
-
-@njit(cache=True, parallel=True)
-def _emit_kernel(u, tris, normals, mode, cdf):
-    n = u.shape[0]
-    origin = np.empty((n, 3))
-    direction = np.empty((n, 3))
-    for i in prange(n):
-        k = np.searchsorted(cdf, u[i, 2], side="right")
-        if k >= cdf.shape[0]:
-            k = cdf.shape[0] - 1
-        s = math.sqrt(u[i, 3])
-        b1 = s * (1.0 - u[i, 4])
-        b2 = s * u[i, 4]
-        b0 = 1.0 - b1 - b2
-        for j in range(3):
-            origin[i, j] = b0 * tris[k, 0, j] + b1 * tris[k, 1, j] + b2 * tris[k, 2, j]
-        phi = 2.0 * math.pi * u[i, 1]
-        if mode[k] == 2:
-            for j in range(3):
-                direction[i, j] = normals[k, j]
-        elif mode[k] == 1:
-            dx, dy, dz = _cosine_direction(normals[k, 0], normals[k, 1], normals[k, 2],
-                                           u[i, 0], u[i, 1])
-            direction[i, 0], direction[i, 1], direction[i, 2] = dx, dy, dz
-        else:
-            z = 1.0 - 2.0 * u[i, 0]
-            r = math.sqrt(max(0.0, 1.0 - z * z))
-            direction[i, 0] = r * math.cos(phi)
-            direction[i, 1] = r * math.sin(phi)
-            direction[i, 2] = z
-    return origin, direction
-
-
-def emit(table: EmitterTable, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Photon origins (m) and unit directions from sample points (n, 5) in [0, 1).
-
-    Dimension 2 first chooses between mesh emitters and point sources by flux, then the
-    triangle (or the point source); its remainder is reused so the choice stays
-    stratified.
+    Attributes
+    ----------
+    o, d : (m, 3) float64
+        Origins (m) and unit directions.
+    power : (m, C) float64
+        Photon flux (tracer units).
+    p_ref : (m,) float64
+        Largest emitted channel flux of each photon (the roulette reference).
+    flags : (m,) uint8
+        F_SPECULAR / F_DIFFUSE path flags.
+    keys : (m,) uint64
+        Random-number keys.
+    lid : (m,) int64
+        Index of the emitted photon (ledger row, record source).
     """
-    u = np.ascontiguousarray(points, dtype=np.float64)
-    if not table.points:
-        return _emit_kernel(u, table.triangles, table.normals, table.mode, table.cdf)
-    from lightsim.luminaires.photometric import sample_directions
 
-    origin = np.empty((len(u), 3))
-    direction = np.empty((len(u), 3))
-    share = table.mesh_share
-    mesh = u[:, 2] < share
-    if np.any(mesh):
-        um = u[mesh].copy()
-        um[:, 2] = np.minimum(um[:, 2] / share, np.nextafter(1.0, 0.0))
-        origin[mesh], direction[mesh] = _emit_kernel(um, table.triangles, table.normals,
-                                                     table.mode, table.cdf)
-    fluxes = np.array([f for _, _, f in table.points])
-    edges = share + (1.0 - share) * np.concatenate([[0.0], np.cumsum(fluxes) / fluxes.sum()])
-    for k, (pos, grid, _) in enumerate(table.points):
-        sel = (~mesh) & (u[:, 2] >= edges[k]) & ((u[:, 2] < edges[k + 1])
-                                                  | (k == len(table.points) - 1))
-        if np.any(sel) and hasattr(grid, "sample_rays"):  # a ray file (lightsim.raysource)
-            origin[sel], direction[sel] = grid.sample_rays(u[sel])
-        elif np.any(sel):
-            origin[sel] = pos
-            direction[sel] = sample_directions(grid, u[sel, 0], u[sel, 1])[0]
-    return origin, direction
+    o: np.ndarray
+    d: np.ndarray
+    power: np.ndarray
+    p_ref: np.ndarray
+    flags: np.ndarray
+    keys: np.ndarray
+    lid: np.ndarray
 
 
-# ------------------------------------------------------------------------------------------
-# Surface interaction kernel
-# ------------------------------------------------------------------------------------------
+class Hits(NamedTuple):
+    """embree's closest hits: triangle (−1 = miss), distance (m), barycentrics u, v."""
+
+    prim: np.ndarray
+    tfar: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+
+class RecordBuffer(NamedTuple):
+    """Photon records written by the kernels (see :class:`PhotonRecords`)."""
+
+    pos: np.ndarray
+    nrm: np.ndarray
+    power: np.ndarray
+    part: np.ndarray
+    flags: np.ndarray
+    source: np.ndarray
+
+
+class TraceParams(NamedTuple):
+    """Scalar parameters of the interaction (see the module docstring)."""
+
+    eps_floor: float
+    rr_threshold: float
+    rr_min_depth: int
+    record_all: bool
+
 
 @njit(cache=True, inline="always")
 def _offset(px, py, pz, nx, ny, nz, sign, eps_floor):
@@ -214,165 +195,192 @@ def _offset(px, py, pz, nx, ny, nz, sign, eps_floor):
     return px + sign * eps * nx, py + sign * eps * ny, pz + sign * eps * nz
 
 
-@njit(cache=True, parallel=True)
-def _interact(o, d, power, p_ref, flags, keys, depth, prim, tfar, bu, bv,
-              tri_v, face_n, corner_n, tri_part, is_wall,
-              mat_kind, mat_value, mat_ior, mat_sigma,
-              eps_floor, rr_threshold, rr_min_depth, last_bounce, record_all,
-              status, rec, rec_pos, rec_nrm, rec_pow, rec_part, rec_flag, ledger, lid):
-    # ledger rows are per emitted photon (lid): summed once per batch, in photon order
-    n = o.shape[0]
-    C = power.shape[1]
-    for i in prange(n):
-        j = lid[i]
-        status[i] = ALIVE
-        rec[i] = False
-        k = prim[i]
-        if k < 0:  # escaped to infinity
-            for c in range(C):
-                ledger[j, L_ESC, c] += power[i, c]
-                power[i, c] = 0.0
-            status[i] = ENDED
-            continue
-        t = float(tfar[i])
-        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-        # the hit point from barycentrics lies on the triangle (o + t·d with a float32 t
-        # can land just outside a neighbouring face at an edge and leak out of a box)
-        b1 = min(max(float(bu[i]), 0.0), 1.0)
-        b2 = min(max(float(bv[i]), 0.0), 1.0 - b1)
-        # pulled strictly inside the triangle: a point on an edge lies on the plane of the
-        # adjacent face too, and the normal offset alone would not clear that face
-        b1 = (b1 + 1e-6) / (1.0 + 3e-6)
-        b2 = (b2 + 1e-6) / (1.0 + 3e-6)
-        b0 = 1.0 - b1 - b2
-        px = b0 * tri_v[k, 0, 0] + b1 * tri_v[k, 1, 0] + b2 * tri_v[k, 2, 0]
-        py = b0 * tri_v[k, 0, 1] + b1 * tri_v[k, 1, 1] + b2 * tri_v[k, 2, 1]
-        pz = b0 * tri_v[k, 0, 2] + b1 * tri_v[k, 1, 2] + b2 * tri_v[k, 2, 2]
-        gx, gy, gz = face_n[k, 0], face_n[k, 1], face_n[k, 2]
-        cos_g = dx * gx + dy * gy + dz * gz
-        front = cos_g < 0.0
-        # facing geometric normal: on the side the photon came from
-        fs = 1.0 if front else -1.0
-        fgx, fgy, fgz = fs * gx, fs * gy, fs * gz
-        m = tri_part[k]
-        kind = mat_kind[m]
-        key = keys[i]
-        ctr = np.uint64(depth * 8)
+@njit(cache=True, inline="always")
+def _book(ledger, j, row, power):
+    """The ledger helper: all of a photon's remaining flux goes to one ledger row."""
+    for c in range(power.shape[0]):
+        ledger[j, row, c] += power[c]
+        power[c] = 0.0
 
-        if is_wall[k] or kind == DIFFUSE:
-            if is_wall[k] or record_all:
-                rec[i] = True
-                rec_pos[i, 0], rec_pos[i, 1], rec_pos[i, 2] = px, py, pz
-                rec_nrm[i, 0], rec_nrm[i, 1], rec_nrm[i, 2] = fgx, fgy, fgz
-                for c in range(C):
-                    rec_pow[i, c] = power[i, c]
-                rec_part[i] = m
-                rec_flag[i] = flags[i]
-            if is_wall[k]:
-                for c in range(C):
-                    ledger[j, L_WALL, c] += power[i, c]
-                    power[i, c] = 0.0
-                status[i] = ENDED
-                continue
-            for c in range(C):
-                rho = mat_value[m, c]
-                ledger[j, L_ABS_DIFF, c] += (1.0 - rho) * power[i, c]
-                power[i, c] *= rho
-            nx_, ny_, nz_ = _cosine_direction(fgx, fgy, fgz, uniform(key, ctr + np.uint64(2)),
-                                              uniform(key, ctr + np.uint64(3)))
-            flags[i] |= F_DIFFUSE
-            out_side = 1.0
+
+@njit(cache=True, inline="always")
+def _interact_one(i, wf, hits, g, mats, prm, depth, last_bounce, rec, r, ledger):
+    """One ray's surface interaction: dispatch to the BSDF of the surface hit, roulette.
+
+    ``g`` is the packed row of the triangle hit (:class:`Geometry`). Writes a record at
+    row ``r`` of ``rec`` if the photon is detected (wall, or any diffuse surface when
+    recording all). Returns (status, recorded, origin, direction)
+    of the continuing ray; the ray's flux is updated in ``wf.power[i]``.
+    """
+    j = wf.lid[i]
+    power = wf.power[i]
+    k = hits.prim[i]
+    if k < 0:  # escaped to infinity
+        _book(ledger, j, L_ESC, power)
+        return ENDED, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    t = float(hits.tfar[i])
+    dx, dy, dz = wf.d[i, 0], wf.d[i, 1], wf.d[i, 2]
+    bu, bv = hits.u[i], hits.v[i]
+    # the hit point from barycentrics lies on the triangle (o + t·d with a float32 t
+    # can land just outside a neighbouring face at an edge and leak out of a box)
+    b1 = min(max(float(bu), 0.0), 1.0)
+    b2 = min(max(float(bv), 0.0), 1.0 - b1)
+    # pulled strictly inside the triangle: a point on an edge lies on the plane of the
+    # adjacent face too, and the normal offset alone would not clear that face
+    b1 = (b1 + 1e-6) / (1.0 + 3e-6)
+    b2 = (b2 + 1e-6) / (1.0 + 3e-6)
+    b0 = 1.0 - b1 - b2
+    px = b0 * g[0] + b1 * g[3] + b2 * g[6]
+    py = b0 * g[1] + b1 * g[4] + b2 * g[7]
+    pz = b0 * g[2] + b1 * g[5] + b2 * g[8]
+    gx, gy, gz = g[9], g[10], g[11]
+    front = dx * gx + dy * gy + dz * gz < 0.0
+    # facing geometric normal: on the side the photon came from
+    fs = 1.0 if front else -1.0
+    ng = (fs * gx, fs * gy, fs * gz)
+    m = int(g[21])
+    kind = WALL if g[22] != 0.0 else mats.kind[m]
+    key = wf.keys[i]
+    ctr = np.uint64(depth * 8)
+    d = (dx, dy, dz)
+
+    recorded = False
+    if kind == WALL or (kind == DIFFUSE and prm.record_all):
+        recorded = True
+        rec.pos[r, 0], rec.pos[r, 1], rec.pos[r, 2] = px, py, pz
+        rec.nrm[r, 0], rec.nrm[r, 1], rec.nrm[r, 2] = ng[0], ng[1], ng[2]
+        for c in range(power.shape[0]):
+            rec.power[r, c] = power[c]
+        rec.part[r] = m
+        rec.flags[r] = wf.flags[i]
+        rec.source[r] = j
+    if kind == WALL:
+        wall_bsdf(mats, m, d, ng, ng, front, t, key, ctr, power, ledger[j, L_WALL])
+        return ENDED, recorded, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    if kind == DIFFUSE:
+        wx, wy, wz, side = diffuse_bsdf(mats, m, d, ng, ng, front, t, key, ctr, power,
+                                        ledger[j, L_ABS_DIFF])
+        wf.flags[i] |= F_DIFFUSE
+    else:
+        # interpolated shading normal, oriented like the geometric one
+        w0 = 1.0 - bu - bv
+        sx = w0 * g[12] + bu * g[15] + bv * g[18]
+        sy = w0 * g[13] + bu * g[16] + bv * g[19]
+        sz = w0 * g[14] + bu * g[17] + bv * g[20]
+        ln = math.sqrt(sx * sx + sy * sy + sz * sz)
+        if ln > 1e-12:
+            ns = (fs * sx / ln, fs * sy / ln, fs * sz / ln)
         else:
-            # interpolated shading normal, oriented like the geometric one
-            w0 = 1.0 - bu[i] - bv[i]
-            sx = w0 * corner_n[k, 0, 0] + bu[i] * corner_n[k, 1, 0] + bv[i] * corner_n[k, 2, 0]
-            sy = w0 * corner_n[k, 0, 1] + bu[i] * corner_n[k, 1, 1] + bv[i] * corner_n[k, 2, 1]
-            sz = w0 * corner_n[k, 0, 2] + bu[i] * corner_n[k, 1, 2] + bv[i] * corner_n[k, 2, 2]
-            ln = math.sqrt(sx * sx + sy * sy + sz * sz)
-            if ln > 1e-12:
-                sx, sy, sz = fs * sx / ln, fs * sy / ln, fs * sz / ln
-            else:
-                sx, sy, sz = fgx, fgy, fgz
-            flags[i] |= F_SPECULAR
-            if kind == MIRROR:
-                for c in range(C):
-                    rr_ = mat_value[m, c]
-                    ledger[j, L_ABS_MIRR, c] += (1.0 - rr_) * power[i, c]
-                    power[i, c] *= rr_
-                c_i = dx * sx + dy * sy + dz * sz
-                nx_, ny_, nz_ = dx - 2 * c_i * sx, dy - 2 * c_i * sy, dz - 2 * c_i * sz
-                if nx_ * fgx + ny_ * fgy + nz_ * fgz <= 0.0:
-                    c_i = dx * fgx + dy * fgy + dz * fgz
-                    nx_, ny_, nz_ = dx - 2 * c_i * fgx, dy - 2 * c_i * fgy, dz - 2 * c_i * fgz
-                out_side = 1.0
-            else:  # DIELECTRIC
-                if not front:  # we travelled inside this material: Beer–Lambert
-                    for c in range(C):
-                        s_ = mat_sigma[m, c]
-                        if s_ > 0.0:
-                            keep = math.exp(-s_ * t)
-                            ledger[j, L_ABS_VOL, c] += (1.0 - keep) * power[i, c]
-                            power[i, c] *= keep
-                eta_i, eta_t = (1.0, mat_ior[m]) if front else (mat_ior[m], 1.0)
-                cos_i = -(dx * sx + dy * sy + dz * sz)
-                nsx, nsy, nsz = sx, sy, sz
-                if cos_i <= 0.0:  # shading normal faces away: use the geometric one
-                    nsx, nsy, nsz = fgx, fgy, fgz
-                    cos_i = -(dx * fgx + dy * fgy + dz * fgz)
-                F = fresnel_dielectric(cos_i, eta_i, eta_t)
-                if uniform(key, ctr) < F:
-                    nx_, ny_, nz_ = dx + 2 * cos_i * nsx, dy + 2 * cos_i * nsy, dz + 2 * cos_i * nsz
-                    out_side = 1.0
-                    if nx_ * fgx + ny_ * fgy + nz_ * fgz <= 0.0:
-                        c_g = -(dx * fgx + dy * fgy + dz * fgz)
-                        nx_, ny_, nz_ = dx + 2 * c_g * fgx, dy + 2 * c_g * fgy, dz + 2 * c_g * fgz
-                else:
-                    eta = eta_i / eta_t
-                    cos_t = math.sqrt(max(0.0, 1.0 - eta * eta * (1.0 - cos_i * cos_i)))
-                    f = eta * cos_i - cos_t
-                    nx_, ny_, nz_ = eta * dx + f * nsx, eta * dy + f * nsy, eta * dz + f * nsz
-                    out_side = -1.0
-                    if nx_ * fgx + ny_ * fgy + nz_ * fgz >= 0.0:
-                        # the shading normal bent the ray back: refract about the geometry
-                        c_g = -(dx * fgx + dy * fgy + dz * fgz)
-                        s2 = eta * eta * (1.0 - c_g * c_g)
-                        if s2 < 1.0:
-                            f = eta * c_g - math.sqrt(1.0 - s2)
-                            nx_ = eta * dx + f * fgx
-                            ny_ = eta * dy + f * fgy
-                            nz_ = eta * dz + f * fgz
-                        else:
-                            nx_, ny_, nz_ = (dx + 2 * c_g * fgx, dy + 2 * c_g * fgy,
-                                             dz + 2 * c_g * fgz)
-                            out_side = 1.0
-        ln = math.sqrt(nx_ * nx_ + ny_ * ny_ + nz_ * nz_)
-        d[i, 0], d[i, 1], d[i, 2] = nx_ / ln, ny_ / ln, nz_ / ln
-        o[i, 0], o[i, 1], o[i, 2] = _offset(px, py, pz, fgx, fgy, fgz, out_side, eps_floor)
+            ns = ng
+        wf.flags[i] |= F_SPECULAR
+        if kind == MIRROR:
+            wx, wy, wz, side = mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power,
+                                           ledger[j, L_ABS_MIRR])
+        else:
+            wx, wy, wz, side = dielectric_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power,
+                                               ledger[j, L_ABS_VOL])
+    ln = math.sqrt(wx * wx + wy * wy + wz * wz)
+    wx, wy, wz = wx / ln, wy / ln, wz / ln
+    ox, oy, oz = _offset(px, py, pz, ng[0], ng[1], ng[2], side, prm.eps_floor)
 
-        # Russian roulette on weak photons, then the depth limit
-        pmax = 0.0
-        for c in range(C):
-            pmax = max(pmax, power[i, c])
-        if pmax <= 0.0:
-            status[i] = ENDED
+    # Russian roulette on weak photons, then the depth limit
+    pmax = 0.0
+    for c in range(power.shape[0]):
+        pmax = max(pmax, power[c])
+    if pmax <= 0.0:
+        return ENDED, recorded, ox, oy, oz, wx, wy, wz
+    p_ref = wf.p_ref[i]
+    if depth + 1 >= prm.rr_min_depth and pmax < prm.rr_threshold * p_ref:
+        q = pmax / (prm.rr_threshold * p_ref)
+        if uniform(key, ctr + np.uint64(1)) >= q:
+            _book(ledger, j, L_RR, power)
+            return ENDED, recorded, ox, oy, oz, wx, wy, wz
+        for c in range(power.shape[0]):
+            boost = power[c] / q - power[c]
+            ledger[j, L_RR, c] -= boost
+            power[c] += boost
+    if last_bounce:
+        _book(ledger, j, L_MAXD, power)
+        return ENDED, recorded, ox, oy, oz, wx, wy, wz
+    return ALIVE, recorded, ox, oy, oz, wx, wy, wz
+
+
+@njit(cache=True, nogil=True)
+def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, d32,
+            esc_d, esc_p, record_escaped):
+    """One bounce of the first ``m`` rays of a wavefront, fused with its compaction.
+
+    Interacts every ray (:func:`_interact_one`), writes the records densely into ``rec``,
+    the escaped photons into ``esc_d``/``esc_p`` (if ``record_escaped``), and moves the
+    surviving rays to the front of ``wf`` in order, with float32 copies of their origins
+    and directions in ``o32``/``d32`` for the next embree cast. Serial and without the
+    GIL: the tracer runs one wavefront chunk per Python thread, embree casts included.
+
+    Returns (alive, records, escaped) counts.
+    """
+    C = wf.power.shape[1]
+    # gather the hit triangles' rows first: independent loads the CPU overlaps (a hit is a
+    # cache miss on a large mesh, and Halton-ordered photons hit scattered triangles)
+    packed = geom.packed
+    rows = np.empty((m, packed.shape[1]))
+    for i in range(m):
+        k = hits.prim[i]
+        if k >= 0:
+            for q in range(packed.shape[1]):
+                rows[i, q] = packed[k, q]
+    w = 0
+    r = 0
+    e = 0
+    for i in range(m):
+        if record_escaped and hits.prim[i] < 0:
+            for q in range(3):
+                esc_d[e, q] = wf.d[i, q]
+            for c in range(C):
+                esc_p[e, c] = wf.power[i, c]
+            e += 1
+        st, recd, ox, oy, oz, wx, wy, wz = _interact_one(i, wf, hits, rows[i], mats, prm,
+                                                         depth, last_bounce, rec, r, ledger)
+        if recd:
+            r += 1
+        if st != ALIVE:
             continue
-        if depth + 1 >= rr_min_depth and pmax < rr_threshold * p_ref[i]:
-            q = pmax / (rr_threshold * p_ref[i])
-            if uniform(key, ctr + np.uint64(1)) >= q:
-                for c in range(C):
-                    ledger[j, L_RR, c] += power[i, c]
-                    power[i, c] = 0.0
-                status[i] = ENDED
-                continue
+        wf.o[w, 0], wf.o[w, 1], wf.o[w, 2] = ox, oy, oz
+        wf.d[w, 0], wf.d[w, 1], wf.d[w, 2] = wx, wy, wz
+        o32[w, 0], o32[w, 1], o32[w, 2] = ox, oy, oz
+        d32[w, 0], d32[w, 1], d32[w, 2] = wx, wy, wz
+        if w != i:
             for c in range(C):
-                boost = power[i, c] / q - power[i, c]
-                ledger[j, L_RR, c] -= boost
-                power[i, c] += boost
-        if last_bounce:
-            for c in range(C):
-                ledger[j, L_MAXD, c] += power[i, c]
-                power[i, c] = 0.0
-            status[i] = ENDED
+                wf.power[w, c] = wf.power[i, c]
+            wf.p_ref[w] = wf.p_ref[i]
+            wf.flags[w] = wf.flags[i]
+            wf.keys[w] = wf.keys[i]
+            wf.lid[w] = wf.lid[i]
+        w += 1
+    return w, r, e
+
+
+@njit(cache=True, nogil=True)
+def _near_hits(prim, tfar, bound):
+    """Indices of hits closer than ``bound`` (m): candidates for false self-hits."""
+    out = np.empty(prim.shape[0], np.int64)
+    n = 0
+    for i in range(prim.shape[0]):
+        if prim[i] >= 0 and tfar[i] < bound:
+            out[n] = i
+            n += 1
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def _group_ledger(ledger, group, n_groups):
+    """Per-photon ledger rows summed per group, in photon order (like ``np.bincount``)."""
+    out = np.zeros((n_groups, ledger.shape[1], ledger.shape[2]))
+    for i in range(ledger.shape[0]):
+        g = group[i]
+        for k in range(ledger.shape[1]):
+            for c in range(ledger.shape[2]):
+                out[g, k, c] += ledger[i, k, c]
+    return out
 
 
 # ------------------------------------------------------------------------------------------
@@ -443,18 +451,14 @@ class TraceResult:
     escaped_power: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
 
-    def luminous(self, values: np.ndarray) -> np.ndarray:
-        """Channel values → luminous (lm) using Rec. 709 weights for RGB."""
-        v = np.asarray(values, dtype=np.float64)
-        return v[..., 0] if v.shape[-1] == 1 else v @ LUMA
-
 
 class PhotonTracer:
     """Traces photon batches through a scene (see the module docstring for parameters)."""
 
     def __init__(self, scene, *, max_depth: int = 32, rr_threshold: float = 0.05,
                  rr_min_depth: int = 3, record: str = "wall", threads: int | None = None,
-                 batch: int = 262144, caster: RayCaster | None = None) -> None:
+                 batch: int = 262144, caster: RayCaster | None = None,
+                 min_chunk: int = 8192) -> None:
         if record not in ("wall", "all"):
             raise ValueError("record must be 'wall' or 'all'")
         self.scene = scene
@@ -464,16 +468,29 @@ class PhotonTracer:
         self.record_all = record == "all"
         self.batch = int(batch)
         self.caster = caster or RayCaster(scene.triangles, threads=threads)
-        self.emitters = EmitterTable.from_scene(scene)
+        self.emitters = EmitterMix.from_scene(scene)
         mats = scene.materials
         self.channels = mats.channels
-        self._geom = (np.ascontiguousarray(scene.triangles),
-                      np.ascontiguousarray(scene.face_normals),
-                      np.ascontiguousarray(scene.corner_normals),
-                      scene.tri_part.astype(np.int32), scene.tri_is_wall.astype(np.bool_))
-        self._mats = (mats.kind, mats.value, mats.ior, mats.sigma)
+        self._geom = Geometry.from_scene(scene)
+        self._mats = mats.arrays
         self.eps_floor = 0.01 * scene.scale
+        self._params = TraceParams(self.eps_floor, self.rr_threshold, self.rr_min_depth,
+                                   self.record_all)
         self.scene_extent = scene.extent  # no ray origin lies farther out than the geometry
+        self.threads = self.caster.threads
+        self.min_chunk = int(min_chunk)
+        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+
+    def close(self) -> None:
+        """Stop the tracer's threads and the ray caster's."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None
+        self.caster.close()
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        if getattr(self, "_pool", None) is not None:
+            self._pool.shutdown(wait=False)
 
     def trace_points(self, points: np.ndarray, keys: np.ndarray, weight: np.ndarray | None = None,
                      group: np.ndarray | None = None, n_groups: int = 1,
@@ -491,11 +508,15 @@ class PhotonTracer:
         group, n_groups :
             Group (interleave set) of each photon; bookkeeping is returned per group.
         """
-        origins, directions = emit(self.emitters, points)
-        power = np.full((len(points), self.channels), self.emitters.flux)
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        power = np.full((len(points), self.channels), self.emitters.flux_lm)
         if weight is not None:
             power *= np.asarray(weight, dtype=np.float64)[:, None]
-        return self.trace(origins, directions, power, keys, group, n_groups, record_escaped)
+
+        def source(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+            return self.emitters.sample(points[lo:hi])  # photon i from point i only
+
+        return self._trace(source, len(points), power, keys, group, n_groups, record_escaped)
 
     def trace(self, origins: np.ndarray, directions: np.ndarray, power: np.ndarray,
               keys: np.ndarray, group: np.ndarray | None = None, n_groups: int = 1,
@@ -505,8 +526,18 @@ class PhotonTracer:
         The ledger is (n_groups, len(LEDGER), C); per group it is summed in photon order,
         so a set's bookkeeping is bit-identical however sets are batched together.
         """
-        n = len(origins)
+        def source(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+            # copies: the tracer moves its rays in place
+            return (np.array(origins[lo:hi], dtype=np.float64),
+                    np.array(directions[lo:hi], dtype=np.float64))
+
+        return self._trace(source, len(origins), power, keys, group, n_groups, record_escaped)
+
+    def _trace(self, source, n: int, power: np.ndarray, keys: np.ndarray,
+               group: np.ndarray | None, n_groups: int, record_escaped: bool) -> TraceResult:
         C = self.channels
+        power = np.asarray(power, dtype=np.float64).reshape(n, C)
+        keys = np.asarray(keys, dtype=np.uint64)
         group = np.zeros(n, np.int64) if group is None else np.asarray(group, np.int64)
         parts: list[PhotonRecords] = []
         ledger = np.zeros((n_groups, len(LEDGER), C))
@@ -515,9 +546,8 @@ class PhotonTracer:
         rays = 0
         for lo in range(0, n, self.batch):
             hi = min(n, lo + self.batch)
-            rec, led, nrays, ed, ep = self._trace_batch(
-                origins[lo:hi], directions[lo:hi], power[lo:hi], keys[lo:hi], group[lo:hi],
-                n_groups, record_escaped)
+            rec, led, nrays, ed, ep = self._trace_batch(source, lo, hi, power, keys, group,
+                                                        n_groups, record_escaped)
             rec.source += lo
             caustic_source[rec.source[(rec.flags & F_SPECULAR) != 0]] = True
             parts.append(rec)
@@ -528,30 +558,29 @@ class PhotonTracer:
                 esc_p.append(ep)
         emitted = np.zeros((n_groups, C))
         for c in range(C):
-            emitted[:, c] = np.bincount(group, weights=np.asarray(power, np.float64)[:, c],
-                                        minlength=n_groups)
+            emitted[:, c] = np.bincount(group, weights=power[:, c], minlength=n_groups)
         return TraceResult(PhotonRecords.concatenate(parts, C), emitted, ledger, rays,
                            caustic_source,
                            np.concatenate(esc_d) if record_escaped and esc_d else None,
                            np.concatenate(esc_p) if record_escaped and esc_p else None)
 
-    def _intersect(self, o: np.ndarray, d: np.ndarray):
-        """Closest hits, skipping false self-intersections at t ≈ 0.
+    def _cast(self, o: np.ndarray, d: np.ndarray, o32: np.ndarray, d32: np.ndarray) -> Hits:
+        """Closest hits of one chunk (this thread), skipping false self-hits at t ≈ 0.
 
         embree starts rays at t = 0, and an origin rounded to float32 can sit exactly on a
         neighbouring face near an edge. A hit closer than the origin offset is false when
         the ray moves away from that face's plane on the side where its (float64) origin
         lies; such rays are re-cast from a little further along.
         """
-        prim, tfar, bu, bv = self.caster.intersect(o, d)
+        prim, tfar, bu, bv = self.caster.cast(o32, d32)
         # a cheap global bound first: only rays that hit very close need the per-ray test
         bound = 4 * 3.814697265625e-06 * (self.scene_extent + self.eps_floor)
-        near = np.flatnonzero((prim >= 0) & (tfar < bound))
+        near = _near_hits(prim, tfar, bound)
         if len(near) == 0:
-            return prim, tfar, bu, bv
+            return Hits(prim, tfar, bu, bv)
         t_min = np.full(len(o), -1.0)
         t_min[near] = 4 * 3.814697265625e-06 * (np.abs(o[near]).max(axis=1) + self.eps_floor)
-        tri, fn = self._geom[0], self._geom[1]
+        tri, fn = self._geom.tri_v, self._geom.face_n
         for _ in range(3):
             close = np.flatnonzero((prim >= 0) & (tfar < t_min))
             if len(close) == 0:
@@ -563,62 +592,73 @@ class PhotonTracer:
             if len(close) == 0:
                 break
             step = t_min[close]
-            p2, t2, u2, v2 = self.caster.intersect(o[close] + step[:, None] * d[close],
-                                                   d[close])
+            p2, t2, u2, v2 = self.caster.cast(
+                np.ascontiguousarray(o[close] + step[:, None] * d[close], dtype=np.float32),
+                np.ascontiguousarray(d32[close]))
             prim[close], tfar[close], bu[close], bv[close] = p2, t2 + step, u2, v2
-        return prim, tfar, bu, bv
+        return Hits(prim, tfar, bu, bv)
 
-    def _trace_batch(self, origins, directions, power, keys, group, n_groups, record_escaped):
-        n = len(origins)
+    def _trace_chunk(self, source, lo: int, hi: int, power, keys, ledger, record_escaped):
+        """Trace photons lo..hi to the end in this thread: emit, then per bounce one embree
+        cast and one fused interaction + compaction kernel. ``source(lo, hi)`` returns new
+        arrays of origins and directions (they become the wavefront). Returns per-bounce
+        records, escaped photons and the ray count."""
+        n = hi - lo
         C = self.channels
-        K = len(LEDGER)
-        o = np.array(origins, dtype=np.float64)
-        d = np.array(directions, dtype=np.float64)
-        pw = np.array(power, dtype=np.float64).reshape(n, C)
-        p_ref = pw.max(axis=1) if n else np.zeros(0)
-        flags = np.zeros(n, dtype=np.uint8)
-        keys = np.asarray(keys, dtype=np.uint64)
-        idx = np.arange(n, dtype=np.int64)
-        group = np.asarray(group, dtype=np.int64)
-        ledger = np.zeros((n, K, C))
-        recs = []
-        esc_d, esc_p = [], []
+        origins, directions = source(lo, hi)  # fresh arrays: traced in place
+        o = np.ascontiguousarray(origins, dtype=np.float64).reshape(n, 3)
+        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(n, 3)
+        pw = power[lo:hi].copy()
+        wf = Wavefront(o, d, pw, pw.max(axis=1) if n else np.zeros(0),
+                       np.zeros(n, np.uint8), keys[lo:hi].copy(),
+                       np.arange(lo, hi, dtype=np.int64))
+        o32 = o.astype(np.float32)
+        d32 = d.astype(np.float32)
+        recs: list[PhotonRecords] = []
+        escs: list[tuple[np.ndarray, np.ndarray]] = []
         rays = 0
+        m = n
         for depth in range(self.max_depth):
-            m = len(o)
             if m == 0:
                 break
-            prim, tfar, bu, bv = self._intersect(o, d)
+            hits = self._cast(o[:m], d[:m], o32[:m], d32[:m])
             rays += m
-            status = np.empty(m, dtype=np.int8)
-            rec = np.empty(m, dtype=np.bool_)
-            rec_pos = np.empty((m, 3))
-            rec_nrm = np.empty((m, 3))
-            rec_pow = np.empty((m, C))
-            rec_part = np.empty(m, dtype=np.int32)
-            rec_flag = np.empty(m, dtype=np.uint8)
-            if record_escaped:
-                miss = prim < 0
-                esc_d.append(d[miss].astype(np.float32))
-                esc_p.append(pw[miss].astype(np.float64))
-            _interact(o, d, pw, p_ref, flags, keys, depth, prim, tfar, bu, bv,
-                      *self._geom, *self._mats, self.eps_floor, self.rr_threshold,
-                      self.rr_min_depth, depth == self.max_depth - 1, self.record_all,
-                      status, rec, rec_pos, rec_nrm, rec_pow, rec_part, rec_flag,
-                      ledger, idx)
-            if rec.any():
-                recs.append(PhotonRecords(rec_pos[rec].astype(np.float32),
-                                          rec_nrm[rec].astype(np.float32),
-                                          rec_pow[rec].astype(np.float32), rec_part[rec],
-                                          rec_flag[rec], idx[rec]))
-            alive = status == ALIVE
-            o, d, pw, p_ref, flags, keys, idx = (
-                o[alive], d[alive], pw[alive], p_ref[alive], flags[alive], keys[alive],
-                idx[alive])
-        led = np.zeros((n_groups, K, C))
-        for kk in range(K):
-            for c in range(C):
-                led[:, kk, c] = np.bincount(group, weights=ledger[:, kk, c], minlength=n_groups)
-        ed = np.concatenate(esc_d) if esc_d else np.zeros((0, 3), np.float32)
-        ep = np.concatenate(esc_p) if esc_p else np.zeros((0, C))
+            rb = RecordBuffer(np.empty((m, 3), np.float32), np.empty((m, 3), np.float32),
+                              np.empty((m, C), np.float32), np.empty(m, np.int32),
+                              np.empty(m, np.uint8), np.empty(m, np.int64))
+            esc = ((np.empty((m, 3), np.float32), np.empty((m, C))) if record_escaped
+                   else (np.empty((0, 3), np.float32), np.empty((0, C))))
+            m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
+                              depth == self.max_depth - 1, rb, ledger, o32, d32, esc[0], esc[1],
+                              record_escaped)
+            recs.append(PhotonRecords(*(a[:r] for a in rb)))
+            escs.append((esc[0][:e], esc[1][:e]))
+        return recs, escs, rays
+
+    def _trace_batch(self, source, lo, hi, power, keys, group, n_groups, record_escaped):
+        """One batch in chunks over the threads; records in (bounce, photon) order."""
+        n = hi - lo
+        C = self.channels
+        K = len(LEDGER)
+        ledger = np.zeros((n, K, C))  # per photon of the batch, summed per group below
+        step = max(self.min_chunk, -(-n // (4 * self.threads)))
+        bounds = list(range(0, n, step)) + [n]
+
+        def work(k: int):
+            a, b = bounds[k], bounds[k + 1]
+            return self._trace_chunk(lambda x, y: source(lo + x, lo + y), a, b,
+                                     power[lo:hi], keys[lo:hi], ledger, record_escaped)
+
+        if self._pool is None or len(bounds) <= 2:
+            chunks = [work(k) for k in range(len(bounds) - 1)]
+        else:
+            chunks = list(self._pool.map(work, range(len(bounds) - 1)))
+        # bounce-major like one wavefront: bounce 0 of every chunk, then bounce 1, …
+        depth = max((len(c[0]) for c in chunks), default=0)
+        recs = [c[0][k] for k in range(depth) for c in chunks if k < len(c[0])]
+        escs = [c[1][k] for k in range(depth) for c in chunks if k < len(c[1])]
+        rays = sum(c[2] for c in chunks)
+        led = _group_ledger(ledger, group[lo:hi], n_groups)
+        ed = np.concatenate([e[0] for e in escs]) if escs else np.zeros((0, 3), np.float32)
+        ep = np.concatenate([e[1] for e in escs]) if escs else np.zeros((0, C))
         return PhotonRecords.concatenate(recs, C), led, rays, ed, ep

@@ -17,6 +17,9 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+# the core's emitter registry learns the photometric readers and the bulb catalogue
+from lightsim.luminaires import sources as _sources  # noqa: F401
+
 _EXPORTS = {
     "GltfMaterial": "gltf_writer",
     "GltfPart": "gltf_writer",

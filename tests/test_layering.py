@@ -22,15 +22,6 @@ ROOT = Path(__file__).resolve().parents[1]
 ENGINE = "lightsim"
 FORBIDDEN = ("lightsim.luminaires", "lightsim.validation", "lightsim.cli")
 
-# Emitters still come from luminaires/ until i14b's emitter interface is merged (the lead
-# deletes this allowlist on merge). Exactly these (module, imported name) pairs.
-_PENDING_I14B = {
-    ("lightsim/tracer.py", "lightsim.luminaires.photometric"),
-    ("lightsim/scene.py", "lightsim.luminaires.photometric"),
-    ("lightsim/scene.py", "lightsim.luminaires"),
-}
-
-
 def _engine_dir() -> Path:
     """The folder installed as ``lightsim`` (from pyproject's package-dir)."""
     cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -104,23 +95,11 @@ def violations(engine: Path, folders: dict[str, str] | None = None
     return found
 
 
-def _pending(rel: str, name: str) -> bool:
-    return any(rel == f and (name == n or name.startswith(n + ".")) for f, n in _PENDING_I14B)
-
-
 def test_engine_imports_point_one_way():
     engine = _engine_dir()
     assert (engine / "__init__.py").is_file()
-    bad = [f"{f}:{line}: imports {name}" for f, line, name in violations(engine)
-           if not _pending(f, name)]
+    bad = [f"{f}:{line}: imports {name}" for f, line, name in violations(engine)]
     assert not bad, "the engine must not import luminaires/validation/cli:\n" + "\n".join(bad)
-
-
-def test_pending_allowlist_is_still_needed():
-    """Every allowlisted pair still occurs (delete it when i14b's branch is merged)."""
-    seen = {(f, n) for f, _, name in violations(_engine_dir()) for ff, n in _PENDING_I14B
-            if f == ff and (name == n or name.startswith(n + "."))}
-    assert seen == _PENDING_I14B, f"stale allowlist entries: {_PENDING_I14B - seen}"
 
 
 @pytest.mark.parametrize("source, expected", [

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
+from lightsim.emitters.rayfile import RaySource, rotation_z_to
 from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.io.rayfile import read_rayfile, write_tm25, write_zemax
 from lightsim.luminaires.rayfiles import lambertian_square, lambertian_square_luminance
-from lightsim.raysource import RaySource, rotation_z_to
 from lightsim.render.frame import luminous
 from lightsim.scene import load_scene
 from lightsim.validation.scenes.analytic import lambert_polygon_lux, pixel_average

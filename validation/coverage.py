@@ -14,7 +14,7 @@ of the file's intensity,
 integrated with ``quad`` × ``quad`` midpoints in (H, V) weighted by the exact
 dΩ = sec²H sec²V / (1 + tan²H + tan²V)^{3/2} dH dV. The intensity is the one the source
 samples: the file's bilinear interpolant :meth:`HVGrid.intensity_hv` (the goniometric
-sampler draws exactly from it, see :mod:`~lightsim.luminaires.photometric.bilinear`).
+sampler draws exactly from it, see :mod:`~lightsim.emitters.polar`).
 
 Reported: the share of (lamp, point) evaluations whose interval covers the truth (target
 93–97 % for 95 % intervals), the worst single evaluation's bias in units of its interval

@@ -3,7 +3,7 @@
 A ray file is a light source measured (near-field goniophotometer) or modelled by its
 maker: N rays, each a start point, a direction and a flux, optionally a wavelength. The
 readers parse the header and map the ray block with :class:`numpy.memmap` — a file of
-50 M rays is not loaded; the sampler (:mod:`lightsim.raysource`) reads only the rays it
+50 M rays is not loaded; the sampler (:mod:`lightsim.emitters.rayfile`) reads only the rays it
 draws. The writers make small files for tests and examples.
 
 Layouts (little-endian, float32 ray records):

@@ -18,7 +18,7 @@ Interpolation. Between nodes the intensity is **bilinear in (C, γ)** (C periodi
 outside [γ_first, γ_last]: :meth:`CandelaGrid.intensity` (and ``intensity_towards`` /
 ``intensity_hv``) return exactly that interpolant, :meth:`CandelaGrid.total_flux` is its
 exact integral and :func:`~lightsim.luminaires.photometric.sampling.sample_directions` draws
-directions from it (see :mod:`~lightsim.luminaires.photometric.bilinear`), so the far field
+directions from it (see :mod:`~lightsim.emitters.polar`), so the far field
 of a simulated point source converges to ``intensity`` itself. :meth:`node_solid_angles`
 gives each node's share Ω (sr) of that integral, ``total_flux = Σ I·Ω``. The older cells
 halfway between nodes (:meth:`solid_angles`, :meth:`cell_flux`) remain for reference: the
@@ -48,9 +48,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from lightsim.emitters.polar import PolarTable
 from lightsim.errors import InputError
 
-from .bilinear import PolarTable
 from .checks import freeze_grid
 
 __all__ = [

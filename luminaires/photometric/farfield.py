@@ -3,7 +3,7 @@
 Every photon that escapes the lamp carries a flux ΔΦ (lm) in a direction. It is deposited
 on the four grid nodes around its direction with its bilinear weights ("cloud in cell"),
 and a node's intensity is ``I = Σ w·ΔΦ / Ω`` (cd) with Ω the node's share of the solid angle
-(:meth:`~lightsim.luminaires.photometric.bilinear.PolarTable.node_weights`). Because the
+(:meth:`~lightsim.emitters.polar.PolarTable.node_weights`). Because the
 weights of every direction sum to 1 and ``total_flux = Σ I·Ω`` is the exact integral of the
 grid's bilinear interpolant, the grid's :meth:`total_flux` equals the binned flux exactly.
 A pole node (γ = 0°/180°, or V = ±90° in Type A) is one direction: it gets one value for

@@ -26,7 +26,7 @@ the intensity is zero.
 
 Interpolation is bilinear in (H, V) — the table's own angles — and :meth:`HVGrid.total_flux`
 is its exact integral; sampling draws from the same interpolant (see
-:mod:`~lightsim.luminaires.photometric.bilinear`).
+:mod:`~lightsim.emitters.polar`).
 
 Parameters
 ----------
@@ -53,9 +53,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from lightsim.emitters.polar import PolarTable
 from lightsim.errors import InputError
 
-from .bilinear import PolarTable
 from .candela import direction_from_hv
 from .checks import freeze_grid
 

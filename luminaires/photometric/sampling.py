@@ -6,7 +6,7 @@ bilinear interpolant of its table, and directions are drawn **exactly** from it:
 of a sampled direction is ``pdf = I(direction)/Φ`` (1/sr) with ``I = grid.intensity_towards``
 and ``Φ = grid.total_flux()`` (the interpolant's exact integral). ``u1`` picks the plane angle
 from its marginal, ``u2`` the polar angle from the conditional distribution (see
-:func:`~lightsim.luminaires.photometric.bilinear.sample_table`); the map is continuous and
+:func:`~lightsim.emitters.polar.sample_table`); the map is continuous and
 monotone in each of u1, u2, so stratified or low-discrepancy inputs (Halton) stay well
 distributed. Each photon carries ``Φ/n`` lm — the luminaire's output, which is the file's
 lumens for absolute photometry (for relative photometry, lamp lumens × light output ratio) —
@@ -30,9 +30,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from lightsim.emitters.polar import sample_table
 from lightsim.errors import InputError
-
-from .bilinear import sample_table
 
 __all__ = ["sample_directions"]
 

@@ -6,10 +6,18 @@ rays* as the photons needed, with random origins inside the luminaire's bounding
 and random directions, through the bare :class:`~lightsim.raycast.RayCaster` — the raw
 ray rate of embree in the same scene, measured in the same run. The ratio of the two
 ray rates is the cost of everything that is not ray casting.
+
+The two are timed in alternation, ``repeats`` pairs, and the ratio is the median of the
+pairs' ratios: on a shared machine the load changes between runs, and a pair measured
+back to back sees about the same load (the load average is in the rows). On a machine
+loaded far beyond its cores the wall clock mostly measures waiting for a core, so the
+rows also give the ratio of CPU seconds (process time, all threads): the cost of the
+work itself.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Any
 
@@ -20,13 +28,10 @@ from lightsim.sampling import digit_permutations, halton_points, photon_keys
 from lightsim.tracer import PhotonTracer
 
 
-def _best(fn, repeats: int) -> tuple[float, Any]:
-    best, out = np.inf, None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
+def _timed(fn) -> tuple[float, Any]:
+    t0 = time.perf_counter()
+    out = fn()
+    return time.perf_counter() - t0, out
 
 
 def bench_tracer(scene, photons: int = 500_000, repeats: int = 3, threads: int | None = None,
@@ -37,7 +42,7 @@ def bench_tracer(scene, photons: int = 500_000, repeats: int = 3, threads: int |
     pts = halton_points(idx, digit_permutations(seed, 0, None))
     keys = photon_keys(seed, 0, 0, idx)
     tracer.trace_points(pts[:1000], keys[:1000])  # compile/warm up
-    t_trace, res = _best(lambda: tracer.trace_points(pts, keys), repeats)
+    res = tracer.trace_points(pts, keys)
     rays = res.rays
 
     # raw embree: as many random rays, from inside the lamp's bounding box
@@ -49,20 +54,30 @@ def bench_tracer(scene, photons: int = 500_000, repeats: int = 3, threads: int |
     d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
     caster = RayCaster(scene.triangles, threads=threads)
     caster.intersect(o[:1000], d[:1000])
-    t_raw, _ = _best(lambda: caster.intersect(o, d), repeats)
+    pairs = []
+    for _ in range(max(1, repeats)):
+        c0 = time.process_time()
+        t_trace, _ = _timed(lambda: tracer.trace_points(pts, keys))
+        c1 = time.process_time()
+        t_raw, _ = _timed(lambda: caster.intersect(o, d))
+        c2 = time.process_time()
+        pairs.append((t_trace, t_raw, os.getloadavg()[0], (c2 - c1) / max(c1 - c0, 1e-9)))
     caster.close()
-    tracer.caster.close()
-    photon_rate = photons / t_trace
-    ray_rate = rays / t_trace
-    raw_rate = rays / t_raw
+    tracer.close()
+    t_trace = float(np.median([p[0] for p in pairs]))
+    t_raw = float(np.median([p[1] for p in pairs]))
+    ratio = float(np.median([p[1] / p[0] for p in pairs]))
+    load = float(np.median([p[2] for p in pairs]))
+    cpu_ratio = float(np.median([p[3] for p in pairs]))
     return [
         {"what": "photon tracing", "photons": photons, "rays": rays,
          "rays_per_photon": rays / photons, "seconds": t_trace,
-         "photons_per_s": photon_rate, "rays_per_s": ray_rate,
-         "ratio_vs_raw_embree": ray_rate / raw_rate,
-         "wall_photons_per_emitted": len(res.records) / photons},
+         "photons_per_s": photons / t_trace, "rays_per_s": rays / t_trace,
+         "ratio_vs_raw_embree": ratio, "cpu_ratio_vs_raw_embree": cpu_ratio,
+         "wall_photons_per_emitted": len(res.records) / photons, "load_average": load},
         {"what": "raw embree (random rays)", "photons": 0, "rays": rays,
          "rays_per_photon": 0.0, "seconds": t_raw, "photons_per_s": 0.0,
-         "rays_per_s": raw_rate, "ratio_vs_raw_embree": 1.0,
-         "wall_photons_per_emitted": 0.0},
+         "rays_per_s": rays / t_raw, "ratio_vs_raw_embree": 1.0,
+         "cpu_ratio_vs_raw_embree": 1.0, "wall_photons_per_emitted": 0.0,
+         "load_average": load},
     ]

@@ -149,6 +149,10 @@ class RaySource:
             pos, k = pos @ self.rotation.T, k @ self.rotation.T
         return pos + self.position, k
 
+    def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The :class:`~lightsim.emitters.base.Emitter` protocol: :meth:`sample_rays`."""
+        return self.sample_rays(u)
+
     def describe(self) -> str:
         return (f"ray file {Path(self.path).name}: {self.file.describe()}, "
                 f"{self.flux_lm:.6g} lm used")
