@@ -6,7 +6,9 @@ frame is computed are coalesced (the latest controls win), so a dragged slider n
 builds a queue.
 
 * **Interaction** (paper section 4.1): an edit → ``Session.update`` discards the photons;
-  the next frame shoots a new batch, renders the interleaved image and box-filters it.
+  the next frame shoots a new batch (the first one after an edit at most
+  ``quick_photons``), renders the interleaved image and box-filters it — and nothing
+  else: no probes, no error figure, no regulation (``Session.frame(probes=False)``).
 * **Accumulation** (the paper's walkthrough with a still scene): no edit → photon batches
   are added to the maps (``Session.accumulate``) for ``step_seconds``, then one estimate
   gives the error figure and, at most every ``image_interval`` seconds, the interleaved
@@ -38,6 +40,13 @@ parameter                  unit   default  meaning
 ``max_photons``            –      2·10⁸    … or at this many photons
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
                                            the second tab (rendered while a tab shows it)
+``quick_photons``          –      20 000   photons of the first frame after an edit (at most
+                                           the frame's photons): the low-quality frame
+``estimate_share``         –      0.2      accumulation: the estimates (error figure,
+                                           image) take at most this share of the time; the
+                                           rest traces photons
+``warm_up``                –      True     run every code path once before ``ready`` is
+                                           set (numba kernels compiled, no edit JITs)
 =========================  =====  =======  ==================================================
 """
 
@@ -127,7 +136,8 @@ class LiveSession:
                  image_interval: float = 0.5, pooled_after: float = math.inf,
                  pooled_error: float = 0.05, step_seconds: float = 0.5,
                  regulation_interval: float = 1.0, stop_error: float = 0.005,
-                 max_photons: int = 200_000_000) -> None:
+                 max_photons: int = 200_000_000, quick_photons: int = 20_000,
+                 estimate_share: float = 0.2, warm_up: bool = True) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -147,6 +157,12 @@ class LiveSession:
         self.regulation_interval = regulation_interval
         self.stop_error = stop_error
         self.max_photons = max_photons
+        self.quick_photons = int(quick_photons)
+        self.estimate_share = float(estimate_share)
+        self.warm_up = bool(warm_up)
+        self._est_cost = 0.0  # seconds of the last accumulation estimate
+        self._quick_due = False  # the next frame is the first after an edit
+        self.ready = threading.Event()  # set once warmed up (or failed)
         self.controls = controls or editor.defaults()
         self.stats = LiveStats()
         self._lock = threading.Lock()
@@ -224,7 +240,13 @@ class LiveSession:
         except LightsimError as exc:
             self.error = str(exc)
             self._message("error", f"cannot start the session: {exc}")
+            self.ready.set()
             return
+        try:
+            if self.warm_up:
+                self._warm()
+        finally:
+            self.ready.set()
         self._autosave({"start": True})
         while not self._stop.is_set():
             try:
@@ -235,6 +257,23 @@ class LiveSession:
                 self._message("error", f"internal error: {type(exc).__name__}: {exc}")
                 traceback.print_exc()
                 time.sleep(0.2)
+
+    def _warm(self) -> None:
+        """Every code path of the loop once (interaction frame, estimate, pooled map,
+        camera, light transform, regulation) so that numba compiles its kernels now, not
+        at the user's first edit; the photons are then discarded."""
+        s = self.session
+        t0 = time.perf_counter()
+        s.frame(image=True, probes=False, camera=self.camera,
+                photons=min(self.quick_photons, s.config.frame_photons))
+        s.accumulate(1)
+        s.frame(image=True)
+        s.frame(image=True, shoot=False, mode="pooled")
+        if self.regulation_hook is not None:
+            self.regulation_hook(s)
+        s.update(light_transform=np.eye(4))
+        self._reset_clock()
+        self.stats.timings = {"warm_up": time.perf_counter() - t0}
 
     def _config(self, c: Controls) -> RunConfig:
         return self.base_config.with_(k=c.k, interleave=c.interleave,
@@ -254,6 +293,7 @@ class LiveSession:
         self._changed_at = time.perf_counter()
         self._pooled_photons = 0
         self._last_reg = 0.0
+        self._quick_due = True
 
     def _apply_pending(self) -> bool:
         with self._lock:
@@ -313,7 +353,9 @@ class LiveSession:
         if self.mode == "accumulation":
             # shoot batches between displayed frames, so the probe estimates, the image
             # and the error figure are paid once per step, not once per batch
-            t_end = time.perf_counter() + self.step_seconds
+            share = min(max(self.estimate_share, 0.01), 0.9)
+            t_end = time.perf_counter() + max(self.step_seconds,
+                                              self._est_cost * (1 - share) / share)
             while time.perf_counter() < t_end and not self._busy() and not self._stop.is_set():
                 s.accumulate(1)
             if self._busy():
@@ -326,8 +368,17 @@ class LiveSession:
             self.mode == "interaction" or now - self._last_camera >= self._image_every)) \
             else None
         t0 = time.perf_counter()
-        est = s.frame(image=image, camera=camera)
+        if self.mode == "interaction":
+            # only the picture: the probes, error figure and table wait for a still scene
+            quick = self._quick_due and self.quick_photons < s.config.frame_photons
+            est = s.frame(image=True, camera=camera, probes=False,
+                          photons=self.quick_photons if quick else None)
+            self._quick_due = False
+        else:
+            est = s.frame(image=image, camera=camera)
         self.stats.last_frame_s = time.perf_counter() - t0
+        if self.mode == "accumulation":
+            self._est_cost = self.stats.last_frame_s - est.timings.get("shoot", 0.0)
         self.stats.timings = dict(est.timings)
         self.stats.frames += 1
         if self.mode == "interaction":
