@@ -47,6 +47,11 @@ parameter                  unit   default  meaning
                                            rest traces photons
 ``warm_up``                –      True     run every code path once before ``ready`` is
                                            set (numba kernels compiled, no edit JITs)
+``threads``                –      auto     numba threads of the session thread; auto = the
+                                           warm-up times interaction frames at 1 and at
+                                           all threads and keeps the faster (on an
+                                           oversubscribed machine the parallel kernels'
+                                           barriers cost more than the second core gives)
 =========================  =====  =======  ==================================================
 """
 
@@ -137,7 +142,8 @@ class LiveSession:
                  pooled_error: float = 0.05, step_seconds: float = 0.5,
                  regulation_interval: float = 1.0, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 20_000,
-                 estimate_share: float = 0.2, warm_up: bool = True) -> None:
+                 estimate_share: float = 0.2, warm_up: bool = True,
+                 threads: int | str = "auto") -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -160,6 +166,10 @@ class LiveSession:
         self.quick_photons = int(quick_photons)
         self.estimate_share = float(estimate_share)
         self.warm_up = bool(warm_up)
+        if threads != "auto" and (not isinstance(threads, int) or threads < 1):
+            raise LightsimError(f"threads must be 'auto' or ≥ 1, got {threads!r}")
+        self.threads = threads
+        self.thread_times: dict[int, float] = {}  # warm-up: threads → frame seconds
         self._est_cost = 0.0  # seconds of the last accumulation estimate
         self._quick_due = False  # the next frame is the first after an edit
         self.ready = threading.Event()  # set once warmed up (or failed)
@@ -245,6 +255,8 @@ class LiveSession:
         try:
             if self.warm_up:
                 self._warm()
+            elif self.threads != "auto":
+                self._choose_threads()
         finally:
             self.ready.set()
         self._autosave({"start": True})
@@ -272,8 +284,30 @@ class LiveSession:
         if self.regulation_hook is not None:
             self.regulation_hook(s)
         s.update(light_transform=np.eye(4))
+        self._choose_threads()
         self._reset_clock()
         self.stats.timings = {"warm_up": time.perf_counter() - t0}
+
+    def _choose_threads(self) -> None:
+        """numba threads of this thread (``set_num_threads`` is per thread): ``threads``,
+        or the faster of 1 and all for an interaction frame (best of two each)."""
+        import numba
+
+        top = int(numba.config.NUMBA_NUM_THREADS)
+        if self.threads != "auto":
+            numba.set_num_threads(min(int(self.threads), top))
+            return
+        s = self.session
+        for n in sorted({1, top}):
+            numba.set_num_threads(n)
+            times = []
+            for _ in range(2):
+                t0 = time.perf_counter()
+                s.frame(image=True, probes=False)
+                times.append(time.perf_counter() - t0)
+                s.update(light_transform=np.eye(4))
+            self.thread_times[n] = min(times)
+        numba.set_num_threads(min(self.thread_times, key=self.thread_times.get))
 
     def _config(self, c: Controls) -> RunConfig:
         return self.base_config.with_(k=c.k, interleave=c.interleave,
@@ -375,7 +409,10 @@ class LiveSession:
                           photons=self.quick_photons if quick else None)
             self._quick_due = False
         else:
-            est = s.frame(image=image, camera=camera)
+            # the error figure of the consistent (ICI) map needs only its rung sums at
+            # the grid probes: no kNN probe queries every step
+            est = s.frame(image=image, camera=camera,
+                          probes="ici" if s.config.uses_ici else True)
         self.stats.last_frame_s = time.perf_counter() - t0
         if self.mode == "accumulation":
             self._est_cost = self.stats.last_frame_s - est.timings.get("shoot", 0.0)
@@ -461,6 +498,7 @@ class LiveSession:
                 "error_text": None if e is None else e.describe(),
                 "still_s": time.perf_counter() - self._changed_at,
                 "frame_s": self.stats.last_frame_s, "frames": self.stats.frames,
+                "numba_threads": _numba_threads(),
                 "timings": self.stats.timings}
 
     def describe(self) -> dict[str, Any]:
@@ -538,3 +576,9 @@ class LiveSession:
 
 def _finite(x: float | None) -> float | None:
     return None if x is None or not np.isfinite(x) else float(x)
+
+
+def _numba_threads() -> int:
+    import numba
+
+    return int(numba.get_num_threads())
