@@ -537,6 +537,7 @@ def test_live_session_warm_up_and_quick_first_frame(tmp_path):
     try:
         assert live.ready.wait(300) and live.error is None
         assert set(live.thread_times) >= {1} and all(t > 0 for t in live.thread_times.values())
+        assert live.accumulate_threads in live.accumulate_times
         live.submit({"filament_x_mm": 0.5})
         t_end = time.monotonic() + 300
         while time.monotonic() < t_end and not any(

@@ -48,8 +48,9 @@ parameter                  unit   default  meaning
 ``warm_up``                –      True     run every code path once before ``ready`` is
                                            set (numba kernels compiled, no edit JITs)
 ``threads``                –      auto     numba threads of the session thread; auto = the
-                                           warm-up times interaction frames at 1 and at
-                                           all threads and keeps the faster (on an
+                                           warm-up times interaction frames and
+                                           accumulation batches at 1 and at all threads
+                                           and keeps the faster for each (on an
                                            oversubscribed machine the parallel kernels'
                                            barriers cost more than the second core gives)
 =========================  =====  =======  ==================================================
@@ -170,6 +171,8 @@ class LiveSession:
             raise LightsimError(f"threads must be 'auto' or ≥ 1, got {threads!r}")
         self.threads = threads
         self.thread_times: dict[int, float] = {}  # warm-up: threads → frame seconds
+        self.accumulate_times: dict[int, float] = {}  # … → seconds of one batch
+        self.frame_threads = self.accumulate_threads = None
         self._est_cost = 0.0  # seconds of the last accumulation estimate
         self._quick_due = False  # the next frame is the first after an edit
         self.ready = threading.Event()  # set once warmed up (or failed)
@@ -295,19 +298,33 @@ class LiveSession:
 
         top = int(numba.config.NUMBA_NUM_THREADS)
         if self.threads != "auto":
-            numba.set_num_threads(min(int(self.threads), top))
+            self.frame_threads = self.accumulate_threads = min(int(self.threads), top)
+            numba.set_num_threads(self.frame_threads)
             return
         s = self.session
         for n in sorted({1, top}):
             numba.set_num_threads(n)
-            times = []
+            times, acc = [], []
             for _ in range(2):
                 t0 = time.perf_counter()
                 s.frame(image=True, probes=False)
-                times.append(time.perf_counter() - t0)
+                t1 = time.perf_counter()
+                s.accumulate(1)
+                acc.append(time.perf_counter() - t1)
+                times.append(t1 - t0)
                 s.update(light_transform=np.eye(4))
-            self.thread_times[n] = min(times)
-        numba.set_num_threads(min(self.thread_times, key=self.thread_times.get))
+            self.thread_times[n], self.accumulate_times[n] = min(times), min(acc)
+        self.frame_threads = min(self.thread_times, key=self.thread_times.get)
+        self.accumulate_threads = min(self.accumulate_times, key=self.accumulate_times.get)
+        numba.set_num_threads(self.frame_threads)
+
+    def _threads_for(self, accumulating: bool) -> None:
+        """Switch this thread's numba threads to the warm-up's choice for the work."""
+        n = self.accumulate_threads if accumulating else self.frame_threads
+        if n is not None:
+            import numba
+
+            numba.set_num_threads(n)
 
     def _config(self, c: Controls) -> RunConfig:
         return self.base_config.with_(k=c.k, interleave=c.interleave,
@@ -390,8 +407,13 @@ class LiveSession:
             share = min(max(self.estimate_share, 0.01), 0.9)
             t_end = time.perf_counter() + max(self.step_seconds,
                                               self._est_cost * (1 - share) / share)
-            while time.perf_counter() < t_end and not self._busy() and not self._stop.is_set():
-                s.accumulate(1)
+            self._threads_for(accumulating=True)
+            try:
+                while (time.perf_counter() < t_end and not self._busy()
+                       and not self._stop.is_set()):
+                    s.accumulate(1)
+            finally:
+                self._threads_for(accumulating=False)
             if self._busy():
                 return  # an edit waits: do not render the old scene
         now = time.perf_counter()
