@@ -45,6 +45,9 @@ parameter                  unit   default  meaning
 ``estimate_share``         –      0.2      accumulation: the estimates (error figure,
                                            image) take at most this share of the time; the
                                            rest traces photons
+``settle_seconds``         s      0.25     after an interaction frame, wait this long for the
+                                           next edit before accumulating (an edit then
+                                           need not wait for a batch in progress)
 ``warm_up``                –      True     run every code path once before ``ready`` is
                                            set (numba kernels compiled, no edit JITs)
 ``threads``                –      auto     numba threads of the session thread; auto = the
@@ -144,7 +147,7 @@ class LiveSession:
                  regulation_interval: float = 1.0, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 20_000,
                  estimate_share: float = 0.2, warm_up: bool = True,
-                 threads: int | str = "auto") -> None:
+                 threads: int | str = "auto", settle_seconds: float = 0.25) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -167,6 +170,8 @@ class LiveSession:
         self.quick_photons = int(quick_photons)
         self.estimate_share = float(estimate_share)
         self.warm_up = bool(warm_up)
+        self.settle_seconds = float(settle_seconds)
+        self._interaction_done = 0.0  # end of the last interaction frame
         if threads != "auto" and (not isinstance(threads, int) or threads < 1):
             raise LightsimError(f"threads must be 'auto' or ≥ 1, got {threads!r}")
         self.threads = threads
@@ -400,6 +405,12 @@ class LiveSession:
             self._wake.clear()
             return
         if not changed and self.mode == "interaction" and s.frames >= 1:
+            wait = self.settle_seconds - (time.perf_counter() - self._interaction_done)
+            if wait > 0:  # a drag pauses briefly: keep the loop free for its next edit
+                self._wake.clear()
+                if not self._busy():
+                    self._wake.wait(wait)
+                return
             self.mode = "accumulation"
         if self.mode == "accumulation":
             # shoot batches between displayed frames, so the probe estimates, the image
@@ -430,6 +441,7 @@ class LiveSession:
             est = s.frame(image=True, camera=camera, probes=False,
                           photons=self.quick_photons if quick else None)
             self._quick_due = False
+            self._interaction_done = time.perf_counter()
         else:
             # the error figure of the consistent (ICI) map needs only its rung sums at
             # the grid probes: no kNN probe queries every step
