@@ -265,6 +265,14 @@ def view(scene: str, workers: int, address: str | None, port: int, regulation: s
                               regulation=None if regulation == "none" else regulation,
                               traffic=traffic, folder=folder, state=state,
                               frame_photons=frame_photons, camera=not no_camera)
+    # the numba kernels compile now (the session's warm-up), not at the first edit
+    click.echo("lightsim view: warming up (compiling kernels, first frames)…", err=True)
+    while not live.ready.wait(0.5) and server.thread.is_alive():
+        pass
+    if live.error:
+        server.stop()
+        live.stop()
+        raise InputError(live.error)
     click.echo(f"lightsim view: {server.url}  (session folder {folder}; Ctrl-C to stop)")
     try:
         while server.thread.is_alive():

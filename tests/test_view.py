@@ -499,3 +499,56 @@ def test_accumulate_shoots_the_same_photons_as_frames():
         assert a.frames == b.frames == 2 and ea.photons == eb.photons == 3200
         np.testing.assert_array_equal(ea.lux, eb.lux)
         np.testing.assert_array_equal(ea.probes.values, eb.probes.values)
+
+
+def test_interaction_frame_without_probes_and_ici_only_error_figure():
+    """``frame(probes=False)`` (the view's interaction frame) draws the same image with no
+    error figure; ``probes="ici"`` (its accumulation) gives the same error figure as the
+    full frame without the kNN probe estimates."""
+    from lightsim.engine.config import RunConfig
+    from lightsim.engine.server import Session
+
+    scene = load_scene(HEADLIGHT, resolution=(32, 16))
+    cfg = RunConfig(frame_photons=1600, probe_grid=(8, 4))
+    assert cfg.uses_ici
+    with Session(scene, cfg) as a, Session(scene, cfg) as b:
+        ea, eb = a.frame(), b.frame(probes=False)
+        np.testing.assert_array_equal(ea.lux, eb.lux)
+        assert ea.rel_error is not None and eb.rel_error is None and eb.probes is None
+        a.accumulate(2)
+        b.accumulate(2)
+        fa, fb = a.frame(image=False), b.frame(image=False, probes="ici")
+        assert fb.probes is None and fa.probes is not None
+        assert fb.rel_error == pytest.approx(fa.rel_error, rel=1e-12)
+        assert fa.photons == fb.photons == 4 * 1600
+
+
+def test_live_session_warm_up_and_quick_first_frame(tmp_path):
+    """The session thread warms up before ``ready`` (threads chosen from timed frames),
+    then an edit's first frame is an interaction frame of ``quick_photons`` with no error
+    figure, and the still scene's frames carry one."""
+    from lightsim.cli.view import build_live
+
+    got: list[tuple[str, object]] = []
+    live = build_live(str(HEADLIGHT), resolution=(64, 32), frame_photons=4000,
+                      camera=False, regulation=None, folder=tmp_path,
+                      publish=lambda k, p: got.append((k, p)), quick_photons=1600)
+    live.start()
+    try:
+        assert live.ready.wait(300) and live.error is None
+        assert set(live.thread_times) >= {1} and all(t > 0 for t in live.thread_times.values())
+        assert live.accumulate_threads in live.accumulate_times
+        live.submit({"filament_x_mm": 0.5})
+        t_end = time.monotonic() + 300
+        while time.monotonic() < t_end and not any(
+                e["mode"] == "accumulation" for e in list(live.stats.log)):
+            time.sleep(0.05)
+        log = list(live.stats.log)
+        first = next(e for e in log if e["mode"] == "interaction")
+        assert first["photons"] == 1600 and first["image"]
+        statuses = [p for k, p in got if k == "status" and p["edit"] == live.edit]
+        assert statuses[0]["mode"] == "interaction" and statuses[0]["rel_error"] is None
+        acc = [p for p in statuses if p["mode"] == "accumulation"]
+        assert acc and acc[0]["rel_error"] is not None and acc[0]["photons"] > 1600
+    finally:
+        live.stop()

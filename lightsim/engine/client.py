@@ -464,7 +464,9 @@ class Client:
         ``full_images`` {set: (H, W, C) lux} (every pixel, with ``full_image``),
         ``camera_sub_images`` {set: (rows, cols, C) cd/m²} (with ``camera``),
         ``probes`` {set: (P, C) lux}, ``windows`` {set: (G, C) lux} (pixel-window counts at
-        the grid probes, for the blur-bias estimate), ``seconds``.
+        the grid probes, for the blur-bias estimate), ``seconds``. ``probes="ici"``: only
+        the ICI rungs at the grid probes (the consistent estimator's error figure), no
+        kNN probe estimates.
         """
         t0 = time.perf_counter()
         out: dict[str, Any] = {"sub_images": {}, "probes": {}, "full_images": {},
@@ -503,7 +505,7 @@ class Client:
                 lum[seen] = weight[seen] * self._estimate(st, pts[seen], nrm[seen],
                                                           "interleaved")
                 out["camera_sub_images"][s] = lum.reshape((*shape, self.channels))
-            if probes and len(self._probe_points):
+            if probes and probes != "ici" and len(self._probe_points):
                 out["probes"][s] = self._estimate(
                     st, self._probe_points, np.broadcast_to(normal, self._probe_points.shape))
                 if st.windows is not None and st.emitted:

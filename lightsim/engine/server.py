@@ -152,7 +152,8 @@ class Session:
 
     # -- frames --------------------------------------------------------------------------
     def frame(self, image: bool = True, shoot: bool = True, camera=None,
-              mode: str = "interleaved", photons: int | None = None) -> Estimate:
+              mode: str = "interleaved", photons: int | None = None,
+              probes: bool | str = True) -> Estimate:
         """One frame: every client shoots (unless ``shoot`` is False) and renders.
 
         ``mode`` ``interleaved`` is the paper's frame (each set its own pixels, then the box
@@ -161,6 +162,10 @@ class Session:
         :class:`~lightsim.render.camera.PinholeCamera`) adds an interleaved luminance
         image (cd/m²) in ``Estimate.camera``; the plan must include the camera pass.
         ``photons`` (over all sets) makes the frame partial, e.g. the last of a budget.
+        ``probes=False`` skips the probe estimates (no error figure, ``probes`` None): an
+        interaction frame that only draws the image (``lightsim view``); ``probes="ici"``
+        (with the ICI bandwidth) only the rung sums the error figure needs, no kNN probe
+        queries (``probes`` None).
         """
         if mode not in ("interleaved", "pooled"):
             raise ValueError(f"mode must be 'interleaved' or 'pooled', got {mode!r}")
@@ -178,7 +183,7 @@ class Session:
             self.frames += 1
         t1 = time.perf_counter()
         full = self.config.estimator == "bin" or mode == "pooled"
-        results = self.backend.render(image=image and not full, probes=True,
+        results = self.backend.render(image=image and not full, probes=probes,
                                       full_image=image and full, camera=camera)
         timings["render"] = time.perf_counter() - t1
         est = self._combine(results, image, timings, camera)

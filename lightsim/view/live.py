@@ -6,7 +6,9 @@ frame is computed are coalesced (the latest controls win), so a dragged slider n
 builds a queue.
 
 * **Interaction** (paper section 4.1): an edit → ``Session.update`` discards the photons;
-  the next frame shoots a new batch, renders the interleaved image and box-filters it.
+  the next frame shoots a new batch (the first one after an edit at most
+  ``quick_photons``), renders the interleaved image and box-filters it — and nothing
+  else: no probes, no error figure, no regulation (``Session.frame(probes=False)``).
 * **Accumulation** (the paper's walkthrough with a still scene): no edit → photon batches
   are added to the maps (``Session.accumulate``) for ``step_seconds``, then one estimate
   gives the error figure and, at most every ``image_interval`` seconds, the interleaved
@@ -38,6 +40,22 @@ parameter                  unit   default  meaning
 ``max_photons``            –      2·10⁸    … or at this many photons
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
                                            the second tab (rendered while a tab shows it)
+``quick_photons``          –      20 000   photons of the first frame after an edit (at most
+                                           the frame's photons): the low-quality frame
+``estimate_share``         –      0.2      accumulation: the estimates (error figure,
+                                           image) take at most this share of the time; the
+                                           rest traces photons
+``settle_seconds``         s      0.25     after an interaction frame, wait this long for the
+                                           next edit before accumulating (an edit then
+                                           need not wait for a batch in progress)
+``warm_up``                –      True     run every code path once before ``ready`` is
+                                           set (numba kernels compiled, no edit JITs)
+``threads``                –      auto     numba threads of the session thread; auto = the
+                                           warm-up times interaction frames and
+                                           accumulation batches at 1 and at all threads
+                                           and keeps the faster for each (on an
+                                           oversubscribed machine the parallel kernels'
+                                           barriers cost more than the second core gives)
 =========================  =====  =======  ==================================================
 """
 
@@ -127,7 +145,9 @@ class LiveSession:
                  image_interval: float = 0.5, pooled_after: float = math.inf,
                  pooled_error: float = 0.05, step_seconds: float = 0.5,
                  regulation_interval: float = 1.0, stop_error: float = 0.005,
-                 max_photons: int = 200_000_000) -> None:
+                 max_photons: int = 200_000_000, quick_photons: int = 20_000,
+                 estimate_share: float = 0.2, warm_up: bool = True,
+                 threads: int | str = "auto", settle_seconds: float = 0.25) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -147,6 +167,20 @@ class LiveSession:
         self.regulation_interval = regulation_interval
         self.stop_error = stop_error
         self.max_photons = max_photons
+        self.quick_photons = int(quick_photons)
+        self.estimate_share = float(estimate_share)
+        self.warm_up = bool(warm_up)
+        self.settle_seconds = float(settle_seconds)
+        self._interaction_done = 0.0  # end of the last interaction frame
+        if threads != "auto" and (not isinstance(threads, int) or threads < 1):
+            raise LightsimError(f"threads must be 'auto' or ≥ 1, got {threads!r}")
+        self.threads = threads
+        self.thread_times: dict[int, float] = {}  # warm-up: threads → frame seconds
+        self.accumulate_times: dict[int, float] = {}  # … → seconds of one batch
+        self.frame_threads = self.accumulate_threads = None
+        self._est_cost = 0.0  # seconds of the last accumulation estimate
+        self._quick_due = False  # the next frame is the first after an edit
+        self.ready = threading.Event()  # set once warmed up (or failed)
         self.controls = controls or editor.defaults()
         self.stats = LiveStats()
         self._lock = threading.Lock()
@@ -224,7 +258,15 @@ class LiveSession:
         except LightsimError as exc:
             self.error = str(exc)
             self._message("error", f"cannot start the session: {exc}")
+            self.ready.set()
             return
+        try:
+            if self.warm_up:
+                self._warm()
+            elif self.threads != "auto":
+                self._choose_threads()
+        finally:
+            self.ready.set()
         self._autosave({"start": True})
         while not self._stop.is_set():
             try:
@@ -235,6 +277,59 @@ class LiveSession:
                 self._message("error", f"internal error: {type(exc).__name__}: {exc}")
                 traceback.print_exc()
                 time.sleep(0.2)
+
+    def _warm(self) -> None:
+        """Every code path of the loop once (interaction frame, estimate, pooled map,
+        camera, light transform, regulation) so that numba compiles its kernels now, not
+        at the user's first edit; the photons are then discarded."""
+        s = self.session
+        t0 = time.perf_counter()
+        s.frame(image=True, probes=False, camera=self.camera,
+                photons=min(self.quick_photons, s.config.frame_photons))
+        s.accumulate(1)
+        s.frame(image=True)
+        s.frame(image=True, shoot=False, mode="pooled")
+        if self.regulation_hook is not None:
+            self.regulation_hook(s)
+        s.update(light_transform=np.eye(4))
+        self._choose_threads()
+        self._reset_clock()
+        self.stats.timings = {"warm_up": time.perf_counter() - t0}
+
+    def _choose_threads(self) -> None:
+        """numba threads of this thread (``set_num_threads`` is per thread): ``threads``,
+        or the faster of 1 and all for an interaction frame (best of two each)."""
+        import numba
+
+        top = int(numba.config.NUMBA_NUM_THREADS)
+        if self.threads != "auto":
+            self.frame_threads = self.accumulate_threads = min(int(self.threads), top)
+            numba.set_num_threads(self.frame_threads)
+            return
+        s = self.session
+        for n in sorted({1, top}):
+            numba.set_num_threads(n)
+            times, acc = [], []
+            for _ in range(2):
+                t0 = time.perf_counter()
+                s.frame(image=True, probes=False)
+                t1 = time.perf_counter()
+                s.accumulate(1)
+                acc.append(time.perf_counter() - t1)
+                times.append(t1 - t0)
+                s.update(light_transform=np.eye(4))
+            self.thread_times[n], self.accumulate_times[n] = min(times), min(acc)
+        self.frame_threads = min(self.thread_times, key=self.thread_times.get)
+        self.accumulate_threads = min(self.accumulate_times, key=self.accumulate_times.get)
+        numba.set_num_threads(self.frame_threads)
+
+    def _threads_for(self, accumulating: bool) -> None:
+        """Switch this thread's numba threads to the warm-up's choice for the work."""
+        n = self.accumulate_threads if accumulating else self.frame_threads
+        if n is not None:
+            import numba
+
+            numba.set_num_threads(n)
 
     def _config(self, c: Controls) -> RunConfig:
         return self.base_config.with_(k=c.k, interleave=c.interleave,
@@ -254,6 +349,7 @@ class LiveSession:
         self._changed_at = time.perf_counter()
         self._pooled_photons = 0
         self._last_reg = 0.0
+        self._quick_due = True
 
     def _apply_pending(self) -> bool:
         with self._lock:
@@ -309,13 +405,26 @@ class LiveSession:
             self._wake.clear()
             return
         if not changed and self.mode == "interaction" and s.frames >= 1:
+            wait = self.settle_seconds - (time.perf_counter() - self._interaction_done)
+            if wait > 0:  # a drag pauses briefly: keep the loop free for its next edit
+                self._wake.clear()
+                if not self._busy():
+                    self._wake.wait(wait)
+                return
             self.mode = "accumulation"
         if self.mode == "accumulation":
             # shoot batches between displayed frames, so the probe estimates, the image
             # and the error figure are paid once per step, not once per batch
-            t_end = time.perf_counter() + self.step_seconds
-            while time.perf_counter() < t_end and not self._busy() and not self._stop.is_set():
-                s.accumulate(1)
+            share = min(max(self.estimate_share, 0.01), 0.9)
+            t_end = time.perf_counter() + max(self.step_seconds,
+                                              self._est_cost * (1 - share) / share)
+            self._threads_for(accumulating=True)
+            try:
+                while (time.perf_counter() < t_end and not self._busy()
+                       and not self._stop.is_set()):
+                    s.accumulate(1)
+            finally:
+                self._threads_for(accumulating=False)
             if self._busy():
                 return  # an edit waits: do not render the old scene
         now = time.perf_counter()
@@ -326,8 +435,21 @@ class LiveSession:
             self.mode == "interaction" or now - self._last_camera >= self._image_every)) \
             else None
         t0 = time.perf_counter()
-        est = s.frame(image=image, camera=camera)
+        if self.mode == "interaction":
+            # only the picture: the probes, error figure and table wait for a still scene
+            quick = self._quick_due and self.quick_photons < s.config.frame_photons
+            est = s.frame(image=True, camera=camera, probes=False,
+                          photons=self.quick_photons if quick else None)
+            self._quick_due = False
+            self._interaction_done = time.perf_counter()
+        else:
+            # the error figure of the consistent (ICI) map needs only its rung sums at
+            # the grid probes: no kNN probe queries every step
+            est = s.frame(image=image, camera=camera,
+                          probes="ici" if s.config.uses_ici else True)
         self.stats.last_frame_s = time.perf_counter() - t0
+        if self.mode == "accumulation":
+            self._est_cost = self.stats.last_frame_s - est.timings.get("shoot", 0.0)
         self.stats.timings = dict(est.timings)
         self.stats.frames += 1
         if self.mode == "interaction":
@@ -410,6 +532,7 @@ class LiveSession:
                 "error_text": None if e is None else e.describe(),
                 "still_s": time.perf_counter() - self._changed_at,
                 "frame_s": self.stats.last_frame_s, "frames": self.stats.frames,
+                "numba_threads": _numba_threads(),
                 "timings": self.stats.timings}
 
     def describe(self) -> dict[str, Any]:
@@ -487,3 +610,9 @@ class LiveSession:
 
 def _finite(x: float | None) -> float | None:
     return None if x is None or not np.isfinite(x) else float(x)
+
+
+def _numba_threads() -> int:
+    import numba
+
+    return int(numba.get_num_threads())

@@ -203,6 +203,10 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
             conv = page.evaluate(_CONVERGE_JS, [converge_timeout,
                                                 {"edit": edit, "levels": [0.05, 0.02]}])
             out["converge"] = conv
+            out["view_threads"] = {"used": live.last_status.get("numba_threads"),
+                                   "warm_up_frame_s": dict(live.thread_times),
+                                   "warm_up_batch_s": dict(live.accumulate_times),
+                                   "accumulate": live.accumulate_threads}
             if screenshots is not None:
                 page.wait_for_timeout(1500)  # let a pooled map arrive if one is due
                 page.screenshot(path=str(screenshots / "view-converged.png"))
@@ -257,13 +261,14 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
                      "met": t is not None and t <= target})
     out["costs"] = {"update_s": t_update, "shoot_s": t_shoot, "render_s": t_render,
                     "encode_s": t_encode,
-                    "frame_bytes_to_page": frame_bytes, "cores": cores}
+                    "frame_bytes_to_page": frame_bytes, "cores": cores,
+                    "numba_threads": out.get("view_threads", {}).get("used") or cores}
     models = []
     for n, m in ((16, 4), (64, 8)):
-        # one core's cost (in-process frames use every core); sub-images W·H float32,
+        # one core's cost (the view's frames use its numba threads); sub-images W·H float32,
         # probes and pixel windows 2 × S × 2048 float32 (docs/scaling.md)
         nbytes = W * H * 4 + 2 * m * m * 2048 * 4
-        t_clients = (t_shoot + t_render) * cores
+        t_clients = (t_shoot + t_render) * min(cores, out["costs"]["numba_threads"])
         mod = frame_model(t_clients, t_encode, nbytes, n)
         models.append({"workers": n, "M": m, "one-core client s/frame": t_clients,
                        "server s/frame": t_encode + T_RPC + nbytes / BANDWIDTH + n * T_RESULT,
