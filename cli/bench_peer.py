@@ -26,10 +26,13 @@ from lightsim.validation.bench.table import print_table, write_json
 @click.option("--lightsim-arg", "lightsim_args", multiple=True,
               help="Extra argument for `lightsim simulate` (repeatable), e.g. "
                    "--lightsim-arg=--estimator --lightsim-arg=bin.")
+@click.option("--ladder/--no-ladder", default=True, show_default=True,
+              help="Also run lightsim at fixed --photons budgets until its TRUE error is "
+                   "below the target (the time an honest stop would take).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
 def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
             max_seconds: float, repeats: int, lightsim_args: tuple[str, ...],
-            json_path: str | None) -> None:
+            ladder: bool, json_path: str | None) -> None:
     """Mitsuba 3 (ptracer) and `lightsim simulate --target-error` on the same analytic
     scenes: whole-process seconds to a TRUE error below the target, and their ratio."""
     from lightsim.validation.bench import peer
@@ -46,7 +49,7 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
         for name in cases or tuple(peer.CASES):
             res = peer.run_case(name, target=target, resolution=resolution, spp0=spp0,
                                 max_seconds=max_seconds, lightsim_args=lightsim_args,
-                                mitsuba=why is None,
+                                mitsuba=why is None, ladder=ladder,
                                 progress=lambda s: click.echo(f"  {s}", err=True))
             results.append(res)
             runs += [{"repeat": rep + 1, **r.row()} for r in res.runs]
@@ -59,9 +62,12 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
     medians = []
     for name in dict.fromkeys(r.case for r in results):
         ratios = [r.ratio for r in results if r.case == name and r.ratio is not None]
+        fixed = [r.ratio_fixed for r in results if r.case == name and r.ratio_fixed]
         medians.append({"case": name, "repeats": sum(r.case == name for r in results),
                         "median_ratio_mitsuba_over_lightsim":
                             statistics.median(ratios) if ratios else None,
+                        "median_ratio_vs_lightsim_fixed":
+                            statistics.median(fixed) if fixed else None,
                         "target_ratio": 3.0})
     if repeats > 1:
         print_table("peer: median ratio over repeats", medians)

@@ -40,6 +40,7 @@ import numpy as np
 
 from lightsim import __version__
 from lightsim.engine.config import RunConfig
+from lightsim.engine.memory import check_fits
 from lightsim.errors import InputError
 from lightsim.io.cad import Tessellation
 from lightsim.scene import Scene, load_scene
@@ -220,6 +221,7 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume) -> Simul
         raise InputError("--aim aims the pattern for a regulation check: give --regulation")
     scene = load(opts)
     config = opts.run_config()
+    check_fits(opts.photons, scene.wall.resolution, config, scene.channels or 3)  # pre-flight
     if opts.regulation is not None:  # test points counted in detector apertures
         from lightsim.report import aperture_config
 

@@ -377,6 +377,20 @@ def _relayout(pts: np.ndarray, new_pts: np.ndarray, leaf_of: np.ndarray, leaves:
 
 
 @njit(cache=True)
+def _grow_boxes(pts: np.ndarray, leaf_of: np.ndarray, box: np.ndarray) -> None:
+    """Extend the tight box of leaf ``leaf_of[i]`` by point i (an empty leaf's box is
+    (+inf, −inf), so it becomes the box of its new points)."""
+    for i in range(pts.shape[0]):
+        nd = leaf_of[i]
+        for a in range(3):
+            x = pts[i, a]
+            if x < box[nd, a]:
+                box[nd, a] = x
+            if x > box[nd, 3 + a]:
+                box[nd, 3 + a] = x
+
+
+@njit(cache=True)
 def _refit(n_nodes: int, child: np.ndarray, start: np.ndarray, end: np.ndarray,
            box: np.ndarray) -> None:
     """Recompute inner nodes' ranges and boxes from their children (children > parent)."""
@@ -866,8 +880,12 @@ class KdTree(_BoxTree):
                                  count)
         self._pts = new_pts
         self._idx = src
-        # touched leaves get their tight box recomputed and are split if now too full
-        self._split_nodes(leaves[count[leaves] > 0])
+        # touched leaves grow their tight box by the new photons only (rescanning the old
+        # ones measured ≈ 40 % of an insertion), then those now too full are split
+        _grow_boxes(pts, leaf_of, self._box)
+        touched = leaves[count[leaves] > 0]
+        self._split_nodes(touched[self._end[touched] - self._start[touched] > self.leaf_size],
+                          need_box=False)
         del self._idx
         _refit(self._n_nodes, self._child, self._start, self._end, self._box)
         if self._has_normals:

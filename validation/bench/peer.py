@@ -16,7 +16,9 @@ over the pixels whose centre lies in the inner 80 % of the beam radius.
   in advance favours Mitsuba; lightsim has to find its stopping point itself.
 * **lightsim**: ``lightsim simulate SCENE.glb --target-error T`` (the scene written as
   glTF) stops by itself; reported are its time, its own error estimate at the stop and
-  the true error of the map it wrote (``wall_lux.exr``).
+  the true error of the map it wrote (``wall_lux.exr``). With ``ladder`` it then runs
+  fixed ``--photons N`` budgets (N from the 1/√N law) until the true error is below the
+  target: what a stop at the true target would cost, next to where it did stop.
 
 Scenes (:data:`CASES`): ``paraboloid`` — point source at the focus of a paraboloid
 (f = 20 mm, rim 30 mm, R = 0.88), wall 0.5 m from the vertex, 64 × 64 pixels of
@@ -72,6 +74,7 @@ CASES: dict[str, Callable[[int], an.AnalyticScene]] = {
 #: second internal order (R² ≈ 0.2 % of the beam).
 MAX_DEPTH = {"paraboloid": 3, "covered-paraboloid": 5}
 MAX_MITSUBA_RUNS = 6  # renders per case at most (the spp ladder)
+MAX_LADDER_RUNS = 3   # fixed-budget lightsim runs per case at most
 CAMERA_DISTANCE = 0.1  # m: Mitsuba's camera in front of the wall (clear of all geometry)
 
 
@@ -265,8 +268,10 @@ def run_mitsuba(case: an.AnalyticScene, truth: Truth, folder: Path, spp: int,
 
 
 def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: float,
-                 extra_args: Sequence[str] = (), timeout: float = 300.0) -> PeerRun:
-    """``lightsim simulate SCENE --target-error target`` as its own process."""
+                 extra_args: Sequence[str] = (), timeout: float = 300.0,
+                 photons: int | None = None) -> PeerRun:
+    """``lightsim simulate SCENE --target-error target`` as its own process (or, given
+    ``photons``, ``--photons N``: a fixed budget, for the time to a true error)."""
     from lightsim.io.exr import read_exr
 
     glb = folder / "scene.glb"
@@ -274,14 +279,16 @@ def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: flo
         write_scene_glb(case, glb)
     out = folder / "lightsim-out"
     W, H = case.frame.resolution
-    cmd = [sys.executable, "-m", "lightsim.cli.main", "simulate", str(glb), "--target-error",
-           f"{target:g}", "--resolution", f"{W}x{H}", "--out", str(out), "--quiet",
-           "--time", f"{timeout:g}", *extra_args]
+    budget = (["--target-error", f"{target:g}"] if photons is None
+              else ["--photons", str(int(photons))])
+    cmd = [sys.executable, "-m", "lightsim.cli.main", "simulate", str(glb), *budget,
+           "--resolution", f"{W}x{H}", "--out", str(out), "--quiet", "--time",
+           f"{timeout:g}", *extra_args]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout + 120,
                           check=False)
     dt = time.perf_counter() - t0
-    setting = " ".join(["--target-error", f"{target:g}", *extra_args])
+    setting = " ".join([*budget, *extra_args])
     if proc.returncode != 0:
         last = (proc.stderr.strip().splitlines() or ["?"])[-1]
         return PeerRun(case.name, "lightsim", setting, dt, 0, math.nan, ok=False,
@@ -304,13 +311,20 @@ class PeerResult:
     ratio: float | None             # Mitsuba time / lightsim time (target ≥ 3)
     lightsim_reached: bool | None   # lightsim's true error at its stop is below the target
     stopped_near_target: bool | None  # lightsim's true error within ±10 % of the target
+    lightsim_fixed_seconds: float | None = None  # first fixed budget below the target
+    ratio_fixed: float | None = None             # Mitsuba time / that time
 
 
 def run_case(name: str, *, target: float = 0.02, resolution: int = 64, spp0: int = 4,
              max_seconds: float = 300.0, lightsim_args: Sequence[str] = (),
-             mitsuba: bool = True, folder: Path | None = None,
+             mitsuba: bool = True, ladder: bool = True, folder: Path | None = None,
              progress: Callable[[str], None] | None = None) -> PeerResult:
-    """Both tools on case ``name`` until each reaches ``target`` (see module doc)."""
+    """Both tools on case ``name`` until each reaches ``target`` (see module doc).
+
+    ``ladder``: after the self-stopping run, lightsim also runs fixed photon budgets
+    (``--photons N`` from the 1/√N law) until its true error is below the target: the
+    time a stop at the true target would take (``lightsim_fixed_seconds``).
+    """
     case = CASES[name](resolution)
     truth = truth_of(case)
     runs: list[PeerRun] = []
@@ -341,11 +355,32 @@ def run_case(name: str, *, target: float = 0.02, resolution: int = 64, spp0: int
         if progress:
             progress(f"{name}: lightsim: {lr.seconds:.1f} s, own error {lr.own_error}, "
                      f"true {lr.true_error:.4f} {lr.note}")
+        t_fixed = None
+        if ladder and lr.ok and lr.paths > 0:
+            # what a stop at the true target would cost: fixed photon budgets from the
+            # 1/√N law (bias may break it: raised again while above the target)
+            n, err = lr.paths, lr.true_error
+            for _ in range(MAX_LADDER_RUNS):
+                n = max(1000, math.ceil(n * (err / (0.97 * target)) ** 2))
+                fr = run_lightsim(case, truth, work, target, lightsim_args,
+                                  timeout=max_seconds, photons=n)
+                runs.append(fr)
+                if progress:
+                    progress(f"{name}: lightsim --photons {n}: {fr.seconds:.1f} s, true "
+                             f"{fr.true_error:.4f} {fr.note}")
+                if not fr.ok:
+                    break
+                err = fr.true_error
+                if err < target:
+                    t_fixed = fr.seconds
+                    break
+                n = fr.paths
     t_l = lr.seconds if lr.ok and lr.true_error < target else None
     near = (abs(lr.true_error - target) <= 0.1 * target) if lr.ok else None
     ratio = t_m / lr.seconds if (t_m is not None and lr.ok) else None
     reached = bool(lr.true_error < target) if lr.ok else None
-    return PeerResult(name, runs, t_m, t_l, ratio, reached, near)
+    ratio_fixed = t_m / t_fixed if (t_m is not None and t_fixed is not None) else None
+    return PeerResult(name, runs, t_m, t_l, ratio, reached, near, t_fixed, ratio_fixed)
 
 
 PEER_COLUMNS = ["case", "tool", "setting", "seconds", "paths", "true_error", "own_error",
@@ -356,11 +391,13 @@ def summary_rows(results: Sequence[PeerResult], target: float) -> list[dict[str,
     """One row per case: the two times to target, their ratio and the stop check."""
     rows = []
     for res in results:
-        lr = res.runs[-1]
+        lr = next(r for r in res.runs if r.tool == "lightsim")
         rows.append({"case": res.case, "mitsuba_s_to_target": res.mitsuba_seconds,
                      "lightsim_s": lr.seconds, "lightsim_true_error": lr.true_error,
                      "lightsim_own_error": lr.own_error,
                      "ratio_mitsuba_over_lightsim": res.ratio,
                      "ratio_target": 3.0, "lightsim_true_below_target": res.lightsim_reached,
-                     f"stopped_within_10pct_of_{target:g}": res.stopped_near_target})
+                     f"stopped_within_10pct_of_{target:g}": res.stopped_near_target,
+                     "lightsim_fixed_s_to_target": res.lightsim_fixed_seconds,
+                     "ratio_mitsuba_over_lightsim_fixed": res.ratio_fixed})
     return rows
