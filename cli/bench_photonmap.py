@@ -126,8 +126,7 @@ def _memory(rss_photons: int) -> list[dict]:
     pos, nrm, pw = pm.caustic_ring_set(1_000_000)
     rows = pm.stored_bytes(pos, nrm, pw)
     if rss_photons:
-        rows.append(pm.simulate_peak_rss(example_headlight(), rss_photons,
-                                         extra_args=("--frame-photons", "1000000")))
+        rows.append(pm.simulate_peak_rss(example_headlight(), rss_photons))
     print_table("Memory: bytes per stored photon; peak RSS of `simulate` vs the pre-flight "
                 "estimate", rows, pm.MEMORY_COLUMNS)
     return rows

@@ -412,7 +412,7 @@ def stored_bytes(positions: np.ndarray, normals: np.ndarray | None, powers: np.n
 
 
 def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
-                      resolution: tuple[int, int] = (640, 256),
+                      resolution: tuple[int, int] = (640, 256), frame_photons: int = 1_000_000,
                       extra_args: Sequence[str] = ()) -> dict[str, Any]:
     """Peak RSS (``wait4`` rusage of the child) of ``lightsim simulate SCENE --photons N``
     next to the pre-flight estimate of the same run."""
@@ -427,7 +427,7 @@ def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
     with tempfile.TemporaryDirectory(prefix="lightsim-rss-") as tmp:
         cmd = [sys.executable, "-m", "lightsim.cli.main", "simulate", str(scene_path),
                "--photons", str(int(photons)), "--resolution", f"{W}x{H}", "--quiet",
-               "--out", tmp, *extra_args]
+               "--frame-photons", str(int(frame_photons)), "--out", tmp, *extra_args]
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         _, status, usage = os.wait4(proc.pid, 0)
@@ -443,7 +443,7 @@ def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
                 summary = json.load(fh)
     cfg = RunConfig()
     est = estimate_run(int(photons), resolution, channels=3, n_sets=cfg.n_sets,
-                       frame_photons=cfg.frame_photons)
+                       frame_photons=frame_photons)
     rss = usage.ru_maxrss * 1024.0  # Linux: KiB
     kept = summary.get("energy_lm", {})
     return {"what": f"simulate {os.path.basename(str(scene_path))} {W}x{H}",
