@@ -388,16 +388,17 @@ PEER_COLUMNS = ["case", "tool", "setting", "seconds", "paths", "true_error", "ow
 
 
 def summary_rows(results: Sequence[PeerResult], target: float) -> list[dict[str, Any]]:
-    """One row per case: the two times to target, their ratio and the stop check."""
+    """One row per case: the two times to target, their ratio (Mitsuba / lightsim) and
+    the stop check (``ls_*``: lightsim; ``ls_fixed_s``: its first fixed budget with a
+    true error below ``target``; ``ratio_vs_fixed``: Mitsuba's time over that)."""
     rows = []
     for res in results:
         lr = next(r for r in res.runs if r.tool == "lightsim")
-        rows.append({"case": res.case, "mitsuba_s_to_target": res.mitsuba_seconds,
-                     "lightsim_s": lr.seconds, "lightsim_true_error": lr.true_error,
-                     "lightsim_own_error": lr.own_error,
-                     "ratio_mitsuba_over_lightsim": res.ratio,
-                     "ratio_target": 3.0, "lightsim_true_below_target": res.lightsim_reached,
-                     f"stopped_within_10pct_of_{target:g}": res.stopped_near_target,
-                     "lightsim_fixed_s_to_target": res.lightsim_fixed_seconds,
-                     "ratio_mitsuba_over_lightsim_fixed": res.ratio_fixed})
+        rows.append({"case": res.case, "mitsuba_s": res.mitsuba_seconds,
+                     "lightsim_s": lr.seconds, "ls_true_err": lr.true_error,
+                     "ls_own_err": lr.own_error, "ratio": res.ratio, "ratio_goal": 3.0,
+                     "ls_true_below": res.lightsim_reached,
+                     "ls_stop_within_10pct": res.stopped_near_target,
+                     "ls_fixed_s": res.lightsim_fixed_seconds,
+                     "ratio_vs_fixed": res.ratio_fixed})
     return rows
