@@ -30,7 +30,7 @@ def test_covered_case_exact_is_transmittance_times_open_beam():
 
 
 def test_libllvm_version_parsing():
-    assert peer._llvm_version("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1") == 19
+    assert peer._llvm_version("libLLVM.so.19.1") == 19
     assert peer._llvm_version("libLLVM-20.so") == 20
     assert peer._llvm_version("libLLVM-14.so.1") == 14
     assert peer._llvm_version("libfoo.so") == 0
