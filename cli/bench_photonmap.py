@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from lightsim.cli.bench_tracer import example_headlight
+from lightsim.errors import InputError
 from lightsim.validation.bench.table import print_table, write_json
 
 
@@ -60,16 +62,33 @@ def embree_rate(scene, rays: int = 1_000_000, seed: int = 5) -> float:
 @click.option("--k", "k", type=int, default=64, show_default=True)
 @click.option("--repeats", type=int, default=3, show_default=True)
 @click.option("--synthetic", is_flag=True, help="Use the synthetic caustic sets instead.")
+@click.option("--goals", is_flag=True,
+              help="Only the issue-15 ratios (1 M-photon kNN vs cKDTree, insertion vs "
+                   "rebuild) and the memory table.")
+@click.option("--rss-photons", type=int, default=16_000_000, show_default=True,
+              help="Photons of the `simulate` run whose peak RSS the memory table shows "
+                   "(0: skip that run).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
-def command(moderate: int, large: int, k: int, repeats: int, synthetic: bool,
-            json_path: str | None) -> None:
+def command(moderate: int, large: int, k: int, repeats: int, synthetic: bool, goals: bool,
+            rss_photons: int, json_path: str | None) -> None:
     """Build/query ms per structure vs cKDTree (Table 5) and kNN/s vs embree rays/s (Table 1).
 
     Photon sets: the wall photons of the shipped headlight and the floor photons of the
-    RING scene, each from a moderate and a large number of emitted photons.
+    RING scene, each from a moderate and a large number of emitted photons. Then the
+    memory table: bytes per stored photon and the peak RSS of a `simulate` run.
     """
     from lightsim.validation.bench import photonmap as pm
     from lightsim.validation.scenes import paper
+
+    if rss_photons < 0:
+        raise InputError(f"--rss-photons must be ≥ 0, got {rss_photons}")
+    if goals:
+        rows = pm.goal_rows(k=k, repeats=repeats)
+        print_table("Photon maps: the issue's ratios (same run)", rows, pm.GOAL_COLUMNS)
+        memory = _memory(rss_photons)
+        if json_path:
+            write_json(json_path, "photonmap-goals", rows + memory, meta={"k": k})
+        return
 
     scenes = {"headlight": paper.build("headlight"), "ring": paper.build("ring")}
     if synthetic:
@@ -93,7 +112,21 @@ def command(moderate: int, large: int, k: int, repeats: int, synthetic: bool,
                                "embree_rays_per_s": rays,
                                "rays_per_knn_query": rays / r["queries_per_s"]})
     print_table("Table 1: kNN queries/s vs raw embree rays/s in the same scene", table1)
+    memory = _memory(rss_photons)
     if json_path:
         write_json(json_path, "photonmap", rows + [{"method": "insert-vs-rebuild",
-                                                   **result["insert_vs_rebuild"]}] + table1,
-                   meta={"k": k, "moderate": moderate, "large": large})
+                                                   **result["insert_vs_rebuild"]}] + table1
+                   + memory, meta={"k": k, "moderate": moderate, "large": large})
+
+
+def _memory(rss_photons: int) -> list[dict]:
+    """Bytes per stored photon (1 M ring photons) and the peak RSS of a headlight run."""
+    from lightsim.validation.bench import photonmap as pm
+
+    pos, nrm, pw = pm.caustic_ring_set(1_000_000)
+    rows = pm.stored_bytes(pos, nrm, pw)
+    if rss_photons:
+        rows.append(pm.simulate_peak_rss(example_headlight(), rss_photons))
+    print_table("Memory: bytes per stored photon; peak RSS of `simulate` vs the pre-flight "
+                "estimate", rows, pm.MEMORY_COLUMNS)
+    return rows

@@ -40,6 +40,7 @@ import numpy as np
 from lightsim import __version__, options
 from lightsim.analysis import Analysis, FinishedRun
 from lightsim.engine.config import RunConfig
+from lightsim.engine.memory import check_fits
 from lightsim.errors import InputError
 from lightsim.options import option
 
@@ -316,6 +317,7 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
         raise InputError("--aim aims the pattern for a regulation check: give --regulation")
     scene = load(opts)
     config = opts.run_config()
+    check_fits(opts.photons, scene.wall.resolution, config, scene.channels or 3)  # pre-flight
     for analysis in analyses:  # e.g. test points counted in detector apertures
         config = analysis.prepare(config, scene)
     if resume is not None:  # the photons are replayed with the settings they were shot with

@@ -72,3 +72,39 @@ def test_knn_rate_rows() -> None:
                           repeats=1, threads=1)
     assert [r["method"] for r in rows] == ["middle", "ckdtree"]
     assert all(r["queries_per_s"] > 0 for r in rows)
+
+
+def test_goal_rows_and_memory_rows_on_a_tiny_set() -> None:
+    rows = bench.goal_rows(20_000, k=8, width=16, height=12, batches=5, repeats=1,
+                           threads=1)
+    assert [r["goal"] for r in rows] == ["≥ 1.5", "≤ 0.25"]
+    for r in rows:
+        assert r["ours_ms"] > 0 and r["baseline_ms"] > 0 and r["ratio"] > 0
+    pos, nrm, pw = bench.caustic_ring_set(20_000)
+    mem = bench.stored_bytes(pos, nrm, pw, batches=5)
+    assert len(mem) == 2
+    for r in mem:  # the pre-flight model bounds what the trees really hold
+        assert 40 < r["bytes_per_photon"] <= r["model_bytes_per_photon"]
+
+
+def test_incremental_tree_keeps_tight_leaf_boxes_and_exact_knn() -> None:
+    """Insertion grows leaf boxes by the new photons only: the tree must be the one a
+    rescan gives (same nodes, exact same kNN answers)."""
+    from lightsim.photonmap import KdTree
+
+    pos, nrm, pw = bench.caustic_ring_set(30_000, seed=4)
+    tree = KdTree(pos[:3000], nrm[:3000], pw[:3000])
+    for a in range(3000, 30_000, 3000):
+        tree.add(pos[a:a + 3000], nrm[a:a + 3000], pw[a:a + 3000])
+    box = tree._box[:tree.n_nodes]
+    leaf = tree._child[:tree.n_nodes] < 0
+    for nd in np.flatnonzero(leaf & (tree._end[:tree.n_nodes] > tree._start[:tree.n_nodes])):
+        p = tree._pts[tree._start[nd]:tree._end[nd]]
+        np.testing.assert_array_equal(box[nd, :3], p.min(axis=0))  # tight, not just bounding
+        np.testing.assert_array_equal(box[nd, 3:], p.max(axis=0))
+    from scipy.spatial import cKDTree
+
+    q = pos[::97].astype(np.float64)
+    d2, _ = tree.query(q, 16)
+    dk, _ = cKDTree(pos).query(q, 16)
+    np.testing.assert_allclose(np.sqrt(d2), dk, rtol=1e-6, atol=1e-7)

@@ -377,6 +377,20 @@ def _relayout(pts: np.ndarray, new_pts: np.ndarray, leaf_of: np.ndarray, leaves:
 
 
 @njit(cache=True)
+def _grow_boxes(pts: np.ndarray, leaf_of: np.ndarray, box: np.ndarray) -> None:
+    """Extend the tight box of leaf ``leaf_of[i]`` by point i (an empty leaf's box is
+    (+inf, −inf), so it becomes the box of its new points)."""
+    for i in range(pts.shape[0]):
+        nd = leaf_of[i]
+        for a in range(3):
+            x = pts[i, a]
+            if x < box[nd, a]:
+                box[nd, a] = x
+            if x > box[nd, 3 + a]:
+                box[nd, 3 + a] = x
+
+
+@njit(cache=True)
 def _refit(n_nodes: int, child: np.ndarray, start: np.ndarray, end: np.ndarray,
            box: np.ndarray) -> None:
     """Recompute inner nodes' ranges and boxes from their children (children > parent)."""
@@ -847,14 +861,17 @@ class KdTree(_BoxTree):
         if self._top is not None:
             codes = _voxel_codes(pts, *self._top)
             n_inner = 2 ** self._top[2].shape[0] - 1
+            # ≤ 4096 voxels: a (stable) counting sort, ≈ 6 % of an insertion saved over
+            # argsort + gather
+            _, pts, order = _bucket_scatter(pts, codes, n_inner + 1)
+            first = codes[order] + n_inner
         else:
             lo, hi = self.bounds
             codes = _voxel_codes(pts, lo.astype(np.float64), hi.astype(np.float64) - lo,
                                  _MORTON_AXES)
-            n_inner = -1
-        order = np.argsort(codes, kind="stable")
-        pts = take_rows(pts, order)
-        first = codes[order] + n_inner if n_inner >= 0 else np.zeros(len(pts), np.int64)
+            order = np.argsort(codes, kind="stable")
+            pts = take_rows(pts, order)
+            first = np.zeros(len(pts), np.int64)
         child = self._child[:n_nodes]
         leaf_of = _route(pts, first, child, self._dim, self._split)
         count = np.bincount(leaf_of, minlength=n_nodes).astype(np.int64)
@@ -866,8 +883,12 @@ class KdTree(_BoxTree):
                                  count)
         self._pts = new_pts
         self._idx = src
-        # touched leaves get their tight box recomputed and are split if now too full
-        self._split_nodes(leaves[count[leaves] > 0])
+        # touched leaves grow their tight box by the new photons only (rescanning the old
+        # ones measured ≈ 40 % of an insertion), then those now too full are split
+        _grow_boxes(pts, leaf_of, self._box)
+        touched = leaves[count[leaves] > 0]
+        self._split_nodes(touched[self._end[touched] - self._start[touched] > self.leaf_size],
+                          need_box=False)
         del self._idx
         _refit(self._n_nodes, self._child, self._start, self._end, self._box)
         if self._has_normals:

@@ -385,3 +385,103 @@ def run(sets: Mapping[str, PhotonSet] | None = None, *, k: int = 64, width: int 
                    meta={"k": k, "width": width, "height": height, "batches": batches,
                          "repeats": repeats})
     return {"table5": rows, "insert_vs_rebuild": incr}
+
+
+# =========================================================================== memory (goal 5)
+MEMORY_COLUMNS = ["what", "photons", "bytes_per_photon", "model_bytes_per_photon",
+                  "peak_rss_mb", "estimate_mb", "estimate_over_rss", "seconds"]
+
+
+def stored_bytes(positions: np.ndarray, normals: np.ndarray | None, powers: np.ndarray,
+                 batches: int = 25) -> list[dict[str, Any]]:
+    """Bytes per stored photon of real kd-trees (their arrays' ``nbytes``), built at once
+    and by ``batches`` insertions, next to :func:`lightsim.engine.memory.bytes_per_photon`."""
+    from lightsim.engine.memory import bytes_per_photon, index_bytes
+
+    n = int(positions.shape[0])
+    cuts = np.linspace(0, n, batches + 1).astype(np.int64)
+    built = KdTree(positions, normals, powers, channels=powers.shape[1])
+    incr = KdTree(channels=powers.shape[1])
+    for a, b in itertools.pairwise(cuts):
+        incr.add(positions[a:b], None if normals is None else normals[a:b], powers[a:b])
+    model = bytes_per_photon(powers.shape[1], normals is not None)
+    return [{"what": f"kd-tree {label}", "photons": n,
+             "bytes_per_photon": index_bytes(tree) / max(n, 1),
+             "model_bytes_per_photon": model}
+            for label, tree in (("built", built), (f"{batches} insertions", incr))]
+
+
+def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
+                      resolution: tuple[int, int] = (640, 256), frame_photons: int = 1_000_000,
+                      extra_args: Sequence[str] = ()) -> dict[str, Any]:
+    """Peak RSS (``wait4`` rusage of the child) of ``lightsim simulate SCENE --photons N``
+    next to the pre-flight estimate of the same run."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from lightsim.engine.config import RunConfig
+    from lightsim.engine.memory import estimate_run
+
+    W, H = resolution
+    with tempfile.TemporaryDirectory(prefix="lightsim-rss-") as tmp:
+        cmd = [sys.executable, "-m", "lightsim.cli.main", "simulate", str(scene_path),
+               "--photons", str(int(photons)), "--resolution", f"{W}x{H}", "--quiet",
+               "--frame-photons", str(int(frame_photons)), "--out", tmp, *extra_args]
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        _, status, usage = os.wait4(proc.pid, 0)
+        dt = time.perf_counter() - t0
+        err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+        proc.stderr.close() if proc.stderr else None
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        summary = {}
+        if proc.returncode == 0:
+            import json
+
+            with open(os.path.join(tmp, "summary.json")) as fh:
+                summary = json.load(fh)
+    cfg = RunConfig()
+    est = estimate_run(int(photons), resolution, channels=3, n_sets=cfg.n_sets,
+                       frame_photons=frame_photons)
+    rss = usage.ru_maxrss * 1024.0  # Linux: KiB
+    kept = summary.get("energy_lm", {})
+    return {"what": f"simulate {os.path.basename(str(scene_path))} {W}x{H}",
+            "photons": int(photons), "peak_rss_mb": rss / 2**20,
+            "estimate_mb": est.total / 2**20, "estimate_over_rss": est.total / rss,
+            "seconds": dt, "exit_code": proc.returncode,
+            "wall_lm": kept.get("wall"), "note": err.strip().splitlines()[-1][:160]
+            if proc.returncode else ""}
+
+
+# =========================================================================== the issue's ratios
+GOAL_COLUMNS = ["what", "photons", "k", "ours_ms", "baseline_ms", "ratio", "goal"]
+
+
+def goal_rows(n: int = 1_000_000, *, k: int = 64, width: int = 640, height: int = 480,
+              batches: int = 25, repeats: int = 3, threads: int | None = None,
+              leaf_size: int = DEFAULT_LEAF_SIZE, seed: int = 0) -> list[dict[str, Any]]:
+    """The two photon-map ratios of issue 15 on the ``n``-photon ring caustic, each
+    measured against its baseline in the same run (best of ``repeats``, A/B alternated so
+    that a load change hits both): kNN queries of the middle-split tree vs
+    ``cKDTree.query`` (goal ≥ 1.5×) and 25 insertions vs rebuilding after every batch
+    (goal ≤ 0.25)."""
+    threads = int(threads or numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(threads)
+    warm_up()
+    pos, nrm, pw = caustic_ring_set(n, seed=seed)
+    q, _ = query_image(pos, nrm, width, height)
+    tree = KdTree(pos, nrm, pw, leaf_size=leaf_size)
+    ck = cKDTree(pos)
+    t_ours, t_ck = np.inf, np.inf
+    for _ in range(max(1, repeats)):
+        t_ours = min(t_ours, _best(lambda: tree.query(q, k), 1)[0])
+        t_ck = min(t_ck, _best(lambda: ck.query(q, k, workers=threads), 1)[0])
+    incr = insert_vs_rebuild(pos, nrm, pw, batches=batches, leaf_size=leaf_size,
+                             repeats=repeats)
+    return [{"what": f"kNN query {width}×{height} (middle vs cKDTree, {threads} threads)",
+             "photons": n, "k": k, "ours_ms": 1e3 * t_ours, "baseline_ms": 1e3 * t_ck,
+             "ratio": t_ck / t_ours, "goal": "≥ 1.5"},
+            {"what": f"{batches} insertions vs rebuild after every batch", "photons": n,
+             "k": k, "ours_ms": incr["insert_ms"], "baseline_ms": incr["rebuild_ms"],
+             "ratio": incr["insert_over_rebuild"], "goal": "≤ 0.25"}]

@@ -619,6 +619,57 @@ def paraboloid_case(flux: float = 1000.0, f: float = 0.1, rim: float = 0.15,
         radial=True, pixel_means=lambda fr: circle_pixel_average(exact, fr, rim))
 
 
+def covered_paraboloid_case(flux: float = 1000.0, f: float = 0.02, rim: float = 0.03,
+                            reflectance: float = 0.88, wall_distance: float = 0.5,
+                            wall_size: float = 0.06, cover_z: float = 0.03,
+                            thickness: float = 0.004, ior: float = 1.5,
+                            resolution: tuple[int, int] = (64, 64), radial: int = 128,
+                            azimuthal: int = 512, source_radius: float = 1e-5
+                            ) -> AnalyticScene:
+    """The paraboloid of :func:`paraboloid_case` behind a flat clear cover glass.
+
+    The reflected beam is parallel to the axis, so it meets the plate (faces at
+    ``cover_z`` and ``cover_z + thickness``, perpendicular to the axis) at normal
+    incidence: it is neither shifted nor spread, and all its internal reflection orders
+    together keep the slab transmittance T(0) = (1−R)² / (1 − R²), R = ((n−1)/(n+1))².
+    The direct light from the focus crosses the plate as in :class:`SlabExact`. Neglected
+    (below 1e-4 of the lit-region mean for the defaults): light the plate sends back that
+    the mirror returns onto the wall (it passes the focus and leaves at steep angles).
+    """
+    base = paraboloid_case(flux, f, rim, reflectance, wall_distance, wall_size, resolution,
+                           radial, azimuthal, source_radius)
+    if not (rim * rim / (4 * f) < cover_z and cover_z + thickness < wall_distance):
+        raise InputError("the cover glass must lie between the reflector's rim and the wall")
+    half = wall_size / 2
+    dz = wall_distance - f
+    theta_corner = math.atan(math.hypot(half, half) / dz)
+    plate = 2.2 * max(rim, (cover_z + thickness - f) * math.tan(theta_corner) + half)
+    slab = prim.slab(thickness, plate, cover_z, ior, 0.0, name="cover")
+    src, mirror, wall = base.scene.parts
+    scene = Scene([src, mirror, slab, wall], base.frame, channels=1)
+    r0 = ((ior - 1.0) / (ior + 1.0)) ** 2
+    t0 = (1.0 - r0) ** 2 / (1.0 - r0 * r0)
+    direct = SlabExact(flux, dz, thickness, ior, theta_max=min(theta_corner + 0.1, 1.55))
+
+    def exact(h, v):
+        r = np.hypot(h, v)
+        refl = np.where(r < rim, t0 * paraboloid_reflected_lux(flux, f, reflectance, r), 0.0)
+        return refl + direct.lux(r)
+
+    def density(h, v):
+        r = np.hypot(h, v)
+        refl = np.where(r < rim, paraboloid_reflected_lux(flux, f, 1.0, r), 0.0)
+        return (refl + direct.lux(r)) / flux
+
+    return AnalyticScene(
+        "covered-paraboloid", "paraboloid behind a cover glass: E = T(0) R Φ / (4π f²) / "
+        "(1 + r²/4f²)² + direct through the plate", scene, flux, exact, density,
+        base.regions, params={**base.params, "cover_z_m": cover_z, "thickness_m": thickness,
+                              "ior": ior, "t0": t0},
+        extra={**base.extra, "t0": t0}, radial=True,
+        pixel_means=lambda fr: circle_pixel_average(exact, fr, rim))
+
+
 def slab_case(flux: float = 1000.0, wall_distance: float = 1.0, thickness: float = 0.02,
               ior: float = 1.5, sigma: float = 0.0, z0: float = 0.1, wall_size: float = 1.6,
               resolution: tuple[int, int] = (64, 64), source_radius: float = 1e-5

@@ -1,0 +1,181 @@
+"""Memory of a run: bytes per stored photon, a pre-flight estimate, the check against RAM.
+
+A run keeps every photon it stores on the wall (one photon map per interleave set, photons
+accumulated by insertion, paper section 5.4), per-set images (bins or the ICI lattice and
+the probe windows) and, per frame, the tracer's wavefront. The estimate adds these up
+from the run's settings before any work, and :func:`check_fits` turns a run that cannot
+fit into the available memory into one clear :class:`~lightsim.errors.InputError` (exit
+code 2) instead of a swap storm or the kernel's OOM killer an hour later.
+
+What one stored photon costs (``kdtree``, C power channels, with normals)
+------------------------------------------------------------------------
+==================  =====  =======================================================
+item                bytes  why
+==================  =====  =======================================================
+position            12     float32 × 3
+normal              12     float32 × 3 (the normal filter)
+power               4 C    float32 × C
+permutation         8      int64 slot → insertion index
+nodes               ≤ 36   60 B per node (box 24, start/end 16, split 8, child, dim,
+                           depth 12) × ≤ 0.6 nodes per photon (≈ 0.3 used, arrays
+                           grown by doubling)
+insertion peak      32+4C  while a batch is merged: the new slot layout (12 + 8) and
+                           the reordered normals/powers (12 + 4 C) beside the old —
+                           of one interleave set's map at a time (÷ M²)
+==================  =====  =======================================================
+
+``bench photonmap`` measures the stored bytes of real trees (``nbytes`` of their arrays)
+next to :func:`bytes_per_photon`, and the peak RSS of a 16 M-photon ``simulate`` next to
+:func:`estimate_run`. The estimate is an upper bound: it counts every photon shot as
+kept (the wall's yield is not known before tracing; about a third of the shipped
+headlight's flux reaches its wall), so a run it lets start fits, and one it refuses
+may, by up to that yield, have fitted.
+
+Parameters
+----------
+=========================  =====  ========  ============================================
+name                       unit   default   meaning
+=========================  =====  ========  ============================================
+``BASE_BYTES``             B      400 MiB   interpreter, numpy/numba/embree, compiled
+                                            kernels (peak RSS of a 200 k-photon 64 × 64
+                                            headlight run: 390–395 MiB)
+``PIXEL_BYTES``            B      16        per pixel, channel and interleave set
+``FINAL_PIXEL_BYTES``      B      600       per pixel of the final map and its error
+                                            (these two: 640 × 256 pixels added 212 MiB
+                                            to the 200 k-photon headlight run)
+``WAVEFRONT_BYTES``        B      200       per photon of one frame in flight (rays,
+                                            hits, records, sample points)
+``HEADROOM``               —      1.15      margin on the total
+=========================  =====  ========  ============================================
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lightsim.errors import InputError
+
+NODE_BYTES = 60
+NODES_PER_PHOTON = 0.6
+BASE_BYTES = 400 * 2**20
+PIXEL_BYTES = 16
+FINAL_PIXEL_BYTES = 600
+WAVEFRONT_BYTES = 200
+HEADROOM = 1.15
+
+
+def bytes_per_photon(channels: int = 1, normals: bool = True, peak: bool = False) -> float:
+    """Bytes one stored photon takes in a kd-tree map (``peak``: during an insertion)."""
+    stored = 12.0 + (12.0 if normals else 0.0) + 4.0 * channels + 8.0 \
+        + NODE_BYTES * NODES_PER_PHOTON
+    return stored + (32.0 + 4.0 * channels if peak else 0.0)
+
+
+def index_bytes(index: Any) -> int:
+    """Bytes held by the numpy arrays of a photon index (its attributes, measured)."""
+    return int(sum(v.nbytes for v in vars(index).values() if isinstance(v, np.ndarray)))
+
+
+@dataclass
+class MemoryEstimate:
+    """Pre-flight estimate of a run's peak memory (bytes)."""
+
+    photons: int           # photons the run shoots (an upper bound of those it keeps)
+    photon_bytes: float    # photon maps at their peak
+    image_bytes: float     # per-set images and the final map's query buffers
+    frame_bytes: float     # one frame's wavefront
+    base_bytes: float      # the process itself
+
+    @property
+    def total(self) -> float:
+        return HEADROOM * (self.photon_bytes + self.image_bytes + self.frame_bytes
+                           + self.base_bytes)
+
+    def describe(self) -> str:
+        gb = 1e9
+        return (f"about {self.total / gb:.1f} GB ({self.photons:,} photons × "
+                f"{self.photon_bytes / max(self.photons, 1):.0f} B kept "
+                f"= {self.photon_bytes / gb:.2f} GB, images {self.image_bytes / gb:.2f} GB, "
+                f"frame {self.frame_bytes / gb:.2f} GB, process "
+                f"{self.base_bytes / gb:.2f} GB, ×{HEADROOM:g} margin)")
+
+
+def estimate_run(photons: int, resolution: tuple[int, int], channels: int = 1,
+                 n_sets: int = 16, frame_photons: int = 200_000, photon_map: bool = True,
+                 ) -> MemoryEstimate:
+    """Peak memory of a run that shoots ``photons`` photons (all assumed kept: the wall
+    yield is not known before tracing, and a photon is stored at most once on the wall).
+
+    Parameters
+    ----------
+    photons : int
+        Photons shot in total.
+    resolution : (W, H)
+        Wall pixels.
+    channels : int
+        Power channels C (1 or 3).
+    n_sets : int
+        Interleave sets M².
+    frame_photons : int
+        Photons per frame (all sets).
+    photon_map : bool
+        False for the ``bin`` estimator, which stores no photons.
+    """
+    W, H = resolution
+    px = float(W) * float(H)
+    kept = int(photons) if photon_map else 0
+    # every set has its own map and a batch is merged into one map at a time: the
+    # insertion peak is that of one set's share
+    peak = bytes_per_photon(channels, peak=True) - bytes_per_photon(channels)
+    return MemoryEstimate(
+        int(photons), kept * (bytes_per_photon(channels) + peak / max(n_sets, 1)),
+        px * channels * PIXEL_BYTES * n_sets + px * FINAL_PIXEL_BYTES,
+        min(int(photons), int(frame_photons)) * WAVEFRONT_BYTES, BASE_BYTES)
+
+
+def available_bytes() -> int | None:
+    """Memory available to a new allocation (``MemAvailable`` of /proc/meminfo, else
+    psutil), or None when neither can tell."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import psutil
+    except ImportError:
+        return None
+    return int(psutil.virtual_memory().available)
+
+
+def check_fits(photons: int | None, resolution: tuple[int, int], config: Any,
+               channels: int = 1, available: int | None = None) -> MemoryEstimate | None:
+    """Raise :class:`InputError` (one line) when the run cannot fit in memory.
+
+    ``photons`` None (a time or error budget) checks one frame. ``config`` is the run's
+    :class:`~lightsim.engine.config.RunConfig`. ``LIGHTSIM_MEMORY_LIMIT`` (bytes) caps
+    the available memory (e.g. a container's limit that /proc/meminfo does not show).
+    """
+    n = int(photons) if photons is not None else int(config.frame_photons)
+    est = estimate_run(n, resolution, channels, config.n_sets, config.frame_photons,
+                       photon_map=config.estimator != "bin")
+    avail = available if available is not None else available_bytes()
+    limit = os.environ.get("LIGHTSIM_MEMORY_LIMIT")
+    if limit:
+        try:
+            cap = int(float(limit))
+        except ValueError:
+            raise InputError(f"LIGHTSIM_MEMORY_LIMIT must be a number of bytes, got "
+                             f"'{limit}'") from None
+        avail = cap if avail is None else min(avail, cap)
+    if avail is not None and est.total > avail:
+        raise InputError(f"this run would not fit in memory: it needs {est.describe()}, "
+                         f"but only {avail / 1e9:.1f} GB is available; shoot fewer "
+                         "--photons, use --estimator bin or a smaller --resolution")
+    return est

@@ -1,0 +1,83 @@
+"""Memory pre-flight: bytes per stored photon against real trees, and the refusal."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from lightsim.engine import memory
+from lightsim.engine.config import RunConfig
+from lightsim.errors import InputError
+from lightsim.photonmap import KdTree
+
+
+def _photons(n: int, seed: int = 3):
+    rng = np.random.default_rng(seed)
+    pos = rng.normal(size=(n, 3)).astype(np.float32)
+    pos[: n // 4] = pos[0]  # a coincident clump: zero-extent leaves
+    nrm = np.tile(np.array([0, 0, 1], np.float32), (n, 1))
+    return pos, nrm, rng.random((n, 3)).astype(np.float32)
+
+
+@pytest.mark.parametrize("batches", [1, 20])
+def test_model_bounds_the_bytes_real_trees_hold(batches):
+    pos, nrm, pw = _photons(60_000)
+    tree = KdTree(channels=3)
+    for a, b in itertools.pairwise(np.linspace(0, len(pos), batches + 1).astype(int)):
+        tree.add(pos[a:b], nrm[a:b], pw[a:b])
+    measured = memory.index_bytes(tree) / len(tree)
+    model = memory.bytes_per_photon(3)
+    assert measured <= model <= 1.6 * measured
+    assert memory.bytes_per_photon(3, peak=True) > model
+
+
+def test_estimate_grows_with_photons_and_pixels_and_bin_stores_no_photons():
+    a = memory.estimate_run(1_000_000, (64, 64))
+    assert memory.estimate_run(2_000_000, (64, 64)).total > a.total
+    assert memory.estimate_run(1_000_000, (640, 256)).total > a.total
+    assert memory.estimate_run(1_000_000, (64, 64), photon_map=False).photon_bytes == 0
+
+
+def test_check_fits_refuses_in_one_line_and_passes_when_there_is_room():
+    cfg = RunConfig()
+    with pytest.raises(InputError) as exc:
+        memory.check_fits(10**9, (640, 256), cfg, 3, available=2 * 10**9)
+    msg = str(exc.value)
+    assert "\n" not in msg and "would not fit" in msg and "1,000,000,000 photons" in msg
+    est = memory.check_fits(10**6, (640, 256), cfg, 3, available=10**12)
+    assert est is not None and est.total < 10**12
+    # no photon count (a time budget): one frame is checked
+    assert memory.check_fits(None, (64, 64), cfg, 1, available=10**12).photons == \
+        cfg.frame_photons
+
+
+def test_memory_limit_env_caps_available(monkeypatch):
+    monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT", "1e8")
+    with pytest.raises(InputError, match="would not fit"):
+        memory.check_fits(10**6, (64, 64), RunConfig(), 1, available=10**12)
+    monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT", "lots")
+    with pytest.raises(InputError, match="LIGHTSIM_MEMORY_LIMIT"):
+        memory.check_fits(10, (8, 8), RunConfig(), 1, available=10**12)
+
+
+def test_available_bytes_reads_meminfo():
+    avail = memory.available_bytes()
+    assert avail is None or avail > 0
+
+
+def test_simulate_refuses_before_it_starts(tmp_path, monkeypatch, capsys):
+    from lightsim.cli.main import main
+    from lightsim.validation.bench.peer import CASES, write_scene_glb
+
+    glb = write_scene_glb(CASES["paraboloid"](8), tmp_path / "p.glb")
+    out = tmp_path / "out"
+    monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT", str(10**9))
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", str(glb), "--photons", "100000000", "--resolution", "8x8",
+              "--out", str(out), "--quiet"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "would not fit in memory" in err[0]
+    assert not out.exists()
