@@ -35,13 +35,13 @@ def _resolution(text: str) -> tuple[int, int]:
 @click.option("--focal-length", type=float, default=25.0, show_default=True, help="mm")
 @click.option("--opening", type=float, default=160.0, show_default=True,
               help="Lamp opening (reflector rim diameter), mm.")
-@click.option("--evaluations", type=int, default=40, show_default=True,
+@click.option("--evaluations", type=int, default=30, show_default=True,
               help="Powell function evaluations per round (each one simulation).")
 @click.option("--rounds", type=int, default=2, show_default=True,
               help="Optimisation rounds; each round re-draws the photon noise (seed + round).")
-@click.option("--photons", "-n", type=int, default=150_000, show_default=True,
+@click.option("--photons", "-n", type=int, default=300_000, show_default=True,
               help="Photons per evaluation.")
-@click.option("--resolution", default="160x64", show_default=True,
+@click.option("--resolution", default="80x256", show_default=True,
               help="Wall pixels WxH of every evaluation.")
 @click.option("--validate-factor", type=int, default=4, show_default=True,
               help="The best lamp is re-simulated with a fresh seed and this many times "
@@ -52,7 +52,7 @@ def _resolution(text: str) -> tuple[int, int]:
 @click.option("--seed", type=int, default=1, show_default=True)
 @click.option("--safety", type=float, default=0.10, show_default=True,
               help="Relative margin asked beyond every limit.")
-@click.option("--reach", type=float, default=30.0, show_default=True,
+@click.option("--reach", type=float, default=25.0, show_default=True,
               help="1 lx road reach asked for, m (lamp 0.65 m high).")
 @click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
               show_default=True)
@@ -111,11 +111,13 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),
             "objective": out.objective, "validation_objective": out.validation_objective}
-    size = write_design(out_glb, out.x, layout, info)
+    size = write_design(out_glb, out.x, out.layout, info)
     click.echo(f"design: {len(out.history)} evaluations in {out.seconds:.1f} s; "
                f"J = {out.objective:.4f} (validation, fresh seed ×{validate_factor} "
                f"photons: {out.validation_objective:.4f}); wrote {out_glb} ({size:,} bytes)")
-    click.echo("x = (" + ", ".join(f"{v:+.4f}" for v in out.x) + ")")
+    click.echo("x = (" + ", ".join(f"{v:+.4f}" for v in out.x) + "); ring offsets = ("
+               + ", ".join(f"{d:+.3f}" for d in out.layout.ring_offsets_deg)
+               + ")° from " + str(len(out.calibration_deg)) + " calibration steps")
     rows = out.validation or out.terms
     click.echo(f"{'term':14s} {'value':>10s}  {'log-margin':>10s}  target")
     for t in rows:

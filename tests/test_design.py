@@ -109,7 +109,9 @@ def test_shield_shading_of_the_image_model_matches_a_ray_cast_on_the_shield_mesh
 def test_images_of_every_lit_facet_stay_under_the_cutoff_line():
     lay = Layout()
     hole = hole_diameter(lay)
-    facets = facets_for(start_vector(lay), lay, hole)
+    x = start_vector(lay)
+    x[1] = 0.0  # no lift of the vertex ring
+    facets = facets_for(x, lay, hole)
     images = facet_images(facets, lay, hole)
     v0 = -0.57
     lit = [img for img in images if img.dh.size]
