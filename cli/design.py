@@ -110,7 +110,9 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          progress=progress)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),
-            "objective": out.objective, "validation_objective": out.validation_objective}
+            "objective": out.objective,
+            "validation_objective": (out.validation_objective
+                                     if math.isfinite(out.validation_objective) else None)}
     size = write_design(out_glb, out.x, out.layout, info)
     click.echo(f"design: {len(out.history)} evaluations in {out.seconds:.1f} s; "
                f"J = {out.objective:.4f} (validation, fresh seed ×{validate_factor} "

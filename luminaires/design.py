@@ -107,6 +107,8 @@ __all__ = ["DesignResult", "Layout", "Term", "design_lowbeam", "facet_images",
 
 LENS_GAP_M = 0.03  # room for facets aimed off-axis or with longer focal lengths
 STEP_DEG = 15.0  # R112 annex 9: the cut-off rises 15° on the traffic side
+ELBOW_DEG = 1.0  # where the designed rise starts (deg right of V); measured: from V, H-V
+# got 2 100 cd (zone III ≤ 625)
 TARGET_V_DEG = -0.57  # where --aim puts the cut-off inflection
 SHARPNESS = (0.13, 0.40)
 LINEARITY_DEG = 0.2
@@ -271,10 +273,14 @@ def facet_images(facets: list[Facet], layout: Layout, hole_m: float, samples: in
     return out
 
 
-def cutoff_line(h: np.ndarray, v0: float, traffic: str = "right") -> np.ndarray:
-    """The cut-off c(h) (deg): flat at v0, rising 15° from H = 0 on the traffic side."""
+def cutoff_line(h: np.ndarray, v0: float, traffic: str = "right",
+                elbow_deg: float | None = None) -> np.ndarray:
+    """The cut-off c(h) (deg): flat at v0, rising 15° from H = ``elbow_deg`` on the traffic
+    side (default :data:`ELBOW_DEG`: the rise starts right of V so that H-V, 0.57° above
+    the elbow and a corner of zone III, stays dark)."""
+    e = ELBOW_DEG if elbow_deg is None else elbow_deg
     side = h if traffic == "right" else -h
-    return v0 + np.maximum(side, 0.0) * math.tan(math.radians(STEP_DEG))
+    return v0 + np.maximum(side - e, 0.0) * math.tan(math.radians(STEP_DEG))
 
 
 def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
