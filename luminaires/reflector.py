@@ -20,7 +20,8 @@ name           unit   meaning
 =============  =====  ============================================================
 f              m      common focal length (focus at (0, 0, f))
 r_hole, r_rim  m      radii of the base paraboloid's vertex hole and rim
-facets         –      :class:`Facet` list: azimuth range (rad) and aim (h, v in °)
+facets         –      :class:`Facet` list: azimuth range (rad), aim (h, v in °), optional
+                      ring (base radii r0–r1, m) and own focal length (m)
 rings          –      rings per facet (evenly spaced in base radius)
 columns        –      vertices per ring and facet
 =============  =====  ============================================================
