@@ -20,7 +20,8 @@ name           unit   meaning
 =============  =====  ============================================================
 f              m      common focal length (focus at (0, 0, f))
 r_hole, r_rim  m      radii of the base paraboloid's vertex hole and rim
-facets         –      :class:`Facet` list: azimuth range (rad) and aim (h, v in °)
+facets         –      :class:`Facet` list: azimuth range (rad), aim (h, v in °), optional
+                      ring (base radii r0–r1, m) and own focal length (m)
 rings          –      rings per facet (evenly spaced in base radius)
 columns        –      vertices per ring and facet
 =============  =====  ============================================================
@@ -51,12 +52,21 @@ class Facet:
         Azimuth range about the lamp axis, measured from world +X towards +Y, in rad.
     h_deg, v_deg : float
         Wall direction the facet sends light from the focus to (H right, V up), in °.
+    r0_m, r1_m : float or None
+        Range of the base paraboloid's radius the facet covers (a ring), in m; ``None``:
+        from the vertex hole to the rim.
+    focal_m : float or None
+        The facet's own focal length in m (``None``: the common one). A longer focal length
+        puts the facet further from the focus and makes its filament images smaller.
     """
 
     phi0_rad: float
     phi1_rad: float
     h_deg: float
     v_deg: float
+    r0_m: float | None = None
+    r1_m: float | None = None
+    focal_m: float | None = None
 
 
 def aim_direction(h_deg: float, v_deg: float) -> np.ndarray:
@@ -69,6 +79,10 @@ def faceted_reflector_mesh(f: float, r_hole: float, r_rim: float, facets: list[F
                            rings: int = 40, columns: int = 24
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices (m), faces (facing the focus) and exact normals of a faceted reflector.
+
+    Facet k covers the directions from the focus towards the base paraboloid (focal length
+    ``f``) between radii ``r0_m``–``r1_m`` and azimuths ``phi0_rad``–``phi1_rad``; its surface
+    is the paraboloid of focal length ``focal_m`` (default ``f``) about its aim direction.
 
     Raises
     ------
@@ -84,8 +98,16 @@ def faceted_reflector_mesh(f: float, r_hole: float, r_rim: float, facets: list[F
     focus = np.array([0.0, 0.0, f])
     verts, faces, norms = [], [], []
     n = 0
-    r = np.linspace(r_hole, r_rim, rings + 1)
     for fc in facets:
+        r0 = r_hole if fc.r0_m is None else float(fc.r0_m)
+        r1 = r_rim if fc.r1_m is None else float(fc.r1_m)
+        fk = f if fc.focal_m is None else float(fc.focal_m)
+        if not (r_hole - 1e-12 <= r0 < r1 <= r_rim + 1e-12):
+            raise InputError(f"facet ring {r0}–{r1} m is not inside the reflector "
+                             f"({r_hole}–{r_rim} m)")
+        if not (math.isfinite(fk) and 0.25 * f <= fk <= 4 * f):
+            raise InputError(f"facet focal length {fk} m is not within ¼–4× the common {f} m")
+        r = np.linspace(r0, r1, rings + 1)
         if not (math.isfinite(fc.h_deg) and math.isfinite(fc.v_deg)
                 and abs(fc.h_deg) < 45 and abs(fc.v_deg) < 45):
             raise InputError(f"facet aim ({fc.h_deg}, {fc.v_deg})° is not within ±45°")
@@ -102,7 +124,7 @@ def faceted_reflector_mesh(f: float, r_hole: float, r_rim: float, facets: list[F
         if np.any(cos_ud > 1 - 1e-6):
             raise InputError(f"facet aim ({fc.h_deg}, {fc.v_deg})° turns the paraboloid "
                              "away to infinity")
-        rho = 2 * f / (1 - cos_ud)
+        rho = 2 * fk / (1 - cos_ud)
         p = focus + rho[:, None] * u
         nm = d[None, :] - u
         nm /= np.linalg.norm(nm, axis=1, keepdims=True)

@@ -1,0 +1,47 @@
+"""Tolerance study of the shipped designed low beam: a misplaced filament is flagged."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from lightsim.simulate import SimulateOptions
+from lightsim.validation.tolerance import MM, run_tolerance
+
+REPO = Path(__file__).resolve().parents[1]
+LOWBEAM = REPO / "luminaires" / "examples" / "lowbeam.glb"
+RULES = "r112-b-passing"
+
+
+def _opts(out: Path) -> SimulateOptions:
+    # kNN at the points (smooth in the geometry), a low-resolution wall: a few s per sample
+    return SimulateOptions(str(LOWBEAM), out_dir=str(out), photons=100_000,
+                           resolution=(80, 256), regulation=RULES, aperture=0.0,
+                           config={"seed": 5})
+
+
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory):
+    nominal = run_tolerance(_opts(tmp_path_factory.mktemp("n")), samples=1, seed=1)
+    # a holder that puts the filament 1.5 mm forward: 4× the assumed ±0.35 mm axial box
+    high = run_tolerance(_opts(tmp_path_factory.mktemp("h")), samples=2, seed=1,
+                         centre_m=(0.0, 0.0, 1.5 * MM))
+    return nominal, high
+
+
+def test_filament_1_5_mm_off_is_flagged_as_failing(studies):
+    nominal, high = studies
+    nom = {p.name: p for p in nominal.points}
+    mis = {p.name: p for p in high.points}
+    # at its nominal place the designed lamp's hot spot meets 75R and 50R with room
+    for name in ("75R", "50R"):
+        assert nom[name].nominal_cd > 1.2 * nom[name].limit["min"], name
+    # 1.5 mm forward, the filament images grow and drop away from the cut-off: the
+    # hot-spot points fail in every sample and no sample meets every limit (measured:
+    # 75R 18 000 → 1 750 cd, 50R 20 000 → 2 900 cd)
+    assert mis["75R"].pass_rate == 0.0 and mis["75R"].worst_margin < -0.3
+    assert mis["75R"].nominal_cd < 0.5 * nom["75R"].nominal_cd
+    assert high.all_pass_rate()[0] == 0.0
+    assert mis["50R"].pass_rate == 0.0
+    assert high.nominal.offset[2] == pytest.approx(1.5 * MM)
