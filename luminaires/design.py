@@ -503,7 +503,7 @@ def simulate_lamp(glb: str | os.PathLike, regulation: str, *, photons: int,
     spot's photons (``None``: the engine's default, a few pixels)."""
     from lightsim.engine.server import Session
     from lightsim.render.frame import luminous
-    from lightsim.report import aperture_config, regulation_check
+    from lightsim.luminaires.regulations.check import aperture_config, regulation_check
     from lightsim.simulate import SimulateOptions, load
 
     opts = SimulateOptions(str(glb), out_dir=str(Path(glb).parent), photons=photons,
