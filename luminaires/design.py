@@ -502,8 +502,8 @@ def simulate_lamp(glb: str | os.PathLike, regulation: str, *, photons: int,
     bright side of the cut-off (HV, 0.57° above the elbow) is not estimated from the hot
     spot's photons (``None``: the engine's default, a few pixels)."""
     from lightsim.engine.server import Session
-    from lightsim.render.frame import luminous
     from lightsim.luminaires.regulations.check import aperture_config, regulation_check
+    from lightsim.render.frame import luminous
     from lightsim.simulate import SimulateOptions, load
 
     opts = SimulateOptions(str(glb), out_dir=str(Path(glb).parent), photons=photons,
