@@ -20,6 +20,7 @@ BENCHMARKS: dict[str, str] = {
     "spt": "bench_spt:command",
     "scaling": "bench_scaling:command",
     "view": "bench_view:command",
+    "pipeline": "bench_pipeline:command",
 }
 
 
