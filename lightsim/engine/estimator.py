@@ -213,8 +213,7 @@ class SetEstimator:
             pts = self.frame.to_world(hh, vv).reshape(-1, 3)
             est = self.estimate(st, pts, np.broadcast_to(normal, pts.shape), "pooled")
             out.full_image = est.reshape((*hh.shape, self.channels))
-        if (request.error and self.config.uses_ici and request.probes
-                and st.wall_moments is not None):
+        if request.error and self.config.uses_ici and st.wall_moments is not None:
             out.probe_rungs = self.ici_rungs(st, *self._grid_pixels)
             out.moments = st.wall_moments.copy()
         if request.camera is not None:

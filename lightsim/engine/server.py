@@ -158,7 +158,7 @@ class Session:
         want every pixel of every set, ``interleaved`` frames each set's own pixels."""
         full = self.config.estimator == "bin" or mode == "pooled"
         return RenderRequest(image=image and not full, full_image=image and full,
-                             probes=probes, error=probes, camera=camera)
+                             probes=probes, error=True, camera=camera)
 
     def render(self, request: RenderRequest) -> SetFrames:
         """Every set's estimates for ``request`` (lx), keyed by set."""
@@ -398,7 +398,8 @@ class Session:
     def run(self, photons: int | None = None, seconds: float | None = None,
             target_error: float | None = None, min_frames: int = 3,
             callback: Callable[[FrameResult], None] | None = None,
-            should_stop: Callable[[], bool] | None = None) -> FrameResult:
+            should_stop: Callable[[], bool] | None = None, probes: bool = True
+            ) -> FrameResult:
         """Shoot frames until a budget is met, then render the final image.
 
         Stops at whichever comes first: exactly ``photons`` emitted (total over sets; the
@@ -406,6 +407,9 @@ class Session:
         ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — with the
         blur at its upper bound, so an unresolved blur cannot stop a run early (after at
         least ``min_frames`` frames). With no budget at all, one frame is shot.
+        ``probes=False`` leaves the probe estimates (``FrameResult.probes``) out of the
+        final image when the caller does not read them (the error figure of an ICI map
+        does not need them).
 
         The loop is the paper's: shoot → insert (:meth:`shoot`), estimate at the probes
         and the error (:meth:`estimate_at_probes`), the stopping rule
@@ -434,7 +438,7 @@ class Session:
                 callback(est)
             if self.error_low_enough(est, target_error, min_frames):
                 break
-        return self.final_image()
+        return self.final_image(probes)
 
     def budget_spent(self, photons: int | None, seconds: float | None,
                      should_stop: Callable[[], bool] | None = None) -> bool:
@@ -469,7 +473,10 @@ class Session:
         (no image); logged as a point of the error-vs-time curve."""
         timings = {} if timings is None else timings
         t0 = time.perf_counter()
-        frames = self.render(self.request(image=False))
+        # the ICI figure reads the lattice windows at the grid probes, not the probes'
+        # kNN estimates: those are left for the final image
+        request = RenderRequest(probes=not self.config.uses_ici, error=True)
+        frames = self.render(request)
         timings["render"] = time.perf_counter() - t0
         est = self.assemble(frames, timings)
         self.last = est
@@ -484,10 +491,17 @@ class Session:
             return False
         return self.frames >= min_frames and est.error.upper <= target_error
 
-    def final_image(self) -> FrameResult:
+    def final_image(self, probes: bool = True) -> FrameResult:
         """The written map (``config.final``: pooled or interleaved) from every photon,
-        with its probes and error; logged unless the last log point is this one."""
-        final = self.frame(image=True, shoot=False, mode=self.config.final)
+        with its error (and probe estimates, with ``probes`` or without ICI: the kNN and
+        binning figures need them); logged unless the last log point is this one."""
+        probes = probes or not self.config.uses_ici
+        self.start_clock()
+        t0 = time.perf_counter()
+        frames = self.render(self.request(True, self.config.final, probes=probes))
+        timings = {"render": time.perf_counter() - t0}
+        final = self.assemble(frames, timings)
+        self.last = final
         if self.frames and (not self.log or self.log[-1].get("photons") != final.photons):
             self.log.append({**final.error_entry(), "frames": self.frames})
         return final

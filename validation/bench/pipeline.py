@@ -51,7 +51,7 @@ def _run(scene, config: RunConfig, photons: int) -> dict[str, Any]:
             render += est.timings["render"] + est.timings.get("assemble", 0.0)
 
     with Session(scene, config) as s:
-        est = s.run(photons=photons, callback=tally)
+        est = s.run(photons=photons, callback=tally, probes=False)  # as `simulate` does
         final = est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0)
         return {"photons": est.photons, "seconds": est.seconds, "frames": s.frames,
                 "estimates": estimates, "shoot_s": shoot, "estimate_s": render,
