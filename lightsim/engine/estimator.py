@@ -17,7 +17,7 @@ parameter              unit   default      meaning
 =====================  =====  ===========  ============================================
 
 Every estimate divides photon power by the set's emitted photons and an area in one
-place, :func:`flux_to_lux`.
+place, :func:`normalise_flux` (the ledger too: :meth:`Session.energy`).
 """
 
 from __future__ import annotations
@@ -34,11 +34,13 @@ from lightsim.render.interleave import InterleavePattern
 from lightsim.scene import Scene, WallFrame
 
 
-def flux_to_lux(power: np.ndarray, emitted: int, *area_m2: Any) -> np.ndarray:
-    """Photon power sums (lm, each photon carrying the lamp's flux share × N) → lx.
+def normalise_flux(power: np.ndarray, emitted: int, *area_m2: Any) -> np.ndarray:
+    """Photon power sums → per emitted photon (lm) and per area (lx): the one place where
+    flux is normalised.
 
-    Divides by the photons emitted and by the area factors (m², or per-query arrays),
-    multiplied in the order given: the one place where flux is normalised.
+    Every photon carries the whole emitted flux (lm), so a sum over photons divided by
+    the photons emitted is lm, and divided further by the area factors (m², or
+    per-query arrays, multiplied in the order given) it is lx.
     """
     denominator = emitted
     for a in area_m2:
@@ -129,7 +131,7 @@ class SetEstimator:
             dh, dv = self.frame.pixel_size_m
             col = np.clip(np.floor((h - self.frame.h_range_m[0]) / dh).astype(np.int64), 0, W - 1)
             row = np.clip(np.floor((self.frame.v_range_m[1] - v) / dv).astype(np.int64), 0, H - 1)
-            return flux_to_lux(st.bins[row, col], st.emitted, dh, dv)
+            return normalise_flux(st.bins[row, col], st.emitted, dh, dv)
         if len(st.photonmap) == 0:  # no photon on the wall yet (or ever)
             return np.zeros((len(points), self.channels))
         mode = mode or self.config.final
@@ -141,7 +143,7 @@ class SetEstimator:
         res = st.photonmap.ready().estimate(
             points.astype(np.float32), normals.astype(np.float32), k=set_k(self.config),
             max_radius=radius, min_radius=floor, kernel=self.config.kernel)
-        return flux_to_lux(np.asarray(res.E, dtype=np.float64), st.emitted)
+        return normalise_flux(np.asarray(res.E, dtype=np.float64), st.emitted)
 
     def ici_rungs(self, st: SetState, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """The set's rung estimates (lx) at pixels: (J+1, Q, C) (see
@@ -155,7 +157,7 @@ class SetEstimator:
         dh, dv = self.frame.pixel_size_m
         sums, cells = ici.window_sums(st.lattice.reshape(2 * H, 2 * W, self.channels),
                                       rows, cols, sides)
-        return flux_to_lux(sums, st.emitted, np.maximum(cells, 1.0)[..., None],
+        return normalise_flux(sums, st.emitted, np.maximum(cells, 1.0)[..., None],
                            0.25 * dh * dv)
 
     def window(self, st: SetState) -> np.ndarray | None:
@@ -163,7 +165,7 @@ class SetEstimator:
         if st.windows is None or not st.emitted:
             return None
         dh, dv = self.frame.pixel_size_m
-        return flux_to_lux(st.windows, st.emitted, dh, dv)
+        return normalise_flux(st.windows, st.emitted, dh, dv)
 
     # -- query points ----------------------------------------------------------------------
     def _wall_points(self, s: int) -> np.ndarray:

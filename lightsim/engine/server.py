@@ -27,7 +27,7 @@ import numpy as np
 from lightsim.engine.backend import Backend
 from lightsim.engine.client import apply_changes
 from lightsim.engine.config import RunConfig
-from lightsim.engine.estimator import effective_radii
+from lightsim.engine.estimator import effective_radii, normalise_flux
 from lightsim.engine.plan import Plan, make_plan
 from lightsim.engine.results import Estimate, FrameResult, RenderRequest, SetFrames
 from lightsim.errors import InputError
@@ -384,9 +384,9 @@ class Session:
             return {"emitted": 0.0, **{k: 0.0 for k in LEDGER}}
         ledger = sum(st["ledger"] for _, st in sorted(stats.items()))
         emitted = sum(st["emitted_power"] for _, st in sorted(stats.items()))
-        out = {"emitted": float(luminous(emitted[None, :])[0] / n)}
+        out = {"emitted": float(normalise_flux(luminous(emitted[None, :])[0], n))}
         for i, k in enumerate(LEDGER):
-            out[k] = float(luminous(ledger[i][None, :])[0] / n)
+            out[k] = float(normalise_flux(luminous(ledger[i][None, :])[0], n))
         return out
 
     def caustic_yield(self) -> float:
