@@ -12,6 +12,17 @@ Backends (``workers``): 0 → clients in this process; N ≥ 1 → N Ray actors 
 runtime; ``address`` → the same actors on an existing Ray cluster. Results are
 bit-identical between backends for the same seed and photon count, because every set's
 photons depend only on (seed, set, index) and the server combines sets in set order.
+
+:meth:`Session.run` is the paper's loop in named steps: :meth:`~Session.shoot` (shoot →
+insert), :meth:`~Session.estimate_at_probes` (estimates at the probes, the error figure),
+:meth:`~Session.error_low_enough` (the stopping rule), :meth:`~Session.final_image`.
+
+==================  =====  =======  ================================================
+parameter           unit   default  meaning
+==================  =====  =======  ================================================
+``min_frames``      –      3        frames before a target error may stop a run
+``growth``          –      2        photons between two error estimates grow ≤ this
+==================  =====  =======  ================================================
 """
 
 from __future__ import annotations
@@ -414,6 +425,9 @@ class Session:
         The loop is the paper's: shoot → insert (:meth:`shoot`), estimate at the probes
         and the error (:meth:`estimate_at_probes`), the stopping rule
         (:meth:`error_low_enough`), and after it the final image (:meth:`final_image`).
+        The estimate runs on :class:`ErrorSchedule`'s photon counts, not every frame;
+        frames that only shoot report to ``callback`` with the latest error
+        (:meth:`progress`). The last frame goes straight to the final image.
         """
         if photons is None and seconds is None and target_error is None:
             photons = self.config.frame_photons
