@@ -147,3 +147,14 @@ def test_bench_pipeline_rows(point):
     assert r["frames"] == 3 and r["estimates"] == 2
     assert r["ratio"] == pytest.approx(r["simulate_photons_per_s"] / r["tracer_photons_per_s"])
     assert 0 < r["ratio"] < 10
+
+
+def test_grouped_halton_points_are_each_sets_points():
+    from lightsim.sampling import halton_points_grouped
+
+    perms = np.stack([digit_permutations(1, s, None) for s in range(3)])
+    idx = [np.arange(5, 900), np.arange(0), np.arange(2**40, 2**40 + 77)]
+    group = np.concatenate([np.full(len(i), s) for s, i in enumerate(idx)])
+    got = halton_points_grouped(np.concatenate(idx), group, perms)
+    want = np.concatenate([halton_points(i, perms[s]) for s, i in enumerate(idx)])
+    np.testing.assert_array_equal(got, want)

@@ -34,7 +34,12 @@ import numpy as np
 from lightsim.engine.config import RunConfig
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
-from lightsim.sampling import SelectiveSampler, digit_permutations, halton_points, photon_keys
+from lightsim.sampling import (
+    SelectiveSampler,
+    digit_permutations,
+    halton_points_grouped,
+    photon_keys,
+)
 from lightsim.scene import Scene
 from lightsim.tracer import LEDGER, PhotonRecords, PhotonTracer
 
@@ -212,6 +217,7 @@ class PhotonSets:
         """
         t0 = time.perf_counter()
         pts, keys, weights, groups, owners = [], [], [], [], []
+        plain: list[int] = []  # groups of plainly sampled sets: their points in one pass
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             if st.sampler is not None:
@@ -221,15 +227,25 @@ class PhotonSets:
             else:
                 n = self.frame_share(s, total)
                 idx = np.arange(st.next_index, st.next_index + n, dtype=np.int64)
-                p = halton_points(idx, self._perms(s))
+                p = None
                 k = photon_keys(self.config.seed, s, 0, idx)
                 w = None
                 st.next_index += n
+                plain.append(g)
             pts.append(p)
             keys.append(k)
             weights.append(np.ones(len(idx)) if w is None else w)
             groups.append(np.full(len(idx), g, np.int64))
             owners.append(idx)
+        if plain:
+            perms = np.stack([self._perms(self.set_indices[g]) for g in plain])
+            which = np.concatenate([np.full(len(owners[g]), i, np.int64)
+                                    for i, g in enumerate(plain)])
+            points = halton_points_grouped(np.concatenate([owners[g] for g in plain]),
+                                           which, perms)
+            bounds = np.cumsum([0] + [len(owners[g]) for g in plain])
+            for i, g in enumerate(plain):
+                pts[g] = points[bounds[i]:bounds[i + 1]]
         points = np.concatenate(pts)
         group = np.concatenate(groups)
         res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
