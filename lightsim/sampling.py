@@ -241,6 +241,12 @@ class SelectiveSampler:
         weight : (n,) float64
             Power factor n_pass / (L n_c) (multiply by the emitted flux Φ).
         """
+        p, indices, perms, weight = self.next_pass_indices()
+        return p, indices, halton_points(indices, perms), weight
+
+    def next_pass_indices(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`next_pass` with the pass's digit permutations instead of its points
+        (for :func:`halton_points_grouped`, which makes the points of many sets at once)."""
         L = self.n_cells
         n_ref = int(self.refined.sum())
         if n_ref == 0:  # nothing known yet: plain stratified sampling of every cell
@@ -258,12 +264,11 @@ class SelectiveSampler:
         indices = cells + j * L
         perms = digit_permutations(self.seed, self.set_index, self.passes_done,
                                    self.cell_digits)
-        points = halton_points(indices, perms)
         n_pass = len(indices)
         weight = n_pass / (L * n_c[cells].astype(np.float64))
         p = self.passes_done
         self.passes_done += 1
-        return p, indices, points, weight
+        return p, indices, perms, weight
 
     def update(self, indices: np.ndarray, caustic: np.ndarray) -> None:
         """Mark the cells of photons whose paths were caustic (refined from now on).

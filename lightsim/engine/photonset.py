@@ -216,38 +216,28 @@ class PhotonSets:
         an SPT pass is always whole, since a cut pass would leave cells unsampled).
         """
         t0 = time.perf_counter()
-        pts, keys, weights, groups, owners = [], [], [], [], []
-        plain: list[int] = []  # groups of plainly sampled sets: their points in one pass
+        keys, weights, groups, owners, perms = [], [], [], [], []
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             if st.sampler is not None:
-                pass_index, idx, p, w = st.sampler.next_pass()
+                pass_index, idx, pm, w = st.sampler.next_pass_indices()
                 # key space: pass 0 is plain sampling, SPT passes are 1, 2, ...
                 k = photon_keys(self.config.seed, s, pass_index + 1, idx)
             else:
                 n = self.frame_share(s, total)
                 idx = np.arange(st.next_index, st.next_index + n, dtype=np.int64)
-                p = None
+                pm = self._perms(s)
                 k = photon_keys(self.config.seed, s, 0, idx)
                 w = None
                 st.next_index += n
-                plain.append(g)
-            pts.append(p)
+            perms.append(pm)
             keys.append(k)
             weights.append(np.ones(len(idx)) if w is None else w)
             groups.append(np.full(len(idx), g, np.int64))
             owners.append(idx)
-        if plain:
-            perms = np.stack([self._perms(self.set_indices[g]) for g in plain])
-            which = np.concatenate([np.full(len(owners[g]), i, np.int64)
-                                    for i, g in enumerate(plain)])
-            points = halton_points_grouped(np.concatenate([owners[g] for g in plain]),
-                                           which, perms)
-            bounds = np.cumsum([0] + [len(owners[g]) for g in plain])
-            for i, g in enumerate(plain):
-                pts[g] = points[bounds[i]:bounds[i + 1]]
-        points = np.concatenate(pts)
         group = np.concatenate(groups)
+        # every set's Halton points in one parallel pass (one thread launch per frame)
+        points = halton_points_grouped(np.concatenate(owners), group, np.stack(perms))
         res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
                                        group=group, n_groups=len(self.set_indices))
         rec = res.records
