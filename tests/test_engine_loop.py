@@ -158,3 +158,16 @@ def test_grouped_halton_points_are_each_sets_points():
     got = halton_points_grouped(np.concatenate(idx), group, perms)
     want = np.concatenate([halton_points(i, perms[s]) for s, i in enumerate(idx)])
     np.testing.assert_array_equal(got, want)
+
+
+def test_target_error_stops_at_the_first_estimate_below_it(point):
+    cfg = RunConfig(frame_photons=8_000, interleave=2, seed=5)
+    with Session(point, cfg) as s:
+        seen: list[FrameResult] = []
+        final = s.run(target_error=0.08, photons=2_000_000, callback=seen.append)
+        estimated = [e for e in seen if "render" in e.timings]
+    assert final.photons < 2_000_000 and s.frames >= 3
+    assert final.error.upper <= 0.08
+    # every earlier estimate (after the minimum frames) was still above the target
+    assert all(e.error.upper > 0.08 for e in estimated[:-1] if e.photons >= 3 * 8_000)
+    assert len(estimated) < s.frames  # not every frame paid for an estimate
