@@ -21,6 +21,7 @@ BENCHMARKS: dict[str, str] = {
     "scaling": "bench_scaling:command",
     "view": "bench_view:command",
     "peer": "bench_peer:command",
+    "pipeline": "bench_pipeline:command",
 }
 
 

@@ -132,14 +132,64 @@ def _radical_inverse(index: np.int64, d: int, perms: np.ndarray) -> float:
     return min(x, 1.0 - 1.1102230246251565e-16)
 
 
+def _radical_inverse_in(d: int):
+    """:func:`_radical_inverse` for dimension ``d`` with its base and digit count as
+    compile-time constants: the divisions become multiplications (several times faster),
+    the arithmetic — and so every point — stays bit-identical."""
+    base, digits = int(PRIMES[d]), int(DIGITS[d])
+    ubase = np.uint64(base)
+
+    @njit(cache=True, inline="always")
+    def radical_inverse(index: np.int64, perms: np.ndarray) -> float:
+        inv = 1.0 / base
+        f = inv
+        x = 0.0
+        i = np.uint64(index)  # indices are ≥ 0: unsigned division by a constant is cheapest
+        for k in range(digits):
+            q = i // ubase
+            digit = i - q * ubase
+            i = q
+            x += perms[d, k, digit] * f
+            f *= inv
+        return min(x, 1.0 - 1.1102230246251565e-16)
+
+    return radical_inverse
+
+
+_RI0, _RI1, _RI2, _RI3, _RI4 = (_radical_inverse_in(d) for d in range(N_DIMS))
+
+
 @njit(cache=True, parallel=True)
 def halton_points(indices: np.ndarray, perms: np.ndarray) -> np.ndarray:
     """Scrambled Halton points, (n, N_DIMS) float64 in [0, 1), for int64 ``indices``."""
     n = indices.shape[0]
     out = np.empty((n, N_DIMS), dtype=np.float64)
     for i in prange(n):
-        for d in range(N_DIMS):
-            out[i, d] = _radical_inverse(indices[i], d, perms)
+        j = indices[i]
+        out[i, 0] = _RI0(j, perms)
+        out[i, 1] = _RI1(j, perms)
+        out[i, 2] = _RI2(j, perms)
+        out[i, 3] = _RI3(j, perms)
+        out[i, 4] = _RI4(j, perms)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def halton_points_grouped(indices: np.ndarray, group: np.ndarray, perms: np.ndarray
+                          ) -> np.ndarray:
+    """:func:`halton_points` of several sets in one parallel pass: point i is index
+    ``indices[i]`` under the scramble ``perms[group[i]]`` ((G, N_DIMS, MAX_DIGITS, 11));
+    one thread launch per frame instead of one per set, the same points."""
+    n = indices.shape[0]
+    out = np.empty((n, N_DIMS), dtype=np.float64)
+    for i in prange(n):
+        j = indices[i]
+        p = perms[group[i]]
+        out[i, 0] = _RI0(j, p)
+        out[i, 1] = _RI1(j, p)
+        out[i, 2] = _RI2(j, p)
+        out[i, 3] = _RI3(j, p)
+        out[i, 4] = _RI4(j, p)
     return out
 
 
@@ -191,6 +241,12 @@ class SelectiveSampler:
         weight : (n,) float64
             Power factor n_pass / (L n_c) (multiply by the emitted flux Φ).
         """
+        p, indices, perms, weight = self.next_pass_indices()
+        return p, indices, halton_points(indices, perms), weight
+
+    def next_pass_indices(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`next_pass` with the pass's digit permutations instead of its points
+        (for :func:`halton_points_grouped`, which makes the points of many sets at once)."""
         L = self.n_cells
         n_ref = int(self.refined.sum())
         if n_ref == 0:  # nothing known yet: plain stratified sampling of every cell
@@ -208,12 +264,11 @@ class SelectiveSampler:
         indices = cells + j * L
         perms = digit_permutations(self.seed, self.set_index, self.passes_done,
                                    self.cell_digits)
-        points = halton_points(indices, perms)
         n_pass = len(indices)
         weight = n_pass / (L * n_c[cells].astype(np.float64))
         p = self.passes_done
         self.passes_done += 1
-        return p, indices, points, weight
+        return p, indices, perms, weight
 
     def update(self, indices: np.ndarray, caustic: np.ndarray) -> None:
         """Mark the cells of photons whose paths were caustic (refined from now on).

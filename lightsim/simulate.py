@@ -336,7 +336,8 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
             return stopped["flag"]
 
         est = session.run(photons=opts.photons, seconds=opts.seconds,
-                          target_error=opts.target_error, callback=progress, should_stop=stop)
+                          target_error=opts.target_error, callback=progress, should_stop=stop,
+                          probes=False)  # the outputs read the map and the apertures
         if stopped["flag"]:
             write_checkpoint(out, opts, session)
             return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)

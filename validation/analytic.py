@@ -302,7 +302,7 @@ def estimator_radius(case: an.AnalyticScene, config: RunConfig, photons_per_set:
     diag = math.hypot(np.ptp(frame.h_range_m), np.ptp(frame.v_range_m))
     ladder = base * 2.0 ** (np.arange(-8, 64) / 2.0)
     ladder = ladder[ladder <= 2 * diag]
-    from lightsim.engine.client import set_k
+    from lightsim.engine.estimator import set_k
 
     k = float(set_k(config))
     rows = []
@@ -569,7 +569,7 @@ def _regions(case: an.AnalyticScene, config: RunConfig, photons: int,
 
 def session_radii(case: an.AnalyticScene, config: RunConfig) -> tuple[float, float]:
     """(min_radius, max_radius) in m a Session on ``case`` will use (its defaults)."""
-    from lightsim.engine.client import effective_radii
+    from lightsim.engine.estimator import effective_radii
 
     return effective_radii(config, case.frame)
 

@@ -185,8 +185,7 @@ def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
     session = Session(scene, cfg)
     try:
         while sum(session.emitted_per_set().values()) < photons:
-            session.backend.shoot()
-            session.frames += 1
+            session.shoot()
         ap = aperture_values(session, 0.0, confidence)
         cd = ap["cd"][:, idx]
         S = cd.shape[0]

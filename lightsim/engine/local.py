@@ -13,11 +13,13 @@ import numpy as np
 from lightsim.engine.client import Client
 from lightsim.engine.config import RunConfig
 from lightsim.engine.plan import Plan
+from lightsim.engine.results import ClientFrame, RenderRequest, ShootResult
 from lightsim.scene import Scene
 
 
 class LocalBackend:
-    """Clients called one after the other in this process."""
+    """Clients called one after the other in this process (a
+    :class:`~lightsim.engine.backend.Backend`)."""
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
                  assignment: list[list[int]], probes_hv: np.ndarray) -> None:
@@ -28,11 +30,11 @@ class LocalBackend:
         self.clients = [Client(scene, config, plan, sets, probes_hv)
                         for sets in assignment if sets]
 
-    def shoot(self, total: int | None = None) -> list[dict[str, float]]:
+    def shoot(self, total: int | None = None) -> list[ShootResult]:
         return [c.shoot(total) for c in self.clients]
 
-    def render(self, **kw: Any) -> list[dict[str, Any]]:
-        return [c.render(**kw) for c in self.clients]
+    def render(self, request: RenderRequest) -> list[ClientFrame]:
+        return [c.render(request) for c in self.clients]
 
     def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:
         out: dict[int, np.ndarray] = {}

@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import os
 import pickle
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from lightsim.engine.config import RunConfig
 from lightsim.engine.plan import Plan
+from lightsim.engine.results import ClientFrame, RenderRequest, ShootResult
 from lightsim.errors import ClusterError
 from lightsim.scene import Scene
 
@@ -96,14 +98,33 @@ def _actor_class():
             numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
             self.client = Client(scene, config.with_(threads=threads), plan, sets, probes_hv)
 
-        def call(self, method: str, *args: Any, **kwargs: Any) -> Any:
-            if method == "apply_refs":  # whole scenes arrive as object refs inside a list
-                import ray
+        def shoot(self, total: int | None) -> ShootResult:
+            return self.client.shoot(total)
 
-                changes = [("scene", ray.get(c[1])) if c[0] == "scene" else c
-                           for c in args[0]]
-                return self.client.apply(changes)
-            return getattr(self.client, method)(*args, **kwargs)
+        def render(self, request: RenderRequest) -> ClientFrame:
+            return self.client.render(request)
+
+        def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:
+            return self.client.probe(points_hv)
+
+        def apply_refs(self, changes: list[tuple]) -> None:
+            """Interaction changes; whole scenes arrive as object refs inside the list."""
+            import ray
+
+            self.client.apply([("scene", ray.get(c[1])) if c[0] == "scene" else c
+                               for c in changes])
+
+        def stats(self) -> dict[int, dict[str, Any]]:
+            return self.client.stats()
+
+        def apertures(self) -> dict[int, np.ndarray | None]:
+            return self.client.apertures()
+
+        def counters(self) -> dict[int, int]:
+            return self.client.counters()
+
+        def replay(self, frames: dict[int, int], partial: dict[int, int]) -> None:
+            self.client.replay(frames, partial)
 
         def pid(self) -> int:
             return os.getpid()
@@ -112,7 +133,8 @@ def _actor_class():
 
 
 class RayBackend:
-    """Clients as Ray actors, with static set assignment and exact replay on faults."""
+    """Clients as Ray actors (a :class:`~lightsim.engine.backend.Backend`), with static
+    set assignment and exact replay on faults."""
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
                  assignment: list[list[int]], probes_hv: np.ndarray,
@@ -139,14 +161,12 @@ class RayBackend:
                                                    sets, self.probes_hv, self.threads)
 
     # -- calls with fault recovery --------------------------------------------------------
-    def _call_all(self, method: str, *args: Any, **kwargs: Any) -> list[Any]:
-        refs = [a.call.remote(method, *args, **kwargs) for a in self.actors]
-        out: list[Any] = []
-        for i, ref in enumerate(refs):
-            out.append(self._get(i, ref, method, args, kwargs))
-        return out
+    def _call_all(self, call: Callable[[Any], Any]) -> list[Any]:
+        """``call(actor)`` (one remote method call) on every actor, answers in order."""
+        refs = [call(a) for a in self.actors]
+        return [self._get(i, ref, call) for i, ref in enumerate(refs)]
 
-    def _get(self, i: int, ref, method: str, args, kwargs) -> Any:
+    def _get(self, i: int, ref, call: Callable[[Any], Any]) -> Any:
         ray = _ray()
         for attempt in range(self.max_retries + 1):
             try:
@@ -157,7 +177,7 @@ class RayBackend:
                     raise ClusterError(f"client {i} (sets {self.assignment[i]}) died "
                                        f"{attempt + 1} times: {type(exc).__name__}") from None
                 self._replace(i)
-                ref = self.actors[i].call.remote(method, *args, **kwargs)
+                ref = call(self.actors[i])
         raise AssertionError("unreachable")
 
     def _replace(self, i: int) -> None:
@@ -166,31 +186,27 @@ class RayBackend:
         self.restarts += 1
         actor = self._spawn(self.assignment[i])
         for sent in self.changes_log:  # bring the newcomer to the current scene
-            ray.get(actor.call.remote("apply_refs", sent))
+            ray.get(actor.apply_refs.remote(sent))
         frames = {s: self.frames_shot[i] for s in self.assignment[i]}
-        ray.get(actor.call.remote("replay", frames, dict(self.partial)))
+        ray.get(actor.replay.remote(frames, dict(self.partial)))
         self.actors[i] = actor
 
     # -- backend interface --------------------------------------------------------------
-    def shoot(self, total: int | None = None) -> list[dict[str, float]]:
+    def shoot(self, total: int | None = None) -> list[ShootResult]:
         if total is not None:  # a partial frame, replayed as such after a fault
             self.partial[max(self.frames_shot, default=0)] = int(total)
-        out = self._call_all("shoot", total)
+        out = self._call_all(lambda a: a.shoot.remote(total))
         self.frames_shot = [f + 1 for f in self.frames_shot]
         return out
 
-    def render(self, **kw: Any) -> list[dict[str, Any]]:
-        out = self._call_all("render", **kw)
-        nbytes = 0
-        for r in out:
-            for key in ("sub_images", "probes", "full_images", "windows"):
-                nbytes += sum(np.asarray(v).nbytes for v in r[key].values())
-        self.bytes_last_frame = nbytes
+    def render(self, request: RenderRequest) -> list[ClientFrame]:
+        out = self._call_all(lambda a: a.render.remote(request))
+        self.bytes_last_frame = sum(f.nbytes for c in out for f in c.sets)
         return out
 
     def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:
         out: dict[int, np.ndarray] = {}
-        for r in self._call_all("probe", points_hv):
+        for r in self._call_all(lambda a: a.probe.remote(points_hv)):
             out.update(r)
         return dict(sorted(out.items()))
 
@@ -206,25 +222,25 @@ class RayBackend:
             else:
                 sent.append(change)
         self.changes_log.append(sent)
-        self._call_all("apply_refs", sent)
+        self._call_all(lambda a: a.apply_refs.remote(sent))
         self.frames_shot = [0] * len(self.actors)
         self.partial = {}
 
     def stats(self) -> dict[int, dict[str, Any]]:
         out: dict[int, dict[str, Any]] = {}
-        for r in self._call_all("stats"):
+        for r in self._call_all(lambda a: a.stats.remote()):
             out.update(r)
         return dict(sorted(out.items()))
 
     def apertures(self) -> dict[int, Any]:
         out: dict[int, Any] = {}
-        for r in self._call_all("apertures"):
+        for r in self._call_all(lambda a: a.apertures.remote()):
             out.update(r)
         return dict(sorted(out.items()))
 
     def counters(self) -> dict[int, int]:
         out: dict[int, int] = {}
-        for r in self._call_all("counters"):
+        for r in self._call_all(lambda a: a.counters.remote()):
             out.update(r)
         return out
 
@@ -235,7 +251,7 @@ class RayBackend:
         self.partial = {int(k): int(v) for k, v in (partial or {}).items()}
         for i, (actor, sets) in enumerate(zip(self.actors, self.assignment, strict=True)):
             frames = {s: counters.get(s, 0) for s in sets}
-            refs.append(actor.call.remote("replay", frames, dict(self.partial)))
+            refs.append(actor.replay.remote(frames, dict(self.partial)))
             self.frames_shot[i] = max(frames.values(), default=0)
         ray.get(refs)
 

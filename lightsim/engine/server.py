@@ -12,6 +12,17 @@ Backends (``workers``): 0 → clients in this process; N ≥ 1 → N Ray actors 
 runtime; ``address`` → the same actors on an existing Ray cluster. Results are
 bit-identical between backends for the same seed and photon count, because every set's
 photons depend only on (seed, set, index) and the server combines sets in set order.
+
+:meth:`Session.run` is the paper's loop in named steps: :meth:`~Session.shoot` (shoot →
+insert), :meth:`~Session.estimate_at_probes` (estimates at the probes, the error figure),
+:meth:`~Session.error_low_enough` (the stopping rule), :meth:`~Session.final_image`.
+
+==================  =====  =======  ================================================
+parameter           unit   default  meaning
+==================  =====  =======  ================================================
+``min_frames``      –      3        frames before a target error may stop a run
+``growth``          –      2        photons between two error estimates grow ≤ this
+==================  =====  =======  ================================================
 """
 
 from __future__ import annotations
@@ -19,14 +30,17 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from lightsim.engine.backend import Backend
 from lightsim.engine.client import apply_changes
 from lightsim.engine.config import RunConfig
+from lightsim.engine.estimator import effective_radii, normalise_flux
 from lightsim.engine.plan import Plan, make_plan
+from lightsim.engine.results import Estimate, FrameResult, RenderRequest, SetFrames
 from lightsim.errors import InputError
 from lightsim.render.frame import (
     ErrorEstimate,
@@ -42,45 +56,34 @@ from lightsim.render.interleave import InterleavePattern
 from lightsim.scene import Scene
 from lightsim.tracer import LEDGER
 
+__all__ = ["Estimate", "FrameResult", "Session", "lux_channel"]
+
 
 @dataclass
-class Estimate:
-    """What the server knows after a frame.
+class ErrorSchedule:
+    """When the run loop estimates at the probes: the error figure costs about as much as
+    a frame of tracing, so it runs where it can change a decision, not every frame.
 
-    Attributes
-    ----------
-    lux : (H, W, C) float64 or None
-        Filtered illuminance image (lx), if an image was rendered.
-    raw : (H, W, C) float64 or None
-        The assembled image before filtering.
-    probes : ProbeStats
-    rel_error : float or None
-        Estimated relative error over the lit region: √(noise² + blur bias²) (see
-        :mod:`lightsim.render.frame`); None when it cannot be estimated.
-    photons : int
-        Photons emitted over all sets so far.
-    seconds : float
-        Time since the session's clock started (s).
+    Without a target error the estimates (the error-vs-time log) are spaced by a factor
+    ``growth`` in photons. With one, the next estimate comes where the error is expected
+    to reach it, N (e/target)² (noise falls as 1/√N; a slower blur makes this early, not
+    late), at most ``growth`` × N and at least the next frame. Deterministic: it depends
+    on photons and estimates only, never on the clock.
     """
 
-    lux: np.ndarray | None
-    raw: np.ndarray | None
-    probes: ProbeStats | None
-    rel_error: float | None
-    photons: int
-    seconds: float
-    timings: dict[str, float] = field(default_factory=dict)
-    camera: np.ndarray | None = None  # (H, W, C) luminance, cd/m², with a camera view
-    error: ErrorEstimate | None = None  # rel_error's parts: noise and blur bias
-    rungs: np.ndarray | None = None  # (H, W) ICI rung of every written pixel (0 = the pixel)
+    target_error: float | None = None
+    growth: float = 2.0
+    next_photons: float = 0.0
 
-    def error_entry(self) -> dict[str, Any]:
-        """The error-vs-time log entry of this estimate (fractions, s)."""
-        e = self.error
-        return {"seconds": self.seconds, "photons": self.photons, "rel_error": self.rel_error,
-                "rel_noise": None if e is None else e.noise,
-                "rel_bias": None if e is None else e.bias,
-                "rel_bias_upper": None if e is None else e.bias_upper}
+    def due(self, photons: int) -> bool:
+        return photons >= self.next_photons
+
+    def estimated(self, photons: int, est: FrameResult) -> None:
+        factor = self.growth
+        if self.target_error is not None and est.error is not None:
+            ratio = (est.error.upper / self.target_error) ** 2
+            factor = min(self.growth, ratio) if math.isfinite(ratio) else 1.0
+        self.next_photons = photons * max(1.0, factor)
 
 
 class Session:
@@ -121,6 +124,7 @@ class Session:
         n_clients = max(1, workers) if (workers or address) else 1
         n_clients = min(n_clients, self.pattern.n_sets)
         self.assignment = self.pattern.assign(n_clients)
+        self.backend: Backend
         if workers or address:
             from lightsim.engine.ray_backend import RayBackend
 
@@ -136,7 +140,7 @@ class Session:
         self.partial: dict[int, int] = {}  # frame index → photons of a partial frame
         self._t0: float | None = None
         self._elapsed_before = 0.0
-        self.last: Estimate | None = None
+        self.last: FrameResult | None = None
         if checkpoint is not None:
             self._restore(checkpoint)
 
@@ -150,17 +154,58 @@ class Session:
         return self._elapsed_before + (0.0 if self._t0 is None
                                        else time.perf_counter() - self._t0)
 
-    # -- frames --------------------------------------------------------------------------
+    # -- the steps of a frame -------------------------------------------------------------
+    def shoot(self, photons: int | None = None) -> None:
+        """Shoot → insert: every set shoots one frame of photons and adds them to its
+        stores (``photons`` over all sets makes the frame partial)."""
+        if photons is not None:
+            self.partial[self.frames] = int(photons)
+        self.backend.shoot(photons)
+        self.frames += 1
+
+    def request(self, image: bool, mode: str = "interleaved", camera=None,
+                probes: bool | str = True) -> RenderRequest:
+        """What a frame asks every set for: the binning estimator and ``pooled`` frames
+        want every pixel of every set, ``interleaved`` frames each set's own pixels.
+        ``probes``: True = probe estimates and what the error figure needs; ``"ici"`` =
+        only the error figure's ICI rungs (no kNN probe queries); False = neither."""
+        full = self.config.estimator == "bin" or mode == "pooled"
+        return RenderRequest(image=image and not full, full_image=image and full,
+                             probes=probes is True, error=probes is not False, camera=camera)
+
+    def render(self, request: RenderRequest) -> SetFrames:
+        """Every set's estimates for ``request`` (lx), keyed by set."""
+        return SetFrames.gather(self.backend.render(request))
+
+    def assemble(self, frames: SetFrames, timings: dict[str, float] | None = None,
+                 camera=None) -> FrameResult:
+        """Estimate at probes → error → image: the server's half of a frame."""
+        timings = {} if timings is None else timings
+        t0 = time.perf_counter()
+        emitted = self.emitted_per_set()
+        error, counts_only = self.ici_error(frames, emitted)
+        lux, raw, rungs = self.image(frames, emitted, counts_only)
+        cam_img = self.camera_image(frames, camera)
+        timings["assemble"] = time.perf_counter() - t0
+        probes = frames.collect("probes")
+        stats = probe_stats(probes, frames.collect("window")) if probes else None
+        if error is None and not self._has_ici_rungs(frames, emitted):
+            error = estimate_error(stats, self.grid_count) if stats is not None else None
+        n = sum(emitted.values())
+        return FrameResult(lux, raw, stats, None if error is None else error.total, n,
+                           self.elapsed, timings, camera=cam_img, error=error, rungs=rungs,
+                           error_photons=n)
+
     def frame(self, image: bool = True, shoot: bool = True, camera=None,
               mode: str = "interleaved", photons: int | None = None,
-              probes: bool | str = True) -> Estimate:
+              probes: bool | str = True) -> FrameResult:
         """One frame: every client shoots (unless ``shoot`` is False) and renders.
 
         ``mode`` ``interleaved`` is the paper's frame (each set its own pixels, then the box
         filter); ``pooled`` asks every set for every pixel (the final, full-resolution lux
         map; M² times the queries). The binning estimator always pools. ``camera`` (a
         :class:`~lightsim.render.camera.PinholeCamera`) adds an interleaved luminance
-        image (cd/m²) in ``Estimate.camera``; the plan must include the camera pass.
+        image (cd/m²) in ``FrameResult.camera``; the plan must include the camera pass.
         ``photons`` (over all sets) makes the frame partial, e.g. the last of a budget.
         ``probes=False`` skips the probe estimates (no error figure, ``probes`` None): an
         interaction frame that only draws the image (``lightsim view``); ``probes="ici"``
@@ -173,20 +218,15 @@ class Session:
             raise InputError("this session was planned without a camera view "
                              "(create it with camera=True)")
         self.start_clock()
-        t0 = time.perf_counter()
         timings: dict[str, float] = {}
         if shoot:
-            if photons is not None:
-                self.partial[self.frames] = int(photons)
-            self.backend.shoot(photons)
+            t0 = time.perf_counter()
+            self.shoot(photons)
             timings["shoot"] = time.perf_counter() - t0
-            self.frames += 1
         t1 = time.perf_counter()
-        full = self.config.estimator == "bin" or mode == "pooled"
-        results = self.backend.render(image=image and not full, probes=probes,
-                                      full_image=image and full, camera=camera)
+        frames = self.render(self.request(image, mode, camera, probes))
         timings["render"] = time.perf_counter() - t1
-        est = self._combine(results, image, timings, camera)
+        est = self.assemble(frames, timings, camera)
         self.last = est
         if shoot:
             self.log.append({**est.error_entry(), "frames": self.frames})
@@ -202,64 +242,61 @@ class Session:
         """
         self.start_clock()
         for _ in range(max(0, int(batches))):
-            self.backend.shoot()
-            self.frames += 1
+            self.shoot()
 
-    def walkthrough(self, camera=None) -> Estimate:
+    def walkthrough(self, camera=None) -> FrameResult:
         """A frame without shooting: the camera/view may change, the photons stay."""
         return self.frame(image=True, shoot=False, camera=camera)
 
-    def _combine(self, results: list[dict[str, Any]], image: bool,
-                 timings: dict[str, float], camera=None) -> Estimate:
-        probes: dict[int, np.ndarray] = {}
-        subs: dict[int, np.ndarray] = {}
-        fulls: dict[int, np.ndarray] = {}
-        cams: dict[int, np.ndarray] = {}
-        full_rungs: dict[int, np.ndarray] = {}
-        probe_rungs: dict[int, np.ndarray] = {}
-        moments: dict[int, np.ndarray] = {}
-        for r in results:
-            probes.update(r["probes"])
-            subs.update(r["sub_images"])
-            fulls.update(r["full_images"])
-            cams.update(r.get("camera_sub_images", {}))
-            full_rungs.update(r.get("full_rungs", {}))
-            probe_rungs.update(r.get("probe_rungs", {}))
-            moments.update(r.get("moments", {}))
-        t2 = time.perf_counter()
-        emitted = self.emitted_per_set()
-        ici_err, counts_only = None, False
-        if probe_rungs and len(probe_rungs) == len(emitted):
-            ici_err, counts_only = self._ici_error(probe_rungs, moments, emitted)
-        lux = raw = rung_map = None
-        if image and subs:
+    # -- the server's half: error and images ----------------------------------------------
+    def _has_ici_rungs(self, frames: SetFrames, emitted: dict[int, int]) -> bool:
+        rungs = frames.collect("probe_rungs")
+        return bool(rungs) and len(rungs) == len(emitted)
+
+    def ici_error(self, frames: SetFrames, emitted: dict[int, int]
+                  ) -> tuple[ErrorEstimate | None, bool]:
+        """The ICI map's error figure (None without ICI rungs from every set) and whether
+        the written map is the plain pixel counts (see :meth:`_ici_error`)."""
+        if not self._has_ici_rungs(frames, emitted):
+            return None, False
+        return self._ici_error(frames.collect("probe_rungs"), frames.collect("moments"),
+                               emitted)
+
+    def image(self, frames: SetFrames, emitted: dict[int, int], counts_only: bool = False
+              ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """The wall image of a frame: (lux, raw, ICI rungs), each None if not rendered.
+
+        Interleaved sub-images are scattered and box-filtered (the paper's frame); ICI
+        rungs are chosen per pixel over all sets; pooled full images are averaged with
+        the sets' photon counts as weights.
+        """
+        subs = frames.collect("sub_image")
+        full_rungs = frames.collect("full_rungs")
+        fulls = frames.collect("full_image")
+        if subs:
             lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
-        elif image and full_rungs:
-            lux, rung_map = self._ici_image(full_rungs, moments, emitted, counts_only)
-            raw = lux
-        elif image and fulls:
-            lux = raw = pool_full_images(fulls, emitted)
-        cam_img = None
-        if camera is not None and cams:
-            W, H = camera.resolution
-            cam_img, _ = assemble_interleaved(
-                InterleavePattern(self.config.interleave, W, H), cams, self.config.filter_n)
-        timings["assemble"] = time.perf_counter() - t2
-        windows: dict[int, np.ndarray] = {}
-        for r in results:
-            windows.update(r.get("windows", {}))
-        stats = probe_stats(probes, windows) if probes else None
-        if probe_rungs and len(probe_rungs) == len(emitted):
-            err = ici_err
-        else:
-            err = estimate_error(stats, self.grid_count) if stats is not None else None
-        return Estimate(lux, raw, stats, None if err is None else err.total,
-                        sum(emitted.values()), self.elapsed, timings, camera=cam_img,
-                        error=err, rungs=rung_map)
+            return lux, raw, None
+        if full_rungs:
+            lux, rungs = self._ici_image(full_rungs, frames.collect("moments"), emitted,
+                                         counts_only)
+            return lux, lux, rungs
+        if fulls:
+            lux = pool_full_images(fulls, emitted)
+            return lux, lux, None
+        return None, None, None
+
+    def camera_image(self, frames: SetFrames, camera) -> np.ndarray | None:
+        """The camera view's luminance (cd/m²), interleaved and box-filtered."""
+        cams = frames.collect("camera")
+        if camera is None or not cams:
+            return None
+        W, H = camera.resolution
+        img, _ = assemble_interleaved(InterleavePattern(self.config.interleave, W, H), cams,
+                                      self.config.filter_n)
+        return img
 
     def _ici_areas(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(J+1, Q) window areas (m²) of the ICI rungs at pixels (clipped to the wall)."""
-        from lightsim.engine.client import effective_radii
         from lightsim.render import ici
 
         frame = self.scene.wall
@@ -352,8 +389,6 @@ class Session:
     @property
     def radii_m(self) -> tuple[float, float]:
         """(min, max) density-estimation radius in use (m)."""
-        from lightsim.engine.client import effective_radii
-
         return effective_radii(self.config, self.scene.wall)
 
     def emitted_per_set(self) -> dict[int, int]:
@@ -367,9 +402,9 @@ class Session:
             return {"emitted": 0.0, **{k: 0.0 for k in LEDGER}}
         ledger = sum(st["ledger"] for _, st in sorted(stats.items()))
         emitted = sum(st["emitted_power"] for _, st in sorted(stats.items()))
-        out = {"emitted": float(luminous(emitted[None, :])[0] / n)}
+        out = {"emitted": float(normalise_flux(luminous(emitted[None, :])[0], n))}
         for i, k in enumerate(LEDGER):
-            out[k] = float(luminous(ledger[i][None, :])[0] / n)
+            out[k] = float(normalise_flux(luminous(ledger[i][None, :])[0], n))
         return out
 
     def caustic_yield(self) -> float:
@@ -380,8 +415,9 @@ class Session:
     # -- the batch loop ------------------------------------------------------------------
     def run(self, photons: int | None = None, seconds: float | None = None,
             target_error: float | None = None, min_frames: int = 3,
-            callback: Callable[[Estimate], None] | None = None,
-            should_stop: Callable[[], bool] | None = None) -> Estimate:
+            callback: Callable[[FrameResult], None] | None = None,
+            should_stop: Callable[[], bool] | None = None, probes: bool = True
+            ) -> FrameResult:
         """Shoot frames until a budget is met, then render the final image.
 
         Stops at whichever comes first: exactly ``photons`` emitted (total over sets; the
@@ -389,30 +425,104 @@ class Session:
         ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — with the
         blur at its upper bound, so an unresolved blur cannot stop a run early (after at
         least ``min_frames`` frames). With no budget at all, one frame is shot.
+        ``probes=False`` leaves the probe estimates (``FrameResult.probes``) out of the
+        final image when the caller does not read them (the error figure of an ICI map
+        does not need them).
+
+        The loop is the paper's: shoot → insert (:meth:`shoot`), estimate at the probes
+        and the error (:meth:`estimate_at_probes`), the stopping rule
+        (:meth:`error_low_enough`), and after it the final image (:meth:`final_image`).
+        The estimate runs on :class:`ErrorSchedule`'s photon counts, not every frame;
+        frames that only shoot report to ``callback`` with the latest error
+        (:meth:`progress`). The last frame goes straight to the final image.
         """
         if photons is None and seconds is None and target_error is None:
             photons = self.config.frame_photons
         if target_error is not None and not (0 < target_error < 1):
             raise InputError(f"target error must lie in (0, 1), got {target_error}")
         self.start_clock()
-        while True:
+        schedule = ErrorSchedule(target_error)
+        while not self.budget_spent(photons, seconds, should_stop):
+            t0 = time.perf_counter()
+            self.shoot(self.frame_photons(photons))
+            timings = {"shoot": time.perf_counter() - t0}
+            if self.budget_spent(photons, seconds):
+                break  # the final image estimates everything once more
             done = sum(self.emitted_per_set().values())
-            if photons is not None and done >= photons:
-                break
-            if seconds is not None and self.elapsed >= seconds and self.frames > 0:
-                break
-            if should_stop is not None and should_stop():
-                break
-            rest = None if photons is None else photons - done
-            full = self.config.photons_per_set * self.config.n_sets
-            partial = rest if rest is not None and rest < full and not self.plan.spt else None
-            est = self.frame(image=False, photons=partial)
+            if not schedule.due(done):
+                if callback is not None:
+                    callback(self.progress(timings))
+                continue
+            est = self.estimate_at_probes(timings)
+            schedule.estimated(done, est)
             if callback is not None:
                 callback(est)
-            if (target_error is not None and est.error is not None
-                    and self.frames >= min_frames and est.error.upper <= target_error):
+            if self.error_low_enough(est, target_error, min_frames):
                 break
-        final = self.frame(image=True, shoot=False, mode=self.config.final)
+        return self.final_image(probes)
+
+    def budget_spent(self, photons: int | None, seconds: float | None,
+                     should_stop: Callable[[], bool] | None = None) -> bool:
+        """Whether ``photons`` are emitted, ``seconds`` elapsed (after a frame) or the
+        caller asks to stop."""
+        if photons is not None and sum(self.emitted_per_set().values()) >= photons:
+            return True
+        if seconds is not None and self.elapsed >= seconds and self.frames > 0:
+            return True
+        return should_stop is not None and should_stop()
+
+    def frame_photons(self, photons: int | None) -> int | None:
+        """Photons (over all sets) of the next frame: None for a whole frame; the rest of
+        a ``photons`` budget when it is smaller (an SPT pass is always whole)."""
+        if photons is None or self.plan.spt:
+            return None
+        rest = photons - sum(self.emitted_per_set().values())
+        return rest if rest < self.config.photons_per_set * self.config.n_sets else None
+
+    def progress(self, timings: dict[str, float] | None = None) -> FrameResult:
+        """A frame that estimated nothing: photons and time now, the error of the last
+        estimate (at ``error_photons``)."""
+        last = self.last
+        return FrameResult(None, None, None, None if last is None else last.rel_error,
+                           sum(self.emitted_per_set().values()), self.elapsed,
+                           {} if timings is None else timings,
+                           error=None if last is None else last.error,
+                           error_photons=None if last is None else last.error_photons)
+
+    def estimate_at_probes(self, timings: dict[str, float] | None = None) -> FrameResult:
+        """Every set's estimates at the probe points and the error figure they give
+        (no image); logged as a point of the error-vs-time curve."""
+        timings = {} if timings is None else timings
+        t0 = time.perf_counter()
+        # the ICI figure reads the lattice windows at the grid probes, not the probes'
+        # kNN estimates: those are left for the final image
+        request = RenderRequest(probes=not self.config.uses_ici, error=True)
+        frames = self.render(request)
+        timings["render"] = time.perf_counter() - t0
+        est = self.assemble(frames, timings)
+        self.last = est
+        self.log.append({**est.error_entry(), "frames": self.frames})
+        return est
+
+    def error_low_enough(self, est: FrameResult, target_error: float | None,
+                         min_frames: int) -> bool:
+        """The stopping rule: the error's upper bound (blur at its upper bound) is at
+        most ``target_error`` after at least ``min_frames`` frames."""
+        if target_error is None or est.error is None:
+            return False
+        return self.frames >= min_frames and est.error.upper <= target_error
+
+    def final_image(self, probes: bool = True) -> FrameResult:
+        """The written map (``config.final``: pooled or interleaved) from every photon,
+        with its error (and probe estimates, with ``probes`` or without ICI: the kNN and
+        binning figures need them); logged unless the last log point is this one."""
+        probes = probes or not self.config.uses_ici
+        self.start_clock()
+        t0 = time.perf_counter()
+        frames = self.render(self.request(True, self.config.final, probes=probes))
+        timings = {"render": time.perf_counter() - t0}
+        final = self.assemble(frames, timings)
+        self.last = final
         if self.frames and (not self.log or self.log[-1].get("photons") != final.photons):
             self.log.append({**final.error_entry(), "frames": self.frames})
         return final
@@ -446,6 +556,3 @@ def lux_channel(lux: np.ndarray) -> np.ndarray:
     """(H, W, C) → (H, W) luminous illuminance (lx)."""
     return luminous(lux)
 
-
-def finite_or_none(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else float(x)

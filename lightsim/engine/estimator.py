@@ -1,0 +1,239 @@
+"""The estimate side of a client: illuminance of one interleave set from its photons.
+
+Estimators (``RunConfig.estimator``, ``bandwidth``): ``knn`` — the k nearest photons
+within [r_min, r_max] (paper section 5); with ``bandwidth=ici`` the written map instead
+reads square windows of the half-pixel lattice (:mod:`lightsim.render.ici`); ``radius``
+— one fixed radius (the IGI baseline); ``bin`` — photons counted per pixel. Two
+modes: ``interleaved`` (each set its own pixels, box-filtered on the server: the radius
+of the n × n filter window) and ``pooled`` (every set every pixel: the pixel's radius).
+
+=====================  =====  ===========  ============================================
+parameter              unit   default      meaning
+=====================  =====  ===========  ============================================
+``r_min`` (pooled)     m      √(A_px/π)    disk with the area of one pixel
+``r_min`` (interl.)    m      √(n²A_px/π)  disk with the area of the n × n filter window
+``r_max``              m      4 / 2 r_min  pooled / interleaved (``max_radius`` overrides)
+``k``                  –      64           photons per kNN estimate of every set
+=====================  =====  ===========  ============================================
+
+Every estimate divides photon power by the set's emitted photons and an area in one
+place, :func:`normalise_flux` (the ledger too: :meth:`Session.energy`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from lightsim.engine.config import RunConfig
+from lightsim.engine.photonset import SetState
+from lightsim.engine.results import RenderRequest, SetFrame
+from lightsim.render.interleave import InterleavePattern
+from lightsim.scene import Scene, WallFrame
+
+
+def normalise_flux(power: np.ndarray, emitted: int, *area_m2: Any) -> np.ndarray:
+    """Photon power sums → per emitted photon (lm) and per area (lx): the one place where
+    flux is normalised.
+
+    Every photon carries the whole emitted flux (lm), so a sum over photons divided by
+    the photons emitted is lm, and divided further by the area factors (m², or
+    per-query arrays, multiplied in the order given) it is lx.
+    """
+    denominator = emitted
+    for a in area_m2:
+        denominator = denominator * a
+    return power / denominator
+
+
+def default_min_radius(config: RunConfig, frame: WallFrame, mode: str | None = None) -> float:
+    """Radius (m) of a disk with the area of one pixel (pooled) or of the n×n filter window
+    (interleaved) on the wall."""
+    dh, dv = frame.pixel_size_m
+    n = 1 if (mode or config.final) == "pooled" else config.filter_n
+    return math.sqrt(n * n * dh * dv / math.pi)
+
+
+def effective_radii(config: RunConfig, frame: WallFrame, mode: str | None = None
+                    ) -> tuple[float, float]:
+    """(min, max) density-estimation radius in m for ``mode`` (default: the final image's)
+    after applying the automatic defaults."""
+    mode = mode or config.final
+    r_min = (config.min_radius if config.min_radius is not None
+             else default_min_radius(config, frame, mode))
+    factor = 4.0 if mode == "pooled" else 2.0
+    r_max = config.max_radius if config.max_radius is not None else factor * r_min
+    return r_min, max(r_max, r_min)
+
+
+def set_k(config: RunConfig) -> int:
+    """Photons per kNN estimate of one set (k in both modes).
+
+    Pooling M² sets with ⌈k/M²⌉ photons each would rest on about k photons, but a kNN
+    estimate with few photons is biased by the treatment of the k-th one (±1/(2k)), so
+    every set keeps the full k; the radius bounds keep the blur in check.
+    """
+    return config.k
+
+
+class SetEstimator:
+    """Estimates of the sets of one client at wall pixels, probes and camera pixels.
+
+    Parameters
+    ----------
+    scene : Scene
+        The client's scene (its wall frame; its geometry for camera views).
+    caster : RayCaster
+        The client's embree scene (camera rays).
+    config : RunConfig
+    channels : int
+    probes_hv : (P, 2) array
+        Wall coordinates (h, v in m) of the probe points every set estimates: the
+        regular grid first (``config.probe_grid``), then any extra points.
+    """
+
+    def __init__(self, scene: Scene, caster, config: RunConfig, channels: int,
+                 probes_hv: np.ndarray) -> None:
+        from lightsim.render.ici import pixel_of
+
+        self.scene, self.caster = scene, caster
+        self.config = config
+        self.channels = channels
+        self.frame = scene.wall
+        W, H = self.frame.resolution
+        self.pattern = InterleavePattern(config.interleave, W, H)
+        self.radii = {m: effective_radii(config, self.frame, m)
+                      for m in ("pooled", "interleaved")}
+        self.probes_hv = np.asarray(probes_hv, dtype=np.float64).reshape(-1, 2)
+        self._probe_points = self.frame.to_world(self.probes_hv[:, 0], self.probes_hv[:, 1])
+        nh, nv = (int(n) for n in config.probe_grid)
+        grid = self.probes_hv[:min(nh * nv, len(self.probes_hv))]
+        self._grid_pixels = pixel_of(self.frame, grid[:, 0], grid[:, 1])
+        self._wall_queries: dict[int, np.ndarray] = {}
+        self._camera_cache: dict[Any, tuple] = {}
+        self._normal = np.broadcast_to(self.frame.normal, (1, 3))
+
+    # -- one set at points ---------------------------------------------------------------
+    def estimate(self, st: SetState, points: np.ndarray, normals: np.ndarray,
+                 mode: str | None = None) -> np.ndarray:
+        """Illuminance (lx) of one set at world points with the given surface normals.
+
+        ``mode`` ``pooled`` (every set at every pixel) or ``interleaved`` (one set per
+        pixel, box-filtered afterwards) picks the radii; default: the final image's.
+        """
+        if st.emitted == 0:
+            return np.zeros((len(points), self.channels))
+        if st.bins is not None:
+            h, v = self.frame.to_hv(points)
+            dh, dv = self.frame.pixel_size_m
+            row, col = self.frame.pixel_index(h, v, clip=True)
+            return normalise_flux(st.bins[row, col], st.emitted, dh, dv)
+        if len(st.photonmap) == 0:  # no photon on the wall yet (or ever)
+            return np.zeros((len(points), self.channels))
+        mode = mode or self.config.final
+        r_min, r_max = self.radii[mode]
+        if self.config.estimator == "radius":  # the IGI baseline: one fixed radius
+            radius, floor = r_min, 0.0
+        else:
+            radius, floor = r_max, r_min
+        res = st.photonmap.ready().estimate(
+            points.astype(np.float32), normals.astype(np.float32), k=set_k(self.config),
+            max_radius=radius, min_radius=floor, kernel=self.config.kernel)
+        return normalise_flux(np.asarray(res.E, dtype=np.float64), st.emitted)
+
+    def ici_rungs(self, st: SetState, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The set's rung estimates (lx) at pixels: (J+1, Q, C) (see
+        :mod:`lightsim.render.ici`): rung 0 the pixel, then squares 2, 3, … pixels a side."""
+        from lightsim.render import ici
+
+        sides = ici.rung_sides(self.frame.pixel_size_m, self.radii["pooled"][1])
+        W, H = self.frame.resolution
+        if st.emitted == 0 or st.lattice is None:
+            return np.zeros((len(sides), len(rows), self.channels))
+        dh, dv = self.frame.pixel_size_m
+        sums, cells = ici.window_sums(st.lattice.reshape(2 * H, 2 * W, self.channels),
+                                      rows, cols, sides)
+        return normalise_flux(sums, st.emitted, np.maximum(cells, 1.0)[..., None],
+                           0.25 * dh * dv)
+
+    def window(self, st: SetState) -> np.ndarray | None:
+        """(G, C) lx in the pixel windows at the grid probes (the blur-bias reference)."""
+        if st.windows is None or not st.emitted:
+            return None
+        dh, dv = self.frame.pixel_size_m
+        return normalise_flux(st.windows, st.emitted, dh, dv)
+
+    # -- query points ----------------------------------------------------------------------
+    def _wall_points(self, s: int) -> np.ndarray:
+        if s not in self._wall_queries:
+            rows, cols = self.pattern.set_pixels(s)
+            h_all, v_all = self.frame.pixel_centres()
+            hh, vv = np.meshgrid(h_all[cols], v_all[rows])
+            self._wall_queries[s] = self.frame.to_world(hh, vv).reshape(-1, 3)
+        return self._wall_queries[s]
+
+    def _camera_queries(self, s: int, camera, n_owned: int
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Diffuse points seen by the camera's pixels of set s (cached per camera)."""
+        from lightsim.render.camera import eye_hits
+
+        key = (camera, s)
+        if key not in self._camera_cache:
+            if len(self._camera_cache) > 4 * n_owned:  # walkthrough: forget old views
+                self._camera_cache.clear()
+            W, H = camera.resolution
+            pattern = InterleavePattern(self.config.interleave, W, H)
+            rows, cols = pattern.set_pixels(s)
+            o, d = camera.rays(rows, cols)
+            pts, nrm, weight, part = eye_hits(self.scene, self.caster, o, d,
+                                              camera.max_specular)
+            self._camera_cache[key] = (pts, nrm, weight, part >= 0)
+        return self._camera_cache[key]
+
+    # -- a frame ----------------------------------------------------------------------------
+    def render(self, st: SetState, request: RenderRequest, n_owned: int = 1) -> SetFrame:
+        """What ``request`` asks of set ``st`` (see :class:`SetFrame`), float32."""
+        s = st.index
+        out = SetFrame(s)
+        normal = self._normal
+        if request.image:
+            pts = self._wall_points(s)
+            est = self.estimate(st, pts, np.broadcast_to(normal, pts.shape), "interleaved")
+            out.sub_image = est.reshape((*self.pattern.sub_shape(s), self.channels))
+        if request.full_image and self.config.uses_ici:  # the server picks each rung
+            W, H = self.frame.resolution
+            rows, cols = np.divmod(np.arange(H * W), W)
+            r = self.ici_rungs(st, rows, cols)
+            out.full_rungs = r.reshape((len(r), H, W, self.channels))
+        elif request.full_image:
+            h_all, v_all = self.frame.pixel_centres()
+            hh, vv = np.meshgrid(h_all, v_all)
+            pts = self.frame.to_world(hh, vv).reshape(-1, 3)
+            est = self.estimate(st, pts, np.broadcast_to(normal, pts.shape), "pooled")
+            out.full_image = est.reshape((*hh.shape, self.channels))
+        if request.error and self.config.uses_ici and st.wall_moments is not None:
+            out.probe_rungs = self.ici_rungs(st, *self._grid_pixels)
+            out.moments = st.wall_moments.copy()
+        if request.camera is not None:
+            camera = request.camera
+            pts, nrm, weight, seen = self._camera_queries(s, camera, n_owned)
+            W, H = camera.resolution
+            shape = InterleavePattern(self.config.interleave, W, H).sub_shape(s)
+            lum = np.zeros((len(pts), self.channels))
+            # L = ρ E / π (cd/m²) where the pixel sees a diffuse surface, else black
+            lum[seen] = weight[seen] * self.estimate(st, pts[seen], nrm[seen], "interleaved")
+            out.camera = lum.reshape((*shape, self.channels))
+        if request.probes and len(self._probe_points):
+            out.probes = self.estimate(st, self._probe_points,
+                                       np.broadcast_to(normal, self._probe_points.shape))
+            if request.error:
+                out.window = self.window(st)
+        return out.for_wire()
+
+    def probe(self, st: SetState, points_hv: np.ndarray) -> np.ndarray:
+        """The set's illuminance (lx) at wall points (h, v in m): (P, C)."""
+        hv = np.asarray(points_hv, dtype=np.float64).reshape(-1, 2)
+        pts = self.frame.to_world(hv[:, 0], hv[:, 1])
+        return self.estimate(st, pts, np.broadcast_to(self.frame.normal, pts.shape))

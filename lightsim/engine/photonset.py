@@ -1,0 +1,381 @@
+"""The photon side of a client: interleave sets, their samplers, photons and counters.
+
+The paper's client (sections 3.3, 4.3, 5): every set (a, b) of the M×M interleave
+pattern has its own photons — disjoint sample indices, its own scramble — and its own
+photon map; frames *accumulate*: each frame adds photons to every set by incremental
+insertion. A set's state is a pure function of (scene, config, seed, set index, frames
+shot), so a lost client is rebuilt by replaying its frames (:meth:`PhotonSets.replay`)
+and a run is bit-identical however the sets are spread over clients.
+
+What a set accumulates depends on what the estimator reads
+(:mod:`lightsim.engine.estimator`):
+
+==================  ===========  ====================================================
+store               unit         kept when
+==================  ===========  ====================================================
+``photonmap``       lm           kNN and radius estimators (built when first queried)
+``bins``            lm           ``estimator=bin``: power per wall pixel
+``windows``         lm           kNN/radius: power in the pixel window of each grid probe
+``lattice``         lm           ``bandwidth=ici``: power per half-pixel cell
+``wall_moments``    lm, lm², –   kNN/radius: ΣΦ, ΣΦ², count of luminous wall photons
+``apertures``       lm           regulation detector apertures
+``ledger``          lm           always: bookkeeping, unnormalised
+==================  ===========  ====================================================
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lightsim.engine.config import RunConfig
+from lightsim.engine.plan import Plan
+from lightsim.engine.results import ShootResult
+from lightsim.sampling import (
+    SelectiveSampler,
+    digit_permutations,
+    halton_points_grouped,
+    photon_keys,
+)
+from lightsim.scene import Scene
+from lightsim.tracer import LEDGER, PhotonRecords, PhotonTracer
+
+
+def add_to_cells(store: np.ndarray, flat: np.ndarray, power: np.ndarray) -> None:
+    """``store[flat[i]] += power[i]`` for every photon, touching only the cells hit.
+
+    ``store`` (n_cells, C) float64; the same sums as adding ``np.bincount(flat, power,
+    minlength=n_cells)`` (each cell's photons summed in order from 0, then added), so the
+    stores are bit-identical to a whole-image bincount — but the work scales with the
+    photons of the frame, not with the image.
+    """
+    if len(flat) == 0:
+        return
+    cells, inverse = np.unique(flat, return_inverse=True)
+    for c in range(store.shape[1]):
+        store[cells, c] += np.bincount(inverse, weights=power[:, c], minlength=len(cells))
+
+
+class DeferredPhotonMap:
+    """A photon map that stores its batches until the first query needs them.
+
+    The default (ICI) map reads the half-pixel lattice, not the kd-tree, so most frames
+    never query the map: inserting every batch would be work for nothing. Batches are
+    kept in order and added when :meth:`ready` is called — all pending ones as one batch
+    (one build instead of many insertions). With the box kernel the kNN estimates are
+    bit-identical to inserting batch by batch (the k nearest and their sum do not depend
+    on the tree's shape).
+    """
+
+    def __init__(self, structure: str, channels: int) -> None:
+        from lightsim.photonmap.density import PhotonMap
+
+        self.map = PhotonMap(structure=structure, channels=channels)
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._n_pending = 0
+
+    def __len__(self) -> int:
+        return len(self.map) + self._n_pending
+
+    def add(self, positions: np.ndarray, normals: np.ndarray, powers: np.ndarray) -> None:
+        self._pending.append((positions, normals, powers))
+        self._n_pending += len(positions)
+
+    def ready(self):
+        """The photon map with every photon added so far."""
+        if self._pending:
+            batches, self._pending, self._n_pending = self._pending, [], 0
+            self.map.add(*(np.concatenate(parts) for parts in zip(*batches, strict=True)))
+        return self.map
+
+
+@dataclass
+class SetState:
+    """Accumulated state of one interleave set (stores: see the module table).
+
+    Attributes
+    ----------
+    emitted : int
+        Photons emitted so far, N_s (the estimate divides by it).
+    next_index : int
+        Next Halton index (plain sampling).
+    ledger : (len(LEDGER), C) float64
+        Bookkeeping, unnormalised (divide by ``emitted`` for lm).
+    emitted_power : (C,) float64
+        Sum of emitted photon powers (unnormalised).
+    caustic : int
+        Emitted photons whose path produced a caustic record (yield numerator).
+    """
+
+    index: int
+    channels: int
+    emitted: int = 0
+    next_index: int = 0
+    frames: int = 0
+    caustic: int = 0
+    records: int = 0
+    ledger: np.ndarray = field(default=None)  # type: ignore[assignment]
+    emitted_power: np.ndarray = field(default=None)  # type: ignore[assignment]
+    sampler: SelectiveSampler | None = None
+    photonmap: DeferredPhotonMap | None = None
+    bins: np.ndarray | None = None  # (H, W, C) power per wall pixel
+    windows: np.ndarray | None = None  # (G, C) power in the pixel window of each grid probe
+    apertures: Any = None  # ApertureCounter of the run's detector apertures, if any
+    aperture_hits: np.ndarray | None = None  # sources of this frame's target-aperture photons
+    lattice: np.ndarray | None = None  # (2H·2W, C) power per half-pixel cell (ICI windows)
+    wall_moments: np.ndarray | None = None  # ΣΦ (lm), ΣΦ² (lm²), count of wall photons
+
+    def __post_init__(self) -> None:
+        if self.ledger is None:
+            self.ledger = np.zeros((len(LEDGER), self.channels))
+        if self.emitted_power is None:
+            self.emitted_power = np.zeros(self.channels)
+
+
+class PhotonSets:
+    """The interleave sets of one client: shoot, insert, count, replay.
+
+    Parameters
+    ----------
+    scene : Scene
+    config : RunConfig
+    plan : Plan
+        Which stages run (SPT, channels, recording).
+    set_indices : list of int
+        The interleave sets this client owns (static assignment).
+    """
+
+    def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
+                 set_indices: list[int]) -> None:
+        self.config = config
+        self.plan = plan
+        self.set_indices = list(set_indices)
+        self._perm_cache: dict[int, np.ndarray] = {}
+        self.set_scene(scene)
+        self.reset()
+
+    # -- scene and state ------------------------------------------------------------------
+    def set_scene(self, scene: Scene, caster=None) -> None:
+        """Use ``scene`` (keeping ``caster``, the embree scene, when only materials or
+        emitters changed)."""
+        if self.plan.channels != scene.channels:
+            scene = Scene(scene.parts, scene.wall, scene.source, scene.warnings,
+                          self.plan.channels)
+        self.scene = scene
+        self.frame = scene.wall
+        self.channels = self.plan.channels
+        self.tracer = PhotonTracer(scene, max_depth=self.config.max_depth,
+                                   record=self.plan.record, threads=self.config.threads,
+                                   caster=caster)
+        self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
+        self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
+
+    def reset(self) -> None:
+        """Discard all photons (interaction mode: the next frame starts afresh)."""
+        self.sets: dict[int, SetState] = {s: self._new_set(s) for s in self.set_indices}
+
+    def _new_set(self, s: int) -> SetState:
+        st = SetState(s, self.channels)
+        if self.plan.spt or self.config.aperture_targets:
+            share = None if self.plan.spt else self.config.aperture_spt_share
+            st.sampler = SelectiveSampler(self.config.seed, s, refine_share=share,
+                                          pass_photons=self.config.photons_per_set)
+        if self.config.apertures:
+            from lightsim.engine.apertures import counter_from_config
+
+            st.apertures = counter_from_config(self.config, self.frame, self.channels)
+        if self.config.estimator == "bin":
+            W, H = self.frame.resolution
+            st.bins = np.zeros((H, W, self.channels))
+        else:
+            structure = "hash" if self.config.estimator == "radius" else self.config.structure
+            st.photonmap = DeferredPhotonMap(structure, self.channels)
+            nh, nv = self._grid_shape
+            st.windows = np.zeros((nh * nv, self.channels))
+            st.wall_moments = np.zeros(3)
+        return st
+
+    # -- shooting ------------------------------------------------------------------------
+    def frame_share(self, s: int, total: int | None) -> int:
+        """Photons set ``s`` shoots in a frame of ``total`` photons over all sets (None: a
+        full frame). A partial frame splits ``total`` exactly: every set gets
+        ``total // n_sets``, the first ``total % n_sets`` sets one more."""
+        full = self.config.photons_per_set
+        if total is None:
+            return full
+        n_sets = self.config.n_sets
+        return min(full, int(total) // n_sets + (1 if s < int(total) % n_sets else 0))
+
+    def shoot(self, total: int | None = None) -> ShootResult:
+        """Shoot one frame of photons for every owned set and insert them.
+
+        ``total`` (photons over all sets) makes this a partial last frame (plain sampling;
+        an SPT pass is always whole, since a cut pass would leave cells unsampled).
+        """
+        t0 = time.perf_counter()
+        keys, weights, groups, owners, perms = [], [], [], [], []
+        for g, s in enumerate(self.set_indices):
+            st = self.sets[s]
+            if st.sampler is not None:
+                pass_index, idx, pm, w = st.sampler.next_pass_indices()
+                # key space: pass 0 is plain sampling, SPT passes are 1, 2, ...
+                k = photon_keys(self.config.seed, s, pass_index + 1, idx)
+            else:
+                n = self.frame_share(s, total)
+                idx = np.arange(st.next_index, st.next_index + n, dtype=np.int64)
+                pm = self._perms(s)
+                k = photon_keys(self.config.seed, s, 0, idx)
+                w = None
+                st.next_index += n
+            perms.append(pm)
+            keys.append(k)
+            weights.append(np.ones(len(idx)) if w is None else w)
+            groups.append(np.full(len(idx), g, np.int64))
+            owners.append(idx)
+        group = np.concatenate(groups)
+        # every set's Halton points in one parallel pass (one thread launch per frame)
+        points = halton_points_grouped(np.concatenate(owners), group, np.stack(perms))
+        res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
+                                       group=group, n_groups=len(self.set_indices))
+        rec = res.records
+        rec_group = group[rec.source] if len(rec) else np.zeros(0, np.int64)
+        offsets = np.cumsum([0] + [len(o) for o in owners])
+        for g, s in enumerate(self.set_indices):
+            st = self.sets[s]
+            lo, hi = offsets[g], offsets[g + 1]
+            sel = np.flatnonzero(rec_group == g)
+            # a stable order (photon index, then bounce) keeps maps identical across batching
+            sel = sel[np.argsort(rec.source[sel], kind="stable")]
+            part = PhotonRecords(rec.position[sel], rec.normal[sel], rec.power[sel],
+                                 rec.part[sel], rec.flags[sel], rec.source[sel] - lo)
+            self.insert(st, part)
+            st.emitted += hi - lo
+            st.frames += 1
+            st.ledger += res.ledger[g]
+            st.emitted_power += res.emitted[g]
+            caustic = res.caustic_source[lo:hi]
+            st.caustic += int(caustic.sum())
+            st.records += len(part)
+            if st.sampler is not None:
+                trigger = caustic if self.plan.spt else np.zeros(hi - lo, np.bool_)
+                if st.aperture_hits is not None:  # SPT aimed at test points
+                    trigger = trigger.copy()
+                    trigger[st.aperture_hits] = True
+                st.sampler.update(owners[g], trigger)
+        return ShootResult(len(points), len(rec), int(res.rays), time.perf_counter() - t0)
+
+    def _perms(self, s: int) -> np.ndarray:
+        if s not in self._perm_cache:
+            self._perm_cache[s] = digit_permutations(self.config.seed, s, None)
+        return self._perm_cache[s]
+
+    # -- insertion -----------------------------------------------------------------------
+    def insert(self, st: SetState, rec: PhotonRecords) -> None:
+        """Add one frame's records of set ``st`` to every store it keeps."""
+        if st.apertures is not None:  # detector apertures count every wall photon directly
+            on_wall = np.isin(rec.part, self._wall_part_ids)
+            h, v = self.frame.to_hv(rec.position[on_wall])
+            hit = st.apertures.add(h, v, rec.power[on_wall])
+            st.aperture_hits = rec.source[on_wall][hit]
+        if st.bins is not None:
+            self._add_to_bins(st, rec)
+            return
+        if len(rec):
+            st.photonmap.add(rec.position, rec.normal, rec.power)
+            self._add_to_windows(st, rec)
+            self._add_to_lattice(st, rec)
+
+    def _add_to_bins(self, st: SetState, rec: PhotonRecords) -> None:
+        """Add the wall photons to their pixels (the binning estimator)."""
+        W, H = self.frame.resolution
+        h, v = self.frame.to_hv(rec.position)
+        row, col = self.frame.pixel_index(h, v)
+        ok = ((col >= 0) & (col < W) & (row >= 0) & (row < H)
+              & np.isin(rec.part, self._wall_part_ids))
+        add_to_cells(st.bins.reshape(W * H, self.channels), row[ok] * W + col[ok],
+                     rec.power[ok].astype(np.float64))
+
+    def _add_to_lattice(self, st: SetState, rec: PhotonRecords) -> None:
+        """Add the wall photons to the set's half-pixel lattice (the ICI windows) and to
+        ΣΦ, ΣΦ² (their standard errors)."""
+        from lightsim.render import ici
+        from lightsim.render.frame import luminous
+
+        if not self.config.uses_ici:
+            return
+        on_wall = np.isin(rec.part, self._wall_part_ids)
+        if not on_wall.any():
+            return
+        h, v = self.frame.to_hv(rec.position[on_wall])
+        flat, ok = ici.lattice_index(h, v, self.frame)
+        power = rec.power[on_wall][ok].astype(np.float64)
+        W, H = self.frame.resolution
+        if st.lattice is None:
+            st.lattice = np.zeros((4 * H * W, self.channels))
+        add_to_cells(st.lattice, flat[ok], power)
+        lum = luminous(power)
+        st.wall_moments += (float(lum.sum()), float((lum * lum).sum()), float(ok.sum()))
+
+    def _add_to_windows(self, st: SetState, rec: PhotonRecords) -> None:
+        """Add the wall photons to the pixel-sized windows centred on the grid probes.
+
+        The probe grid (:func:`~lightsim.render.frame.probe_grid`) has cell pitch Δ; a
+        window is one pixel (dh × dv, half-open) around a cell centre. Windows overlap only
+        when pixels are coarser than the grid, hence the loop over neighbouring cells.
+        """
+        on_wall = np.isin(rec.part, self._wall_part_ids)
+        if not on_wall.any():
+            return
+        h, v = self.frame.to_hv(rec.position[on_wall])
+        power = rec.power[on_wall].astype(np.float64)
+        (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
+        nh, nv = self._grid_shape
+        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
+        dh, dv = self.frame.pixel_size_m
+        uh, uv = (h - h0) / pitch_h - 0.5, (v - v0) / pitch_v - 0.5  # in cell-centre units
+        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        for i in range(int(np.floor(-reach_h)), int(np.ceil(reach_h)) + 1):
+            ci = np.round(uh).astype(np.int64) + i
+            oh = (uh - ci) * pitch_h  # offset from the window centre (m), half-open
+            in_h = (ci >= 0) & (ci < nh) & (oh >= -0.5 * dh) & (oh < 0.5 * dh)
+            for j in range(int(np.floor(-reach_v)), int(np.ceil(reach_v)) + 1):
+                cj = np.round(uv).astype(np.int64) + j
+                ov = (uv - cj) * pitch_v
+                ok = in_h & (cj >= 0) & (cj < nv) & (ov >= -0.5 * dv) & (ov < 0.5 * dv)
+                if ok.any():
+                    flat = cj[ok] * nh + ci[ok]
+                    for c in range(self.channels):
+                        st.windows[:, c] += np.bincount(flat, weights=power[ok, c],
+                                                        minlength=nh * nv)
+
+    # -- statistics, checkpoints ---------------------------------------------------------
+    def stats(self) -> dict[int, dict[str, Any]]:
+        """Per-set counters and bookkeeping (unnormalised ledger)."""
+        return {s: {"emitted": st.emitted, "frames": st.frames, "caustic": st.caustic,
+                    "records": st.records, "ledger": st.ledger.copy(),
+                    "emitted_power": st.emitted_power.copy()}
+                for s, st in self.sets.items()}
+
+    def apertures(self) -> dict[int, np.ndarray | None]:
+        """Per-set detector-aperture counts (:mod:`lightsim.engine.apertures`), or None."""
+        return {s: None if st.apertures is None else st.apertures.counts.copy()
+                for s, st in self.sets.items()}
+
+    def counters(self) -> dict[int, int]:
+        """Frames shot per set: with the seed, all that is needed to replay a set."""
+        return {s: st.frames for s, st in self.sets.items()}
+
+    def replay(self, frames: dict[int, int], partial: dict[int, int] | None = None) -> None:
+        """Rebuild the sets' state by re-shooting ``frames`` frames (deterministic);
+        ``partial`` maps a frame index (0-based) to the photons (over all sets) of a
+        partial frame such as the last one of ``--photons N``."""
+        self.reset()
+        n = max(frames.values(), default=0)
+        if any(f != n for f in frames.values()):
+            raise ValueError("sets of one client must have shot the same number of frames")
+        partial = {int(k): int(v) for k, v in (partial or {}).items()}
+        for i in range(n):
+            self.shoot(partial.get(i))

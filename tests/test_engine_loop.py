@@ -1,0 +1,173 @@
+"""The render loop as named steps (issue 14) and its pipeline speed-ups (issue 15 goal 2):
+each speed-up must leave the written map bit-identical."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lightsim.engine.backend import Backend
+from lightsim.engine.config import RunConfig
+from lightsim.engine.local import LocalBackend
+from lightsim.engine.photonset import DeferredPhotonMap, add_to_cells
+from lightsim.engine.ray_backend import RayBackend
+from lightsim.engine.results import FrameResult
+from lightsim.engine.server import ErrorSchedule, Session
+from lightsim.photonmap.density import PhotonMap
+from lightsim.render.frame import ErrorEstimate
+from lightsim.sampling import DIGITS, N_DIMS, PRIMES, digit_permutations, halton_points
+from lightsim.validation.scenes.analytic import isotropic_case
+
+
+@pytest.fixture(scope="module")
+def point():
+    return isotropic_case(resolution=(24, 24)).scene
+
+
+def test_both_backends_implement_the_protocol(point):
+    cfg = RunConfig(frame_photons=4_000, interleave=2)
+    with Session(point, cfg) as s:
+        assert isinstance(s.backend, LocalBackend) and isinstance(s.backend, Backend)
+    members = [m for m in vars(Backend) if not m.startswith("_")]
+    assert {"shoot", "render", "probe", "replay", "close"} <= set(members)
+    for m in members:
+        assert callable(getattr(RayBackend, m)), m
+
+
+def test_deferred_map_gives_the_batchwise_estimates():
+    rng = np.random.default_rng(4)
+    n, q = 60_000, 500
+    pts = rng.random((n, 3)).astype(np.float32)
+    pts[:, 2] = 0.0
+    nrm = np.tile(np.float32([0, 0, 1]), (n, 1))
+    pw = rng.random((n, 1))
+    qp = rng.random((q, 3)).astype(np.float32)
+    qp[:, 2] = 0.0
+    qn = np.tile(np.float32([0, 0, 1]), (q, 1))
+    eager, deferred = PhotonMap("middle"), DeferredPhotonMap("middle", 1)
+    for lo in range(0, n, 7_500):  # eight frames
+        eager.add(pts[lo:lo + 7_500], nrm[lo:lo + 7_500], pw[lo:lo + 7_500])
+        deferred.add(pts[lo:lo + 7_500], nrm[lo:lo + 7_500], pw[lo:lo + 7_500])
+        if lo == 15_000:  # a query in between: the rest comes as a second batch
+            deferred.ready()
+    assert len(deferred) == n
+    for kw in ({"k": 64, "max_radius": 0.05, "min_radius": 0.01}, {"k": 8}):
+        a = eager.estimate(qp, qn, **kw)
+        b = deferred.ready().estimate(qp, qn, **kw)
+        np.testing.assert_array_equal(a.E, b.E)
+        np.testing.assert_array_equal(a.r, b.r)
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_sparse_cell_sums_equal_a_whole_image_bincount(channels):
+    rng = np.random.default_rng(channels)
+    cells = 5_000
+    store = rng.random((cells, channels)) * 1e3
+    expected = store.copy()
+    for _ in range(3):
+        flat = rng.integers(0, 40, 3_000) * 97 % cells  # many photons per touched cell
+        power = rng.random((3_000, channels)) * 10.0 ** rng.uniform(-30, 30, (3_000, 1))
+        for c in range(channels):
+            expected[:, c] += np.bincount(flat, weights=power[:, c], minlength=cells)
+        add_to_cells(store, flat, power)
+    np.testing.assert_array_equal(store, expected)
+    add_to_cells(store, np.zeros(0, np.int64), np.zeros((0, channels)))  # empty frame
+    np.testing.assert_array_equal(store, expected)
+
+
+def _est(upper: float | None) -> FrameResult:
+    err = None if upper is None else ErrorEstimate(upper, upper, 0.0, 0.0)  # .upper = noise
+    return FrameResult(None, None, None, upper, 0, 0.0, error=err)
+
+
+def test_error_schedule_spacing():
+    plain = ErrorSchedule()
+    assert plain.due(0)
+    plain.estimated(1_000, _est(0.5))
+    assert not plain.due(1_999) and plain.due(2_000)  # doubling without a target
+    aimed = ErrorSchedule(target_error=0.1)
+    aimed.estimated(1_000, _est(0.4))  # 16× the photons expected: capped at 2×
+    assert aimed.next_photons == 2_000
+    aimed.estimated(2_000, _est(0.11))  # (0.11/0.1)² = 1.21
+    assert aimed.next_photons == pytest.approx(2_420)
+    aimed.estimated(3_000, _est(0.09))  # below the target: the very next frame
+    assert aimed.due(3_000)
+    aimed.estimated(3_000, _est(None))  # no figure: plain doubling
+    assert aimed.next_photons == 6_000
+
+
+def test_run_estimates_on_schedule_and_the_map_does_not_depend_on_it(point):
+    cfg = RunConfig(frame_photons=8_000, interleave=2, seed=3)
+    with Session(point, cfg) as s:
+        seen: list[FrameResult] = []
+        final = s.run(photons=64_000, callback=seen.append)
+        logged = [e["photons"] for e in s.log if "photons" in e]
+    assert logged == [8_000, 16_000, 32_000, 64_000]  # doubling, then the final map
+    assert len(seen) == 7  # every frame but the last reports progress
+    stale = [e for e in seen if "render" not in e.timings]  # frames that only shot
+    assert stale and all(e.error_photons < e.photons for e in stale)
+    with Session(point, cfg) as s:  # estimate after every frame instead
+        for _ in range(8):
+            s.frame(image=False)
+        again = s.final_image()
+    np.testing.assert_array_equal(final.lux, again.lux)
+    assert final.rel_error == again.rel_error
+
+
+def _halton_reference(index: int, perms: np.ndarray) -> list[float]:
+    """The scrambled radical inverse written out digit by digit in Python."""
+    out = []
+    for d in range(N_DIMS):
+        base, inv = int(PRIMES[d]), 1.0 / int(PRIMES[d])
+        f, x, i = inv, 0.0, index
+        for k in range(int(DIGITS[d])):
+            i, digit = divmod(i, base)
+            x += float(perms[d, k, digit]) * f
+            f *= inv
+        out.append(min(x, 1.0 - 1.1102230246251565e-16))
+    return out
+
+
+def test_halton_points_match_the_digit_by_digit_definition():
+    rng = np.random.default_rng(9)
+    idx = np.concatenate([np.arange(50), rng.integers(0, 2**62, 50)]).astype(np.int64)
+    perms = digit_permutations(11, 3, 2, (5, 3))
+    got = halton_points(idx, perms)
+    ref = np.array([_halton_reference(int(i), perms) for i in idx])
+    np.testing.assert_array_equal(got, ref)
+
+
+def test_bench_pipeline_rows(point):
+    from lightsim.validation.bench.pipeline import bench_pipeline
+
+    rows = bench_pipeline(point, RunConfig(frame_photons=10_000, interleave=2),
+                          photons=30_000, repeats=1)
+    assert [r["what"] for r in rows] == ["pair 1", "median"]
+    r = rows[0]
+    assert r["frames"] == 3 and r["estimates"] == 2
+    assert r["ratio"] == pytest.approx(r["simulate_photons_per_s"] / r["tracer_photons_per_s"])
+    assert 0 < r["ratio"] < 10
+
+
+def test_grouped_halton_points_are_each_sets_points():
+    from lightsim.sampling import halton_points_grouped
+
+    perms = np.stack([digit_permutations(1, s, None) for s in range(3)])
+    idx = [np.arange(5, 900), np.arange(0), np.arange(2**40, 2**40 + 77)]
+    group = np.concatenate([np.full(len(i), s) for s, i in enumerate(idx)])
+    got = halton_points_grouped(np.concatenate(idx), group, perms)
+    want = np.concatenate([halton_points(i, perms[s]) for s, i in enumerate(idx)])
+    np.testing.assert_array_equal(got, want)
+
+
+def test_target_error_stops_at_the_first_estimate_below_it(point):
+    cfg = RunConfig(frame_photons=8_000, interleave=2, seed=5)
+    with Session(point, cfg) as s:
+        seen: list[FrameResult] = []
+        final = s.run(target_error=0.08, photons=2_000_000, callback=seen.append)
+        estimated = [e for e in seen if "render" in e.timings]
+    assert final.photons < 2_000_000 and s.frames >= 3
+    assert final.error.upper <= 0.08
+    # every earlier estimate (after the minimum frames) was still above the target
+    assert all(e.error.upper > 0.08 for e in estimated[:-1] if e.photons >= 3 * 8_000)
+    assert len(estimated) < s.frames  # not every frame paid for an estimate
