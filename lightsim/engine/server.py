@@ -223,15 +223,15 @@ class Session:
             moments.update(r.get("moments", {}))
         t2 = time.perf_counter()
         emitted = self.emitted_per_set()
-        ici_err, counts_only = None, False
-        if probe_rungs and len(probe_rungs) == len(emitted):
-            ici_err, counts_only = self._ici_error(probe_rungs, moments, emitted)
+        ici_err = None
         lux = raw = rung_map = None
+        if image and full_rungs and not subs:  # the written map; its figure over every pixel
+            lux, rung_map, ici_err = self._ici_image(full_rungs, moments, emitted)
+            raw = lux
+        elif probe_rungs and len(probe_rungs) == len(emitted):
+            ici_err = self._ici_error(probe_rungs, moments, emitted)
         if image and subs:
             lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
-        elif image and full_rungs:
-            lux, rung_map = self._ici_image(full_rungs, moments, emitted, counts_only)
-            raw = lux
         elif image and fulls:
             lux = raw = pool_full_images(fulls, emitted)
         cam_img = None
@@ -272,44 +272,33 @@ class Session:
                                     ici.wall_photons(moments) / (W * H)))
 
     def _ici_image(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int], counts_only: bool = False
-                   ) -> tuple[np.ndarray, np.ndarray]:
-        """The written map: every pixel at its ICI rung over all sets, (H, W, C) lx
-        (``counts_only``: every pixel at rung 0, its own photon count)."""
+                   emitted: dict[int, int]
+                   ) -> tuple[np.ndarray, np.ndarray, ErrorEstimate | None]:
+        """The written map, every pixel at its rung (:func:`ici.written_map`), (H, W, C) lx,
+        the rungs (H, W) and the map's error figure over every pixel."""
         from lightsim.render import ici
 
         first = next(iter(rungs.values()))
         J1, H, W, C = first.shape
-        J1 = 1 if counts_only else self._ici_rungs_now(J1, moments)
+        J1 = self._ici_rungs_now(J1, moments)
         flat = {s: np.asarray(v)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
         rows, cols = np.divmod(np.arange(H * W), W)
-        choice = ici.choose(flat, emitted, ici.power_moment(moments),
-                            self._ici_areas(rows, cols), self.config.ici_gamma)
-        return choice.lux.reshape(H, W, C), choice.rung.reshape(H, W)
+        wm = ici.written_map(flat, emitted, ici.power_moment(moments),
+                             self._ici_areas(rows, cols), self.config.ici_gamma)
+        return wm.lux.reshape(H, W, C), wm.choice.rung.reshape(H, W), wm.error
 
     def _ici_error(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int]) -> tuple[ErrorEstimate | None, bool]:
-        """The error figure of the written map from the pixels under the grid probes, and
-        whether that map is the plain pixel counts.
-
-        Both maps are consistent; where ICI keeps a blur that no single pixel can see but
-        the figure (averaged over the lit probes) does, the pixel counts' own estimated
-        error (their noise, no blur) can be the lower one — then the map is the counts.
-        """
+                   emitted: dict[int, int]) -> ErrorEstimate | None:
+        """The error figure of the written map from the pixels under the grid probes (the
+        frames between images; the image itself is measured over every pixel)."""
         from lightsim.render import ici
 
         grid = self.probes_hv[:self.grid_count]
         rows, cols = ici.pixel_of(self.scene.wall, grid[:, 0], grid[:, 1])
         J1 = self._ici_rungs_now(next(iter(rungs.values())).shape[0], moments)
         rungs = {s: np.asarray(v)[:J1] for s, v in rungs.items()}
-        choice = ici.choose(rungs, emitted, ici.power_moment(moments),
-                            self._ici_areas(rows, cols), self.config.ici_gamma)
-        err = ici.estimate_error(rungs, choice)
-        zero = np.zeros_like(choice.rung)
-        counts = ici.estimate_error(rungs, ici.IciChoice(zero, choice.lux))
-        if err is not None and counts is not None and counts.total < err.total:
-            return counts, True
-        return err, False
+        return ici.written_map(rungs, emitted, ici.power_moment(moments),
+                               self._ici_areas(rows, cols), self.config.ici_gamma).error
 
     def probe(self, points_hv: np.ndarray) -> ProbeStats:
         """Estimates of every set at wall points (h, v in m): mean, standard error, values."""
