@@ -195,4 +195,4 @@ def test_written_map_figure_is_honest_although_the_rungs_come_from_the_same_phot
         naive.append(same.error.total / actual)
     assert 0.92 <= np.median(held) <= 1.12
     assert np.quantile(held, 0.1) >= 0.8 and np.quantile(held, 0.9) <= 1.25
-    assert np.median(naive) < 0.9  # the bias this guards against is real here
+    assert np.median(naive) < np.median(held) - 0.05  # the bias guarded against is real

@@ -40,6 +40,9 @@ parameter        unit   default   meaning
 ``gamma``        –      2.0       interval half-width Γ in standard errors
                                   (``RunConfig.ici_gamma``)
 ``q``            lm     –         power-weighted mean photon power ΣΦ²/ΣΦ (all sets)
+``CERTIFY``      –      0.25      the blur estimate's standard error may be at most this
+                                  × the squared error the figure reports
+``MIX_STEPS``    –      40        steps of the counts' weight α in the written map
 ===============  =====  ========  ========================================================
 """
 
@@ -237,8 +240,11 @@ def ici_rungs(E: np.ndarray, n: float, q: float, areas: np.ndarray, gamma: float
 
 
 def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
-                  areas: np.ndarray, gamma: float) -> np.ndarray:
-    """(Q,) lx²: per query an unbiased estimate of the squared blur of an ICI choice.
+                  areas: np.ndarray, gamma: float, groups: list[np.ndarray] | None = None
+                  ) -> np.ndarray:
+    """(G, Q) lx²: per query an unbiased estimate of the squared blur of an ICI choice,
+    from the pairs of sets within each of the G ``groups`` (positions in set order;
+    default one group of all sets).
 
     The blur of the chosen rung is measured against rung 0 by D = E_j − E_0, but the
     rung is chosen from the same photons: ICI keeps the large rung exactly where D came
@@ -246,7 +252,7 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
     0.82 × the actual error). Here every pair of sets (s, t) is left out of the choice:
     with j the ICI rung of the other S − 2 sets, E[D_s D_t] = b(j)², the squared blur of
     a choice made from (S − 2)/S of the photons (a little larger than the full choice's).
-    The mean over the S (S − 1)/2 pairs is returned.
+    The mean over each group's pairs is returned.
     """
     order = sorted(rungs)
     S = len(order)
@@ -256,19 +262,22 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
     n_all = float(e.sum())
     D = R - R[:, :1]  # (S, J+1, Q)
     areas = np.asarray(areas, dtype=np.float64)[:R.shape[1]]
-    out = np.zeros(R.shape[2])
+    groups = [np.arange(S)] if groups is None else groups
+    out = np.zeros((len(groups), R.shape[2]))
     cols = np.arange(R.shape[2])
-    pairs = 0
-    for a in range(S):
-        for b in range(a + 1, S):
-            n = n_all - e[a] - e[b]
-            if n <= 0:
-                continue
-            E = (total - e[a] * R[a] - e[b] * R[b]) / n
-            j = ici_rungs(E, n, q, areas, gamma)
-            out += D[a, j, cols] * D[b, j, cols]
-            pairs += 1
-    return out / max(pairs, 1)
+    for g, members in enumerate(groups):
+        pairs = 0
+        for i, a in enumerate(members):
+            for b in members[i + 1:]:
+                n = n_all - e[a] - e[b]
+                if n <= 0:
+                    continue
+                E = (total - e[a] * R[a] - e[b] * R[b]) / n
+                j = ici_rungs(E, n, q, areas, gamma)
+                out[g] += D[a, j, cols] * D[b, j, cols]
+                pairs += 1
+        out[g] /= max(pairs, 1)
+    return out
 
 
 def chosen_per_set(rungs: dict[int, np.ndarray], rung: np.ndarray) -> np.ndarray:
@@ -316,8 +325,9 @@ def error_figure(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: 
                  alpha: float = 0.0, blur: np.ndarray | None = None) -> ErrorFigure | None:
     """Noise and blur of the map ``choice`` over the lit queries (pixels or probes), mixed
     with weight ``alpha`` with the pixel counts (rung 0): (1 − α) chosen + α rung 0.
-    ``blur`` (Q,) lx²: per-query squared-blur estimates of the unmixed map to use instead
-    of D̄² − se_D² (:func:`held_out_blur`, for a choice made from these photons).
+    ``blur`` (2, Q) lx²: per-query squared-blur estimates of the unmixed map from each half
+    of the sets, to use instead of D̄² − se_D² (:func:`held_out_blur` over the halves, for
+    a choice made from these photons).
 
     Noise: the spread of the S sets' values at the chosen rungs, se² = s²/S per query.
     Blur: per set D = chosen − rung 0 (rung 0, the pixel window, is unbiased for the pixel
@@ -328,9 +338,55 @@ def error_figure(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: 
     the noise of the pixel's own count, which bounds how well any blur can be measured
     (:attr:`ErrorFigure.certified`).
 
-    Lit: rung 0's mean ≥ ``lit_fraction`` × the map's maximum; the figure is relative to
+    Lit: rung 0's mean and the map ≥ ``lit_fraction`` × the map's maximum; relative to
     rung 0's mean over the lit queries, which is unbiased for the exact mean there (the
     map's own mean is blurred). None with one set or nothing lit.
+    """
+    mix = _mix_parts(rungs, choice, lit_fraction, blur)
+    return None if mix is None else mix.figure(alpha)
+
+
+@dataclass(frozen=True)
+class _MixParts:
+    """The parts of :func:`error_figure` that depend on the counts' weight α only through
+    (1 − α)² (blur and its standard error) or a quadratic (noise): means over the lit
+    queries of the chosen values' variance ``a``, the counts' ``b`` and their covariance
+    ``c`` (each /S, relative²), the blur² ``b2`` and its standard error ``se`` at α = 0."""
+
+    a: float
+    b: float
+    c: float
+    b2: float
+    se: float
+    lit: int
+
+    def figure(self, alpha: float) -> ErrorFigure | None:
+        k = (1.0 - alpha) ** 2
+        n2 = k * self.a + 2.0 * alpha * (1.0 - alpha) * self.c + alpha * alpha * self.b
+        noise = math.sqrt(max(n2, 0.0))
+        b2, se = k * self.b2, k * self.se
+        if not all(math.isfinite(x) for x in (noise, b2, se)):
+            return None
+        bias = math.sqrt(max(b2, 0.0))
+        upper = math.sqrt(max(b2 + 2.0 * se, 0.0))
+        return ErrorFigure(ErrorEstimate(math.hypot(noise, bias), noise, bias, upper), b2, se,
+                           self.lit)
+
+
+def _halves(S: int) -> list[np.ndarray]:
+    """Two halves of the sets (positions in set order): even and odd."""
+    return [np.arange(0, S, 2), np.arange(1, S, 2)]
+
+
+def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
+               blur: np.ndarray | None) -> _MixParts | None:
+    """The figure's parts, each half of the sets measured over the pixels the other half
+    calls lit (``blur``: (2, Q) from :func:`held_out_blur` over :func:`_halves`, or None).
+
+    Lit — the pixel's own count and the map both ≥ ``lit_fraction`` × the map's maximum —
+    is decided by data the half does not use: decided and measured on the same photons,
+    dim pixels that caught a stray photon come in exactly when they scatter most (on the
+    paraboloid 36 such pixels tripled the noise figure).
     """
     if len(rungs) < 2:
         return None
@@ -339,32 +395,49 @@ def error_figure(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: 
     S = vals.shape[0]
     if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
         return None
-    lit = win.mean(axis=0) >= lit_fraction * vals.mean(axis=0).max()
-    if alpha:
-        vals = (1.0 - alpha) * vals + alpha * win
-    mean_lit = float(np.mean(win.mean(axis=0)[lit])) if lit.any() else 0.0
+    halves = _halves(S) if S >= 4 else [np.arange(S)]
+    thr = lit_fraction * vals.mean(axis=0).max()
+    parts = []
+    for h, own in enumerate(halves):
+        other = halves[1 - h] if len(halves) == 2 else own
+        lit = (win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr)
+        p = _half_parts(vals[own][:, lit], win[own][:, lit], S,
+                        None if blur is None else np.asarray(blur)[h][lit])
+        if p is not None:
+            parts.append(p)
+    if not parts:
+        return None
+    k = len(parts)
+    return _MixParts(*(sum(getattr(p, f) for p in parts) / k for f in ("a", "b", "c", "b2")),
+                     math.sqrt(sum(p.se**2 for p in parts)) / k,
+                     round(sum(p.lit for p in parts) / k))
+
+
+def _half_parts(v_l: np.ndarray, w_l: np.ndarray, S: int, blur: np.ndarray | None
+                ) -> _MixParts | None:
+    """Parts from some of the sets (rows) over the lit queries (columns) for the pooled
+    map of all S sets."""
+    s_h, n = v_l.shape
+    if n == 0 or s_h < 2:
+        return None
+    mean_lit = float(w_l.mean())
     if not mean_lit > 0:
         return None
-    n = int(lit.sum())
-    se2 = vals.var(axis=0, ddof=1)[lit] / S
-    noise = math.sqrt(float(np.mean(se2))) / mean_lit
-    if not math.isfinite(noise):
-        return None
-    d = vals[:, lit] - win[:, lit]
-    d_mean, v = d.mean(axis=0), d.var(axis=0, ddof=1) / S
-    terms = (d_mean**2 - v if blur is None
-             else (1.0 - alpha) ** 2 * np.asarray(blur, np.float64)[lit])
+    dv, dw = v_l - v_l.mean(axis=0), w_l - w_l.mean(axis=0)
+    norm = (s_h - 1) * S * n * mean_lit**2  # sample (co)variance / S, mean over lit, relative
+    a, b, c = (float(np.sum(x * y)) / norm for x, y in ((dv, dv), (dw, dw), (dv, dw)))
+    d = v_l - w_l
+    d_mean, v = d.mean(axis=0), d.var(axis=0, ddof=1) / s_h  # v: Var(D̄) of these sets
+    terms = d_mean**2 - v if blur is None else np.asarray(blur, np.float64)
     b2 = float(np.mean(terms)) / mean_lit**2
     # Σ 4 b² v with the mean b² (one query's b² estimate is mostly noise, and its positive
     # part would double the variance at a few photons per pixel)
-    var = float(np.sum(2.0 * v * v * (S - 1) / (S + 1))
+    var = float(np.sum(2.0 * v * v * (s_h - 1) / (s_h + 1))
                 + 4.0 * max(b2, 0.0) * mean_lit**2 * np.sum(v))
-    b2_se = math.sqrt(max(var, 0.0)) / n / mean_lit**2
-    if not (math.isfinite(b2) and math.isfinite(b2_se)):
+    se = math.sqrt(max(var, 0.0)) / n / mean_lit**2
+    if not all(math.isfinite(x) for x in (a, b, c, b2, se)):
         return None
-    bias = math.sqrt(max(b2, 0.0))
-    upper = math.sqrt(max(b2 + 2.0 * b2_se, 0.0))
-    return ErrorFigure(ErrorEstimate(math.hypot(noise, bias), noise, bias, upper), b2, b2_se, n)
+    return _MixParts(a, b, c, b2, se, n)
 
 
 def estimate_error(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float = 0.1
@@ -404,33 +477,36 @@ class WrittenMap:
 
 def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
                 areas: np.ndarray, gamma: float, lit_fraction: float = 0.1) -> WrittenMap:
-    """The ICI map, mixed with the pixel counts just enough that its error can be signed.
+    """The ICI map mixed with the pixel counts: the lowest error that can be signed.
 
     A window's blur is measured against the pixel's own count, whose noise σ₀ does not
     fall with the window: the blur estimate's standard error is ≈ √2 σ₀² / √n over n lit
     pixels whatever the map, so a map whose error is below ≈ (2/n)^¼ σ₀ carries an error
     its figure cannot state (issue 12: the ICI figure read 0.65–1.05 × the actual error on
     the shield at 250 k photons, from seed to seed). Mixing in the counts with weight α
-    scales the blur and its standard error by (1 − α)² and adds count noise: the written
-    map is (1 − α) ICI + α counts with the smallest α (in steps of 1/:data:`MIX_STEPS`)
-    whose figure is :attr:`ErrorFigure.certified` — a test of the figure's precision, set
-    by the noise, not a search for a low figure. α = 0 as soon as the photons suffice
-    (σ₀² ∝ 1/N falls faster than the blur it certifies); α = 1, the counts, is always
-    certified.
+    scales the blur and its standard error by (1 − α)² and trades it for count noise, so
+    the written map is (1 − α) ICI + α counts with α (in steps of 1/:data:`MIX_STEPS`)
+    the lowest figure among those that are :attr:`ErrorFigure.certified`. α = 0 where the
+    ICI map is both best and measurable; α → 1 where ICI keeps a blur that no single pixel
+    can see but the figure, over all lit pixels, does (the curvature of a smooth beam
+    inside a 4 × 4 window: the counts are then better); α = 1, the counts, is always
+    certified. One number chosen from n pixels' figures adds little optimism; the blur
+    part is :func:`held_out_blur`, free of the per-pixel choice's.
 
     ``rungs`` {set: (J+1, Q, C)} already cut to the ladder allowed at these photons
     (:func:`shrink_sides`); the other parameters as in :func:`choose`.
     """
     choice = choose(rungs, emitted, q, areas, gamma)
-    blur = held_out_blur(rungs, emitted, q, areas, gamma) if len(rungs) > 2 else None
+    blur = (held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)))
+            if len(rungs) >= 4 else None)
     order = sorted(rungs)
     w = _weights(emitted, order)
     counts = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64)[0] for s in order]), 1)
-    fig = None
-    alpha = 0.0
-    for k in range(MIX_STEPS + 1):
-        alpha = k / MIX_STEPS
-        fig = error_figure(rungs, choice, lit_fraction, alpha, blur)
-        if fig is None or fig.certified:
-            break
+    mix = _mix_parts(rungs, choice, lit_fraction, blur)
+    fig, alpha = None, 0.0
+    if mix is not None:
+        figs = [(mix.figure(k / MIX_STEPS), k / MIX_STEPS) for k in range(MIX_STEPS + 1)]
+        ok = [(f.error.total, a, f) for f, a in figs if f is not None and f.certified]
+        if ok:
+            _, alpha, fig = min(ok, key=lambda t: (t[0], t[1]))
     return WrittenMap(choice, (1.0 - alpha) * choice.lux + alpha * counts, alpha, fig)
