@@ -145,15 +145,13 @@ def paraboloid_by_photons():
 
 @pytest.mark.skipif(not knn_available(), reason="needs the photon map")
 def test_default_estimator_error_falls_with_photons(paraboloid_by_photons):
-    """4× the photons: lower error (deterministic seeds, no timing); the tool's own
-    figure within 0.8–1.25 of the actual error at both steps. (Measured 4.9 → 4.0 %: the
-    4 × 4 window's curvature blur, which no pixel can see, falls slowly until the ladder
-    shrinks; the map mixes in the pixel counts against it — 5.9 → 5.2 % for ICI alone,
-    7.2 → 5.4 % for the counts.)"""
+    """4× the photons: clearly lower error (deterministic seeds, no timing); the tool's
+    own figure within 0.8–1.25 of the actual error at both steps (measured: 4.18 → 1.86 %,
+    estimated / actual 0.98 and 1.01)."""
     steps = paraboloid_by_photons.steps()
     assert [s.photons for s in steps] == [250_000, 1_000_000]
-    assert steps[1].actual < 0.88 * steps[0].actual
-    assert steps[1].slope_photons < -0.08
+    assert steps[1].actual < 0.7 * steps[0].actual
+    assert steps[1].slope_photons < -0.25
     for s in steps:
         assert 0.8 <= s.ratio <= 1.25, s
 
