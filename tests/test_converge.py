@@ -146,7 +146,8 @@ def paraboloid_by_photons():
 @pytest.mark.skipif(not knn_available(), reason="needs the photon map")
 def test_default_estimator_error_falls_with_photons(paraboloid_by_photons):
     """4× the photons: clearly lower error (deterministic seeds, no timing); the tool's
-    own figure within 0.8–1.25 of the actual error at both steps."""
+    own figure within 0.8–1.25 of the actual error at both steps (measured: 4.18 → 1.86 %,
+    estimated / actual 0.98 and 1.01)."""
     steps = paraboloid_by_photons.steps()
     assert [s.photons for s in steps] == [250_000, 1_000_000]
     assert steps[1].actual < 0.7 * steps[0].actual
@@ -172,20 +173,29 @@ def test_bad_photon_budgets_exit_2(photons, capsys):
     assert code == 2 and err.startswith("lightsim: error:")
 
 
-_HONESTY_GAP = pytest.mark.xfail(
-    strict=True, reason="known gap (issue 12): at 250k photons the error figure reads 0.71 "
-    "(shield) / 0.74 (headlight) of the actual error, below the 0.8 the issue asks for")
+def _print_steps(r) -> None:
+    """The error-against-photons table (shown with ``pytest -s``)."""
+    print(f"\n{r.target} ({r.mode}, {r.lit_pixels} lit pixels)")
+    print(f"{'estimator':10s} {'photons':>11s} {'seconds':>8s} {'actual':>8s} {'estimated':>9s}"
+          f" {'ratio':>6s} {'slope N':>8s} {'slope t':>8s}")
+    for st in r.steps():
+        f = [("–" if x is None else f"{x:{fmt}}") for x, fmt in
+             ((st.actual, ".4f"), (st.estimated, ".4f"), (st.ratio, ".3f"),
+              (st.slope_photons, ".2f"), (st.slope_seconds, ".2f"))]
+        print(f"{st.estimator:10s} {st.photons:>11,} {st.seconds:>8.1f} {f[0]:>8s} {f[1]:>9s}"
+              f" {f[2]:>6s} {f[3]:>8s} {f[4]:>8s}")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("target", ["analytic:paraboloid",
-                                    pytest.param("analytic:shield", marks=_HONESTY_GAP)])
+@pytest.mark.timeout(3600)  # ~15 min each on a loaded 2-core machine
+@pytest.mark.parametrize("target", ["analytic:paraboloid", "analytic:shield"])
 def test_consistent_estimation_study(target, tmp_path):
     """Error against photons without a floor, honest at every step (issue 12)."""
     r = cv.run_converge(target, budgets=(250_000, 1_000_000, 4_000_000, 16_000_000),
                         estimators=["knn M=4", "bin"], frame_photons=250_000,
                         by_photons=True)
     cv.write_outputs(r, tmp_path)
+    _print_steps(r)
     knn = [s for s in r.steps() if s.estimator == "knn M=4"]
     assert all(b.actual < a.actual for a, b in itertools.pairwise(knn))
     assert knn[-1].actual < 0.5 * knn[0].actual
@@ -194,16 +204,17 @@ def test_consistent_estimation_study(target, tmp_path):
 
 
 @pytest.mark.slow
-@_HONESTY_GAP
+@pytest.mark.timeout(3600)
 def test_consistent_estimation_on_the_shipped_headlight(tmp_path):
-    """Against a long bin reference (25 × the photons): error falls, estimate honest."""
+    """Against a long bin reference (10 × the photons, 40 M): error falls, estimate honest."""
     from pathlib import Path
 
     glb = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
     r = cv.run_converge(str(glb), budgets=(250_000, 1_000_000, 4_000_000),
                         estimators=["knn M=4"], frame_photons=250_000, by_photons=True,
-                        reference_factor=25)
+                        reference_factor=10)
     cv.write_outputs(r, tmp_path)
+    _print_steps(r)
     knn = r.steps()
     assert all(b.actual < a.actual for a, b in itertools.pairwise(knn))
     for s in knn:

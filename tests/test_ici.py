@@ -116,3 +116,83 @@ def test_shield_step_pixel_means_are_exact():
     assert straddling >= 10  # the tilted edge crosses pixels at many offsets
     # lit below the line, dark above
     assert exact[-1, 0] > 0 and exact[0, -1] == 0
+
+
+# -- the error figure against a planted blur (issue 12) ------------------------------------
+
+def _lattice_field(H: int, W: int, level: float) -> np.ndarray:
+    """Expected photons per set in each half-pixel cell: a gradient with an oblique 4:1
+    step (every pixel stays lit at 10 % of the maximum)."""
+    y, x = np.mgrid[0:2 * H, 0:2 * W] + 0.5
+    lam = level * (1.0 + x / (2 * W))
+    return np.where(y > 0.3 * x + 6, lam, 0.25 * lam)
+
+
+def _poisson_sets(lam: np.ndarray, S: int, sides: np.ndarray, rng) -> dict[int, np.ndarray]:
+    """Every set's rungs from its own Poisson photons (unit power) on the lattice, so the
+    rungs are nested exactly as the real windows are."""
+    H, W = lam.shape[0] // 2, lam.shape[1] // 2
+    rows, cols = np.divmod(np.arange(H * W), W)
+    out = {}
+    for s in range(S):
+        sums, cells = ici.window_sums(rng.poisson(lam)[..., None].astype(float), rows, cols,
+                                      sides)
+        out[s] = sums / cells[..., None]
+    return out
+
+
+def _exact_rungs(lam: np.ndarray, sides: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    H, W = lam.shape[0] // 2, lam.shape[1] // 2
+    rows, cols = np.divmod(np.arange(H * W), W)
+    sums, cells = ici.window_sums(lam[..., None], rows, cols, sides)
+    return sums[..., 0] / cells, cells
+
+
+@pytest.mark.parametrize("level", [0.3, 3.0])  # ≈ 20 and 200 photons per pixel (all sets)
+def test_error_figure_is_unbiased_for_a_planted_blur(level):
+    """At a fixed rung (the 4 × 4 window everywhere) the blur and noise the figure reports
+    average to the exact ones, and its standard error matches its scatter."""
+    H, W, S, R = 12, 24, 16, 40
+    sides = np.arange(1, 5)
+    lam = _lattice_field(H, W, level)
+    exact, cells = _exact_rungs(lam, sides)
+    mu = exact[0]
+    true_b2 = np.mean((exact[3] - mu) ** 2) / mu.mean() ** 2
+    true_n2 = np.mean(exact[3] / (cells[3] * S)) / mu.mean() ** 2  # Poisson, pooled sets
+    rng = np.random.default_rng(11)
+    choice = ici.IciChoice(np.full(H * W, 3), None)
+    figs = [ici.error_figure(_poisson_sets(lam, S, sides, rng), choice, 0.0) for _ in range(R)]
+    b2 = np.array([f.bias2 for f in figs])
+    n2 = np.array([f.error.noise**2 for f in figs])
+    se = float(np.mean([f.bias2_se for f in figs]))
+    assert abs(b2.mean() - true_b2) < 4.0 * b2.std(ddof=1) / math.sqrt(R)
+    assert n2.mean() == pytest.approx(true_n2, rel=0.05)
+    assert se == pytest.approx(b2.std(ddof=1), rel=0.35)
+    # the noise subtraction matters: without it the blur would read high by Var(D̄) =
+    # σ₀² − σ₃² (nested windows), several times the tolerance above
+    var_d = np.mean(mu / (cells[0] * S) - exact[3] / (cells[3] * S)) / mu.mean() ** 2
+    assert var_d > 2.5 * 4.0 * b2.std(ddof=1) / math.sqrt(R)
+
+
+def test_written_map_figure_is_honest_although_the_rungs_come_from_the_same_photons():
+    """ICI keeps the large window where D = E_j − E_0 came out small, so D̄² − se_D² at
+    the chosen rungs reads low; the held-out pairs do not (ratio of the figure to the
+    actual error of the written map over repeats)."""
+    H, W, S, R = 10, 20, 16, 30
+    sides = np.arange(1, 5)
+    lam = _lattice_field(H, W, 3.0)
+    exact, cells = _exact_rungs(lam, sides)
+    mu = exact[0]
+    rng = np.random.default_rng(5)
+    emitted = dict.fromkeys(range(S), 1)
+    held, naive = [], []
+    for _ in range(R):
+        sets = _poisson_sets(lam, S, sides, rng)
+        wm = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0)
+        actual = math.sqrt(np.mean((wm.lux[:, 0] - mu) ** 2)) / mu.mean()
+        held.append(wm.error.total / actual)
+        same = ici.error_figure(sets, wm.choice, 0.0, wm.alpha)  # D̄² − se_D², same photons
+        naive.append(same.error.total / actual)
+    assert 0.92 <= np.median(held) <= 1.12
+    assert np.quantile(held, 0.1) >= 0.8 and np.quantile(held, 0.9) <= 1.25
+    assert np.median(naive) < np.median(held) - 0.05  # the bias guarded against is real

@@ -183,8 +183,8 @@ class Session:
         timings = {} if timings is None else timings
         t0 = time.perf_counter()
         emitted = self.emitted_per_set()
-        error, counts_only = self.ici_error(frames, emitted)
-        lux, raw, rungs = self.image(frames, emitted, counts_only)
+        lux, raw, rungs, map_error = self.image(frames, emitted)
+        error = map_error if map_error is not None else self.ici_error(frames, emitted)
         cam_img = self.camera_image(frames, camera)
         timings["assemble"] = time.perf_counter() - t0
         probes = frames.collect("probes")
@@ -253,21 +253,23 @@ class Session:
         rungs = frames.collect("probe_rungs")
         return bool(rungs) and len(rungs) == len(emitted)
 
-    def ici_error(self, frames: SetFrames, emitted: dict[int, int]
-                  ) -> tuple[ErrorEstimate | None, bool]:
-        """The ICI map's error figure (None without ICI rungs from every set) and whether
-        the written map is the plain pixel counts (see :meth:`_ici_error`)."""
+    def ici_error(self, frames: SetFrames, emitted: dict[int, int]) -> ErrorEstimate | None:
+        """The written map's error figure from the ICI rungs at the grid probes (None
+        without rungs from every set; see :meth:`_ici_error`)."""
         if not self._has_ici_rungs(frames, emitted):
-            return None, False
+            return None
         return self._ici_error(frames.collect("probe_rungs"), frames.collect("moments"),
                                emitted)
 
-    def image(self, frames: SetFrames, emitted: dict[int, int], counts_only: bool = False
-              ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-        """The wall image of a frame: (lux, raw, ICI rungs), each None if not rendered.
+    def image(self, frames: SetFrames, emitted: dict[int, int]
+              ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None,
+                         ErrorEstimate | None]:
+        """The wall image of a frame: (lux, raw, ICI rungs, the written map's error figure
+        over every pixel), each None if not rendered.
 
-        Interleaved sub-images are scattered and box-filtered (the paper's frame); ICI
-        rungs are chosen per pixel over all sets; pooled full images are averaged with
+        Interleaved sub-images are scattered and box-filtered (the paper's frame); the
+        written ICI map mixes each pixel's chosen rung with its count
+        (:func:`lightsim.render.ici.written_map`); pooled full images are averaged with
         the sets' photon counts as weights.
         """
         subs = frames.collect("sub_image")
@@ -275,15 +277,15 @@ class Session:
         fulls = frames.collect("full_image")
         if subs:
             lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
-            return lux, raw, None
+            return lux, raw, None, None
         if full_rungs:
-            lux, rungs = self._ici_image(full_rungs, frames.collect("moments"), emitted,
-                                         counts_only)
-            return lux, lux, rungs
+            lux, rungs, error = self._ici_image(full_rungs, frames.collect("moments"),
+                                                emitted)
+            return lux, lux, rungs, error
         if fulls:
             lux = pool_full_images(fulls, emitted)
-            return lux, lux, None
-        return None, None, None
+            return lux, lux, None, None
+        return None, None, None, None
 
     def camera_image(self, frames: SetFrames, camera) -> np.ndarray | None:
         """The camera view's luminance (cd/m²), interleaved and box-filtered."""
@@ -314,44 +316,33 @@ class Session:
                                     ici.wall_photons(moments) / (W * H)))
 
     def _ici_image(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int], counts_only: bool = False
-                   ) -> tuple[np.ndarray, np.ndarray]:
-        """The written map: every pixel at its ICI rung over all sets, (H, W, C) lx
-        (``counts_only``: every pixel at rung 0, its own photon count)."""
+                   emitted: dict[int, int]
+                   ) -> tuple[np.ndarray, np.ndarray, ErrorEstimate | None]:
+        """The written map, every pixel at its rung (:func:`ici.written_map`), (H, W, C) lx,
+        the rungs (H, W) and the map's error figure over every pixel."""
         from lightsim.render import ici
 
         first = next(iter(rungs.values()))
         J1, H, W, C = first.shape
-        J1 = 1 if counts_only else self._ici_rungs_now(J1, moments)
+        J1 = self._ici_rungs_now(J1, moments)
         flat = {s: np.asarray(v)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
         rows, cols = np.divmod(np.arange(H * W), W)
-        choice = ici.choose(flat, emitted, ici.power_moment(moments),
-                            self._ici_areas(rows, cols), self.config.ici_gamma)
-        return choice.lux.reshape(H, W, C), choice.rung.reshape(H, W)
+        wm = ici.written_map(flat, emitted, ici.power_moment(moments),
+                             self._ici_areas(rows, cols), self.config.ici_gamma)
+        return wm.lux.reshape(H, W, C), wm.choice.rung.reshape(H, W), wm.error
 
     def _ici_error(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int]) -> tuple[ErrorEstimate | None, bool]:
-        """The error figure of the written map from the pixels under the grid probes, and
-        whether that map is the plain pixel counts.
-
-        Both maps are consistent; where ICI keeps a blur that no single pixel can see but
-        the figure (averaged over the lit probes) does, the pixel counts' own estimated
-        error (their noise, no blur) can be the lower one — then the map is the counts.
-        """
+                   emitted: dict[int, int]) -> ErrorEstimate | None:
+        """The error figure of the written map from the pixels under the grid probes (the
+        frames between images; the image itself is measured over every pixel)."""
         from lightsim.render import ici
 
         grid = self.probes_hv[:self.grid_count]
         rows, cols = ici.pixel_of(self.scene.wall, grid[:, 0], grid[:, 1])
         J1 = self._ici_rungs_now(next(iter(rungs.values())).shape[0], moments)
         rungs = {s: np.asarray(v)[:J1] for s, v in rungs.items()}
-        choice = ici.choose(rungs, emitted, ici.power_moment(moments),
-                            self._ici_areas(rows, cols), self.config.ici_gamma)
-        err = ici.estimate_error(rungs, choice)
-        zero = np.zeros_like(choice.rung)
-        counts = ici.estimate_error(rungs, ici.IciChoice(zero, choice.lux))
-        if err is not None and counts is not None and counts.total < err.total:
-            return counts, True
-        return err, False
+        return ici.written_map(rungs, emitted, ici.power_moment(moments),
+                               self._ici_areas(rows, cols), self.config.ici_gamma).error
 
     def probe(self, points_hv: np.ndarray) -> ProbeStats:
         """Estimates of every set at wall points (h, v in m): mean, standard error, values."""

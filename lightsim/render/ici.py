@@ -40,6 +40,9 @@ parameter        unit   default   meaning
 ``gamma``        –      2.0       interval half-width Γ in standard errors
                                   (``RunConfig.ici_gamma``)
 ``q``            lm     –         power-weighted mean photon power ΣΦ²/ΣΦ (all sets)
+``CERTIFY``      –      0.25      the blur estimate's standard error may be at most this
+                                  × the squared error the figure reports
+``MIX_STEPS``    –      40        steps of the counts' weight α in the written map
 ===============  =====  ========  ========================================================
 """
 
@@ -211,6 +214,14 @@ def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     areas = np.asarray(areas, dtype=np.float64)[:pooled.shape[0]]
     n = sum(emitted[s] for s in order)
     E = luminous(pooled.reshape(-1, pooled.shape[-1])).reshape(pooled.shape[:2])  # (J+1, Q)
+    rung = ici_rungs(E, n, q, areas, gamma)
+    lux = np.take_along_axis(pooled, rung[None, :, None], 0)[0]
+    return IciChoice(rung, lux)
+
+
+def ici_rungs(E: np.ndarray, n: float, q: float, areas: np.ndarray, gamma: float
+              ) -> np.ndarray:
+    """(Q,) the ICI rung of luminous rung estimates E (J+1, Q) lx from n photons."""
     J = E.shape[0] - 1
     if n > 0 and q > 0:
         base = np.maximum(np.maximum(E, E[-1][None, :]), 0.0)
@@ -225,8 +236,48 @@ def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         hi = np.minimum(hi, E[j] + gamma * sig[j])
         alive &= lo <= hi
         rung[alive] = j
-    lux = np.take_along_axis(pooled, rung[None, :, None], 0)[0]
-    return IciChoice(rung, lux)
+    return rung
+
+
+def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
+                  areas: np.ndarray, gamma: float, groups: list[np.ndarray] | None = None
+                  ) -> np.ndarray:
+    """(G, Q) lx²: per query an unbiased estimate of the squared blur of an ICI choice,
+    from the pairs of sets within each of the G ``groups`` (positions in set order;
+    default one group of all sets).
+
+    The blur of the chosen rung is measured against rung 0 by D = E_j − E_0, but the
+    rung is chosen from the same photons: ICI keeps the large rung exactly where D came
+    out small, so D̄² − se_D² at the chosen rungs reads low (on a synthetic step,
+    0.82 × the actual error). Here every pair of sets (s, t) is left out of the choice:
+    with j the ICI rung of the other S − 2 sets, E[D_s D_t] = b(j)², the squared blur of
+    a choice made from (S − 2)/S of the photons (a little larger than the full choice's).
+    The mean over each group's pairs is returned.
+    """
+    order = sorted(rungs)
+    S = len(order)
+    R = np.stack([luminous(np.asarray(rungs[k], np.float64)) for k in order])  # (S, J+1, Q)
+    e = np.array([emitted[k] for k in order], dtype=np.float64)
+    total = R.sum(axis=0) if e.sum() <= 0 else np.tensordot(e, R, 1)  # Σ n_s E_s
+    n_all = float(e.sum())
+    D = R - R[:, :1]  # (S, J+1, Q)
+    areas = np.asarray(areas, dtype=np.float64)[:R.shape[1]]
+    groups = [np.arange(S)] if groups is None else groups
+    out = np.zeros((len(groups), R.shape[2]))
+    cols = np.arange(R.shape[2])
+    for g, members in enumerate(groups):
+        pairs = 0
+        for i, a in enumerate(members):
+            for b in members[i + 1:]:
+                n = n_all - e[a] - e[b]
+                if n <= 0:
+                    continue
+                E = (total - e[a] * R[a] - e[b] * R[b]) / n
+                j = ici_rungs(E, n, q, areas, gamma)
+                out[g] += D[a, j, cols] * D[b, j, cols]
+                pairs += 1
+        out[g] /= max(pairs, 1)
+    return out
 
 
 def chosen_per_set(rungs: dict[int, np.ndarray], rung: np.ndarray) -> np.ndarray:
@@ -235,39 +286,227 @@ def chosen_per_set(rungs: dict[int, np.ndarray], rung: np.ndarray) -> np.ndarray
                                         rung[None, :, None], 0)[0] for s in sorted(rungs)])
 
 
-def estimate_error(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float = 0.1
-                   ) -> ErrorEstimate | None:
-    """Noise and blur of the ICI map over the lit queries (the grid probes).
+CERTIFY = 0.25  # largest standard error of the blur estimate, × the squared error it certifies
 
-    Noise: the spread of the sets' values at the chosen rungs. Blur: D = chosen − rung 0
-    per set (rung 0, the pixel window, is unbiased for the pixel mean); mean(D̄² − se_D²)
-    over the lit probes estimates the mean squared bias (0 where rung 0 was chosen), as in
-    :func:`lightsim.render.frame.estimate_error`. Lit: rung 0's mean ≥ ``lit_fraction`` ×
-    the map's maximum. None with one set or nothing lit.
+
+@dataclass(frozen=True)
+class ErrorFigure:
+    """The error figure of a map at given rungs, with the precision of its blur part.
+
+    All in units of the mean lit illuminance (dimensionless; squares where named so).
+
+    Attributes
+    ----------
+    error : ErrorEstimate
+        noise, blur and their sum as :class:`~lightsim.render.frame.ErrorEstimate`.
+    bias2 : float
+        Unbiased estimate of the mean squared blur (may be negative: noise).
+    bias2_se : float
+        Its standard error from the sets' scatter (the pixels are the whole region, not a
+        sample of it: only the noise of the estimate counts).
+    lit : int
+        Pixels (or probes) averaged.
+    """
+
+    error: ErrorEstimate
+    bias2: float
+    bias2_se: float
+    lit: int
+
+    @property
+    def certified(self) -> bool:
+        """Whether the blur estimate is precise enough to sign the figure: its standard
+        error is at most :data:`CERTIFY` × the squared error it reports (the figure then
+        scatters by about half that, ±12 %)."""
+        return self.bias2_se <= CERTIFY * self.error.total**2
+
+
+def error_figure(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float = 0.1,
+                 alpha: float = 0.0, blur: np.ndarray | None = None) -> ErrorFigure | None:
+    """Noise and blur of the map ``choice`` over the lit queries (pixels or probes), mixed
+    with weight ``alpha`` with the pixel counts (rung 0): (1 − α) chosen + α rung 0.
+    ``blur`` (2, Q) lx²: per-query squared-blur estimates of the unmixed map from each half
+    of the sets, to use instead of D̄² − se_D² (:func:`held_out_blur` over the halves, for
+    a choice made from these photons).
+
+    Noise: the spread of the S sets' values at the chosen rungs, se² = s²/S per query.
+    Blur: per set D = chosen − rung 0 (rung 0, the pixel window, is unbiased for the pixel
+    mean), so E[D̄² − se_D²] = b² at each query and their mean over the lit queries is an
+    unbiased estimate of the mean squared bias (0 where rung 0 was chosen). Its variance
+    is Σ (2 v² + 4 b² v) / n² with v = Var(D̄) (estimated by se_D², v² by
+    se_D⁴ (S − 1)/(S + 1), b² by the mean): for a window of A pixels v ≈ σ₀² (1 − 1/A),
+    the noise of the pixel's own count, which bounds how well any blur can be measured
+    (:attr:`ErrorFigure.certified`).
+
+    Lit: rung 0's mean and the map ≥ ``lit_fraction`` × the map's maximum; relative to
+    rung 0's mean over the lit queries, which is unbiased for the exact mean there (the
+    map's own mean is blurred). None with one set or nothing lit.
+    """
+    mix = _mix_parts(rungs, choice, lit_fraction, blur)
+    return None if mix is None else mix.figure(alpha)
+
+
+@dataclass(frozen=True)
+class _MixParts:
+    """The parts of :func:`error_figure` that depend on the counts' weight α only through
+    (1 − α)² (blur and its standard error) or a quadratic (noise): means over the lit
+    queries of the chosen values' variance ``a``, the counts' ``b`` and their covariance
+    ``c`` (each /S, relative²), the blur² ``b2`` and its standard error ``se`` at α = 0."""
+
+    a: float
+    b: float
+    c: float
+    b2: float
+    se: float
+    lit: int
+
+    def figure(self, alpha: float) -> ErrorFigure | None:
+        k = (1.0 - alpha) ** 2
+        n2 = k * self.a + 2.0 * alpha * (1.0 - alpha) * self.c + alpha * alpha * self.b
+        noise = math.sqrt(max(n2, 0.0))
+        b2, se = k * self.b2, k * self.se
+        if not all(math.isfinite(x) for x in (noise, b2, se)):
+            return None
+        bias = math.sqrt(max(b2, 0.0))
+        upper = math.sqrt(max(b2 + 2.0 * se, 0.0))
+        return ErrorFigure(ErrorEstimate(math.hypot(noise, bias), noise, bias, upper), b2, se,
+                           self.lit)
+
+
+def _halves(S: int) -> list[np.ndarray]:
+    """Two halves of the sets (positions in set order): even and odd."""
+    return [np.arange(0, S, 2), np.arange(1, S, 2)]
+
+
+def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
+               blur: np.ndarray | None) -> _MixParts | None:
+    """The figure's parts, each half of the sets measured over the pixels the other half
+    calls lit (``blur``: (2, Q) from :func:`held_out_blur` over :func:`_halves`, or None).
+
+    Lit — the pixel's own count and the map both ≥ ``lit_fraction`` × the map's maximum —
+    is decided by data the half does not use: decided and measured on the same photons,
+    dim pixels that caught a stray photon come in exactly when they scatter most (on the
+    paraboloid 36 such pixels tripled the noise figure).
     """
     if len(rungs) < 2:
         return None
     vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
     win = luminous(np.stack([np.asarray(rungs[s], np.float64)[0] for s in sorted(rungs)]))
     S = vals.shape[0]
-    m = vals.mean(axis=0)
-    if vals.shape[1] == 0 or not np.any(m > 0):
+    if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
         return None
-    lit = win.mean(axis=0) >= lit_fraction * m.max()
-    if not lit.any():
+    halves = _halves(S) if S >= 4 else [np.arange(S)]
+    thr = lit_fraction * vals.mean(axis=0).max()
+    parts = []
+    for h, own in enumerate(halves):
+        other = halves[1 - h] if len(halves) == 2 else own
+        lit = (win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr)
+        p = _half_parts(vals[own][:, lit], win[own][:, lit], S,
+                        None if blur is None else np.asarray(blur)[h][lit])
+        if p is not None:
+            parts.append(p)
+    if not parts:
         return None
-    mean_lit = float(np.mean(m[lit]))
-    se = vals.std(axis=0, ddof=1) / math.sqrt(S)
-    noise = math.sqrt(float(np.mean(se[lit] ** 2))) / mean_lit
-    if not math.isfinite(noise):
+    k = len(parts)
+    return _MixParts(*(sum(getattr(p, f) for p in parts) / k for f in ("a", "b", "c", "b2")),
+                     math.sqrt(sum(p.se**2 for p in parts)) / k,
+                     round(sum(p.lit for p in parts) / k))
+
+
+def _half_parts(v_l: np.ndarray, w_l: np.ndarray, S: int, blur: np.ndarray | None
+                ) -> _MixParts | None:
+    """Parts from some of the sets (rows) over the lit queries (columns) for the pooled
+    map of all S sets."""
+    s_h, n = v_l.shape
+    if n == 0 or s_h < 2:
         return None
-    d = vals - win
-    d_mean, d_se = d.mean(axis=0), d.std(axis=0, ddof=1) / math.sqrt(S)
-    terms = (d_mean**2 - d_se**2)[lit]
-    b2 = float(np.mean(terms))
-    se_b2 = float(np.std(terms, ddof=1) / math.sqrt(terms.size)) if terms.size > 1 else 0.0
-    bias: float | None = math.sqrt(max(b2, 0.0)) / mean_lit
-    upper: float | None = math.sqrt(max(b2 + 2.0 * se_b2, 0.0)) / mean_lit
-    if not (math.isfinite(bias) and math.isfinite(upper)):  # type: ignore[arg-type]
-        bias = upper = None
-    return ErrorEstimate(math.hypot(noise, bias or 0.0), noise, bias, upper)
+    mean_lit = float(w_l.mean())
+    if not mean_lit > 0:
+        return None
+    dv, dw = v_l - v_l.mean(axis=0), w_l - w_l.mean(axis=0)
+    norm = (s_h - 1) * S * n * mean_lit**2  # sample (co)variance / S, mean over lit, relative
+    a, b, c = (float(np.sum(x * y)) / norm for x, y in ((dv, dv), (dw, dw), (dv, dw)))
+    d = v_l - w_l
+    d_mean, v = d.mean(axis=0), d.var(axis=0, ddof=1) / s_h  # v: Var(D̄) of these sets
+    terms = d_mean**2 - v if blur is None else np.asarray(blur, np.float64)
+    b2 = float(np.mean(terms)) / mean_lit**2
+    # Σ 4 b² v with the mean b² (one query's b² estimate is mostly noise, and its positive
+    # part would double the variance at a few photons per pixel)
+    var = float(np.sum(2.0 * v * v * (s_h - 1) / (s_h + 1))
+                + 4.0 * max(b2, 0.0) * mean_lit**2 * np.sum(v))
+    se = math.sqrt(max(var, 0.0)) / n / mean_lit**2
+    if not all(math.isfinite(x) for x in (a, b, c, b2, se)):
+        return None
+    return _MixParts(a, b, c, b2, se, n)
+
+
+def estimate_error(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float = 0.1
+                   ) -> ErrorEstimate | None:
+    """The :class:`~lightsim.render.frame.ErrorEstimate` of :func:`error_figure`."""
+    fig = error_figure(rungs, choice, lit_fraction)
+    return None if fig is None else fig.error
+
+
+MIX_STEPS = 40  # the weight of the pixel counts is searched in steps of 1/40
+
+
+@dataclass
+class WrittenMap:
+    """The map the run writes, its error figure and its weight on the pixel counts.
+
+    Attributes
+    ----------
+    choice : IciChoice
+        The ICI rungs and their pooled values.
+    lux : (Q, C) float64
+        The written values (lx): (1 − α) ``choice.lux`` + α rung 0.
+    alpha : float
+        Weight α of the pixel counts (0: the ICI map, 1: the counts).
+    figure : ErrorFigure or None
+    """
+
+    choice: IciChoice
+    lux: np.ndarray
+    alpha: float
+    figure: ErrorFigure | None
+
+    @property
+    def error(self) -> ErrorEstimate | None:
+        return None if self.figure is None else self.figure.error
+
+
+def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
+                areas: np.ndarray, gamma: float, lit_fraction: float = 0.1) -> WrittenMap:
+    """The ICI map mixed with the pixel counts: the lowest error that can be signed.
+
+    A window's blur is measured against the pixel's own count, whose noise σ₀ does not
+    fall with the window: the blur estimate's standard error is ≈ √2 σ₀² / √n over n lit
+    pixels whatever the map, so a map whose error is below ≈ (2/n)^¼ σ₀ carries an error
+    its figure cannot state (issue 12: the ICI figure read 0.65–1.05 × the actual error on
+    the shield at 250 k photons, from seed to seed). Mixing in the counts with weight α
+    scales the blur and its standard error by (1 − α)² and trades it for count noise, so
+    the written map is (1 − α) ICI + α counts with α (in steps of 1/:data:`MIX_STEPS`)
+    the lowest figure among those that are :attr:`ErrorFigure.certified`. α = 0 where the
+    ICI map is both best and measurable; α → 1 where ICI keeps a blur that no single pixel
+    can see but the figure, over all lit pixels, does (the curvature of a smooth beam
+    inside a 4 × 4 window: the counts are then better); α = 1, the counts, is always
+    certified. One number chosen from n pixels' figures adds little optimism; the blur
+    part is :func:`held_out_blur`, free of the per-pixel choice's.
+
+    ``rungs`` {set: (J+1, Q, C)} already cut to the ladder allowed at these photons
+    (:func:`shrink_sides`); the other parameters as in :func:`choose`.
+    """
+    choice = choose(rungs, emitted, q, areas, gamma)
+    blur = (held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)))
+            if len(rungs) >= 4 else None)
+    order = sorted(rungs)
+    w = _weights(emitted, order)
+    counts = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64)[0] for s in order]), 1)
+    mix = _mix_parts(rungs, choice, lit_fraction, blur)
+    fig, alpha = None, 0.0
+    if mix is not None:
+        figs = [(mix.figure(k / MIX_STEPS), k / MIX_STEPS) for k in range(MIX_STEPS + 1)]
+        ok = [(f.error.total, a, f) for f, a in figs if f is not None and f.certified]
+        if ok:
+            _, alpha, fig = min(ok, key=lambda t: (t[0], t[1]))
+    return WrittenMap(choice, (1.0 - alpha) * choice.lux + alpha * counts, alpha, fig)
