@@ -153,7 +153,7 @@ def test_help_shows_every_option_with_unit_range_and_default():
 
 def test_max_radius_help_says_what_the_estimator_does(lamp):
     """The auto max radius in --help comes from MAX_RADIUS_FACTOR; the estimator uses it."""
-    from lightsim.engine.client import effective_radii
+    from lightsim.engine.estimator import effective_radii
     from lightsim.scene import load_scene
 
     wall = load_scene(str(lamp), wall_distance=2.0, wall_size=(4.0, 2.0),

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from lightsim.engine.config import RunConfig
+from lightsim.engine.config import MAX_RADIUS_FACTOR, RunConfig
 from lightsim.engine.photonset import SetState
 from lightsim.engine.results import RenderRequest, SetFrame
 from lightsim.render.interleave import InterleavePattern
@@ -63,7 +63,7 @@ def effective_radii(config: RunConfig, frame: WallFrame, mode: str | None = None
     mode = mode or config.final
     r_min = (config.min_radius if config.min_radius is not None
              else default_min_radius(config, frame, mode))
-    factor = 4.0 if mode == "pooled" else 2.0
+    factor = MAX_RADIUS_FACTOR["pooled" if mode == "pooled" else "interleaved"]
     r_max = config.max_radius if config.max_radius is not None else factor * r_min
     return r_min, max(r_max, r_min)
 
