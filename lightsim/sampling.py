@@ -160,21 +160,6 @@ _RI0, _RI1, _RI2, _RI3, _RI4 = (_radical_inverse_in(d) for d in range(N_DIMS))
 
 
 @njit(cache=True, parallel=True)
-def halton_points(indices: np.ndarray, perms: np.ndarray) -> np.ndarray:
-    """Scrambled Halton points, (n, N_DIMS) float64 in [0, 1), for int64 ``indices``."""
-    n = indices.shape[0]
-    out = np.empty((n, N_DIMS), dtype=np.float64)
-    for i in prange(n):
-        j = indices[i]
-        out[i, 0] = _RI0(j, perms)
-        out[i, 1] = _RI1(j, perms)
-        out[i, 2] = _RI2(j, perms)
-        out[i, 3] = _RI3(j, perms)
-        out[i, 4] = _RI4(j, perms)
-    return out
-
-
-@njit(cache=True, parallel=True)
 def halton_points_grouped(indices: np.ndarray, group: np.ndarray, perms: np.ndarray
                           ) -> np.ndarray:
     """:func:`halton_points` of several sets in one parallel pass: point i is index
@@ -191,6 +176,15 @@ def halton_points_grouped(indices: np.ndarray, group: np.ndarray, perms: np.ndar
         out[i, 3] = _RI3(j, p)
         out[i, 4] = _RI4(j, p)
     return out
+
+
+def halton_points(indices: np.ndarray, perms: np.ndarray) -> np.ndarray:
+    """Scrambled Halton points, (n, N_DIMS) float64 in [0, 1), for int64 ``indices``
+    under one set's scramble ``perms`` ((N_DIMS, MAX_DIGITS, 11)): the grouped kernel with
+    a single group."""
+    indices = np.ascontiguousarray(indices, dtype=np.int64)
+    return halton_points_grouped(indices, np.zeros(len(indices), np.int64),
+                                 np.ascontiguousarray(perms)[None])
 
 
 # --------------------------------------------------------------------------------------
