@@ -2,8 +2,10 @@
 
 Ray here would otherwise bind to the machine's other address even when told to use
 127.0.0.1; inside the namespace only ``lo`` exists, so every test talks over loopback.
-Root uses ``unshare --net``; other users try an unprivileged user namespace
-(``unshare -rn``). Without either, the Ray tests are skipped with the reason.
+Root uses ``unshare --net`` (with a private PID namespace where allowed, so that
+``ray stop`` in a test cannot touch other Ray processes); other users try an
+unprivileged user namespace (``unshare -rn``). Without either, the Ray tests are skipped
+with the reason.
 """
 
 from __future__ import annotations
@@ -21,7 +23,11 @@ RAY_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
 def _unshare_prefix() -> list[str]:
     if shutil.which("unshare") is None:
         pytest.skip("unshare(1) not available: cannot isolate Ray on loopback")
-    for prefix in (["unshare", "--net"], ["unshare", "-rn"]):
+    # A PID namespace too (when allowed): `ray stop` inside then sees only this test's
+    # processes, never another Ray session running on the same machine.
+    pid = ["--pid", "--fork", "--mount-proc"]
+    for prefix in (["unshare", "--net", *pid], ["unshare", "-rn", *pid],
+                   ["unshare", "--net"], ["unshare", "-rn"]):
         probe = subprocess.run([*prefix, "true"], capture_output=True, timeout=20)
         if probe.returncode == 0:
             return prefix

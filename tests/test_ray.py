@@ -7,8 +7,10 @@ backend comparison and the fault test, and one two-node cluster for ``--address`
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,16 +110,20 @@ def test_cluster_address_two_nodes(tmp_path):
     common = ("--photons 80000 --frame-photons 40000 -M 2 --wall-distance 2 "
               "--wall-size 4x4 --resolution 32x32 --quiet")
     port = 6391
+    # the ray command of this interpreter's environment (a venv's bin need not be on PATH)
+    ray = (shutil.which("ray", path=str(Path(sys.executable).parent))
+           or f'{sys.executable} -c "from ray.scripts.scripts import main; main()"')
+    sim = f"{sys.executable} -m lightsim.cli.main simulate {tmp_path / 'lamp.glb'} {common}"
     script = f"""
         set -e
-        trap 'ray stop --force >/dev/null 2>&1 || true' EXIT
+        trap '{ray} stop --force >/dev/null 2>&1 || true' EXIT
         {sys.executable} {lamp}
-        ray start --head --port={port} --num-cpus=1 --include-dashboard=false \
+        {ray} start --head --port={port} --num-cpus=1 --include-dashboard=false \
             --disable-usage-stats >/dev/null
-        ray start --address=127.0.0.1:{port} --num-cpus=1 >/dev/null
-        lightsim simulate {tmp_path / 'lamp.glb'} {common} --out {out_a} \
+        {ray} start --address=127.0.0.1:{port} --num-cpus=1 >/dev/null
+        {sim} --out {out_a} \
             --address 127.0.0.1:{port} --workers 2
-        lightsim simulate {tmp_path / 'lamp.glb'} {common} --out {out_b}
+        {sim} --out {out_b}
         {sys.executable} -c "import ray; ray.init(address='127.0.0.1:{port}', \
             log_to_driver=False); print('NODES', len([n for n in ray.nodes() if n['Alive']]))"
     """
