@@ -415,7 +415,8 @@ class Session:
         last frame is partial, except with Selective Photon Tracing, whose passes are whole),
         ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — with the
         blur at its upper bound, so an unresolved blur cannot stop a run early (after at
-        least ``min_frames`` frames). With no budget at all, one frame is shot.
+        least ``min_frames`` frames), first at the probes and then confirmed on the
+        written map itself. With no budget at all, one frame is shot.
         ``probes=False`` leaves the probe estimates (``FrameResult.probes``) out of the
         final image when the caller does not read them (the error figure of an ICI map
         does not need them).
@@ -449,7 +450,12 @@ class Session:
             if callback is not None:
                 callback(est)
             if self.error_low_enough(est, target_error, min_frames):
-                break
+                # The frame's figure comes from the grid probes; the written map (every
+                # pixel, held-out blur) is what the run delivers, so it has the last word.
+                final = self.final_image(probes)
+                if self.error_low_enough(final, target_error, min_frames):
+                    return final
+                schedule.estimated(done, final)
         return self.final_image(probes)
 
     def budget_spent(self, photons: int | None, seconds: float | None,
