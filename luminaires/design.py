@@ -119,8 +119,8 @@ LEFT_SPREAD = 1.4  # the non-traffic side spreads further: the hot spot sits rig
 LIT_MIN = 0.6
 DROP_FROM_DEG = -1.5  # the drop ramps in from here (deg, + = traffic side) to 2°: the hot spot
 # near V sinks too (measured: ramping from V left H-V at 2 100 cd, zone III ≤ 625)
-SIGN_AIMS = ((-8.0, 0.5, 0.85), (-5.5, -0.8, 1.0), (-4.5, 2.6, 0.9), (-0.5, 2.0, 2.3),
-             (4.6, 1.9, 1.9), (-8.0, 3.8, 1.1), (-1.0, 3.8, 1.1), (9.5, 4.0, 1.1),
+SIGN_AIMS = ((-8.0, 0.5, 0.85), (-5.5, -0.8, 1.0), (-3.5, 2.8, 0.7), (-0.5, 2.0, 2.3),
+             (4.6, 1.9, 1.6), (-8.0, 4.0, 1.7), (-0.5, 4.0, 1.3), (10.0, 4.2, 1.3),
              (-10.0, -2.0, 4.0))
 """Where the overhead-sign slivers put their image centres (deg) and their relative widths
 (× ``sign_share``; measured: the V and right points get less overlap from the others):

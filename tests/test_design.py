@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import subprocess
 import sys
@@ -141,7 +142,7 @@ def test_sign_slivers_put_their_images_on_their_aims_and_keep_the_tiling():
     # the other rings are untouched
     ring0 = sorted((f.phi0_rad, f.phi1_rad) for f in facets[:lay.sectors] + slivers)
     assert ring0[0][0] == pytest.approx(0.0) and ring0[-1][1] == pytest.approx(2 * math.pi)
-    assert all(a[1] == pytest.approx(b[0]) for a, b in zip(ring0, ring0[1:]))
+    assert all(a[1] == pytest.approx(b[0]) for a, b in itertools.pairwise(ring0))
     assert facets[lay.sectors:n] == base[lay.sectors:n]
     share = sum(f.phi1_rad - f.phi0_rad for f in slivers) / (2 * math.pi / lay.sectors)
     assert share == pytest.approx(0.03 * sum(a[2] for a in SIGN_AIMS))
