@@ -20,8 +20,9 @@ as R112 annex 9 draws it): the top of a low beam is the upper edge of the filame
     v_k = min over the image of [c(h_k + Δh) − Δv] − drop_r·w_k  image top on the cut-off
     f_k = f · scale_r                                            image size ∝ 1/f_k
 
-(w_k = clip(h_k / 2°, 0, 1): only facets aimed to the traffic side sink below the line,
-the flat cut-off stays made of image tops exactly on it, sharp), h0 (where the hot spot
+(w_k = clip((h_k − DROP_FROM_DEG) / (2° − DROP_FROM_DEG), 0, 1), DROP_FROM_DEG = −1.5°:
+facets aimed to the traffic side and the hot spot next to the elbow sink below the line,
+so H-V stays dark; the flat cut-off further left stays made of image tops on it, sharp), h0 (where the hot spot
 sits) and ``lift``, which raises the vertex ring's large, dim images above the cut-off so
 that points 7 and 8 (on H, 65–625 cd) and the sums of points 1–6 get their light. The flat
 cut-off level v0 is calibrated (below) so that the lamp needs no aiming (and its road view
@@ -79,6 +80,9 @@ safety            –      0.10         relative margin asked beyond every limit
 reach_m           m      25           1 lx road reach asked for (lamp 0.65 m high)
 smooth_max        –      2.0          largest allowed lux / Gaussian-smoothed lux (σ 1°)
 validate_factor   –      4            photons of the fresh-seed validation run ÷ photons
+sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet's azimuth
+                                      per overhead-sign sliver (× its weight in
+                                      ``SIGN_AIMS``), dim light above the cut-off
 ================  =====  ===========  =====================================================
 """
 
