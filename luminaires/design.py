@@ -22,7 +22,8 @@ as R112 annex 9 draws it): the top of a low beam is the upper edge of the filame
 
 (w_k = clip((h_k − DROP_FROM_DEG) / (2° − DROP_FROM_DEG), 0, 1), DROP_FROM_DEG = −1.5°:
 facets aimed to the traffic side and the hot spot next to the elbow sink below the line,
-so H-V stays dark; the flat cut-off further left stays made of image tops on it, sharp), h0 (where the hot spot
+so H-V stays dark; the flat cut-off further left stays made of image tops on it, sharp),
+h0 (where the hot spot
 sits) and ``lift``, which raises the vertex ring's large, dim images above the cut-off so
 that points 7 and 8 (on H, 65–625 cd) and the sums of points 1–6 get their light. The flat
 cut-off level v0 is calibrated (below) so that the lamp needs no aiming (and its road view
