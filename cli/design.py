@@ -61,12 +61,15 @@ def _resolution(text: str) -> tuple[int, int]:
 @click.option("--start", default=None,
               help="Comma-separated start vector x (h0, then spread, drop, scale per ring); "
                    "default: the geometric start.")
+@click.option("--sign-share", type=float, default=0.03, show_default=True,
+              help="Share of a lit vertex-ring facet's azimuth given to each overhead-sign "
+                   "sliver (dim light above the cut-off: points 1-8); 0: none.")
 @click.option("--quiet", "-q", is_flag=True)
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
            resolution: str, validate_factor: int, check_photons: int, seed: int,
            safety: float, reach: float, traffic: str, check_dir: str, start: str | None,
-           quiet: bool) -> None:
+           sign_share: float, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
     from rich.console import Console
@@ -84,7 +87,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
         raise InputError(f"--check-photons must be ≥ 0, got {check_photons}")
     res = _resolution(resolution)
     layout = Layout(rings=rings, sectors=sectors, focal_length_m=focal_length * 1e-3,
-                    aperture_m=opening * 1e-3, bulb=name, traffic=traffic)
+                    aperture_m=opening * 1e-3, bulb=name, traffic=traffic,
+                    sign_share=sign_share)
     layout.check()
     x0 = None
     if start is not None:

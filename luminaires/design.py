@@ -20,8 +20,10 @@ as R112 annex 9 draws it): the top of a low beam is the upper edge of the filame
     v_k = min over the image of [c(h_k + Δh) − Δv] − drop_r·w_k  image top on the cut-off
     f_k = f · scale_r                                            image size ∝ 1/f_k
 
-(w_k = clip(h_k / 2°, 0, 1): only facets aimed to the traffic side sink below the line,
-the flat cut-off stays made of image tops exactly on it, sharp), h0 (where the hot spot
+(w_k = clip((h_k − DROP_FROM_DEG) / (2° − DROP_FROM_DEG), 0, 1), DROP_FROM_DEG = −1.5°:
+facets aimed to the traffic side and the hot spot next to the elbow sink below the line,
+so H-V stays dark; the flat cut-off further left stays made of image tops on it, sharp),
+h0 (where the hot spot
 sits) and ``lift``, which raises the vertex ring's large, dim images above the cut-off so
 that points 7 and 8 (on H, 65–625 cd) and the sums of points 1–6 get their light. The flat
 cut-off level v0 is calibrated (below) so that the lamp needs no aiming (and its road view
@@ -79,6 +81,9 @@ safety            –      0.10         relative margin asked beyond every limit
 reach_m           m      25           1 lx road reach asked for (lamp 0.65 m high)
 smooth_max        –      2.0          largest allowed lux / Gaussian-smoothed lux (σ 1°)
 validate_factor   –      4            photons of the fresh-seed validation run ÷ photons
+sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet's azimuth
+                                      per overhead-sign sliver (× its weight in
+                                      ``SIGN_AIMS``), dim light above the cut-off
 ================  =====  ===========  =====================================================
 """
 
@@ -117,6 +122,16 @@ MAX_RADIUS_M: float | None = None  # kNN radius cap in the loop (None: the engin
 CALIBRATION_STEPS = 2
 LEFT_SPREAD = 1.4  # the non-traffic side spreads further: the hot spot sits right of V
 LIT_MIN = 0.6
+DROP_FROM_DEG = -1.5  # the drop ramps in from here (deg, + = traffic side) to 2°: the hot spot
+# near V sinks too (measured: ramping from V left H-V at 2 100 cd, zone III ≤ 625)
+SIGN_AIMS = ((-8.0, 0.5, 0.85), (-5.5, -0.8, 1.0), (-3.5, 2.8, 0.7), (-0.5, 2.0, 2.3),
+             (4.6, 1.9, 1.6), (-8.0, 4.0, 1.7), (-0.5, 4.0, 1.3), (10.0, 4.2, 1.3),
+             (-10.0, -2.0, 4.0))
+"""Where the overhead-sign slivers put their image centres (deg) and their relative widths
+(× ``sign_share``; measured: the V and right points get less overlap from the others):
+R112 asks for 65–625 cd
+above the cut-off (points 7, 8, the sums of points 1–3 and 4–6), a dim glow over zone III
+that a lamp cannot leave to stray light. The last sliver widens the left foreground (25L)."""
 SHADED_DROP_DEG = 8.0
 """Facets the cup leaves less lit than ``LIT_MIN`` are aimed ``SHADED_DROP_DEG`` under the
 cut-off: the light that reaches them past the cup's rims and end plates (and, reflected
@@ -148,6 +163,7 @@ class Layout:
     traffic: str = "right"
     cutoff_v_deg: float = TARGET_V_DEG
     ring_offsets_deg: tuple[float, ...] = ()
+    sign_share: float = 0.0
 
     @property
     def n_params(self) -> int:
@@ -157,6 +173,10 @@ class Layout:
         if not (1 <= self.rings <= 8 and 2 <= self.sectors <= 32):
             raise InputError(f"--rings must be 1–8 and --sectors 2–32, got {self.rings}, "
                              f"{self.sectors}")
+        if not (math.isfinite(self.sign_share) and 0 <= self.sign_share
+                and self.sign_share * sum(a[2] for a in SIGN_AIMS) < 0.9 * self.sectors):
+            raise InputError(f"--sign-share must be ≥ 0 and small enough for "
+                             f"{len(SIGN_AIMS)} slivers, got {self.sign_share}")
 
 
 def start_vector(layout: Layout) -> np.ndarray:
@@ -323,12 +343,47 @@ def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
             # cut-off stays formed by image tops exactly on c(h), so it is sharp and needs
             # no aiming
             side = hk if layout.traffic == "right" else -hk
-            vk = (float(np.percentile(room, 2.0)) - drop * float(np.clip(side / 2.0, 0, 1))
-                  + up)
+            w = float(np.clip((side - DROP_FROM_DEG) / (2.0 - DROP_FROM_DEG), 0, 1))
+            vk = float(np.percentile(room, 2.0)) - drop * w + up
             new.append(Facet(fc.phi0_rad, fc.phi1_rad, float(np.clip(hk, -40, 40)),
                              float(np.clip(vk, -40, 40)), fc.r0_m, fc.r1_m, fc.focal_m))
         facets = new
-    return facets
+    return _with_sign_slivers(facets, layout, hole_m)
+
+
+def _with_sign_slivers(facets: list[Facet], layout: Layout, hole_m: float) -> list[Facet]:
+    """Cut ``layout.sign_share`` of a lit vertex-ring facet's azimuth off per
+    :data:`SIGN_AIMS` entry and aim that sliver's image centre there (the vertex ring's
+    images are the largest: the sliver makes a broad, dim patch)."""
+    share = float(layout.sign_share)
+    if share <= 0:
+        return facets
+    if not share * sum(a[2] for a in SIGN_AIMS) < 0.9 * layout.sectors:
+        raise InputError("the overhead-sign share is too large for the vertex ring")
+    images = facet_images(facets[:layout.sectors], layout, hole_m)
+    lit = [k for k, im in enumerate(images) if im.lit_fraction >= LIT_MIN]
+    if not lit:
+        return facets
+    out = list(facets)
+    cut: dict[int, float] = {}
+    for i, (th, tv, weight) in enumerate(SIGN_AIMS):
+        if layout.traffic == "left":
+            th = -th
+        k = lit[i % len(lit)]
+        fc = out[k]
+        width = share * weight * (fc.phi1_rad - fc.phi0_rad) / (1.0 - cut.get(k, 0.0))
+        cut[k] = cut.get(k, 0.0) + share * weight
+        p1 = fc.phi1_rad - width
+        out[k] = replace(fc, phi1_rad=p1)
+        sliver = replace(fc, phi0_rad=p1, h_deg=th, v_deg=tv)
+        for _ in range(3):  # the vertex ring's images change with the aim: iterate
+            img = facet_images([sliver], layout, hole_m)[0]
+            if not img.dh.size:
+                break
+            sliver = replace(sliver, h_deg=float(np.clip(th - np.median(img.dh), -40, 40)),
+                             v_deg=float(np.clip(tv - np.median(img.dv), -40, 40)))
+        out.append(sliver)
+    return out
 
 
 # ---------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import subprocess
 import sys
@@ -125,6 +126,35 @@ def test_images_of_every_lit_facet_stay_under_the_cutoff_line():
     assert images[2].lit_fraction > 0.9 and images[6].lit_fraction < 0.1
 
 
+def test_sign_slivers_put_their_images_on_their_aims_and_keep_the_tiling():
+    from lightsim.luminaires.design import SIGN_AIMS
+
+    plain = Layout()
+    lay = Layout(sign_share=0.03)
+    hole = hole_diameter(lay)
+    x = start_vector(lay)
+    base = facets_for(x, plain, hole)
+    facets = facets_for(x, lay, hole)
+    n = lay.rings * lay.sectors
+    assert len(facets) == n + len(SIGN_AIMS)
+    slivers = facets[n:]
+    # the slivers are cut from vertex-ring facets: ring 0's azimuths still tile 2π once,
+    # the other rings are untouched
+    ring0 = sorted((f.phi0_rad, f.phi1_rad) for f in facets[:lay.sectors] + slivers)
+    assert ring0[0][0] == pytest.approx(0.0) and ring0[-1][1] == pytest.approx(2 * math.pi)
+    assert all(a[1] == pytest.approx(b[0]) for a, b in itertools.pairwise(ring0))
+    assert facets[lay.sectors:n] == base[lay.sectors:n]
+    share = sum(f.phi1_rad - f.phi0_rad for f in slivers) / (2 * math.pi / lay.sectors)
+    assert share == pytest.approx(0.03 * sum(a[2] for a in SIGN_AIMS))
+    # each sliver's traced image is centred on its overhead-sign aim
+    for fc, img, (h, v, _w) in zip(slivers, facet_images(slivers, lay, hole), SIGN_AIMS):
+        assert img.lit_fraction > 0.5
+        assert abs(np.median(img.dh + fc.h_deg) - h) < 0.2
+        assert abs(np.median(img.dv + fc.v_deg) - v) < 0.2
+    with pytest.raises(InputError):
+        Layout(sign_share=2.0).check()
+
+
 def test_rule_terms_use_the_interval_bounds_and_the_zone_maximum():
     rows = [{"name": "75R", "kind": "point", "value_cd": 12000, "interval_cd": [9000, 15000],
              "limit": {"min": 10100}, "verdict": "uncertain"},
@@ -190,6 +220,7 @@ def test_design_is_deterministic_for_a_seed():
     (["o.glb", "--regulation", "r112-b-passing", "--resolution", "big"], "--resolution"),
     (["o.txt", "--regulation", "r112-b-passing"], ".glb"),
     (["o.glb", "--regulation", "r112-b-passing", "--bulb", "H99"], "H99"),
+    (["o.glb", "--regulation", "r112-b-passing", "--sign-share", "nan"], "--sign-share"),
 ])
 def test_design_bad_input_is_one_line_and_exit_2(args, needle, tmp_path):
     r = subprocess.run([sys.executable, "-m", "lightsim.cli.main", "design", *args],
