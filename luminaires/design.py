@@ -511,8 +511,8 @@ def smoothness(lux: np.ndarray, frame: Any, sigma_deg: float = 1.0) -> float:
 def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety: float,
                     reach_m: float, smooth_max: float) -> list[Term]:
     """All terms of J for one simulated lamp (see the module docstring)."""
-    from lightsim.luminaires.regulations.units import sample_wall
     from lightsim.render.road import road_illuminance_from
+    from lightsim.wall import sample_wall
 
     terms = _rule_terms(reg["results"], safety)
     cut = reg["aim"]["cutoff"]

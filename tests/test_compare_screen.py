@@ -72,7 +72,7 @@ def aimed_up(tmp_path_factory, lux):
 def _max_error(found, truth, shape, frame=FRAME):
     """Largest displacement (simulation px) over the screen the markers span, |H| ≤ 10°,
     −6° ≤ V ≤ 4° (outside it a homography extrapolates)."""
-    from lightsim.luminaires.regulations.units import WallFrame
+    from lightsim.wall import WallFrame
 
     wall = WallFrame.from_any(frame)
     hp, wp = shape
@@ -222,7 +222,7 @@ def test_write_target_rejects_a_bad_resolution(tmp_path):
 
 def _deflected(lux):
     """A deflector that dims everything left of H = −2° by 40 % (soft edge)."""
-    from lightsim.luminaires.regulations.units import WallFrame
+    from lightsim.wall import WallFrame
 
     h = WallFrame.from_any(FRAME).h_deg()[None, :]
     return lux * (1 - 0.4 / (1 + np.exp((h + 2.0) / 0.2)))
@@ -247,7 +247,7 @@ def _pair(lux, folder, layout, texture, ambient, moved=True):
 
 def _points_text(truth):
     hv = np.array([(h, v) for _, h, v in DEFAULT_LAYOUT.markers])[[0, 4, 5, 9, 2, 7]]
-    from lightsim.luminaires.regulations.units import WallFrame
+    from lightsim.wall import WallFrame
 
     wall = WallFrame.from_any(FRAME)
     rows, cols = wall.pixel_of(25 * np.tan(np.radians(hv[:, 0])),
@@ -261,7 +261,7 @@ def _true_change(lux, name, ambient):
     from scipy.ndimage import map_coordinates
 
     from lightsim.luminaires.regulations.ruleset import load_ruleset
-    from lightsim.luminaires.regulations.units import WallFrame
+    from lightsim.wall import WallFrame
 
     g = load_ruleset("r112-b-passing").geometry(name)
     wall = WallFrame.from_any(FRAME)
@@ -277,7 +277,7 @@ def _check_pair(doc, shots, truth_change):
     m = np.array(doc["alignment"]["matrix"])
     a_to_b = np.linalg.inv(b.matrix) @ a.matrix
     # compare B→A maps at A pixels x_a: truth is x_a itself, found is m·(a_to_b·x_a)
-    from lightsim.luminaires.regulations.units import WallFrame
+    from lightsim.wall import WallFrame
 
     wall = WallFrame.from_any(FRAME)
     yy, xx = np.mgrid[0:560:8, 0:1300:8].astype(float)

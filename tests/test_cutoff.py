@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import WallFrame, lux_from_candela, wall_m_from_deg
 from lightsim.render.cutoff import TARGET_V_DEG, aim_shift, apply_shift, find_cutoff
+from lightsim.wall import WallFrame, lux_from_candela, wall_m_from_deg
 
 D = 25.0
 FRAME = {"distance_m": D, "h_range_m": [-wall_m_from_deg(20.0), wall_m_from_deg(20.0)],

@@ -9,7 +9,6 @@ import pytest
 from helpers import run_cli as _run
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import WallFrame
 from lightsim.render.cutoff import find_cutoff
 from lightsim.validation.photo_io import (
     load_simulation,
@@ -30,6 +29,7 @@ from lightsim.validation.synthetic_photo import (
     write_photo,
     write_result,
 )
+from lightsim.wall import WallFrame
 
 FRAME = wall_frame((200, 80))
 

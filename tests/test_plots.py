@@ -10,8 +10,8 @@ from lightsim.errors import InputError
 from lightsim.io.plots import auto_levels, isolux_plot, road_view_plot
 from lightsim.luminaires.photometric import CandelaGrid
 from lightsim.luminaires.regulations import evaluate, load_ruleset, probe_points, sample_wall
-from lightsim.luminaires.regulations.units import WallFrame, lux_from_candela, wall_m_from_deg
 from lightsim.render.road import road_illuminance, road_illuminance_from
+from lightsim.wall import WallFrame, lux_from_candela, wall_m_from_deg
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 D = 25.0

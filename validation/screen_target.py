@@ -49,8 +49,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lightsim.errors import InputError
-from lightsim.luminaires.regulations.units import WallFrame, deg_from_wall_m, wall_m_from_deg
 from lightsim.validation.screen_geometry import ScreenGeometry, fit_screen
+from lightsim.wall import WallFrame, deg_from_wall_m, wall_m_from_deg
 
 __all__ = [
     "DEFAULT_LAYOUT",

@@ -30,6 +30,16 @@ distance_m    m       25.0      measuring distance (wall plane z = D)
 ============  ======  ========  =================================================
 """
 
+from lightsim.wall import (
+    DEFAULT_DISTANCE_M,
+    WallFrame,
+    candela_from_lux,
+    deg_from_wall_m,
+    lux_from_candela,
+    sample_wall,
+    wall_m_from_deg,
+)
+
 from .evaluate import (
     VERDICT_STYLES,
     Probes,
@@ -40,15 +50,6 @@ from .evaluate import (
     unevaluated_rules,
 )
 from .ruleset import SCHEMA, Geometry, Relation, RuleSet, SumRule, list_rulesets, load_ruleset
-from .units import (
-    DEFAULT_DISTANCE_M,
-    WallFrame,
-    candela_from_lux,
-    deg_from_wall_m,
-    lux_from_candela,
-    sample_wall,
-    wall_m_from_deg,
-)
 
 __all__ = [
     "DEFAULT_DISTANCE_M",

@@ -47,9 +47,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from lightsim.errors import InputError
+from lightsim.wall import WallFrame
 
 from .ruleset import Geometry, Relation, RuleSet, SumRule, _check_traffic
-from .units import WallFrame
 
 __all__ = [
     "VERDICT_STYLES",
