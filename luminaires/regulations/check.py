@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from scipy.special import stdtrit
 
+from lightsim import options
 from lightsim.analysis import AnalysisReport, FinishedRun
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
@@ -122,9 +123,9 @@ def aperture_config(config: Any, ruleset: str, traffic: str, frame: Any,
     """
     if aperture_deg is None or aperture_deg == 0:
         return config
-    if not (math.isfinite(aperture_deg) and 0 < aperture_deg <= 2):
-        raise InputError(f"--aperture must be between 0 and 2 degrees (0 = kNN), "
-                         f"got {aperture_deg}")
+    from lightsim.simulate import SimulateOptions
+
+    options.lookup(SimulateOptions, "aperture").check(aperture_deg)  # the option table's range
     rs = load_ruleset(ruleset)
     fd = _frame_dict(frame)
     probes = probe_points(rs, traffic, frame=fd)
