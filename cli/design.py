@@ -10,7 +10,10 @@ from pathlib import Path
 
 import click
 
+from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.options import click_option, lookup
+from lightsim.simulate import SimulateOptions
 
 
 def _resolution(text: str) -> tuple[int, int]:
@@ -49,13 +52,12 @@ def _resolution(text: str) -> tuple[int, int]:
 @click.option("--check-photons", type=int, default=0, show_default=True,
               help="Photons of a final full-resolution check run of the written lamp with "
                    "the regulation's detector apertures (0: none).")
-@click.option("--seed", type=int, default=1, show_default=True)
+@click_option(lookup(RunConfig, "seed"))
 @click.option("--safety", type=float, default=0.10, show_default=True,
               help="Relative margin asked beyond every limit.")
 @click.option("--reach", type=float, default=25.0, show_default=True,
               help="1 lx road reach asked for, m (lamp 0.65 m high).")
-@click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
-              show_default=True)
+@click_option(lookup(SimulateOptions, "traffic"))
 @click.option("--out", "check_dir", type=click.Path(file_okay=False), default="design-check",
               show_default=True, help="Folder of the final check run.")
 @click.option("--start", default=None,
@@ -78,7 +80,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     from lightsim.luminaires.bulbs import get_bulb
     from lightsim.luminaires.design import Layout, design_lowbeam, write_design
     from lightsim.luminaires.regulations.check import format_regulation
-    from lightsim.simulate import SimulateOptions, check_out_dir, run_simulation
+    from lightsim.simulate import check_out_dir, run_simulation
 
     name = "H4-low" if bulb.strip().upper() == "H4" else get_bulb(bulb).name
     if not str(out_glb).lower().endswith(".glb"):

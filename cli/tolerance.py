@@ -9,7 +9,10 @@ import time
 
 import click
 
+from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.options import click_option, lookup
+from lightsim.simulate import SimulateOptions
 
 
 def _box(text: str | None, tilt_deg: float | None):
@@ -48,8 +51,7 @@ def _centre(text: str | None) -> tuple[float, float, float]:
               help="Latin-hypercube samples over the tolerance box (plus the nominal).")
 @click.option("--photons", "-n", type=int, default=200_000, show_default=True,
               help="Photons per sample (the same photons for every sample).")
-@click.option("--seed", type=int, default=1, show_default=True,
-              help="Photon seed (common to all samples).")
+@click_option(lookup(RunConfig, "seed"))  # common to all samples
 @click.option("--design-seed", type=int, default=1, show_default=True,
               help="Seed of the Latin-hypercube design.")
 @click.option("--tilt", is_flag=True, help="Also tilt the filament (about X and Y).")
@@ -58,17 +60,15 @@ def _centre(text: str | None) -> tuple[float, float, float]:
 @click.option("--tilt-deg", type=float, help="Half-width of the tilt in degrees.")
 @click.option("--bulb", help="Bulb category when the scene does not name one (H1, H4, H7).")
 @click.option("--resolution", default="160x64", show_default=True, help="Wall pixels WxH.")
-@click.option("--frame-photons", type=int, default=200_000, show_default=True)
-@click.option("--traffic", type=click.Choice(["right", "left"]), default="right",
-              show_default=True)
+@click_option(lookup(RunConfig, "frame_photons"))
+@click_option(lookup(SimulateOptions, "traffic"))
 @click.option("--aim", is_flag=True, help="Aim every sample's cut-off at 0.57° D first.")
 @click.option("--aperture", type=float, default=0.0, show_default=True,
               help="Detector aperture of the test points in degrees; 0 = the kNN estimate "
                    "at the points (smooth, so common random numbers cancel the noise).")
 @click.option("--centre", "centre_mm", metavar="DX,DY,DZ",
               help="Shift the whole box by this much in mm (a misplaced bulb holder).")
-@click.option("--workers", type=int, default=0, show_default=True,
-              help="Ray workers (each sample one task); 0 runs in this process.")
+@click_option(lookup(SimulateOptions, "workers"))  # each sample one Ray task
 @click.option("--address", help="Ray cluster address HOST:PORT.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="tolerance-out",
               show_default=True)
