@@ -66,11 +66,16 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     error_vs_time_plot(out / "error_vs_time.png", summary.get("error_vs_time", []))
     written.append(out / "error_vs_time.png")
     results = None
-    if regulation or (out / check.PROBES_FILE).exists():
-        reg = check.recheck_from_probes(out, summary, lux, regulation, confidence)
-        summary["regulation"] = reg
-        results = reg["results"]
+    names: list[str | None] = ([regulation] if regulation else
+                               [t.get("ruleset") for t in check.regulation_tables(summary)])
+    if not names and (out / check.PROBES_FILE).exists():
+        names = [None]
+    for name in names:  # every rule set of the run (probes.npz, probes-ID.npz)
+        reg = check.recheck_from_probes(out, summary, lux, name, confidence)
+        summary[check.regulation_key(reg["ruleset"], summary)] = reg
+        results = (results or []) + reg["results"]
         console.print(check.format_regulation(reg))
+    if names:
         write_json(out / "summary.json", summary)
     written += rp.engineering_plots(out, lux, wall, results, mount_height, summary=summary)
     write_json(out / "summary.json", summary)  # noise floor and road reach

@@ -153,14 +153,21 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
         if "road" in s:
             click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
                        f"{s['road']['text']}")
-        if "regulation" in s:
+        from lightsim.luminaires.regulations.check import (
+            format_regulation,
+            probes_file,
+            regulation_tables,
+        )
+
+        tables = regulation_tables(s)
+        if tables:
             from rich.console import Console
 
-            from lightsim.luminaires.regulations.check import format_regulation
-
-            Console(width=None if sys.stdout.isatty() else 160).print(
-                format_regulation(s["regulation"]))
-        extra = ", probes.npz" if "regulation" in s else ""
+            console = Console(width=None if sys.stdout.isatty() else 160)
+            for table in tables:
+                console.print(format_regulation(table))
+        extra = "".join(", " + probes_file(None if i == 0 else t["ruleset"])
+                        for i, t in enumerate(tables))
         click.echo(f"wrote {result.out_dir}/wall_lux.exr, wall_lux.png, isolux.png, road.png, "
                    f"error_vs_time.png, summary.json{extra}")
         for f in s.get("farfield", {}).get("files", []):

@@ -114,8 +114,9 @@ class SimulateOptions:
         metavar="NAME=KIND[:VALUE]")
     config: dict[str, Any] = field(default_factory=dict)
     regulation: str | None = option(
-        None, "Rule set to check, e.g. r112-b-passing (see `lightsim report "
-        "--list-rulesets`).", flag=("--regulation",))
+        None, "Rule set to check, e.g. r112-b-passing, or several: "
+        "r112-b-passing,r149-b-passing (see `lightsim report --list-rulesets`).",
+        flag=("--regulation",))
     traffic: str = option("right", "Traffic side of the regulation check and cut-off.",
                           flag=("--traffic",), choices=("right", "left"))
     aim: bool = option(False, "Aim the cut-off at 0.57° D before checking.",
@@ -501,11 +502,14 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
     frame = session.scene.wall
     summary["cutoff"] = _cutoff(lux, frame, opts.traffic, session)
     run = FinishedRun(session, lux, opts.traffic, summary["cutoff"])
-    marks = None
+    marks: list[dict[str, Any]] | None = None
     for analysis in analyses:
         result = analysis.report(run, out)
         summary[analysis.name] = result.summary
-        marks = result.marks if result.marks is not None else marks
+        if result.marks is not None:  # several rule sets: every set's points, once each
+            seen = {(m["name"], m.get("h_deg"), m.get("v_deg")) for m in marks or ()}
+            marks = (marks or []) + [m for m in result.marks if (
+                m["name"], m.get("h_deg"), m.get("v_deg")) not in seen]
     report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary)
 
 

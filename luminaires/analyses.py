@@ -8,8 +8,9 @@ the :class:`lightsim.analysis.Analysis` protocol without importing this package.
 ==================  =====  ==========================================================
 option              unit   analysis
 ==================  =====  ==========================================================
-``regulation``      –      :class:`~.regulations.check.RegulationAnalysis` (with
-                           ``traffic``, ``aim``, ``aperture`` deg, ``spt_points``)
+``regulation``      –      :class:`~.regulations.check.RegulationAnalysis` per rule set
+                           of the comma list (with ``traffic``, ``aim``, ``aperture``
+                           deg, ``spt_points``)
 ``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
                            ``ies_type``, ``farfield_photons``)
 ==================  =====  ==========================================================
@@ -32,13 +33,15 @@ def for_options(opts: Any) -> list[Analysis]:
     """
     from .photometric import resolve_ies_type
     from .photometric.analysis import FarfieldAnalysis
-    from .regulations.check import RegulationAnalysis
+    from .regulations.check import RegulationAnalysis, split_rulesets
 
     resolve_ies_type(opts.ies_type, None)  # a misspelt --ies-type fails even without --ies
     out: list[Analysis] = []
-    if opts.regulation is not None:
-        out.append(RegulationAnalysis(opts.regulation, opts.traffic, opts.aim, opts.aperture,
-                                      opts.spt_points))
+    if opts.regulation is not None:  # `a,b`: one table per rule set, first = "regulation"
+        for i, rs in enumerate(split_rulesets(opts.regulation)):
+            out.append(RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
+                                          opts.spt_points,
+                                          name="regulation" if i == 0 else f"regulation:{rs}"))
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons))
     return out

@@ -58,8 +58,9 @@ from .evaluate import evaluate, format_table, probe_points, unevaluated_rules
 from .ruleset import RuleSet, load_ruleset
 
 __all__ = ["DEFAULT_APERTURE_DEG", "PROBES_FILE", "RegulationAnalysis", "aperture_config",
-           "evaluate_probe_values", "format_regulation", "public", "recheck_from_probes",
-           "regulation_check", "regulation_probes", "save_probes"]
+           "evaluate_probe_values", "format_regulation", "probes_file", "public",
+           "recheck_from_probes", "regulation_check", "regulation_key",
+           "regulation_probes", "regulation_tables", "save_probes", "split_rulesets"]
 
 PROBES_FILE = "probes.npz"
 
@@ -119,7 +120,9 @@ def aperture_config(config: Any, ruleset: str, traffic: str, frame: Any,
 
     Apertures: every probe of :func:`~lightsim.luminaires.regulations.probe_points`, then
     H-V; the Imax raster; with ``aim`` strips reaching ±``AIM_REACH_DEG``; with ``spt``
-    the rule set's *points* are the Selective Photon Tracing targets.
+    the rule set's *points* are the Selective Photon Tracing targets. Apertures already
+    in ``config`` (another rule set of the same run) are kept and these are appended
+    after them: :func:`aperture_offset` tells a rule set where its own begin.
     """
     if aperture_deg is None or aperture_deg == 0:
         return config
@@ -138,12 +141,26 @@ def aperture_config(config: Any, ruleset: str, traffic: str, frame: Any,
     raster = (max(r[0], h0), min(r[1], h1), max(r[2], v0), min(r[3], v1))
     if raster[1] - raster[0] < aperture_deg or raster[3] - raster[2] < aperture_deg:
         raster = None
-    return config.with_(apertures=tuple(zip(h.tolist(), v.tolist(), strict=True)),
+    before = tuple(config.apertures)
+    if before and (float(config.aperture_deg) != float(aperture_deg)
+                   or bool(config.aperture_shift_deg) != bool(aim)):
+        raise InputError("rule sets of one run share one aperture size and --aim")
+    offset = len(before)
+    targets = tuple(offset + t for t in targets) if spt else ()
+    return config.with_(apertures=before + tuple(zip(h.tolist(), v.tolist(), strict=True)),
                         aperture_deg=float(aperture_deg),
                         aperture_shift_deg=AIM_REACH_DEG if aim else 0.0,
                         aperture_substeps=AIM_SUBSTEPS if aim else 1,
-                        aperture_targets=targets if spt else (),
+                        aperture_targets=tuple(config.aperture_targets) + targets,
                         aperture_raster=raster)
+
+
+def _own_apertures(ap: dict[str, Any], offset: int, n: int) -> dict[str, Any]:
+    """:func:`aperture_values` restricted to one rule set's ``n`` probes + H-V, which
+    start at aperture ``offset`` (several rule sets share a run's apertures)."""
+    cut = slice(offset, offset + n + 1)
+    return {**ap, "cd": ap["cd"][:, cut], "intervals_cd": ap["intervals_cd"][cut],
+            "count_stats": ap["count_stats"][:, cut], "n_eff": ap["n_eff"][cut]}
 
 
 def _stat_row(name: str, h: float, v: float, samples: np.ndarray, confidence: float,
@@ -182,18 +199,21 @@ def measure_rows(ap: dict[str, Any], dv_deg: float, confidence: float) -> list[d
 
 
 def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "right",
-                     aim: bool = False, confidence: float = 0.95) -> dict[str, Any]:
+                     aim: bool = False, confidence: float = 0.95, offset: int = 0
+                     ) -> dict[str, Any]:
     """Evaluate a rule set on a finished session.
 
-    With the run's detector apertures (:func:`aperture_config`) the test points are the
-    per-set aperture counts; without, every set's kNN estimate at the probes.
+    With the run's detector apertures (:func:`aperture_config`; this rule set's start at
+    aperture ``offset``) the test points are the per-set aperture counts; without, every
+    set's kNN estimate at the probes.
     """
     frame = session.scene.wall
     rs, probes, aim_info, hv = regulation_probes(ruleset, traffic, frame, lux, aim)
     cfg = session.config
     extra: list[dict[str, Any]] = []
-    if cfg.apertures and len(cfg.apertures) == len(probes) + 1:
-        ap = aperture_values(session, -aim_info["dv_deg"], confidence)
+    if cfg.apertures and len(cfg.apertures) >= offset + len(probes) + 1:
+        ap = _own_apertures(aperture_values(session, -aim_info["dv_deg"], confidence),
+                            offset, len(probes))
         intervals = ap["intervals_cd"][:-1]
         # the aimed value at v is the unaimed one at v − dv: apertures shift by −dv,
         # rounded to a strip bin (aperture / AIM_SUBSTEPS)
@@ -233,10 +253,15 @@ def public(reg: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in reg.items() if not k.startswith("_")}
 
 
-def save_probes(out: Path, reg: dict[str, Any]) -> Path:
-    """Write the per-set probe values of a regulation check to ``probes.npz``."""
+def probes_file(ruleset: str | None = None) -> str:
+    """``probes.npz`` for a run's first rule set, ``probes-ID.npz`` for a further one."""
+    return PROBES_FILE if ruleset is None else f"probes-{Path(ruleset).stem}.npz"
+
+
+def save_probes(out: Path, reg: dict[str, Any], name: str = PROBES_FILE) -> Path:
+    """Write the per-set probe values of a regulation check to ``out/name``."""
     probes = reg["_probes"]
-    path = Path(out) / PROBES_FILE
+    path = Path(out) / name
     with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
         np.savez(fh, h_deg=probes.h_deg, v_deg=probes.v_deg,
                  labels=np.asarray(probes.labels, dtype=str), hv_m=reg["_hv"],
@@ -250,8 +275,12 @@ def save_probes(out: Path, reg: dict[str, Any]) -> Path:
 def recheck_from_probes(out: Path, summary: dict[str, Any], lux: np.ndarray,
                         ruleset: str | None = None, confidence: float = 0.95
                         ) -> dict[str, Any]:
-    """Re-evaluate a finished run's regulation from ``probes.npz`` (no shooting)."""
+    """Re-evaluate a finished run's regulation from ``probes.npz`` (no shooting); a
+    ``ruleset`` that was the run's second or later set is read from its own
+    ``probes-ID.npz``."""
     path = Path(out) / PROBES_FILE
+    if ruleset and (Path(out) / probes_file(ruleset)).exists():
+        path = Path(out) / probes_file(ruleset)
     if not path.exists():
         raise InputError(f"{out}: no {PROBES_FILE}: run simulate with --regulation first")
     try:
@@ -275,7 +304,7 @@ def recheck_from_probes(out: Path, summary: dict[str, Any], lux: np.ndarray,
     results, unevaluated, _ = evaluate_probe_values(
         rs, probes, hv, values, float(summary["wall"]["distance_m"]), traffic, confidence,
         intervals)
-    prev = summary.get("regulation", {})
+    prev = summary.get(regulation_key(rs.id, summary), {})
     measures = [r for r in prev.get("results", []) if r.get("kind") == "measure"]
     return {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,
             "confidence": confidence,
@@ -296,12 +325,36 @@ def format_regulation(reg: dict[str, Any]):
                         unevaluated=reg.get("unevaluated"))
 
 
+def regulation_key(ruleset: str, summary: dict[str, Any]) -> str:
+    """The ``summary.json`` key of ``ruleset``'s table: ``regulation`` for the run's
+    first rule set, ``regulation:ID`` for a further one."""
+    key = f"regulation:{ruleset}"
+    return key if key in summary else "regulation"
+
+
+def regulation_tables(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every rule set's table of a run's summary, in the order they were asked for."""
+    return [v for k, v in summary.items()
+            if (k == "regulation" or k.startswith("regulation:")) and isinstance(v, dict)]
+
+
+def split_rulesets(text: str) -> list[str]:
+    """``--regulation a,b``: the rule sets named, in order, without repeats."""
+    names = [t.strip() for t in str(text).split(",")]
+    if not all(names):
+        raise InputError(f"--regulation '{text}': an empty rule set name in the list")
+    return list(dict.fromkeys(names))
+
+
 @dataclass
 class RegulationAnalysis:
     """``--regulation``: apertures at the rule set's test points before the run, the
     verdict table and ``probes.npz`` after it (an :class:`~lightsim.analysis.Analysis`).
 
     Loading the rule set at construction makes an unknown one fail before any work.
+    Several rule sets in one run are several analyses: the first is named
+    ``regulation`` and writes ``probes.npz``, a further one ``regulation:ID`` and
+    ``probes-ID.npz``; each counts its own apertures, appended to the run's.
     """
 
     ruleset: str
@@ -312,20 +365,28 @@ class RegulationAnalysis:
     confidence: float = 0.95
     name: str = "regulation"
     rules: RuleSet = field(init=False, repr=False)
+    offset: int = field(default=0, init=False)  # where this set's apertures start
 
     def __post_init__(self) -> None:
         self.rules = load_ruleset(self.ruleset)
 
+    @property
+    def probes_name(self) -> str:
+        """The probe file this analysis writes."""
+        return (PROBES_FILE if self.name == "regulation"
+                else probes_file(self.name.split(":", 1)[1]))
+
     def prepare(self, config: Any, scene: Any) -> Any:
         """Detector apertures (and SPT targets) at the test points."""
+        self.offset = len(config.apertures)
         return aperture_config(config, self.ruleset, self.traffic, scene.wall,
                                self.aperture_deg, self.aim, self.spt_points)
 
     def report(self, run: FinishedRun, out: Path) -> AnalysisReport:
-        """Verdicts with intervals; ``probes.npz`` in ``out``."""
+        """Verdicts with intervals; the probe file in ``out``."""
         reg = regulation_check(run.session, run.lux, self.ruleset, self.traffic, self.aim,
-                               self.confidence)
-        path = save_probes(out, reg)
+                               self.confidence, self.offset)
+        path = save_probes(out, reg, self.probes_name)
         summary = public(reg)
         if summary.get("aim", {}).get("applied"):
             summary["aim"]["cutoff_interval_deg"] = run.cutoff.get("v_cutoff_interval_deg")
