@@ -81,3 +81,22 @@ def test_type_a_source_wall_lux_is_the_files_intensity(tmp_path):
           f"points do better), bright pixels within {100 * rel.max():.2f} % "
           f"(mean {100 * rel.mean():.2f} %) of the file")
     assert np.abs(z).max() < 5 and rel.max() < 0.02
+
+
+def test_core_finds_readers_through_the_entry_point():
+    """A script that imports only the core still loads an IES file and a bulb: the
+    registry loads the ``lightsim.sources`` entry point on first need."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from lightsim.emitters import registry\n"
+            "from lightsim.scene import load_scene\n"
+            "assert not any(m.startswith('lightsim.luminaires') for m in sys.modules)\n"
+            f"s = load_scene({str(IES)!r}, wall_distance=2.0, resolution=(8, 8))\n"
+            "print(round(s.total_flux), callable(registry.filament_factory()))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert res.returncode == 0, res.stderr
+    flux = read_photometric(IES).total_flux()
+    assert res.stdout.split() == [str(round(flux)), "True"]
