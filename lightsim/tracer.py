@@ -387,6 +387,34 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
     return w, r, e
 
 
+@njit(cache=True, nogil=True, boundscheck=False)
+def _start(o, d, power, keys, lo, hi):
+    """The wavefront's own arrays for photons lo..hi in one pass: flux (copied), roulette
+    reference (largest channel), flags, keys, ledger rows, float32 rays for embree."""
+    n = hi - lo
+    C = power.shape[1]
+    pw = np.empty((n, C))
+    p_ref = np.empty(n)
+    flags = np.zeros(n, np.uint8)
+    kk = np.empty(n, np.uint64)
+    lid = np.empty(n, np.int64)
+    o32 = np.empty((n, 3), np.float32)
+    d32 = np.empty((n, 3), np.float32)
+    for i in range(n):
+        best = power[lo + i, 0]
+        for c in range(C):
+            v = power[lo + i, c]
+            pw[i, c] = v
+            best = max(best, v)
+        p_ref[i] = best
+        kk[i] = keys[lo + i]
+        lid[i] = lo + i
+        for q in range(3):
+            o32[i, q] = o[i, q]
+            d32[i, q] = d[i, q]
+    return pw, p_ref, flags, kk, lid, o32, d32
+
+
 @njit(cache=True, nogil=True)
 def _near_hits(prim, tfar, bound):
     """Indices of hits closer than ``bound`` (m): candidates for false self-hits."""
@@ -593,10 +621,17 @@ class PhotonTracer:
         esc_d, esc_p = [], []
         caustic_source = np.zeros(n, dtype=np.bool_)
         rays = 0
+        # two batches in flight: the next batch's chunks are queued before this one is
+        # collected, so no thread idles at a batch's tail (memory: two batch ledgers)
+        pending: list = []
+        done = []
         for lo in range(0, n, self.batch):
-            hi = min(n, lo + self.batch)
-            rec, led, nrays, ed, ep = self._trace_batch(source, lo, hi, power, keys, group,
-                                                        n_groups, record_escaped)
+            pending.append(self._submit_batch(source, lo, min(n, lo + self.batch), power,
+                                              keys, record_escaped))
+            if len(pending) > 1:
+                done.append(self._collect_batch(pending.pop(0), group, n_groups))
+        done.extend(self._collect_batch(b, group, n_groups) for b in pending)
+        for lo, (rec, led, nrays, ed, ep) in zip(range(0, n, self.batch), done):
             rec.source += lo
             caustic_source[rec.source[(rec.flags & F_SPECULAR) != 0]] = True
             parts.append(rec)
@@ -657,12 +692,8 @@ class PhotonTracer:
         origins, directions = source(lo, hi)  # fresh arrays: traced in place
         o = np.ascontiguousarray(origins, dtype=np.float64).reshape(n, 3)
         d = np.ascontiguousarray(directions, dtype=np.float64).reshape(n, 3)
-        pw = power[lo:hi].copy()
-        wf = Wavefront(o, d, pw, pw.max(axis=1) if n else np.zeros(0),
-                       np.zeros(n, np.uint8), keys[lo:hi].copy(),
-                       np.arange(lo, hi, dtype=np.int64))
-        o32 = o.astype(np.float32)
-        d32 = d.astype(np.float32)
+        pw, p_ref, flags, kk, lid, o32, d32 = _start(o, d, power, keys, lo, hi)
+        wf = Wavefront(o, d, pw, p_ref, flags, kk, lid)
         recs: list[PhotonRecords] = []
         escs: list[tuple[np.ndarray, np.ndarray]] = []
         rays = 0
@@ -685,12 +716,11 @@ class PhotonTracer:
             escs.append((esc[0][:e], esc[1][:e]))
         return recs, escs, rays
 
-    def _trace_batch(self, source, lo, hi, power, keys, group, n_groups, record_escaped):
-        """One batch in chunks over the threads; records in (bounce, photon) order."""
+    def _submit_batch(self, source, lo, hi, power, keys, record_escaped):
+        """Queue one batch's chunks on the threads (or trace them here without a pool);
+        :meth:`_collect_batch` waits for them."""
         n = hi - lo
-        C = self.channels
-        K = len(LEDGER)
-        ledger = np.zeros((n, K, C))  # per photon of the batch, summed per group below
+        ledger = np.zeros((n, len(LEDGER), self.channels))  # per photon, summed per group
         step = max(self.min_chunk, -(-n // (4 * self.threads)))
         bounds = list(range(0, n, step)) + [n]
 
@@ -702,7 +732,14 @@ class PhotonTracer:
         if self._pool is None or len(bounds) <= 2:
             chunks = [work(k) for k in range(len(bounds) - 1)]
         else:
-            chunks = list(self._pool.map(work, range(len(bounds) - 1)))
+            chunks = [self._pool.submit(work, k) for k in range(len(bounds) - 1)]
+        return lo, hi, ledger, chunks
+
+    def _collect_batch(self, batch, group, n_groups):
+        """One batch's records in (bounce, photon) order and its per-group ledger."""
+        lo, hi, ledger, chunks = batch
+        chunks = [c.result() if hasattr(c, "result") else c for c in chunks]
+        C = self.channels
         # bounce-major like one wavefront: bounce 0 of every chunk, then bounce 1, …
         depth = max((len(c[0]) for c in chunks), default=0)
         recs = [c[0][k] for k in range(depth) for c in chunks if k < len(c[0])]
