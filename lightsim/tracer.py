@@ -68,7 +68,7 @@ from lightsim.materials import (
     dielectric_direction,
     mirror_direction,
 )
-from lightsim.raycast import WALL_MAX_TRIANGLES, RayCaster
+from lightsim.raycast import WALL_MAX_TRIANGLES, RayCaster, merge_wall_hit
 from lightsim.sampling import uniform
 
 # bookkeeping categories (columns of the ledger)
@@ -105,6 +105,9 @@ class Geometry(NamedTuple):
         All of the above per triangle in one row (corners 0–8, face normal 9–11, corner
         normals 12–20, part 21, wall 22): the interaction reads one 192-byte row per hit
         instead of five scattered ones (a hit is a cache miss on a large mesh).
+    wall_tri : (W, 3, 3) float64; wall_index : (W,) int32
+        The wall's triangles when they are intersected exactly outside embree
+        (:meth:`for_caster`), and their soup indices; empty otherwise.
     """
 
     tri_v: np.ndarray
@@ -113,6 +116,14 @@ class Geometry(NamedTuple):
     tri_part: np.ndarray
     is_wall: np.ndarray
     packed: np.ndarray
+    wall_tri: np.ndarray = np.zeros((0, 3, 3))
+    wall_index: np.ndarray = np.zeros(0, np.int32)
+
+    def for_caster(self, caster: RayCaster) -> Geometry:
+        """With the exact wall of ``caster`` (intersected in the bounce kernel's first
+        pass over the rays instead of by the caster): none if embree holds the wall."""
+        return self._replace(wall_tri=np.ascontiguousarray(caster.wall_triangles),
+                             wall_index=np.ascontiguousarray(caster.wall_index))
 
     @classmethod
     def from_scene(cls, scene) -> Geometry:
@@ -148,7 +159,8 @@ class Geometry(NamedTuple):
         packed[rows, 0:9] = tri_v[rows].reshape(-1, 9)
         packed[rows, 9:12] = face_n[rows]
         packed[rows, 12:21] = corner_n[rows].reshape(-1, 9)
-        return Geometry(tri_v, face_n, corner_n, self.tri_part, self.is_wall, packed)
+        return Geometry(tri_v, face_n, corner_n, self.tri_part, self.is_wall, packed,
+                        self.wall_tri, self.wall_index)
 
 
 class Wavefront(NamedTuple):
@@ -239,13 +251,18 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
     kinds, value, ior, sigma = mats
     rpos, rnrm, rpow, rpart, rflags, rsrc = rec
     packed = geom.packed
+    wall_tri, wall_index = geom.wall_tri, geom.wall_index
     eps_floor, rr_threshold, rr_min_depth = prm.eps_floor, prm.rr_threshold, prm.rr_min_depth
     record_all = prm.record_all
     C = pw.shape[1]
     P = packed.shape[1]
-    # gather the hit triangles' rows first: independent loads the CPU overlaps (a hit is a
-    # cache miss on a large mesh, and Halton-ordered photons hit scattered triangles)
+    # the exact wall (outside embree) and the gather of the hit triangles' rows in one
+    # pass before the loop: independent loads the CPU overlaps (a hit is a cache miss on
+    # a large mesh, and Halton-ordered photons hit scattered triangles)
+    has_wall = wall_tri.shape[0] > 0
     for i in range(m):
+        if has_wall:
+            merge_wall_hit(i, o32, d32, prim, tfar, hu, hv, wall_tri, wall_index)
         k = prim[i]
         if k >= 0:
             for q in range(P):
@@ -549,6 +566,7 @@ class PhotonTracer:
         # the packed lamp rides with its embree scene: a tracer reusing this caster
         # (only the wall or materials changed) reuses the lamp's rows too
         self.caster.geometry = self._geom
+        self._geom = self._geom.for_caster(self.caster)  # the bounce intersects the wall
         self._mats = mats.arrays
         self.eps_floor = 0.01 * scene.scale
         self._params = TraceParams(self.eps_floor, self.rr_threshold, self.rr_min_depth,
@@ -656,7 +674,7 @@ class PhotonTracer:
         the ray moves away from that face's plane on the side where its (float64) origin
         lies; such rays are re-cast from a little further along.
         """
-        prim, tfar, bu, bv = self.caster.cast(o32, d32)
+        prim, tfar, bu, bv = self.caster.cast_lamp(o32, d32)  # the wall: in _bounce
         # a cheap global bound first: only rays that hit very close need the per-ray test
         bound = 4 * 3.814697265625e-06 * (self.scene_extent + self.eps_floor)
         near = _near_hits(prim, tfar, bound)
@@ -676,7 +694,7 @@ class PhotonTracer:
             if len(close) == 0:
                 break
             step = t_min[close]
-            p2, t2, u2, v2 = self.caster.cast(
+            p2, t2, u2, v2 = self.caster.cast_lamp(
                 np.ascontiguousarray(o[close] + step[:, None] * d[close], dtype=np.float32),
                 np.ascontiguousarray(d32[close]))
             prim[close], tfar[close], bu[close], bv[close] = p2, t2 + step, u2, v2
