@@ -17,3 +17,15 @@ def test_bench_rows_compare_tracing_with_raw_embree():
     for key in ("ratio_vs_raw_embree", "cpu_ratio_vs_raw_embree",
                 "min_time_ratio_vs_raw_embree"):
         assert 0.0 < trace[key] < 10.0 and raw[key] == 1.0
+
+
+def test_aim_bench_rows():
+    from lightsim.validation.bench.tracer_aim import aim_rotation, bench_aim
+
+    scene = paraboloid_case(resolution=(16, 16)).scene
+    rebuild, moved = bench_aim(scene, repeats=1, frame_photons=5000)
+    assert "rebuilt" in rebuild["what"] and "wall_transform" in moved["what"]
+    assert rebuild["update_s"] > 0 and moved["update_s"] > 0 and moved["frame_s"] > 0
+    # the aim rotation turns the lamp axis +Z towards +H (world −X) and +V (up)
+    axis = aim_rotation(10.0, 5.0)[:3, :3] @ [0.0, 0.0, 1.0]
+    assert axis[0] < 0 and axis[1] > 0
