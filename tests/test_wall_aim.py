@@ -4,6 +4,7 @@ moving it (the lamp aimed the opposite way) keeps the lamp's embree scene."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -210,3 +211,35 @@ def test_session_wall_transform_keeps_embree_and_matches_a_fresh_session():
     with Session(scene.with_wall_transform(m), cfg) as s2:
         b = s2.frame()
     assert np.array_equal(a.lux, b.lux)
+
+
+def test_finely_meshed_wall_stays_in_embree_and_still_moves():
+    """A wall of more than WALL_MAX_TRIANGLES triangles is cast by embree; moving it
+    rebuilds the embree scene and gives the same map as a fresh session."""
+    case = paraboloid_case(resolution=(24, 24))
+    src, mirror, wall = case.scene.parts
+    n = 9  # 9 × 9 quads = 162 triangles
+    xs = np.linspace(-0.25, 0.25, n + 1)
+    vx, vy = np.meshgrid(xs, xs, indexing="ij")
+    verts = np.stack([vx.ravel(), vy.ravel(), np.full(vx.size, 0.6)], axis=1)
+    faces = []
+    for i in range(n):
+        for j in range(n):
+            a, b, c, d = i * (n + 1) + j, (i + 1) * (n + 1) + j, (i + 1) * (n + 1) + j + 1, \
+                i * (n + 1) + j + 1
+            faces += [[a, c, b], [a, d, c]]
+    fine = Scene([src, mirror, replace(wall, vertices=verts, faces=np.array(faces))],
+                 case.scene.wall, channels=1)
+    assert fine.tri_is_wall.sum() > 64
+    t = PhotonTracer(fine, threads=1)
+    assert not t.caster.exact_wall
+    t.close()
+    m = np.linalg.inv(aim(2.0, 1.0))
+    cfg = RunConfig(frame_photons=20_000, interleave=1, seed=5)
+    with Session(fine, cfg) as s:
+        s.frame()
+        s.update(wall_transform=m)
+        a = s.frame()
+    with Session(fine.with_wall_transform(m), cfg) as s2:
+        b = s2.frame()
+    assert np.array_equal(a.lux, b.lux) and a.lux.sum() > 0

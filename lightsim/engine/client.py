@@ -63,7 +63,11 @@ def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
             for p in scene.emitters:
                 scene = scene.transform_part(p.name, change[1])
         elif kind == "wall":
+            from lightsim.raycast import WALL_MAX_TRIANGLES
+
             scene = scene.with_wall_transform(change[1])
+            # a wall too finely meshed to be tested exactly lives in embree: rebuild
+            geometry = geometry or int(scene.tri_is_wall.sum()) > WALL_MAX_TRIANGLES
         else:
             raise ValueError(f"unknown change {kind!r}")
     return scene, geometry
