@@ -233,7 +233,9 @@ class Scene:
         the lux map of the aimed lamp (bit for bit up to float rounding of the hit points)
         without touching the lamp's triangles, so a :class:`~lightsim.tracer.PhotonTracer`
         given the old tracer's ``caster`` keeps its embree scene (the wall is intersected
-        exactly outside it, :meth:`~lightsim.raycast.RayCaster.with_wall`). The H-V point
+        exactly outside it, :meth:`~lightsim.raycast.RayCaster.with_wall`; a wall of more
+        than ``WALL_MAX_TRIANGLES`` triangles lives in embree and needs a new caster —
+        the session's ``("wall", M)`` change rebuilds it then). The H-V point
         stays at the same wall coordinates (it belongs to the wall's grid, as when the lamp
         is turned); the lamp → wall distance follows the moved plane.
 
