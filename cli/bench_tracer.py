@@ -25,8 +25,11 @@ def example_headlight():
 @click.option("--analytic", type=click.Choice(["paraboloid", "slab", "shield"]),
               help="Bench an analytic validation scene instead of SCENE_FILE (the "
                    "paraboloid: point source at the focus of a mirror).")
+@click.option("--aim", is_flag=True,
+              help="Time aiming the lamp in a session instead: embree rebuilt vs the wall "
+                   "moved (Session.update(wall_transform=…)).")
 def command(scene_file: str | None, photons: int, repeats: int, threads: int | None,
-            json_path: str | None, analytic: str | None) -> None:
+            json_path: str | None, analytic: str | None, aim: bool) -> None:
     """Photon tracing vs raw embree on SCENE_FILE (default: the shipped headlight)."""
     from lightsim.scene import load_scene
     from lightsim.validation.bench.tracer import bench_tracer
@@ -41,6 +44,15 @@ def command(scene_file: str | None, photons: int, repeats: int, threads: int | N
     else:
         path = scene_file or str(example_headlight())
         scene = load_scene(path)
+    if aim:
+        from lightsim.validation.bench.tracer_aim import bench_aim
+
+        rows = bench_aim(scene, repeats=repeats)
+        print_table(f"aim: {path} ({scene.n_triangles} triangles)", rows)
+        if json_path:
+            write_json(json_path, "tracer-aim", rows, {"scene": path,
+                                                       "triangles": scene.n_triangles})
+        return
     rows = bench_tracer(scene, photons=photons, repeats=repeats, threads=threads)
     print_table(f"tracer: {path} ({scene.n_triangles} triangles)", rows)
     if json_path:
