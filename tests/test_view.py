@@ -541,7 +541,8 @@ def test_live_session_warm_up_and_quick_first_frame(tmp_path):
         live.submit({"filament_x_mm": 0.5})
         t_end = time.monotonic() + 300
         while time.monotonic() < t_end and not any(
-                e["mode"] == "accumulation" for e in list(live.stats.log)):
+                k == "status" and p["mode"] == "accumulation" and p["edit"] >= 1
+                for k, p in list(got)):
             time.sleep(0.05)
         log = list(live.stats.log)
         first = next(e for e in log if e["mode"] == "interaction")

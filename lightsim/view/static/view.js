@@ -140,7 +140,8 @@ function showStatus(s) {
   const shown = h ? ` · showing ${h.quality === "pooled" ? "pooled map" :
     "interleaved frame"} of ${h.photons.toLocaleString("en")} photons` : "";
   $("mode").textContent = `${s.mode}${shown}`;
-  $("error").textContent = pct(s.rel_error);
+  $("error").textContent = pct(s.rel_error) + (s.error_source ? ` (${s.error_source}` +
+    (s.error_photons ? ` at ${s.error_photons.toLocaleString("en")} photons)` : ")") : "");
   $("photons").textContent = s.photons.toLocaleString("en");
   $("frame_s").textContent = `${(1000 * s.frame_s).toFixed(0)} ms`;
   $("error_text").textContent = s.error_text || "";
