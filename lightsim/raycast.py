@@ -4,11 +4,19 @@ One embree scene is built per geometry (building copies the vertices, which is s
 large meshes: build once per geometry change, never per frame). ``run()`` of embreex is
 single-threaded but releases the GIL, so a batch is split over a pool of Python threads.
 
+The measuring wall can be kept out of the embree scene (``wall`` mask): its few triangles
+are then intersected exactly (float64 Möller–Trumbore) after embree's closest hit, and
+:meth:`RayCaster.with_wall` places the wall anew while sharing the lamp's embree scene —
+aiming the lamp (the wall moved the opposite way about the lamp) or changing the wall
+distance costs no BVH rebuild. Hits keep the indices of the full triangle soup.
+
 =============  =====  ========================  ==========================================
 parameter      unit   default                   meaning
 =============  =====  ========================  ==========================================
 ``threads``    –      all cores (``os.cpu_count``)  threads casting one batch in parallel
 ``min_chunk``  rays   8192                      smallest batch piece given to one thread
+``wall``       –      none                      (T,) bool: triangles intersected exactly,
+                                                outside embree (at most WALL_MAX_TRIANGLES)
 =============  =====  ========================  ==========================================
 """
 
@@ -18,6 +26,60 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+from numba import njit
+
+WALL_MAX_TRIANGLES = 64  # a wall with more triangles stays in the embree scene
+_MISS_T = np.float32(1e37)  # embree's tfar of a miss
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tri_hit(ox, oy, oz, dx, dy, dz, tri):
+    """Möller–Trumbore in float64, both sides: (t, u, v), t = inf for a miss."""
+    e1x, e1y, e1z = tri[1, 0] - tri[0, 0], tri[1, 1] - tri[0, 1], tri[1, 2] - tri[0, 2]
+    e2x, e2y, e2z = tri[2, 0] - tri[0, 0], tri[2, 1] - tri[0, 1], tri[2, 2] - tri[0, 2]
+    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if det == 0.0:
+        return np.inf, 0.0, 0.0
+    inv = 1.0 / det
+    sx, sy, sz = ox - tri[0, 0], oy - tri[0, 1], oz - tri[0, 2]
+    u = (sx * px + sy * py + sz * pz) * inv
+    if u < 0.0 or u > 1.0:
+        return np.inf, 0.0, 0.0
+    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    if v < 0.0 or u + v > 1.0:
+        return np.inf, 0.0, 0.0
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    if not t > 0.0:
+        return np.inf, 0.0, 0.0
+    return t, u, v
+
+
+@njit(cache=True, nogil=True)
+def _merge_wall(o, d, prim, tfar, u, v, lamp_index, wall_tri, wall_index):
+    """Map embree's primitive ids to the full soup and let a nearer wall hit win.
+
+    ``lamp_index`` (E,) maps embree ids to soup indices (empty: identity); ``wall_tri``
+    (W, 3, 3) float64 and ``wall_index`` (W,) are the wall's triangles and soup indices.
+    Updates ``prim``/``tfar``/``u``/``v`` in place.
+    """
+    remap = lamp_index.shape[0] > 0
+    for i in range(prim.shape[0]):
+        k = prim[i]
+        if k >= 0 and remap:
+            prim[i] = lamp_index[k]
+        best = np.inf if k < 0 else float(tfar[i])
+        ox, oy, oz = float(o[i, 0]), float(o[i, 1]), float(o[i, 2])
+        dx, dy, dz = float(d[i, 0]), float(d[i, 1]), float(d[i, 2])
+        for w in range(wall_tri.shape[0]):
+            t, bu, bv = _tri_hit(ox, oy, oz, dx, dy, dz, wall_tri[w])
+            if t < best:
+                best = t
+                prim[i] = wall_index[w]
+                tfar[i] = t
+                u[i] = bu
+                v[i] = bv
 
 
 class RayCaster:
@@ -29,23 +91,92 @@ class RayCaster:
         Triangle corners (m); converted to float32 for embree.
     threads : int, optional
         Threads per batch (default: all cores).
+    wall : (T,) bool, optional
+        Triangles kept out of embree and intersected exactly (the measuring wall; at most
+        ``WALL_MAX_TRIANGLES``); :meth:`with_wall` moves them without a rebuild.
     """
 
     def __init__(self, triangles: np.ndarray, threads: int | None = None,
-                 min_chunk: int = 8192) -> None:
+                 min_chunk: int = 8192, wall: np.ndarray | None = None) -> None:
+        triangles = np.asarray(triangles)
         self.n_triangles = len(triangles)
         self.threads = max(1, int(threads or os.cpu_count() or 1))
         self.min_chunk = int(min_chunk)
         self._scene = None
-        if self.n_triangles:
+        mask = (np.zeros(self.n_triangles, np.bool_) if wall is None
+                else np.asarray(wall, dtype=np.bool_).reshape(-1))
+        if len(mask) != self.n_triangles:
+            raise ValueError("wall mask: one entry per triangle")
+        if mask.sum() > WALL_MAX_TRIANGLES:
+            raise ValueError(f"an exactly intersected wall has at most {WALL_MAX_TRIANGLES} "
+                             "triangles")
+        lamp = np.flatnonzero(~mask).astype(np.int32)
+        self._wall_index = np.flatnonzero(mask).astype(np.int32)
+        self._wall_tri = np.ascontiguousarray(triangles[mask], dtype=np.float64).reshape(-1, 3, 3)
+        # embree ids are soup ids when the wall comes last (or there is none)
+        identity = len(lamp) == 0 or lamp[-1] == len(lamp) - 1
+        self._lamp_index = np.zeros(0, np.int32) if identity else lamp
+        self.n_lamp = len(lamp)
+        if len(lamp):
             from embreex import rtcore_scene as rtcs
             from embreex.mesh_construction import TriangleMesh
 
             self._scene = rtcs.EmbreeScene()
-            TriangleMesh(self._scene, np.ascontiguousarray(triangles, dtype=np.float32))
+            TriangleMesh(self._scene, np.ascontiguousarray(triangles[lamp], dtype=np.float32))
             # commit now, in one thread: embreex commits lazily on the first run()
             self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        self.geometry = None  # the tracer's packed triangles of this soup (set by it)
+
+    @property
+    def exact_wall(self) -> bool:
+        """True if the wall is intersected outside embree (movable by :meth:`with_wall`)."""
+        return len(self._wall_index) > 0
+
+    def with_wall(self, wall_triangles: np.ndarray) -> RayCaster:
+        """The same lamp (embree scene shared, not rebuilt) with the wall's triangles at
+        new places.
+
+        Parameters
+        ----------
+        wall_triangles : (W, 3, 3) array
+            The wall's triangles (m), in the order of the ``wall`` mask this caster was
+            built with (e.g. ``scene.triangles[scene.tri_is_wall]`` of a scene made by
+            :meth:`~lightsim.scene.Scene.with_wall_transform`).
+
+        Returns
+        -------
+        RayCaster
+            A new caster with its own thread pool; this one stays valid.
+        """
+        tri = np.ascontiguousarray(wall_triangles, dtype=np.float64).reshape(-1, 3, 3)
+        if len(tri) != len(self._wall_index) or not self.exact_wall:
+            raise ValueError(f"with_wall: this caster's wall has {len(self._wall_index)} "
+                             f"triangles, got {len(tri)}")
+        if not np.all(np.isfinite(tri)):
+            raise ValueError("with_wall: wall triangles must be finite")
+        out = object.__new__(RayCaster)
+        out.__dict__.update(self.__dict__)
+        out._wall_tri = tri
+        out._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        return out
+
+    def _run(self, o: np.ndarray, d: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """embree's closest hits of float32 rays, merged with the exact wall."""
+        n = len(o)
+        if self._scene is not None:
+            res = self._scene.run(o, d, output=1)
+            prim, tfar, u, v = res["primID"], res["tfar"], res["u"], res["v"]
+        else:
+            prim = np.full(n, -1, dtype=np.int32)
+            tfar = np.full(n, _MISS_T, dtype=np.float32)
+            u = np.zeros(n, dtype=np.float32)
+            v = np.zeros(n, dtype=np.float32)
+        if len(self._wall_index) or len(self._lamp_index):
+            _merge_wall(o, d, prim, tfar, u, v, self._lamp_index, self._wall_tri,
+                        self._wall_index)
+        return prim, tfar, u, v
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -70,17 +201,13 @@ class RayCaster:
         t = np.full(n, np.inf, dtype=np.float32)
         u = np.zeros(n, dtype=np.float32)
         v = np.zeros(n, dtype=np.float32)
-        if n == 0 or self._scene is None:
+        if n == 0 or self.n_triangles == 0:
             return prim, t, u, v
         o = np.ascontiguousarray(origins, dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
 
         def run(lo: int, hi: int) -> None:
-            res = self._scene.run(o[lo:hi], d[lo:hi], output=1)
-            prim[lo:hi] = res["primID"]
-            t[lo:hi] = res["tfar"]
-            u[lo:hi] = res["u"]
-            v[lo:hi] = res["v"]
+            prim[lo:hi], t[lo:hi], u[lo:hi], v[lo:hi] = self._run(o[lo:hi], d[lo:hi])
 
         pieces = min(self.threads, max(1, n // self.min_chunk))
         if pieces == 1 or self._pool is None:
@@ -99,11 +226,10 @@ class RayCaster:
         ``origins``/``directions`` must be C-contiguous (n, 3) float32.
         """
         n = len(origins)
-        if n == 0 or self._scene is None:
+        if n == 0 or self.n_triangles == 0:
             return (np.full(n, -1, dtype=np.int32), np.full(n, np.inf, dtype=np.float32),
                     np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32))
-        res = self._scene.run(origins, directions, output=1)
-        return res["primID"], res["tfar"], res["u"], res["v"]
+        return self._run(origins, directions)
 
     def close(self) -> None:
         if self._pool is not None:

@@ -225,6 +225,66 @@ class Scene:
         parts = [p.transformed(matrix) if p.name == name else p for p in self.parts]
         return Scene(parts, self.wall, self.source, list(self.warnings), self.channels)
 
+    def with_wall_transform(self, matrix: np.ndarray) -> Scene:
+        """A new scene with the wall part *and* its pixel frame moved by the 4×4 ``matrix``.
+
+        Aiming the lamp by a rotation R about the origin is the same, in the lamp's frame,
+        as moving the wall by R⁻¹: ``scene.with_wall_transform(np.linalg.inv(R))`` gives
+        the lux map of the aimed lamp (bit for bit up to float rounding of the hit points)
+        without touching the lamp's triangles, so a :class:`~lightsim.tracer.PhotonTracer`
+        given the old tracer's ``caster`` keeps its embree scene (the wall is intersected
+        exactly outside it, :meth:`~lightsim.raycast.RayCaster.with_wall`). The H-V point
+        stays at the same wall coordinates (it belongs to the wall's grid, as when the lamp
+        is turned); the lamp → wall distance follows the moved plane.
+
+        Raises
+        ------
+        InputError
+            If the scene has no wall or ``matrix`` is not a finite invertible 4×4.
+        """
+        m = np.asarray(matrix, dtype=np.float64)
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise InputError("wall transform: needs a finite 4x4 matrix")
+        lin, t = m[:3, :3], m[:3, 3]
+        if not abs(np.linalg.det(lin)) > 1e-12:
+            raise InputError("wall transform: the matrix is singular")
+        walls = [p for p in self.parts if p.role == WALL]
+        if not walls or self.wall is None:
+            raise InputError("wall transform: the scene has no wall")
+        parts = [p.transformed(m) if p.role == WALL else p for p in self.parts]
+        w = self.wall
+
+        def unit(x: np.ndarray) -> np.ndarray:
+            y = lin @ np.asarray(x, dtype=np.float64)
+            return y / np.linalg.norm(y)
+
+        # an in-plane scale stretches the wall's metres too (the wall-distance control)
+        sh = float(np.linalg.norm(lin @ np.asarray(w.h_axis, float)))
+        sv = float(np.linalg.norm(lin @ np.asarray(w.v_axis, float)))
+        centre = lin @ np.asarray(w.centre, dtype=np.float64) + t
+        normal = np.linalg.inv(lin).T @ np.asarray(w.normal, dtype=np.float64)
+        normal /= np.linalg.norm(normal)
+        rigid = not np.any(t) and np.allclose(lin.T @ lin, np.eye(3), rtol=0, atol=1e-12)
+        distance = w.distance_m if rigid else float(abs(normal @ centre))
+        frame = replace(w, centre=centre, h_axis=unit(w.h_axis), v_axis=unit(w.v_axis),
+                        normal=normal, distance_m=distance,
+                        h_range_m=(w.h_range_m[0] * sh, w.h_range_m[1] * sh),
+                        v_range_m=(w.v_range_m[0] * sv, w.v_range_m[1] * sv),
+                        hv_offset=(w.hv_offset_m[0] * sh, w.hv_offset_m[1] * sv))
+        out = Scene(parts, frame, self.source, list(self.warnings), self.channels)
+        # what does not depend on the wall's place carries over (no pass over the lamp)
+        for key in ("scale", "tri_part", "tri_is_wall", "materials"):
+            if key in self.__dict__:
+                out.__dict__[key] = self.__dict__[key]
+        return out
+
+    @property
+    def wall_triangles(self) -> np.ndarray:
+        """(W, 3, 3) float64 corners of the wall's triangles, in soup order (the rows
+        where :attr:`tri_is_wall` is true), without building the whole soup."""
+        walls = [p.triangles for p in self.surfaces if p.role == WALL]
+        return np.concatenate(walls) if walls else np.zeros((0, 3, 3))
+
     @property
     def part_names(self) -> list[str]:
         return [p.name for p in self.parts]

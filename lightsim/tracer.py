@@ -68,7 +68,7 @@ from lightsim.materials import (
     mirror_bsdf,
     wall_bsdf,
 )
-from lightsim.raycast import RayCaster
+from lightsim.raycast import WALL_MAX_TRIANGLES, RayCaster
 from lightsim.sampling import uniform
 
 # bookkeeping categories (columns of the ledger)
@@ -130,6 +130,27 @@ class Geometry(NamedTuple):
         packed[:, 21] = part
         packed[:, 22] = wall
         return cls(tri_v, face_n, corner_n, part, wall, packed)
+
+    def with_wall_of(self, scene) -> Geometry:
+        """This geometry with the wall rows taken from ``scene`` (the same lamp with the
+        wall moved, :meth:`~lightsim.scene.Scene.with_wall_transform`): a copy and a few
+        rows instead of a pass over every triangle of the lamp."""
+        from lightsim.scene import WALL, Scene
+
+        rows = np.flatnonzero(self.is_wall)
+        walls = Scene([p for p in scene.surfaces if p.role == WALL], None,
+                      channels=scene.channels)
+        if len(rows) != walls.n_triangles:
+            raise ValueError("with_wall_of: the scene's wall has another triangle count")
+        tri_v, face_n = self.tri_v.copy(), self.face_n.copy()
+        corner_n, packed = self.corner_n.copy(), self.packed.copy()
+        tri_v[rows] = walls.triangles
+        face_n[rows] = walls.face_normals
+        corner_n[rows] = walls.corner_normals
+        packed[rows, 0:9] = tri_v[rows].reshape(-1, 9)
+        packed[rows, 9:12] = face_n[rows]
+        packed[rows, 12:21] = corner_n[rows].reshape(-1, 9)
+        return Geometry(tri_v, face_n, corner_n, self.tri_part, self.is_wall, packed)
 
 
 class Wavefront(NamedTuple):
@@ -452,6 +473,19 @@ class TraceResult:
     extra: dict = field(default_factory=dict)
 
 
+def _caster_for(scene, caster: RayCaster | None, threads: int | None) -> RayCaster:
+    """The ray caster of ``scene``: the wall (up to WALL_MAX_TRIANGLES) outside embree, so
+    a ``caster`` of the same lamp with the wall elsewhere is reused with the wall moved
+    (:meth:`RayCaster.with_wall`) instead of rebuilt."""
+    wall = scene.tri_is_wall
+    exact = 0 < int(wall.sum()) <= WALL_MAX_TRIANGLES
+    if caster is None:
+        return RayCaster(scene.triangles, threads=threads, wall=wall if exact else None)
+    if exact and caster.exact_wall and caster.n_triangles == len(wall):
+        return caster.with_wall(scene.wall_triangles)
+    return caster
+
+
 class PhotonTracer:
     """Traces photon batches through a scene (see the module docstring for parameters)."""
 
@@ -467,11 +501,19 @@ class PhotonTracer:
         self.rr_min_depth = int(rr_min_depth)
         self.record_all = record == "all"
         self.batch = int(batch)
-        self.caster = caster or RayCaster(scene.triangles, threads=threads)
+        self.caster = _caster_for(scene, caster, threads)
         self.emitters = EmitterMix.from_scene(scene)
         mats = scene.materials
         self.channels = mats.channels
-        self._geom = Geometry.from_scene(scene)
+        prev = getattr(caster, "geometry", None) if caster is not None else None
+        if (prev is not None and self.caster.exact_wall and self.caster is not caster
+                and len(prev.tri_part) == self.caster.n_triangles):
+            self._geom = prev.with_wall_of(scene)  # same lamp, the wall moved
+        else:
+            self._geom = Geometry.from_scene(scene)
+        # the packed lamp rides with its embree scene: a tracer reusing this caster
+        # (only the wall or materials changed) reuses the lamp's rows too
+        self.caster.geometry = self._geom
         self._mats = mats.arrays
         self.eps_floor = 0.01 * scene.scale
         self._params = TraceParams(self.eps_floor, self.rr_threshold, self.rr_min_depth,

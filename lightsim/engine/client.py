@@ -29,7 +29,10 @@ def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
 
     Changes: ``("scene", Scene)``, ``("material", part, {"ior"|"reflectance"|"albedo"|
     "rgb"|"sigma": value})``, ``("transform", part, 4×4)``, ``("light", 4×4)`` (moves
-    every emitter; emitters are not traced, so the embree scene stays).
+    every emitter; emitters are not traced, so the embree scene stays), ``("wall", 4×4)``
+    (moves the wall and its frame, :meth:`Scene.with_wall_transform`: the wall is
+    intersected outside embree, so the embree scene stays — aiming the lamp by R is
+    ``("wall", R⁻¹)``).
     """
     from dataclasses import replace as dc_replace
 
@@ -59,6 +62,8 @@ def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
         elif kind == "light":
             for p in scene.emitters:
                 scene = scene.transform_part(p.name, change[1])
+        elif kind == "wall":
+            scene = scene.with_wall_transform(change[1])
         else:
             raise ValueError(f"unknown change {kind!r}")
     return scene, geometry

@@ -352,12 +352,15 @@ class Session:
     def update(self, *, scene: Scene | None = None,
                material: tuple[str, dict[str, Any]] | None = None,
                part_transform: tuple[str, np.ndarray] | None = None,
-               light_transform: np.ndarray | None = None) -> None:
+               light_transform: np.ndarray | None = None,
+               wall_transform: np.ndarray | None = None) -> None:
         """Interaction mode: change the scene and discard the accumulated photons.
 
         ``material=(part, {"ior": 1.55})`` or ``{"reflectance": 0.8}``/``{"albedo": …}``/
         ``{"sigma": …}`` changes a material; ``light_transform`` (4×4) moves every emitter —
-        both keep the embree scene; ``part_transform=(part, 4×4)`` moves a part and
+        both keep the embree scene; ``wall_transform`` (4×4) moves the wall and its pixel
+        frame (aiming the lamp by R is ``wall_transform=R⁻¹``; the wall lies outside the
+        embree scene, which is kept); ``part_transform=(part, 4×4)`` moves a part and
         ``scene`` replaces everything (both rebuild it). Only the change travels to the
         clients (a whole scene goes to Ray's object store once).
         """
@@ -370,6 +373,8 @@ class Session:
             changes.append(("transform", part_transform[0], np.asarray(part_transform[1])))
         if light_transform is not None:
             changes.append(("light", np.asarray(light_transform)))
+        if wall_transform is not None:
+            changes.append(("wall", np.asarray(wall_transform)))
         self.scene, _ = apply_changes(self.scene, changes)  # validates before sending
         self.backend.apply(changes)
         self.frames = 0
