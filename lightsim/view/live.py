@@ -40,7 +40,11 @@ parameter                  unit   default  meaning
 ``batch_photons``          –      2²⁰      photons of one batch at most (the session's
                                            frame; memory ≈ 100 B per photon of a batch)
 ``first_pooled_seconds``   s      1.0      tracing before the first pooled map (or the
-                                           pooled map's own cost, if more)
+                                           pooled map's own cost, if more); after an
+                                           earlier edit's map, at the photons where its
+                                           e √N predicts 5 % ...
+``first_cap_seconds``      s      4.0      ... but after at most this much tracing (or
+                                           twice the pooled map's cost)
 ``pooled_share``           –      1/3      pooled maps at doubled photons take at most this
                                            share of the time (a predicted crossing of
                                            5 %, 2 %, 1 %, 0.5 % is not delayed)
@@ -71,6 +75,7 @@ parameter                  unit   default  meaning
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import threading
@@ -88,7 +93,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.errors import LightsimError
 from lightsim.render.frame import luminous
 from lightsim.scene import Scene
-from lightsim.view.controls import CONFIG_CONTROLS, POSE_CONTROLS, Controls
+from lightsim.view.controls import AIM_CONTROLS, CONFIG_CONTROLS, POSE_CONTROLS, Controls
 from lightsim.view.editor import SceneEditor
 from lightsim.view.encode import encode_image
 
@@ -155,7 +160,8 @@ class LiveSession:
                  folder: Path | None = None, camera: Any = None,
                  batch_seconds: float = 0.1, batch_growth: float = 1.5,
                  batch_max_seconds: float = 1.0, batch_photons: int = 1 << 20,
-                 first_pooled_seconds: float = 1.0, pooled_share: float = 1.0 / 3.0,
+                 first_pooled_seconds: float = 1.0, first_cap_seconds: float = 4.0,
+                 pooled_share: float = 1.0 / 3.0,
                  probe_share: float = 0.1, regulation_interval: float = 1.0,
                  regulation_share: float = 0.1, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 10_000,
@@ -194,6 +200,8 @@ class LiveSession:
         self.accumulate_times: dict[int, float] = {}  # … → seconds of one batch
         self.frame_threads = self.accumulate_threads = None
         self.warm_batch = 50_000  # photons of the warm-up's timed accumulation batch
+        self.first_cap_seconds = float(first_cap_seconds)
+        self._error_constant: float | None = None  # e √N of the last written map
         self._rate: float | None = None  # photons/s of the last batch or frame
         self._pooled_cost = self._probe_cost = self._camera_cost = 0.0  # seconds
         self._quick_due = False  # the next frame is the first after an edit
@@ -268,7 +276,7 @@ class LiveSession:
     # -- the thread --------------------------------------------------------------------
     def _run(self) -> None:
         try:
-            self._open(self.editor.build(self.controls), self.controls)
+            self._open(self.editor.session_scene(self.controls), self.controls)
         except LightsimError as exc:
             self.error = str(exc)
             self._message("error", f"cannot start the session: {exc}")
@@ -400,7 +408,7 @@ class LiveSession:
             upload, self._pending_scene = self._pending_scene, None
         if upload is not None:
             editor, c = upload
-            self._open(editor.build(c), c)
+            self._open(editor.session_scene(c), c)
             self.editor = editor
             self.edit += 1
             self._autosave({"upload": editor.base.source})
@@ -413,19 +421,31 @@ class LiveSession:
         t0 = time.perf_counter()
         try:
             changed = new.changed(self.controls)
-            if changed and changed <= POSE_CONTROLS:
-                # only the filament moved: emitters are not traced, the embree scene stays
-                # (and the edited scene need not be built: the engine moves its emitters)
-                delta = self.editor.emitter_matrix(new) @ np.linalg.inv(
-                    self.editor.emitter_matrix(self.controls))
-                self.session.update(light_transform=delta)
+            ed, old = self.editor, self.controls
+            lamp_frame = ed.wall_aimable()  # the session's lamp is unaimed, its wall turned
+            if changed and changed <= POSE_CONTROLS | (AIM_CONTROLS if lamp_frame else set()):
+                # the filament moved (emitters are not traced) and/or the aim changed (the
+                # wall is moved the other way, outside embree): the embree scene stays and
+                # the edited scene need not be built
+                kw: dict[str, Any] = {}
+                if changed & POSE_CONTROLS:
+                    if lamp_frame:
+                        kw["light_transform"] = ed.pose_matrix(new) @ np.linalg.inv(
+                            ed.pose_matrix(old))
+                    else:
+                        kw["light_transform"] = ed.emitter_matrix(new) @ np.linalg.inv(
+                            ed.emitter_matrix(old))
+                if changed & AIM_CONTROLS:
+                    kw["wall_transform"] = ed.wall_matrix(new) @ np.linalg.inv(
+                        ed.wall_matrix(old))
+                self.session.update(**kw)
                 self.controls = new
                 self._reset_clock()
             elif changed & {*CONFIG_CONTROLS, "wall_distance_m"}:
                 # the run configuration or the wall frame (probe grid, radii) changed
-                self._open(self.editor.build(new), new)
+                self._open(ed.session_scene(new), new)
             else:
-                self.session.update(scene=self.editor.build(new))
+                self.session.update(scene=ed.session_scene(new))
                 self.controls = new
                 self._reset_clock()
         except LightsimError as exc:
@@ -488,28 +508,35 @@ class LiveSession:
         watched = self.camera is not None and self.camera_watchers > 0
         now = time.perf_counter()
         camera_due = watched and now - self._last_camera >= max(1.0, 9.0 * self._camera_cost)
-        if self._pooled_due():
+        pooled = self._pooled_due()
+        if pooled:
             est = self._pooled_frame(self.camera if watched else None)
             self._publish_frame(est, "pooled", {})
         elif self._honest is None and self._probe_due():
-            self._probe_frame()
+            # before the first pooled map: the grid figure and the interleaved image
+            self._publish_frame(self._probe_frame(image=True), "interleaved", {})
         if camera_due and time.perf_counter() - self._last_camera >= 1.0:
             t0 = time.perf_counter()
             est = s.frame(image=False, shoot=False, camera=self.camera, probes=False)
             self._camera_cost = time.perf_counter() - t0
+            self.stats.log.append({"mode": self.mode, "quality": "camera", "image": False,
+                                   "frame_s": self._camera_cost})
             self._publish_camera(est)
         self.last_status = self._status()
         self.publish("status", self.last_status)
-        # the table needs ~10³ probes per set: once the scene is still, then at most
-        # ``regulation_share`` of the time
+        # the table needs ~10³ probes per set: once the scene is still, then with each
+        # pooled map (the drawn result), at most ``regulation_share`` of the time
         share = self.regulation_share
-        if (self.regulation_hook is not None and not self._busy()
-                and (self._last_reg == 0.0 or time.perf_counter() - self._last_reg
-                     >= max(self.regulation_interval, self._reg_cost * (1 - share) / share))):
+        reg_due = self._last_reg == 0.0 or (
+            pooled and time.perf_counter() - self._last_reg
+            >= max(self.regulation_interval, self._reg_cost * (1 - share) / share))
+        if self.regulation_hook is not None and not self._busy() and reg_due:
             t1 = time.perf_counter()
             table = self.regulation_hook(s)
             self._last_reg = time.perf_counter()
             self._reg_cost = self._last_reg - t1
+            self.stats.log.append({"mode": self.mode, "quality": "regulation",
+                                   "image": False, "frame_s": self._reg_cost})
             self.publish("regulation", {"edit": self.edit, "title": table.title,
                                         "rows": table.rows, "points": table.points,
                                         "unevaluated": table.unevaluated})
@@ -546,14 +573,16 @@ class LiveSession:
         return self._last_probe == 0.0 or time.perf_counter() - self._last_probe >= \
             self._probe_cost * (1 - share) / share
 
-    def _probe_frame(self):
+    def _probe_frame(self, image: bool = False):
         """The cheap error figure: the ICI rungs at the grid probes only (or the kNN
-        probes without ICI); no image."""
+        probes without ICI), with the interleaved image if ``image``."""
         s = self.session
         t0 = time.perf_counter()
-        est = s.frame(image=False, shoot=False, probes="ici" if s.config.uses_ici else True)
+        est = s.frame(image=image, shoot=False, probes="ici" if s.config.uses_ici else True)
         self._last_probe = time.perf_counter()
-        self._probe_cost = self._last_probe - t0
+        self._probe_cost = self.stats.last_frame_s = self._last_probe - t0
+        self.stats.log.append({"mode": self.mode, "quality": "grid probes", "image": False,
+                               "photons": int(est.photons), "frame_s": self._probe_cost})
         self.stats.timings = dict(est.timings)
         self._figure = (est, "grid probes")
         return est
@@ -571,6 +600,8 @@ class LiveSession:
         self._traced_at_pooled = self._traced_s
         self._pooled_photons = int(est.photons)
         self._honest = (_finite(est.rel_error), int(est.photons))
+        if self._honest[0] is not None:  # e √N: where the next edit's first map is due
+            self._error_constant = self._honest[0] * math.sqrt(max(est.photons, 1))
         self._figure = (est, "written map")
         return est
 
@@ -580,7 +611,14 @@ class LiveSession:
         map's figure is expected to cross the next level (noise ∝ 1/√N, aimed 7 % below
         it), otherwise at twice the photons, its cost ≤ ``pooled_share`` of the time."""
         if self._honest is None:
-            return self._traced_s >= max(self.first_pooled_seconds, self._pooled_cost)
+            first = max(self.first_pooled_seconds, self._pooled_cost)
+            if self._error_constant is None:
+                return self._traced_s >= first
+            # an earlier edit's e √N predicts where this one crosses 5 %: one pooled map
+            # there instead of one early and one at the crossing; at most ``first_cap``
+            n5 = (self._error_constant / (0.93 * ERROR_LEVELS[0])) ** 2
+            return (self._traced_s >= first and self._photons_now() >= n5) or \
+                self._traced_s >= max(self.first_cap_seconds, 2.0 * self._pooled_cost)
         err, n_last = self._honest
         photons = self._photons_now()
         if err is not None:
@@ -720,7 +758,8 @@ class LiveSession:
             shutil.rmtree(tmp)
         tmp.mkdir(parents=True)
         try:
-            files = self.save_hook(tmp, s, est, self.controls, s.scene)
+            # the GLB is the edited scene as a user loads it: the lamp aimed, the wall fixed
+            files = self.save_hook(tmp, s, est, self.controls, self.editor.build(self.controls))
             shutil.copy2(self.folder / "edits.jsonl", tmp / "edits.jsonl")
             os.replace(tmp, final)
         except BaseException:
