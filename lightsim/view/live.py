@@ -56,8 +56,12 @@ parameter                  unit   default  meaning
 ``max_photons``            –      2·10⁸    … or at this many photons
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
                                            the second tab (rendered while a tab shows it)
-``quick_photons``          –      10 000   photons of the first frame after an edit (at most
-                                           the frame's photons): the low-quality frame
+``quick_photons``          –      10 000   photons of an interaction frame after an edit (at
+                                           most the frame's photons): the low-quality frame
+``frame_seconds``          s      0.18     … fewer if the tracer's measured rate does not
+                                           fit them into this beside the frame's render,
+                                           update and encode (a drag at ≥ 5 frames/s)
+``min_photons``            –      2 000    … but at least this many
 ``settle_seconds``         s      0.25     after an interaction frame, wait this long for the
                                            next edit before accumulating (an edit then
                                            need not wait for a batch in progress)
@@ -165,6 +169,7 @@ class LiveSession:
                  probe_share: float = 0.1, regulation_interval: float = 1.0,
                  regulation_share: float = 0.1, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 10_000,
+                 frame_seconds: float = 0.18, min_photons: int = 2_000,
                  warm_up: bool = True, threads: int | str = "auto",
                  settle_seconds: float = 0.25) -> None:
         self.editor = editor
@@ -201,6 +206,9 @@ class LiveSession:
         self.frame_threads = self.accumulate_threads = None
         self.warm_batch = 50_000  # photons of the warm-up's timed accumulation batch
         self.first_cap_seconds = float(first_cap_seconds)
+        self.frame_seconds = float(frame_seconds)
+        self.min_photons = int(min_photons)
+        self._overhead_s: float | None = None  # an interaction frame's seconds besides shooting
         self._error_constant: float | None = None  # e √N of the last written map
         self._rate: float | None = None  # photons/s of the last batch or frame
         self._pooled_cost = self._probe_cost = self._camera_cost = 0.0  # seconds
@@ -385,9 +393,17 @@ class LiveSession:
         return max(int(photons), s.config.n_sets)
 
     def _frame_photons(self, quick: bool) -> int | None:
-        """Photons of an interaction frame (the first after an edit: ``quick_photons``)."""
+        """Photons of an interaction frame: after an edit at most ``quick_photons``, and
+        as many as the tracer's rate fits into ``frame_seconds`` beside the frame's other
+        work (render, update, encode: measured on the last interaction frame), at least
+        ``min_photons`` — the paper's interaction mode, fewer photons while dragging."""
         n = self.controls.frame_photons
-        return self._partial(min(n, self.quick_photons) if quick else n)
+        if quick:
+            n = min(n, self.quick_photons)
+            if self._rate and self._overhead_s is not None:
+                fit = self._rate * max(self.frame_seconds - self._overhead_s, 0.0)
+                n = min(n, max(self.min_photons, int(fit)))
+        return self._partial(n)
 
     def _reset_clock(self) -> None:
         self.mode = "interaction"
@@ -495,8 +511,13 @@ class LiveSession:
             self._rate = est.photons / est.timings["shoot"]
         self.stats.frames += 1
         self.stats.interaction_frames += 1
-        self._publish_frame(est, "interleaved", {"update_s": self._update_s if changed
-                                                 else 0.0})
+        update = self._update_s if changed else 0.0
+        self._publish_frame(est, "interleaved", {"update_s": update})
+        entry = self.stats.log[-1]
+        overhead = (self.stats.last_frame_s - est.timings.get("shoot", 0.0) + update
+                    + entry.get("encode_s", 0.0))
+        self._overhead_s = overhead if self._overhead_s is None else \
+            0.5 * (self._overhead_s + overhead)
 
     def _accumulation_step(self) -> None:
         """One batch, then what is due: the pooled map with the written map's figure,
