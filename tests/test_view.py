@@ -541,7 +541,7 @@ def test_live_session_warm_up_and_quick_first_frame(tmp_path):
         live.submit({"filament_x_mm": 0.5})
         t_end = time.monotonic() + 300
         while time.monotonic() < t_end and not any(
-                k == "status" and p["mode"] == "accumulation" and p["edit"] >= 1
+                k == "status" and p["edit"] >= 1 and p["error_source"] == "written map"
                 for k, p in list(got)):
             time.sleep(0.05)
         log = list(live.stats.log)
@@ -550,7 +550,15 @@ def test_live_session_warm_up_and_quick_first_frame(tmp_path):
         statuses = [p for k, p in got if k == "status" and p["edit"] == live.edit]
         assert statuses[0]["mode"] == "interaction" and statuses[0]["rel_error"] is None
         acc = [p for p in statuses if p["mode"] == "accumulation"]
-        assert acc and acc[0]["rel_error"] is not None and acc[0]["photons"] > 1600
+        assert acc and acc[-1]["photons"] > acc[0]["photons"] > 1600
+        # the figure comes first from the grid probes, then from the pooled (written) map
+        figured = [p for p in acc if p["rel_error"] is not None]
+        assert figured[0]["error_source"] == "grid probes"
+        written = [p for p in acc if p["error_source"] == "written map"]
+        assert written and 0 < written[0]["rel_error"] < 1
+        assert written[0]["error_photons"] <= written[0]["photons"]
+        pooled = [e for e in log if e.get("quality") == "pooled"]
+        assert pooled and pooled[0]["image"]
     finally:
         live.stop()
 

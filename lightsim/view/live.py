@@ -35,7 +35,11 @@ parameter                  unit   default  meaning
 =========================  =====  =======  ==================================================
 ``batch_seconds``          s      0.1      accumulation: tracing time of the first batch
                                            after an edit (an edit waits at most one batch)
-``batch_growth``           –      1.5      … times this per batch while the scene is still
+``batch_growth``           –      1.5      … times this per batch once the scene is still
+``still_seconds``          s      0.75     … i.e. this long after the last interaction frame;
+                                           before, no estimate, pooled map or table either
+                                           (nothing long for a paused drag's next edit to
+                                           wait for)
 ``batch_max_seconds``      s      1.0      … up to this
 ``batch_photons``          –      2²⁰      photons of one batch at most (the session's
                                            frame; memory ≈ 100 B per photon of a batch)
@@ -170,6 +174,7 @@ class LiveSession:
                  regulation_share: float = 0.1, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 10_000,
                  frame_seconds: float = 0.18, min_photons: int = 2_000,
+                 still_seconds: float = 0.75,
                  warm_up: bool = True, threads: int | str = "auto",
                  settle_seconds: float = 0.25) -> None:
         self.editor = editor
@@ -207,6 +212,7 @@ class LiveSession:
         self.warm_batch = 50_000  # photons of the warm-up's timed accumulation batch
         self.first_cap_seconds = float(first_cap_seconds)
         self.frame_seconds = float(frame_seconds)
+        self.still_seconds = float(still_seconds)
         self.min_photons = int(min_photons)
         self._overhead_s: float | None = None  # an interaction frame's seconds besides shooting
         self._error_constant: float | None = None  # e √N of the last written map
@@ -526,6 +532,11 @@ class LiveSession:
         self._accumulate_batch()
         if self._busy():
             return  # an edit waits: do not estimate the old scene
+        if time.perf_counter() - self._interaction_done < self.still_seconds:
+            # a pause in a drag: only short batches, so the next edit waits ≤ one batch
+            self.last_status = self._status()
+            self.publish("status", self.last_status)
+            return
         watched = self.camera is not None and self.camera_watchers > 0
         now = time.perf_counter()
         camera_due = watched and now - self._last_camera >= max(1.0, 9.0 * self._camera_cost)
@@ -580,7 +591,8 @@ class LiveSession:
         if dt > 0 and done > 0:
             self._rate = done / dt
         self._traced_s += dt
-        self._batch_s = min(self.batch_max_seconds, self._batch_s * self.batch_growth)
+        if time.perf_counter() - self._interaction_done >= self.still_seconds:
+            self._batch_s = min(self.batch_max_seconds, self._batch_s * self.batch_growth)
         self.stats.log.append({"mode": "accumulation", "quality": "batch", "image": False,
                                "photons": self._photons_now(), "batch_photons": done,
                                "batch_s": dt})
