@@ -203,6 +203,8 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
             fps, drawn = page.evaluate(_DRAG_JS, drag_seconds)
             log = list(live.stats.log)[frames0:]
             inter = [e for e in log if e["mode"] == "interaction" and e["image"]]
+            draw_ms = page.evaluate("window.lightsimView.drawMs")
+            out["page_draw_ms"] = float(np.median(draw_ms)) if draw_ms else None
             out["drag"] = {"fps_drawn": fps, "frames_drawn": drawn,
                            "server_interaction_frames": len(inter),
                            "coalesced_edits": live.stats.edits_coalesced}
@@ -281,8 +283,10 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
                      f"(best {100 * (conv['best'] or float('nan')):.1f} %)",
                      "unit": "s", "target": f"≤ {target:.0f}",
                      "met": t is not None and t <= target})
+    inter_photons = float(np.median([e["photons"] for e in inter])) if inter else 0.0
     out["costs"] = {"update_s": t_update, "shoot_s": t_shoot, "render_s": t_render,
-                    "encode_s": t_encode,
+                    "encode_s": t_encode, "page_draw_s": (out.get("page_draw_ms") or 0) / 1e3,
+                    "interaction_photons": inter_photons,
                     "frame_bytes_to_page": frame_bytes, "cores": cores,
                     "numba_threads": out.get("view_threads", {}).get("used") or cores}
     models = []

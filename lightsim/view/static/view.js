@@ -3,7 +3,7 @@
 "use strict";
 
 const V = window.lightsimView = {
-  client: null, framesDrawn: 0, wallFrames: 0, cameraFrames: 0, latencies: [], sentAt: {},
+  client: null, framesDrawn: 0, wallFrames: 0, cameraFrames: 0, latencies: [], drawMs: [], sentAt: {},
   token: 0, status: null, regulation: null, messages: [], lastHeader: null, plotRect: null,
   lastWallHeader: null,
   connected: false, reconnects: 0, hello: null,
@@ -173,6 +173,7 @@ async function drain(kind) {
   while (pending[kind]) {  // only the newest waiting frame is drawn: a slow page skips
     const { head, payload } = pending[kind];
     pending[kind] = null;
+    const t0 = performance.now();  // the page's share of a frame: inflate, decode, draw
     const stream = new Blob([payload]).stream().pipeThrough(new DecompressionStream("deflate"));
     const codes = new Uint16Array(await new Response(stream).arrayBuffer());
     const lo = head.lo, span = Math.log(head.hi / head.lo);
@@ -184,6 +185,7 @@ async function drain(kind) {
     else { drawCamera(frame); V.cameraFrames++; }
     V.framesDrawn++;
     V.lastHeader = head;
+    if (kind === "wall") { V.drawMs.push(performance.now() - t0); if (V.drawMs.length > 1000) V.drawMs.shift(); }
     const tok = head.token || {};
     if (kind === "wall" && tok.client === V.client && tok.n) {
       const now = performance.now();
