@@ -47,8 +47,9 @@ parameter                  unit   default  meaning
                                            pooled map's own cost, if more); after an
                                            earlier edit's map, at the photons where its
                                            e √N predicts 5 % ...
-``first_cap_seconds``      s      4.0      ... but after at most this much tracing (or
-                                           twice the pooled map's cost)
+``first_cap_seconds``      s      30       ... but after at most this much tracing (or
+                                           twice the pooled map's cost; meanwhile the
+                                           interleaved image and grid figure go on)
 ``pooled_share``           –      1/3      pooled maps at doubled photons take at most this
                                            share of the time (a predicted crossing of
                                            5 %, 2 %, 1 %, 0.5 % is not delayed)
@@ -65,7 +66,7 @@ parameter                  unit   default  meaning
 ``frame_seconds``          s      0.18     … fewer if the tracer's measured rate does not
                                            fit them into this beside the frame's render,
                                            update and encode (a drag at ≥ 5 frames/s)
-``min_photons``            –      2 000    … but at least this many
+``min_photons``            –      3 000    … but at least this many
 ``settle_seconds``         s      0.25     after an interaction frame, wait this long for the
                                            next edit before accumulating (an edit then
                                            need not wait for a batch in progress)
@@ -168,12 +169,12 @@ class LiveSession:
                  folder: Path | None = None, camera: Any = None,
                  batch_seconds: float = 0.1, batch_growth: float = 1.5,
                  batch_max_seconds: float = 1.0, batch_photons: int = 1 << 20,
-                 first_pooled_seconds: float = 1.0, first_cap_seconds: float = 4.0,
+                 first_pooled_seconds: float = 1.0, first_cap_seconds: float = 30.0,
                  pooled_share: float = 1.0 / 3.0,
                  probe_share: float = 0.1, regulation_interval: float = 1.0,
                  regulation_share: float = 0.1, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 10_000,
-                 frame_seconds: float = 0.18, min_photons: int = 2_000,
+                 frame_seconds: float = 0.18, min_photons: int = 3_000,
                  still_seconds: float = 0.75,
                  warm_up: bool = True, threads: int | str = "auto",
                  settle_seconds: float = 0.25) -> None:
@@ -647,9 +648,9 @@ class LiveSession:
             first = max(self.first_pooled_seconds, self._pooled_cost)
             if self._error_constant is None:
                 return self._traced_s >= first
-            # an earlier edit's e √N predicts where this one crosses 5 %: one pooled map
-            # there instead of one early and one at the crossing; at most ``first_cap``
-            n5 = (self._error_constant / (0.93 * ERROR_LEVELS[0])) ** 2
+            # an earlier edit's e √N predicts where this one crosses 5 % (aimed 10 % below
+            # it): one pooled map there instead of one early and one at the crossing
+            n5 = (self._error_constant / (0.9 * ERROR_LEVELS[0])) ** 2
             return (self._traced_s >= first and self._photons_now() >= n5) or \
                 self._traced_s >= max(self.first_cap_seconds, 2.0 * self._pooled_cost)
         err, n_last = self._honest
