@@ -603,3 +603,27 @@ def _lux_centroid(lux: np.ndarray) -> np.ndarray:
     img = lux[..., 0]
     y, x = np.mgrid[:img.shape[0], :img.shape[1]]
     return np.array([(img * x).sum(), (img * y).sum()]) / img.sum()
+
+
+def test_accumulation_stops_before_the_photon_maps_fill_the_memory(tmp_path):
+    """A still scene accumulates until its maps hold ``memory_share`` of the available
+    memory, then idles with one message (here a tiny share: after the first batches)."""
+    from lightsim.cli.view import build_live
+
+    got: list[tuple[str, object]] = []
+    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
+                      regulation=None, publish=lambda k, p: got.append((k, p)),
+                      memory_share=1e-9, warm_up=False, still_seconds=0.0)
+    live.start()
+    try:
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end and not any(
+                k == "message" and "accumulation stopped" in p["text"] for k, p in list(got)):
+            time.sleep(0.05)
+        photons = live._photons_now()
+        time.sleep(1.0)
+        assert live._photons_now() == photons  # idle: nothing more is shot
+    finally:
+        live.stop()
+    said = [p for k, p in got if k == "message" and "accumulation stopped" in p["text"]]
+    assert len(said) == 1 and "memory" in said[0]["text"]

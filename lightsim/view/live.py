@@ -59,6 +59,10 @@ parameter                  unit   default  meaning
 ``regulation_share``       –      0.1      … and at most this share of the time
 ``stop_error``             –      0.005    accumulation stops (idles) at this error figure
 ``max_photons``            –      2·10⁸    … or at this many photons
+``memory_share``           –      0.5      … or when the photon maps (at their insertion
+                                           peak, ``engine.memory``) hold this share of the
+                                           memory available at the last change (a still
+                                           scene would otherwise fill the machine)
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
                                            the second tab (rendered while a tab shows it)
 ``quick_photons``          –      10 000   photons of an interaction frame after an edit (at
@@ -175,7 +179,7 @@ class LiveSession:
                  regulation_share: float = 0.1, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 10_000,
                  frame_seconds: float = 0.18, min_photons: int = 3_000,
-                 still_seconds: float = 0.75,
+                 still_seconds: float = 0.75, memory_share: float = 0.5,
                  warm_up: bool = True, threads: int | str = "auto",
                  settle_seconds: float = 0.25) -> None:
         self.editor = editor
@@ -214,6 +218,7 @@ class LiveSession:
         self.first_cap_seconds = float(first_cap_seconds)
         self.frame_seconds = float(frame_seconds)
         self.still_seconds = float(still_seconds)
+        self.memory_share = float(memory_share)
         self.min_photons = int(min_photons)
         self._overhead_s: float | None = None  # an interaction frame's seconds besides shooting
         self._error_constant: float | None = None  # e √N of the last written map
@@ -424,6 +429,11 @@ class LiveSession:
         self._traced_s = self._traced_at_pooled = 0.0
         self._honest = None
         self._figure = (None, None)
+        self._memory_said = False
+        from lightsim.engine.memory import available_bytes
+
+        free = available_bytes()
+        self._memory_budget = None if free is None else self.memory_share * free
 
     def _apply_pending(self) -> bool:
         with self._lock:
@@ -664,12 +674,34 @@ class LiveSession:
                                           >= self._pooled_cost * (1 - share) / share)
 
     def _converged(self) -> bool:
-        """Accumulation has reached ``stop_error`` or ``max_photons`` (by the written
-        map's figure): stop shooting."""
-        if self.mode != "accumulation" or self._honest is None:
+        """Accumulation has reached ``stop_error`` (by the written map's figure),
+        ``max_photons`` or ``memory_share`` of the memory: stop shooting."""
+        if self.mode != "accumulation":
+            return False
+        if self._memory_full():
+            return True
+        if self._honest is None:
             return False
         err, photons = self._honest
         return photons >= self.max_photons or (err is not None and err <= self.stop_error)
+
+    def _memory_full(self) -> bool:
+        """The stored photons (at their insertion peak) have reached ``memory_share`` of
+        the memory that was available when the scene last changed; said once."""
+        from lightsim.engine.memory import bytes_per_photon
+
+        if self._memory_budget is None:
+            return False
+        stats = self.session.backend.stats()
+        records = sum(int(st.get("records", 0)) for st in stats.values())
+        full = records * bytes_per_photon(self.session.plan.channels or 1, peak=True) \
+            >= self._memory_budget
+        if full and not self._memory_said:
+            self._memory_said = True
+            self._message("info", f"accumulation stopped at {self._photons_now():,} photons: "
+                          f"the photon maps hold {100 * self.memory_share:.0f} % of the memory "
+                          "available (a change starts afresh)")
+        return full
 
     def _busy(self) -> bool:
         """An edit or a save is waiting: skip optional work so it is served first."""
