@@ -71,7 +71,7 @@ parameter                  unit   default  meaning
                                            fit them into this beside the frame's render,
                                            update and encode (a drag at ≥ 5 frames/s)
 ``min_photons``            –      3 000    … but at least this many
-``settle_seconds``         s      0.25     after an interaction frame, wait this long for the
+``settle_seconds``         s      0.75     after an interaction frame, wait this long for the
                                            next edit before accumulating (an edit then
                                            need not wait for a batch in progress)
 ``warm_up``                –      True     run every code path once before ``ready`` is
@@ -181,7 +181,7 @@ class LiveSession:
                  frame_seconds: float = 0.18, min_photons: int = 3_000,
                  still_seconds: float = 0.75, memory_share: float = 0.5,
                  warm_up: bool = True, threads: int | str = "auto",
-                 settle_seconds: float = 0.25) -> None:
+                 settle_seconds: float = 0.75) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
