@@ -36,11 +36,12 @@ parameter                  unit   default  meaning
 ``batch_seconds``          s      0.1      accumulation: tracing time of the first batch
                                            after an edit (an edit waits at most one batch)
 ``batch_growth``           –      1.5      … times this per batch once the scene is still
-``still_seconds``          s      0.75     … i.e. this long after the last interaction frame;
+``batch_max_seconds``      s      1.0      … up to this
+``still_seconds``          s      0.75     the scene is still this long after the last
+                                           interaction frame;
                                            before, no estimate, pooled map or table either
                                            (nothing long for a paused drag's next edit to
                                            wait for)
-``batch_max_seconds``      s      1.0      … up to this
 ``batch_photons``          –      2²⁰      photons of one batch at most (the session's
                                            frame; memory ≈ 100 B per photon of a batch)
 ``first_pooled_seconds``   s      1.0      tracing before the first pooled map (or the
