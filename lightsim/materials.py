@@ -317,24 +317,30 @@ def diffuse_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
 
 
 @njit(cache=True, inline="always")
-def mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
-    """Perfect specular reflection about ns with reflectance R; (1 − R) absorbed.
-
-    Where the shading normal would reflect the photon through the geometric surface, the
-    reflection is about ng instead.
-    """
-    for c in range(power.shape[0]):
-        rr_ = mats.value[m, c]
-        loss[c] += (1.0 - rr_) * power[c]
-        power[c] *= rr_
-    dx, dy, dz = d
-    sx, sy, sz = ns
-    fgx, fgy, fgz = ng
+def mirror_direction(dx, dy, dz, sx, sy, sz, fgx, fgy, fgz):
+    """Reflection of d about the shading normal s, or about the geometric normal g where
+    s would send it through the surface (scalars only: no arrays, no reference counts in
+    the tracer's loop). Returns the unnormalised outgoing direction."""
     c_i = dx * sx + dy * sy + dz * sz
     wx, wy, wz = dx - 2 * c_i * sx, dy - 2 * c_i * sy, dz - 2 * c_i * sz
     if wx * fgx + wy * fgy + wz * fgz <= 0.0:
         c_i = dx * fgx + dy * fgy + dz * fgz
         wx, wy, wz = dx - 2 * c_i * fgx, dy - 2 * c_i * fgy, dz - 2 * c_i * fgz
+    return wx, wy, wz
+
+
+@njit(cache=True, inline="always")
+def mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
+    """Perfect specular reflection about ns with reflectance R; (1 − R) absorbed.
+
+    Where the shading normal would reflect the photon through the geometric surface, the
+    reflection is about ng instead (:func:`mirror_direction`).
+    """
+    for c in range(power.shape[0]):
+        rr_ = mats.value[m, c]
+        loss[c] += (1.0 - rr_) * power[c]
+        power[c] *= rr_
+    wx, wy, wz = mirror_direction(d[0], d[1], d[2], ns[0], ns[1], ns[2], ng[0], ng[1], ng[2])
     return wx, wy, wz, 1.0
 
 
@@ -355,10 +361,15 @@ def dielectric_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
                 keep = math.exp(-s_ * t)
                 loss[c] += (1.0 - keep) * power[c]
                 power[c] *= keep
-    dx, dy, dz = d
-    sx, sy, sz = ns
-    fgx, fgy, fgz = ng
-    eta_i, eta_t = (1.0, mats.ior[m]) if front else (mats.ior[m], 1.0)
+    return dielectric_direction(d[0], d[1], d[2], ns[0], ns[1], ns[2], ng[0], ng[1], ng[2],
+                                front, mats.ior[m], key, ctr)
+
+
+@njit(cache=True, inline="always")
+def dielectric_direction(dx, dy, dz, sx, sy, sz, fgx, fgy, fgz, front, ior, key, ctr):
+    """The Fresnel choice and Snell refraction of :func:`dielectric_bsdf` on scalars:
+    returns (wx, wy, wz, side), side +1 reflected, −1 transmitted."""
+    eta_i, eta_t = (1.0, ior) if front else (ior, 1.0)
     cos_i = -(dx * sx + dy * sy + dz * sz)
     nsx, nsy, nsz = sx, sy, sz
     if cos_i <= 0.0:  # shading normal faces away: use the geometric one

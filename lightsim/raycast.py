@@ -56,6 +56,23 @@ def _tri_hit(ox, oy, oz, dx, dy, dz, tri):
     return t, u, v
 
 
+@njit(cache=True, nogil=True, inline="always")
+def merge_wall_hit(i, o, d, prim, tfar, u, v, wall_tri, wall_index):
+    """Ray i of float32 rays o, d: let a nearer hit on the wall's triangles replace the
+    (soup-indexed) hit in prim/tfar/u/v — the wall half of :meth:`RayCaster.cast`."""
+    best = np.inf if prim[i] < 0 else float(tfar[i])
+    ox, oy, oz = float(o[i, 0]), float(o[i, 1]), float(o[i, 2])
+    dx, dy, dz = float(d[i, 0]), float(d[i, 1]), float(d[i, 2])
+    for w in range(wall_tri.shape[0]):
+        t, bu, bv = _tri_hit(ox, oy, oz, dx, dy, dz, wall_tri[w])
+        if t < best:
+            best = t
+            prim[i] = wall_index[w]
+            tfar[i] = t
+            u[i] = bu
+            v[i] = bv
+
+
 @njit(cache=True, nogil=True)
 def _merge_wall(o, d, prim, tfar, u, v, lamp_index, wall_tri, wall_index):
     """Map embree's primitive ids to the full soup and let a nearer wall hit win.
@@ -160,6 +177,32 @@ class RayCaster:
         out._wall_tri = tri
         out._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         return out
+
+    @property
+    def wall_triangles(self) -> np.ndarray:
+        """(W, 3, 3) float64 corners of the exactly intersected wall (empty if none)."""
+        return self._wall_tri
+
+    @property
+    def wall_index(self) -> np.ndarray:
+        """(W,) int32 soup indices of the wall's triangles."""
+        return self._wall_index
+
+    def cast_lamp(self, origins: np.ndarray, directions: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Like :meth:`cast` but without the exact wall (embree's scene only, soup
+        indices): for a caller that intersects :attr:`wall_triangles` itself in its own
+        pass over the rays (:func:`merge_wall_hit` gives the same answer as :meth:`cast`)."""
+        n = len(origins)
+        if n == 0 or self._scene is None:
+            return (np.full(n, -1, dtype=np.int32), np.full(n, _MISS_T, dtype=np.float32),
+                    np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32))
+        res = self._scene.run(origins, directions, output=1)
+        prim, tfar, u, v = res["primID"], res["tfar"], res["u"], res["v"]
+        if len(self._lamp_index):
+            _merge_wall(origins, directions, prim, tfar, u, v, self._lamp_index,
+                        self._wall_tri[:0], self._wall_index[:0])
+        return prim, tfar, u, v
 
     def _run(self, o: np.ndarray, d: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -9,8 +9,9 @@ competes with embree for the two cores; chunks are independent, so the result do
 depend on the number of threads or chunks (photon i is a function of its sample point and
 key). Records come back bounce-major, in photon order, as one wavefront would give them.
 
-The interaction (:func:`_interact_one`) only dispatches to the BSDF kernel of the surface
-hit (:mod:`lightsim.materials`, one signature for all) and books the ledger:
+The interaction (in :func:`_bounce`) dispatches to the optics of the surface hit
+(:mod:`lightsim.materials`: the same flux rules as its BSDF kernels, the directions from
+their scalar cores) and books the ledger:
 
 * **wall** (detector): the photon is recorded and ends there;
 * **diffuse**: the photon is recorded (if recording all surfaces), (1 − ρ) of its flux is
@@ -63,12 +64,11 @@ from lightsim.materials import (
     DIFFUSE,
     MIRROR,
     WALL,
-    dielectric_bsdf,
-    diffuse_bsdf,
-    mirror_bsdf,
-    wall_bsdf,
+    cosine_direction,
+    dielectric_direction,
+    mirror_direction,
 )
-from lightsim.raycast import WALL_MAX_TRIANGLES, RayCaster
+from lightsim.raycast import WALL_MAX_TRIANGLES, RayCaster, merge_wall_hit
 from lightsim.sampling import uniform
 
 # bookkeeping categories (columns of the ledger)
@@ -80,8 +80,6 @@ L_WALL, L_ABS_DIFF, L_ABS_MIRR, L_ABS_VOL, L_ESC, L_RR, L_MAXD = range(len(LEDGE
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
 F_DIFFUSE = np.uint8(2)   # the path had at least one diffuse bounce (indirect light)
 
-# ray status after an interaction
-ALIVE, ENDED = 0, 1
 
 
 # ------------------------------------------------------------------------------------------
@@ -107,6 +105,9 @@ class Geometry(NamedTuple):
         All of the above per triangle in one row (corners 0–8, face normal 9–11, corner
         normals 12–20, part 21, wall 22): the interaction reads one 192-byte row per hit
         instead of five scattered ones (a hit is a cache miss on a large mesh).
+    wall_tri : (W, 3, 3) float64; wall_index : (W,) int32
+        The wall's triangles when they are intersected exactly outside embree
+        (:meth:`for_caster`), and their soup indices; empty otherwise.
     """
 
     tri_v: np.ndarray
@@ -115,6 +116,14 @@ class Geometry(NamedTuple):
     tri_part: np.ndarray
     is_wall: np.ndarray
     packed: np.ndarray
+    wall_tri: np.ndarray = np.zeros((0, 3, 3))
+    wall_index: np.ndarray = np.zeros(0, np.int32)
+
+    def for_caster(self, caster: RayCaster) -> Geometry:
+        """With the exact wall of ``caster`` (intersected in the bounce kernel's first
+        pass over the rays instead of by the caster): none if embree holds the wall."""
+        return self._replace(wall_tri=np.ascontiguousarray(caster.wall_triangles),
+                             wall_index=np.ascontiguousarray(caster.wall_index))
 
     @classmethod
     def from_scene(cls, scene) -> Geometry:
@@ -150,7 +159,8 @@ class Geometry(NamedTuple):
         packed[rows, 0:9] = tri_v[rows].reshape(-1, 9)
         packed[rows, 9:12] = face_n[rows]
         packed[rows, 12:21] = corner_n[rows].reshape(-1, 9)
-        return Geometry(tri_v, face_n, corner_n, self.tri_part, self.is_wall, packed)
+        return Geometry(tri_v, face_n, corner_n, self.tri_part, self.is_wall, packed,
+                        self.wall_tri, self.wall_index)
 
 
 class Wavefront(NamedTuple):
@@ -216,168 +226,210 @@ def _offset(px, py, pz, nx, ny, nz, sign, eps_floor):
     return px + sign * eps * nx, py + sign * eps * ny, pz + sign * eps * nz
 
 
-@njit(cache=True, inline="always")
-def _book(ledger, j, row, power):
-    """The ledger helper: all of a photon's remaining flux goes to one ledger row."""
-    for c in range(power.shape[0]):
-        ledger[j, row, c] += power[c]
-        power[c] = 0.0
-
-
-@njit(cache=True, inline="always")
-def _interact_one(i, wf, hits, g, mats, prm, depth, last_bounce, rec, r, ledger):
-    """One ray's surface interaction: dispatch to the BSDF of the surface hit, roulette.
-
-    ``g`` is the packed row of the triangle hit (:class:`Geometry`). Writes a record at
-    row ``r`` of ``rec`` if the photon is detected (wall, or any diffuse surface when
-    recording all). Returns (status, recorded, origin, direction)
-    of the continuing ray; the ray's flux is updated in ``wf.power[i]``.
-    """
-    j = wf.lid[i]
-    power = wf.power[i]
-    k = hits.prim[i]
-    if k < 0:  # escaped to infinity
-        _book(ledger, j, L_ESC, power)
-        return ENDED, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    t = float(hits.tfar[i])
-    dx, dy, dz = wf.d[i, 0], wf.d[i, 1], wf.d[i, 2]
-    bu, bv = hits.u[i], hits.v[i]
-    # the hit point from barycentrics lies on the triangle (o + t·d with a float32 t
-    # can land just outside a neighbouring face at an edge and leak out of a box)
-    b1 = min(max(float(bu), 0.0), 1.0)
-    b2 = min(max(float(bv), 0.0), 1.0 - b1)
-    # pulled strictly inside the triangle: a point on an edge lies on the plane of the
-    # adjacent face too, and the normal offset alone would not clear that face
-    b1 = (b1 + 1e-6) / (1.0 + 3e-6)
-    b2 = (b2 + 1e-6) / (1.0 + 3e-6)
-    b0 = 1.0 - b1 - b2
-    px = b0 * g[0] + b1 * g[3] + b2 * g[6]
-    py = b0 * g[1] + b1 * g[4] + b2 * g[7]
-    pz = b0 * g[2] + b1 * g[5] + b2 * g[8]
-    gx, gy, gz = g[9], g[10], g[11]
-    front = dx * gx + dy * gy + dz * gz < 0.0
-    # facing geometric normal: on the side the photon came from
-    fs = 1.0 if front else -1.0
-    ng = (fs * gx, fs * gy, fs * gz)
-    m = int(g[21])
-    kind = WALL if g[22] != 0.0 else mats.kind[m]
-    key = wf.keys[i]
-    ctr = np.uint64(depth * 8)
-    d = (dx, dy, dz)
-
-    recorded = False
-    if kind == WALL or (kind == DIFFUSE and prm.record_all):
-        recorded = True
-        rec.pos[r, 0], rec.pos[r, 1], rec.pos[r, 2] = px, py, pz
-        rec.nrm[r, 0], rec.nrm[r, 1], rec.nrm[r, 2] = ng[0], ng[1], ng[2]
-        for c in range(power.shape[0]):
-            rec.power[r, c] = power[c]
-        rec.part[r] = m
-        rec.flags[r] = wf.flags[i]
-        rec.source[r] = j
-    if kind == WALL:
-        wall_bsdf(mats, m, d, ng, ng, front, t, key, ctr, power, ledger[j, L_WALL])
-        return ENDED, recorded, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    if kind == DIFFUSE:
-        wx, wy, wz, side = diffuse_bsdf(mats, m, d, ng, ng, front, t, key, ctr, power,
-                                        ledger[j, L_ABS_DIFF])
-        wf.flags[i] |= F_DIFFUSE
-    else:
-        # interpolated shading normal, oriented like the geometric one
-        w0 = 1.0 - bu - bv
-        sx = w0 * g[12] + bu * g[15] + bv * g[18]
-        sy = w0 * g[13] + bu * g[16] + bv * g[19]
-        sz = w0 * g[14] + bu * g[17] + bv * g[20]
-        ln = math.sqrt(sx * sx + sy * sy + sz * sz)
-        if ln > 1e-12:
-            ns = (fs * sx / ln, fs * sy / ln, fs * sz / ln)
-        else:
-            ns = ng
-        wf.flags[i] |= F_SPECULAR
-        if kind == MIRROR:
-            wx, wy, wz, side = mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power,
-                                           ledger[j, L_ABS_MIRR])
-        else:
-            wx, wy, wz, side = dielectric_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power,
-                                               ledger[j, L_ABS_VOL])
-    ln = math.sqrt(wx * wx + wy * wy + wz * wz)
-    wx, wy, wz = wx / ln, wy / ln, wz / ln
-    ox, oy, oz = _offset(px, py, pz, ng[0], ng[1], ng[2], side, prm.eps_floor)
-
-    # Russian roulette on weak photons, then the depth limit
-    pmax = 0.0
-    for c in range(power.shape[0]):
-        pmax = max(pmax, power[c])
-    if pmax <= 0.0:
-        return ENDED, recorded, ox, oy, oz, wx, wy, wz
-    p_ref = wf.p_ref[i]
-    if depth + 1 >= prm.rr_min_depth and pmax < prm.rr_threshold * p_ref:
-        q = pmax / (prm.rr_threshold * p_ref)
-        if uniform(key, ctr + np.uint64(1)) >= q:
-            _book(ledger, j, L_RR, power)
-            return ENDED, recorded, ox, oy, oz, wx, wy, wz
-        for c in range(power.shape[0]):
-            boost = power[c] / q - power[c]
-            ledger[j, L_RR, c] -= boost
-            power[c] += boost
-    if last_bounce:
-        _book(ledger, j, L_MAXD, power)
-        return ENDED, recorded, ox, oy, oz, wx, wy, wz
-    return ALIVE, recorded, ox, oy, oz, wx, wy, wz
-
-
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, boundscheck=False)
 def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, d32,
-            esc_d, esc_p, record_escaped):
+            esc_d, esc_p, record_escaped, scratch):
     """One bounce of the first ``m`` rays of a wavefront, fused with its compaction.
 
-    Interacts every ray (:func:`_interact_one`), writes the records densely into ``rec``,
-    the escaped photons into ``esc_d``/``esc_p`` (if ``record_escaped``), and moves the
-    surviving rays to the front of ``wf`` in order, with float32 copies of their origins
-    and directions in ``o32``/``d32`` for the next embree cast. Serial and without the
-    GIL: the tracer runs one wavefront chunk per Python thread, embree casts included.
+    Per ray: dispatch to the optics of the surface hit (:mod:`lightsim.materials`; the
+    flux loops here, the direction from the kinds' scalar kernels), book the ledger,
+    roulette; records go densely into ``rec``, escaped photons into ``esc_d``/``esc_p``
+    (if ``record_escaped``), and the surviving rays move to the front of ``wf`` in order,
+    with float32 copies of their origins and directions in ``o32``/``d32`` for the next
+    embree cast. ``scratch`` (≥ m, 24) holds the hit triangles' packed rows.
+
+    The named tuples are unpacked once, before the loop, and the loop body handles only
+    scalars and array elements: an array or a tuple of arrays handed to a function per
+    ray costs a reference-count increment and decrement per array (≈ 40 atomic calls per
+    ray with the tuples, more than embree's cast itself). Serial and without the GIL: the
+    tracer runs one wavefront chunk per Python thread, embree casts included.
 
     Returns (alive, records, escaped) counts.
     """
-    C = wf.power.shape[1]
-    # gather the hit triangles' rows first: independent loads the CPU overlaps (a hit is a
-    # cache miss on a large mesh, and Halton-ordered photons hit scattered triangles)
+    wo, wd, pw, pref, wflags, wkeys, wlid = wf
+    prim, tfar, hu, hv = hits
+    kinds, value, ior, sigma = mats
+    rpos, rnrm, rpow, rpart, rflags, rsrc = rec
     packed = geom.packed
-    rows = np.empty((m, packed.shape[1]))
+    wall_tri, wall_index = geom.wall_tri, geom.wall_index
+    eps_floor, rr_threshold, rr_min_depth = prm.eps_floor, prm.rr_threshold, prm.rr_min_depth
+    record_all = prm.record_all
+    C = pw.shape[1]
+    P = packed.shape[1]
+    # the exact wall (outside embree) and the gather of the hit triangles' rows in one
+    # pass before the loop: independent loads the CPU overlaps (a hit is a cache miss on
+    # a large mesh, and Halton-ordered photons hit scattered triangles)
+    has_wall = wall_tri.shape[0] > 0
     for i in range(m):
-        k = hits.prim[i]
+        if has_wall:
+            merge_wall_hit(i, o32, d32, prim, tfar, hu, hv, wall_tri, wall_index)
+        k = prim[i]
         if k >= 0:
-            for q in range(packed.shape[1]):
-                rows[i, q] = packed[k, q]
+            for q in range(P):
+                scratch[i, q] = packed[k, q]
+    ctr = np.uint64(depth * 8)
     w = 0
     r = 0
     e = 0
     for i in range(m):
-        if record_escaped and hits.prim[i] < 0:
-            for q in range(3):
-                esc_d[e, q] = wf.d[i, q]
+        j = wlid[i]
+        k = prim[i]
+        if k < 0:  # escaped to infinity
+            if record_escaped:
+                for q in range(3):
+                    esc_d[e, q] = wd[i, q]
+                for c in range(C):
+                    esc_p[e, c] = pw[i, c]
+                e += 1
             for c in range(C):
-                esc_p[e, c] = wf.power[i, c]
-            e += 1
-        st, recd, ox, oy, oz, wx, wy, wz = _interact_one(i, wf, hits, rows[i], mats, prm,
-                                                         depth, last_bounce, rec, r, ledger)
-        if recd:
-            r += 1
-        if st != ALIVE:
+                ledger[j, L_ESC, c] += pw[i, c]
+                pw[i, c] = 0.0
             continue
-        wf.o[w, 0], wf.o[w, 1], wf.o[w, 2] = ox, oy, oz
-        wf.d[w, 0], wf.d[w, 1], wf.d[w, 2] = wx, wy, wz
+        t = float(tfar[i])
+        dx, dy, dz = wd[i, 0], wd[i, 1], wd[i, 2]
+        bu, bv = hu[i], hv[i]
+        # the hit point from barycentrics lies on the triangle (o + t·d with a float32 t
+        # can land just outside a neighbouring face at an edge and leak out of a box)
+        b1 = min(max(float(bu), 0.0), 1.0)
+        b2 = min(max(float(bv), 0.0), 1.0 - b1)
+        # pulled strictly inside the triangle: a point on an edge lies on the plane of the
+        # adjacent face too, and the normal offset alone would not clear that face
+        b1 = (b1 + 1e-6) / (1.0 + 3e-6)
+        b2 = (b2 + 1e-6) / (1.0 + 3e-6)
+        b0 = 1.0 - b1 - b2
+        px = b0 * scratch[i, 0] + b1 * scratch[i, 3] + b2 * scratch[i, 6]
+        py = b0 * scratch[i, 1] + b1 * scratch[i, 4] + b2 * scratch[i, 7]
+        pz = b0 * scratch[i, 2] + b1 * scratch[i, 5] + b2 * scratch[i, 8]
+        gx, gy, gz = scratch[i, 9], scratch[i, 10], scratch[i, 11]
+        front = dx * gx + dy * gy + dz * gz < 0.0
+        # facing geometric normal: on the side the photon came from
+        fs = 1.0 if front else -1.0
+        ngx, ngy, ngz = fs * gx, fs * gy, fs * gz
+        mi = int(scratch[i, 21])
+        kind = WALL if scratch[i, 22] != 0.0 else kinds[mi]
+        key = wkeys[i]
+
+        if kind == WALL or (kind == DIFFUSE and record_all):
+            rpos[r, 0], rpos[r, 1], rpos[r, 2] = px, py, pz
+            rnrm[r, 0], rnrm[r, 1], rnrm[r, 2] = ngx, ngy, ngz
+            for c in range(C):
+                rpow[r, c] = pw[i, c]
+            rpart[r] = mi
+            rflags[r] = wflags[i]
+            rsrc[r] = j
+            r += 1
+        if kind == WALL:  # the detector: all flux detected, the photon ends
+            for c in range(C):
+                ledger[j, L_WALL, c] += pw[i, c]
+                pw[i, c] = 0.0
+            continue
+        if kind == DIFFUSE:
+            for c in range(C):
+                rho = value[mi, c]
+                ledger[j, L_ABS_DIFF, c] += (1.0 - rho) * pw[i, c]
+                pw[i, c] *= rho
+            wx, wy, wz = cosine_direction(ngx, ngy, ngz, uniform(key, ctr + np.uint64(2)),
+                                          uniform(key, ctr + np.uint64(3)))
+            side = 1.0
+            wflags[i] |= F_DIFFUSE
+        else:
+            # interpolated shading normal, oriented like the geometric one
+            w0 = 1.0 - bu - bv
+            sx = w0 * scratch[i, 12] + bu * scratch[i, 15] + bv * scratch[i, 18]
+            sy = w0 * scratch[i, 13] + bu * scratch[i, 16] + bv * scratch[i, 19]
+            sz = w0 * scratch[i, 14] + bu * scratch[i, 17] + bv * scratch[i, 20]
+            ln = math.sqrt(sx * sx + sy * sy + sz * sz)
+            if ln > 1e-12:
+                nsx, nsy, nsz = fs * sx / ln, fs * sy / ln, fs * sz / ln
+            else:
+                nsx, nsy, nsz = ngx, ngy, ngz
+            wflags[i] |= F_SPECULAR
+            if kind == MIRROR:
+                for c in range(C):
+                    rr_ = value[mi, c]
+                    ledger[j, L_ABS_MIRR, c] += (1.0 - rr_) * pw[i, c]
+                    pw[i, c] *= rr_
+                wx, wy, wz = mirror_direction(dx, dy, dz, nsx, nsy, nsz, ngx, ngy, ngz)
+                side = 1.0
+            else:
+                if not front:  # we travelled inside this material: Beer–Lambert
+                    for c in range(C):
+                        s_ = sigma[mi, c]
+                        if s_ > 0.0:
+                            keep = math.exp(-s_ * t)
+                            ledger[j, L_ABS_VOL, c] += (1.0 - keep) * pw[i, c]
+                            pw[i, c] *= keep
+                wx, wy, wz, side = dielectric_direction(dx, dy, dz, nsx, nsy, nsz, ngx, ngy,
+                                                        ngz, front, ior[mi], key, ctr)
+        ln = math.sqrt(wx * wx + wy * wy + wz * wz)
+        wx, wy, wz = wx / ln, wy / ln, wz / ln
+        ox, oy, oz = _offset(px, py, pz, ngx, ngy, ngz, side, eps_floor)
+
+        # Russian roulette on weak photons, then the depth limit
+        pmax = 0.0
+        for c in range(C):
+            pmax = max(pmax, pw[i, c])
+        if pmax <= 0.0:
+            continue
+        p_ref = pref[i]
+        if depth + 1 >= rr_min_depth and pmax < rr_threshold * p_ref:
+            q = pmax / (rr_threshold * p_ref)
+            if uniform(key, ctr + np.uint64(1)) >= q:
+                for c in range(C):
+                    ledger[j, L_RR, c] += pw[i, c]
+                    pw[i, c] = 0.0
+                continue
+            for c in range(C):
+                boost = pw[i, c] / q - pw[i, c]
+                ledger[j, L_RR, c] -= boost
+                pw[i, c] += boost
+        if last_bounce:
+            for c in range(C):
+                ledger[j, L_MAXD, c] += pw[i, c]
+                pw[i, c] = 0.0
+            continue
+        # alive: compact to row w
+        wo[w, 0], wo[w, 1], wo[w, 2] = ox, oy, oz
+        wd[w, 0], wd[w, 1], wd[w, 2] = wx, wy, wz
         o32[w, 0], o32[w, 1], o32[w, 2] = ox, oy, oz
         d32[w, 0], d32[w, 1], d32[w, 2] = wx, wy, wz
         if w != i:
             for c in range(C):
-                wf.power[w, c] = wf.power[i, c]
-            wf.p_ref[w] = wf.p_ref[i]
-            wf.flags[w] = wf.flags[i]
-            wf.keys[w] = wf.keys[i]
-            wf.lid[w] = wf.lid[i]
+                pw[w, c] = pw[i, c]
+            pref[w] = pref[i]
+            wflags[w] = wflags[i]
+            wkeys[w] = wkeys[i]
+            wlid[w] = wlid[i]
         w += 1
     return w, r, e
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _start(o, d, power, keys, lo, hi):
+    """The wavefront's own arrays for photons lo..hi in one pass: flux (copied), roulette
+    reference (largest channel), flags, keys, ledger rows, float32 rays for embree."""
+    n = hi - lo
+    C = power.shape[1]
+    pw = np.empty((n, C))
+    p_ref = np.empty(n)
+    flags = np.zeros(n, np.uint8)
+    kk = np.empty(n, np.uint64)
+    lid = np.empty(n, np.int64)
+    o32 = np.empty((n, 3), np.float32)
+    d32 = np.empty((n, 3), np.float32)
+    for i in range(n):
+        best = power[lo + i, 0]
+        for c in range(C):
+            v = power[lo + i, c]
+            pw[i, c] = v
+            best = max(best, v)
+        p_ref[i] = best
+        kk[i] = keys[lo + i]
+        lid[i] = lo + i
+        for q in range(3):
+            o32[i, q] = o[i, q]
+            d32[i, q] = d[i, q]
+    return pw, p_ref, flags, kk, lid, o32, d32
 
 
 @njit(cache=True, nogil=True)
@@ -514,6 +566,7 @@ class PhotonTracer:
         # the packed lamp rides with its embree scene: a tracer reusing this caster
         # (only the wall or materials changed) reuses the lamp's rows too
         self.caster.geometry = self._geom
+        self._geom = self._geom.for_caster(self.caster)  # the bounce intersects the wall
         self._mats = mats.arrays
         self.eps_floor = 0.01 * scene.scale
         self._params = TraceParams(self.eps_floor, self.rr_threshold, self.rr_min_depth,
@@ -586,10 +639,17 @@ class PhotonTracer:
         esc_d, esc_p = [], []
         caustic_source = np.zeros(n, dtype=np.bool_)
         rays = 0
+        # two batches in flight: the next batch's chunks are queued before this one is
+        # collected, so no thread idles at a batch's tail (memory: two batch ledgers)
+        pending: list = []
+        done = []
         for lo in range(0, n, self.batch):
-            hi = min(n, lo + self.batch)
-            rec, led, nrays, ed, ep = self._trace_batch(source, lo, hi, power, keys, group,
-                                                        n_groups, record_escaped)
+            pending.append(self._submit_batch(source, lo, min(n, lo + self.batch), power,
+                                              keys, record_escaped))
+            if len(pending) > 1:
+                done.append(self._collect_batch(pending.pop(0), group, n_groups))
+        done.extend(self._collect_batch(b, group, n_groups) for b in pending)
+        for lo, (rec, led, nrays, ed, ep) in zip(range(0, n, self.batch), done):
             rec.source += lo
             caustic_source[rec.source[(rec.flags & F_SPECULAR) != 0]] = True
             parts.append(rec)
@@ -614,7 +674,7 @@ class PhotonTracer:
         the ray moves away from that face's plane on the side where its (float64) origin
         lies; such rays are re-cast from a little further along.
         """
-        prim, tfar, bu, bv = self.caster.cast(o32, d32)
+        prim, tfar, bu, bv = self.caster.cast_lamp(o32, d32)  # the wall: in _bounce
         # a cheap global bound first: only rays that hit very close need the per-ray test
         bound = 4 * 3.814697265625e-06 * (self.scene_extent + self.eps_floor)
         near = _near_hits(prim, tfar, bound)
@@ -634,7 +694,7 @@ class PhotonTracer:
             if len(close) == 0:
                 break
             step = t_min[close]
-            p2, t2, u2, v2 = self.caster.cast(
+            p2, t2, u2, v2 = self.caster.cast_lamp(
                 np.ascontiguousarray(o[close] + step[:, None] * d[close], dtype=np.float32),
                 np.ascontiguousarray(d32[close]))
             prim[close], tfar[close], bu[close], bv[close] = p2, t2 + step, u2, v2
@@ -650,16 +710,13 @@ class PhotonTracer:
         origins, directions = source(lo, hi)  # fresh arrays: traced in place
         o = np.ascontiguousarray(origins, dtype=np.float64).reshape(n, 3)
         d = np.ascontiguousarray(directions, dtype=np.float64).reshape(n, 3)
-        pw = power[lo:hi].copy()
-        wf = Wavefront(o, d, pw, pw.max(axis=1) if n else np.zeros(0),
-                       np.zeros(n, np.uint8), keys[lo:hi].copy(),
-                       np.arange(lo, hi, dtype=np.int64))
-        o32 = o.astype(np.float32)
-        d32 = d.astype(np.float32)
+        pw, p_ref, flags, kk, lid, o32, d32 = _start(o, d, power, keys, lo, hi)
+        wf = Wavefront(o, d, pw, p_ref, flags, kk, lid)
         recs: list[PhotonRecords] = []
         escs: list[tuple[np.ndarray, np.ndarray]] = []
         rays = 0
         m = n
+        scratch = np.empty((n, self._geom.packed.shape[1]))  # hit rows, reused per bounce
         for depth in range(self.max_depth):
             if m == 0:
                 break
@@ -672,17 +729,16 @@ class PhotonTracer:
                    else (np.empty((0, 3), np.float32), np.empty((0, C))))
             m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
                               depth == self.max_depth - 1, rb, ledger, o32, d32, esc[0], esc[1],
-                              record_escaped)
+                              record_escaped, scratch)
             recs.append(PhotonRecords(*(a[:r] for a in rb)))
             escs.append((esc[0][:e], esc[1][:e]))
         return recs, escs, rays
 
-    def _trace_batch(self, source, lo, hi, power, keys, group, n_groups, record_escaped):
-        """One batch in chunks over the threads; records in (bounce, photon) order."""
+    def _submit_batch(self, source, lo, hi, power, keys, record_escaped):
+        """Queue one batch's chunks on the threads (or trace them here without a pool);
+        :meth:`_collect_batch` waits for them."""
         n = hi - lo
-        C = self.channels
-        K = len(LEDGER)
-        ledger = np.zeros((n, K, C))  # per photon of the batch, summed per group below
+        ledger = np.zeros((n, len(LEDGER), self.channels))  # per photon, summed per group
         step = max(self.min_chunk, -(-n // (4 * self.threads)))
         bounds = list(range(0, n, step)) + [n]
 
@@ -694,7 +750,14 @@ class PhotonTracer:
         if self._pool is None or len(bounds) <= 2:
             chunks = [work(k) for k in range(len(bounds) - 1)]
         else:
-            chunks = list(self._pool.map(work, range(len(bounds) - 1)))
+            chunks = [self._pool.submit(work, k) for k in range(len(bounds) - 1)]
+        return lo, hi, ledger, chunks
+
+    def _collect_batch(self, batch, group, n_groups):
+        """One batch's records in (bounce, photon) order and its per-group ledger."""
+        lo, hi, ledger, chunks = batch
+        chunks = [c.result() if hasattr(c, "result") else c for c in chunks]
+        C = self.channels
         # bounce-major like one wavefront: bounce 0 of every chunk, then bounce 1, …
         depth = max((len(c[0]) for c in chunks), default=0)
         recs = [c[0][k] for k in range(depth) for c in chunks if k < len(c[0])]
