@@ -67,6 +67,7 @@ SPEC_BY_NAME = {s.name: s for s in SPECS}
 CONFIG_CONTROLS = ("k", "interleave", "frame_photons")
 POSE_CONTROLS = frozenset({"filament_x_mm", "filament_y_mm", "filament_z_mm",
                            "filament_tilt_deg"})  # move the emitters only
+AIM_CONTROLS = frozenset({"aim_h_deg", "aim_v_deg"})  # move the wall (or the lamp)
 
 
 @dataclass(frozen=True)

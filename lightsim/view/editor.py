@@ -163,6 +163,32 @@ class SceneEditor:
             return self.focus + np.asarray(self.bulbs[c.bulb].offset_m, float)
         return self.filament_centre
 
+    def wall_aimable(self) -> bool:
+        """Whether the engine can aim by moving the wall (its wall is intersected outside
+        embree, :meth:`~lightsim.scene.Scene.with_wall_transform`); a wall of more
+        triangles stays in the embree scene, so aiming rebuilds it."""
+        from lightsim.raycast import WALL_MAX_TRIANGLES
+
+        n = int(np.count_nonzero(self.base.tri_is_wall))
+        return 0 < n <= WALL_MAX_TRIANGLES
+
+    def session_scene(self, c: Controls) -> Scene:
+        """The scene the live session traces: the lamp *unaimed* and the wall (with its
+        pixel frame) turned the opposite way, R⁻¹ — the same lux map in wall
+        coordinates as :meth:`build`'s aimed lamp, but an aim change is then only a wall
+        transform (``Session.update(wall_transform=…)``, the embree scene stays).
+        Without :meth:`wall_aimable`: :meth:`build`."""
+        if not self.wall_aimable():
+            return self.build(c)
+        lamp = self.build(replace(c, aim_h_deg=0.0, aim_v_deg=0.0))
+        if c.aim_h_deg == 0 and c.aim_v_deg == 0:
+            return lamp
+        return lamp.with_wall_transform(self.wall_matrix(c))
+
+    def wall_matrix(self, c: Controls) -> np.ndarray:
+        """4×4 that places the wall for :meth:`session_scene`: the inverse of the aim."""
+        return aim_matrix(c.aim_h_deg, c.aim_v_deg).T  # a rotation: R⁻¹ = Rᵀ
+
     def build(self, c: Controls) -> Scene:
         """The edited scene (a new :class:`Scene`; the base is never modified)."""
         aim = aim_matrix(c.aim_h_deg, c.aim_v_deg)

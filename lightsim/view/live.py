@@ -9,15 +9,23 @@ builds a queue.
   the next frame shoots a new batch (the first one after an edit at most
   ``quick_photons``), renders the interleaved image and box-filters it — and nothing
   else: no probes, no error figure, no regulation (``Session.frame(probes=False)``).
+  Filament moves are a light transform and aim / wall distance a wall placement (the
+  embree scene stays, when the engine offers it); an interaction frame is a partial frame
+  of ``photons per frame`` (the session's frame is the accumulation's batch cap).
 * **Accumulation** (the paper's walkthrough with a still scene): no edit → photon batches
-  are added to the maps (``Session.accumulate``) for ``step_seconds``, then one estimate
-  gives the error figure and, at most every ``image_interval`` seconds, the interleaved
-  image; once the error figure is ≤ ``pooled_error`` the
-  pooled full-resolution map (the written result) is drawn, again each time the photon
-  count has doubled; from then on only pooled maps are drawn.
-* The error figure and photon count are published every step; the regulation table once
-  the scene is still, at most every ``regulation_interval`` seconds (its ~10³ probes per
-  set cost about a frame's queries).
+  sized by time (``batch_seconds``, growing by ``batch_growth`` per batch up to
+  ``batch_max_seconds`` while the scene stays still, at most ``batch_photons``) are added
+  to every set's map, so accumulation runs at the tracer's rate. The **pooled**
+  full-resolution map — what ``simulate`` writes — is drawn with the written map's own
+  error figure (over every pixel: the honest one), first after ``first_pooled_seconds``
+  of tracing (or the pooled map's own cost, if more), then where that figure is expected
+  to cross the next of 5 %, 2 %, 1 %, 0.5 % (noise ∝ 1/√N), otherwise each time the
+  photons have doubled with its cost kept to ``pooled_share`` of the time.
+* After every batch the photon count is published with the error figure of the last
+  pooled map (``error_source`` "written map") or, before the first, the cheap figure of
+  the ICI rungs at the grid probes (``error_source`` "grid probes", at most
+  ``probe_share`` of the time); the regulation table at the first still step, then at
+  most every ``regulation_interval`` seconds and ``regulation_share`` of the time.
 * Nothing is lost: every applied edit is appended to ``edits.jsonl`` (flushed and
   fsynced) and the current controls to ``state.json`` (atomic) in the session folder;
   ``lightsim view --state FILE`` restores them.
@@ -25,27 +33,46 @@ builds a queue.
 =========================  =====  =======  ==================================================
 parameter                  unit   default  meaning
 =========================  =====  =======  ==================================================
-``step_seconds``           s      0.5      accumulation: photon batches shot between two
-                                           estimates (error figure, image)
-``image_interval``         s      0.5      accumulation: redraw the interleaved image at most
-                                           this often (and ≤ 1/4 of the time)
-``pooled_error``           –      0.05     error figure that triggers the first pooled map
-``pooled_after``           s      ∞        … or still this long; then each 2× photons (a
-                                           pooled map of few photons is noisier than the
-                                           filtered frame, hence no time trigger by
-                                           default)
+``batch_seconds``          s      0.1      accumulation: tracing time of the first batch
+                                           after an edit (an edit waits at most one batch)
+``batch_growth``           –      1.5      … times this per batch once the scene is still
+``batch_max_seconds``      s      1.0      … up to this
+``still_seconds``          s      0.75     the scene is still this long after the last
+                                           interaction frame;
+                                           before, no estimate, pooled map or table either
+                                           (nothing long for a paused drag's next edit to
+                                           wait for)
+``batch_photons``          –      2²⁰      photons of one batch at most (the session's
+                                           frame; memory ≈ 100 B per photon of a batch)
+``first_pooled_seconds``   s      1.0      tracing before the first pooled map (or the
+                                           pooled map's own cost, if more); after an
+                                           earlier edit's map, at the photons where its
+                                           e √N predicts 5 % ...
+``first_cap_seconds``      s      30       ... but after at most this much tracing (or
+                                           twice the pooled map's cost; meanwhile the
+                                           interleaved image and grid figure go on)
+``pooled_share``           –      1/3      pooled maps at doubled photons take at most this
+                                           share of the time (a predicted crossing of
+                                           5 %, 2 %, 1 %, 0.5 % is not delayed)
+``probe_share``            –      0.1      the grid-probe error figure (only before the
+                                           first pooled map) takes at most this share
 ``regulation_interval``    s      1.0      regulation table refresh once the scene is still
-                                           (and ≤ 1/5 of the time)
+``regulation_share``       –      0.1      … and at most this share of the time
 ``stop_error``             –      0.005    accumulation stops (idles) at this error figure
 ``max_photons``            –      2·10⁸    … or at this many photons
+``memory_share``           –      0.5      … or when the photon maps (at their insertion
+                                           peak, ``engine.memory``) hold this share of the
+                                           memory available at the last change (a still
+                                           scene would otherwise fill the machine)
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
                                            the second tab (rendered while a tab shows it)
-``quick_photons``          –      20 000   photons of the first frame after an edit (at most
-                                           the frame's photons): the low-quality frame
-``estimate_share``         –      0.2      accumulation: the estimates (error figure,
-                                           image) take at most this share of the time; the
-                                           rest traces photons
-``settle_seconds``         s      0.25     after an interaction frame, wait this long for the
+``quick_photons``          –      10 000   photons of an interaction frame after an edit (at
+                                           most the frame's photons): the low-quality frame
+``frame_seconds``          s      0.18     … fewer if the tracer's measured rate does not
+                                           fit them into this beside the frame's render,
+                                           update and encode (a drag at ≥ 5 frames/s)
+``min_photons``            –      3 000    … but at least this many
+``settle_seconds``         s      0.75     after an interaction frame, wait this long for the
                                            next edit before accumulating (an edit then
                                            need not wait for a batch in progress)
 ``warm_up``                –      True     run every code path once before ``ready`` is
@@ -80,7 +107,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.errors import LightsimError
 from lightsim.render.frame import luminous
 from lightsim.scene import Scene
-from lightsim.view.controls import CONFIG_CONTROLS, POSE_CONTROLS, Controls
+from lightsim.view.controls import AIM_CONTROLS, CONFIG_CONTROLS, POSE_CONTROLS, Controls
 from lightsim.view.editor import SceneEditor
 from lightsim.view.encode import encode_image
 
@@ -98,6 +125,9 @@ class RegulationTable:
     points: list[dict[str, Any]]
     unevaluated: int = 0
 
+
+# error figures at which the next pooled map is scheduled (where it is expected to cross)
+ERROR_LEVELS = (0.05, 0.02, 0.01, 0.005)
 
 RegulationHook = Callable[[Any], RegulationTable]
 SaveHook = Callable[[Path, Any, Any, Controls, Scene], list[str]]
@@ -142,12 +172,17 @@ class LiveSession:
                  config: RunConfig, publish: Publish, *, controls: Controls | None = None,
                  regulation: RegulationHook | None = None, save_run: SaveHook | None = None,
                  folder: Path | None = None, camera: Any = None,
-                 image_interval: float = 0.5, pooled_after: float = math.inf,
-                 pooled_error: float = 0.05, step_seconds: float = 0.5,
-                 regulation_interval: float = 1.0, stop_error: float = 0.005,
-                 max_photons: int = 200_000_000, quick_photons: int = 20_000,
-                 estimate_share: float = 0.2, warm_up: bool = True,
-                 threads: int | str = "auto", settle_seconds: float = 0.25) -> None:
+                 batch_seconds: float = 0.1, batch_growth: float = 1.5,
+                 batch_max_seconds: float = 1.0, batch_photons: int = 1 << 20,
+                 first_pooled_seconds: float = 1.0, first_cap_seconds: float = 30.0,
+                 pooled_share: float = 1.0 / 3.0,
+                 probe_share: float = 0.1, regulation_interval: float = 1.0,
+                 regulation_share: float = 0.1, stop_error: float = 0.005,
+                 max_photons: int = 200_000_000, quick_photons: int = 10_000,
+                 frame_seconds: float = 0.18, min_photons: int = 3_000,
+                 still_seconds: float = 0.75, memory_share: float = 0.5,
+                 warm_up: bool = True, threads: int | str = "auto",
+                 settle_seconds: float = 0.75) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -157,18 +192,20 @@ class LiveSession:
         self.folder = Path(folder) if folder is not None else None
         self.camera = camera
         self.camera_watchers = 0  # set by the app: tabs showing the camera view
-        self.image_interval = image_interval
-        self.pooled_after = pooled_after
-        self.pooled_error = pooled_error
-        self.step_seconds = step_seconds
-        self._image_every = image_interval
+        self.batch_seconds = float(batch_seconds)
+        self.batch_growth = max(1.0, float(batch_growth))
+        self.batch_max_seconds = max(float(batch_max_seconds), self.batch_seconds)
+        self.batch_photons = int(batch_photons)
+        self.first_pooled_seconds = float(first_pooled_seconds)
+        self.pooled_share = min(max(float(pooled_share), 0.01), 0.9)
+        self.probe_share = min(max(float(probe_share), 0.01), 0.9)
+        self.regulation_share = min(max(float(regulation_share), 0.01), 0.9)
         self._reg_cost = 0.0
         self._update_s = 0.0
         self.regulation_interval = regulation_interval
         self.stop_error = stop_error
         self.max_photons = max_photons
         self.quick_photons = int(quick_photons)
-        self.estimate_share = float(estimate_share)
         self.warm_up = bool(warm_up)
         self.settle_seconds = float(settle_seconds)
         self._interaction_done = 0.0  # end of the last interaction frame
@@ -178,7 +215,16 @@ class LiveSession:
         self.thread_times: dict[int, float] = {}  # warm-up: threads → frame seconds
         self.accumulate_times: dict[int, float] = {}  # … → seconds of one batch
         self.frame_threads = self.accumulate_threads = None
-        self._est_cost = 0.0  # seconds of the last accumulation estimate
+        self.warm_batch = 50_000  # photons of the warm-up's timed accumulation batch
+        self.first_cap_seconds = float(first_cap_seconds)
+        self.frame_seconds = float(frame_seconds)
+        self.still_seconds = float(still_seconds)
+        self.memory_share = float(memory_share)
+        self.min_photons = int(min_photons)
+        self._overhead_s: float | None = None  # an interaction frame's seconds besides shooting
+        self._error_constant: float | None = None  # e √N of the last written map
+        self._rate: float | None = None  # photons/s of the last batch or frame
+        self._pooled_cost = self._probe_cost = self._camera_cost = 0.0  # seconds
         self._quick_due = False  # the next frame is the first after an edit
         self.ready = threading.Event()  # set once warmed up (or failed)
         self.controls = controls or editor.defaults()
@@ -195,10 +241,7 @@ class LiveSession:
         self.token: dict[str, Any] = {}
         self.mode = "interaction"
         self._changed_at = time.perf_counter()
-        self._last_image = 0.0
-        self._last_camera = 0.0
-        self._last_reg = 0.0
-        self._pooled_photons = 0
+        self._reset_clock()
         self.last_status: dict[str, Any] = {}
         self.error: str | None = None
         if self.folder is not None:
@@ -254,7 +297,7 @@ class LiveSession:
     # -- the thread --------------------------------------------------------------------
     def _run(self) -> None:
         try:
-            self._open(self.editor.build(self.controls), self.controls)
+            self._open(self.editor.session_scene(self.controls), self.controls)
         except LightsimError as exc:
             self.error = str(exc)
             self._message("error", f"cannot start the session: {exc}")
@@ -279,26 +322,29 @@ class LiveSession:
                 time.sleep(0.2)
 
     def _warm(self) -> None:
-        """Every code path of the loop once (interaction frame, estimate, pooled map,
-        camera, light transform, regulation) so that numba compiles its kernels now, not
-        at the user's first edit; the photons are then discarded."""
+        """Every code path of the loop once (interaction frame, accumulation batch, grid
+        figure, pooled map, camera, light transform, regulation) so that numba compiles
+        its kernels now, not at the user's first edit; the photons are then discarded."""
         s = self.session
         t0 = time.perf_counter()
         s.frame(image=True, probes=False, camera=self.camera,
-                photons=min(self.quick_photons, s.config.frame_photons))
-        s.accumulate(1)
-        s.frame(image=True)
-        s.frame(image=True, shoot=False, mode="pooled")
+                photons=self._frame_photons(quick=True))
+        self._accumulate_batch()
+        s.frame(image=True)  # the kNN probes (the regulation table's path)
+        self._probe_frame()
+        self._pooled_frame(None)  # also its cost: the first pooled map's schedule
         if self.regulation_hook is not None:
             self.regulation_hook(s)
         s.update(light_transform=np.eye(4))
         self._choose_threads()
         self._reset_clock()
+        self.stats.log.clear()  # the log is of the user's session
         self.stats.timings = {"warm_up": time.perf_counter() - t0}
 
     def _choose_threads(self) -> None:
         """numba threads of this thread (``set_num_threads`` is per thread): ``threads``,
-        or the faster of 1 and all for an interaction frame (best of two each)."""
+        or the faster of 1 and all, for an interaction frame and for an accumulation
+        batch of ``warm_batch`` photons separately (best of two each)."""
         import numba
 
         top = int(numba.config.NUMBA_NUM_THREADS)
@@ -307,14 +353,15 @@ class LiveSession:
             numba.set_num_threads(self.frame_threads)
             return
         s = self.session
+        batch = self._partial(min(self.warm_batch, s.config.frame_photons))
         for n in sorted({1, top}):
             numba.set_num_threads(n)
             times, acc = [], []
             for _ in range(2):
                 t0 = time.perf_counter()
-                s.frame(image=True, probes=False)
+                s.frame(image=True, probes=False, photons=self._frame_photons(quick=False))
                 t1 = time.perf_counter()
-                s.accumulate(1)
+                s.shoot(batch)
                 acc.append(time.perf_counter() - t1)
                 times.append(t1 - t0)
                 s.update(light_transform=np.eye(4))
@@ -331,25 +378,63 @@ class LiveSession:
 
             numba.set_num_threads(n)
 
-    def _config(self, c: Controls) -> RunConfig:
-        return self.base_config.with_(k=c.k, interleave=c.interleave,
-                                      frame_photons=c.frame_photons)
+    def _config(self, c: Controls, batch: bool = True) -> RunConfig:
+        """The session's configuration: its frame is the accumulation's batch cap (an
+        interaction frame is a partial frame of ``c.frame_photons``); ``batch=False``
+        (Selective Photon Tracing, whose passes are always whole): the controls' frame."""
+        photons = max(c.frame_photons, self.batch_photons) if batch else c.frame_photons
+        return self.base_config.with_(k=c.k, interleave=c.interleave, frame_photons=photons)
 
     def _open(self, scene: Scene, c: Controls) -> None:
         config = self._config(c)  # validates (e.g. photons ≥ M²) before the old one closes
         session = self.make_session(scene, config)
+        if session.plan.spt and config.frame_photons != c.frame_photons:
+            session.close()  # SPT passes are whole: no partial interaction frames
+            session = self.make_session(scene, self._config(c, batch=False))
         if self.session is not None:
             self.session.close()
         self.session = session
         self.controls = c
         self._reset_clock()
 
+    def _partial(self, photons: int) -> int | None:
+        """``photons`` as the argument of ``Session.shoot``/``frame``: None for a whole
+        frame (and always with SPT: its passes are whole)."""
+        s = self.session
+        if s.plan.spt or photons >= s.config.frame_photons:
+            return None
+        return max(int(photons), s.config.n_sets)
+
+    def _frame_photons(self, quick: bool) -> int | None:
+        """Photons of an interaction frame: after an edit at most ``quick_photons``, and
+        as many as the tracer's rate fits into ``frame_seconds`` beside the frame's other
+        work (render, update, encode: measured on the last interaction frame), at least
+        ``min_photons`` — the paper's interaction mode, fewer photons while dragging."""
+        n = self.controls.frame_photons
+        if quick:
+            n = min(n, self.quick_photons)
+            if self._rate and self._overhead_s is not None:
+                fit = self._rate * max(self.frame_seconds - self._overhead_s, 0.0)
+                n = min(n, max(self.min_photons, int(fit)))
+        return self._partial(n)
+
     def _reset_clock(self) -> None:
         self.mode = "interaction"
         self._changed_at = time.perf_counter()
         self._pooled_photons = 0
         self._last_reg = 0.0
+        self._last_probe = 0.0
+        self._last_camera = 0.0
         self._quick_due = True
+        self._batch_s = self.batch_seconds
+        self._traced_s = self._traced_at_pooled = 0.0
+        self._honest = None
+        self._figure = (None, None)
+        self._memory_said = False
+        from lightsim.engine.memory import available_bytes
+
+        free = available_bytes()
+        self._memory_budget = None if free is None else self.memory_share * free
 
     def _apply_pending(self) -> bool:
         with self._lock:
@@ -357,7 +442,7 @@ class LiveSession:
             upload, self._pending_scene = self._pending_scene, None
         if upload is not None:
             editor, c = upload
-            self._open(editor.build(c), c)
+            self._open(editor.session_scene(c), c)
             self.editor = editor
             self.edit += 1
             self._autosave({"upload": editor.base.source})
@@ -369,20 +454,32 @@ class LiveSession:
         new, info = pending
         t0 = time.perf_counter()
         try:
-            scene = self.editor.build(new)
             changed = new.changed(self.controls)
-            if changed & {*CONFIG_CONTROLS, "wall_distance_m"}:
-                # the run configuration or the wall frame (probe grid, radii) changed
-                self._open(scene, new)
-            elif changed <= POSE_CONTROLS:
-                # only the filament moved: emitters are not traced, the embree scene stays
-                delta = self.editor.emitter_matrix(new) @ np.linalg.inv(
-                    self.editor.emitter_matrix(self.controls))
-                self.session.update(light_transform=delta)
+            ed, old = self.editor, self.controls
+            lamp_frame = ed.wall_aimable()  # the session's lamp is unaimed, its wall turned
+            if changed and changed <= POSE_CONTROLS | (AIM_CONTROLS if lamp_frame else set()):
+                # the filament moved (emitters are not traced) and/or the aim changed (the
+                # wall is moved the other way, outside embree): the embree scene stays and
+                # the edited scene need not be built
+                kw: dict[str, Any] = {}
+                if changed & POSE_CONTROLS:
+                    if lamp_frame:
+                        kw["light_transform"] = ed.pose_matrix(new) @ np.linalg.inv(
+                            ed.pose_matrix(old))
+                    else:
+                        kw["light_transform"] = ed.emitter_matrix(new) @ np.linalg.inv(
+                            ed.emitter_matrix(old))
+                if changed & AIM_CONTROLS:
+                    kw["wall_transform"] = ed.wall_matrix(new) @ np.linalg.inv(
+                        ed.wall_matrix(old))
+                self.session.update(**kw)
                 self.controls = new
                 self._reset_clock()
+            elif changed & {*CONFIG_CONTROLS, "wall_distance_m"}:
+                # the run configuration or the wall frame (probe grid, radii) changed
+                self._open(ed.session_scene(new), new)
             else:
-                self.session.update(scene=scene)
+                self.session.update(scene=ed.session_scene(new))
                 self.controls = new
                 self._reset_clock()
         except LightsimError as exc:
@@ -400,7 +497,7 @@ class LiveSession:
         changed = self._apply_pending()
         self._handle_saves()
         s = self.session
-        if not changed and self._converged(s):
+        if not changed and self._converged():
             self._wake.wait(0.25)  # nothing left to gain: wait for an edit
             self._wake.clear()
             return
@@ -412,104 +509,200 @@ class LiveSession:
                     self._wake.wait(wait)
                 return
             self.mode = "accumulation"
-        if self.mode == "accumulation":
-            # shoot batches between displayed frames, so the probe estimates, the image
-            # and the error figure are paid once per step, not once per batch
-            share = min(max(self.estimate_share, 0.01), 0.9)
-            t_end = time.perf_counter() + max(self.step_seconds,
-                                              self._est_cost * (1 - share) / share)
-            self._threads_for(accumulating=True)
-            try:
-                while (time.perf_counter() < t_end and not self._busy()
-                       and not self._stop.is_set()):
-                    s.accumulate(1)
-            finally:
-                self._threads_for(accumulating=False)
-            if self._busy():
-                return  # an edit waits: do not render the old scene
-        now = time.perf_counter()
-        # once a pooled map is shown, a still scene shows only newer pooled maps
-        image = self.mode == "interaction" or (
-            self._pooled_photons == 0 and now - self._last_image >= self._image_every)
-        camera = self.camera if (self.camera is not None and self.camera_watchers > 0 and (
-            self.mode == "interaction" or now - self._last_camera >= self._image_every)) \
+        if self.mode == "interaction":
+            self._interaction_frame(changed)
+        else:
+            self._accumulation_step()
+
+    def _interaction_frame(self, changed: bool) -> None:
+        """Only the picture: the probes, error figure and table wait for a still scene."""
+        s = self.session
+        camera = self.camera if (self.camera is not None and self.camera_watchers > 0) \
             else None
         t0 = time.perf_counter()
-        if self.mode == "interaction":
-            # only the picture: the probes, error figure and table wait for a still scene
-            quick = self._quick_due and self.quick_photons < s.config.frame_photons
-            est = s.frame(image=True, camera=camera, probes=False,
-                          photons=self.quick_photons if quick else None)
-            self._quick_due = False
-            self._interaction_done = time.perf_counter()
-        else:
-            # the error figure of the consistent (ICI) map needs only its rung sums at
-            # the grid probes: no kNN probe queries every step
-            est = s.frame(image=image, camera=camera,
-                          probes="ici" if s.config.uses_ici else True)
-        self.stats.last_frame_s = time.perf_counter() - t0
-        if self.mode == "accumulation":
-            self._est_cost = self.stats.last_frame_s - est.timings.get("shoot", 0.0)
-        self.stats.timings = dict(est.timings)
+        est = s.frame(image=True, camera=camera, probes=False,
+                      photons=self._frame_photons(quick=self._quick_due))
+        self._quick_due = False
+        self._interaction_done = time.perf_counter()
+        self.stats.last_frame_s = self._interaction_done - t0
+        if est.timings.get("shoot", 0.0) > 0 and est.photons > 0:
+            self._rate = est.photons / est.timings["shoot"]
         self.stats.frames += 1
-        if self.mode == "interaction":
-            self.stats.interaction_frames += 1
-        if image:  # keep the redraws of a still scene to ≤ 1/4 of the time
-            self._image_every = max(self.image_interval, 3.0 * est.timings.get("render", 0))
-        quality = "interleaved"
-        if self.mode == "accumulation" and not self._busy() and self._pooled_due(est):
-            est_p = s.frame(image=True, shoot=False, mode="pooled")
-            self._pooled_photons = est_p.photons
-            est, quality, image = est_p, "pooled", True
-        entry = {"mode": self.mode, "quality": quality, "image": bool(image),
-                 "update_s": self._update_s if changed else 0.0,
-                 "photons": int(est.photons), "frame_s": self.stats.last_frame_s,
-                 **{f"{k}_s": v for k, v in est.timings.items()}}
-        if image and est.lux is not None:
-            self._last_image = time.perf_counter()
-            self.stats.images += 1
-            t1 = time.perf_counter()
-            msg = encode_image(luminous(est.lux), self._header("wall", est, quality))
-            entry.update(encode_s=time.perf_counter() - t1, bytes=len(msg))
-            self.publish("frame:wall", msg)
-        self.stats.log.append(entry)
-        if est.camera is not None:
-            self._last_camera = time.perf_counter()
-            self.publish("frame:camera", encode_image(luminous(est.camera),
-                                                      self._header("camera", est,
-                                                                   "interleaved")))
-        self.last_status = self._status(est, quality)
+        self.stats.interaction_frames += 1
+        update = self._update_s if changed else 0.0
+        self._publish_frame(est, "interleaved", {"update_s": update})
+        entry = self.stats.log[-1]
+        overhead = (self.stats.last_frame_s - est.timings.get("shoot", 0.0) + update
+                    + entry.get("encode_s", 0.0))
+        self._overhead_s = overhead if self._overhead_s is None else \
+            0.5 * (self._overhead_s + overhead)
+
+    def _accumulation_step(self) -> None:
+        """One batch, then what is due: the pooled map with the written map's figure,
+        the grid-probe figure (before the first pooled map), the camera, the table."""
+        s = self.session
+        self._accumulate_batch()
+        if self._busy():
+            return  # an edit waits: do not estimate the old scene
+        if time.perf_counter() - self._interaction_done < self.still_seconds:
+            # a pause in a drag: only short batches, so the next edit waits ≤ one batch
+            self.last_status = self._status()
+            self.publish("status", self.last_status)
+            return
+        watched = self.camera is not None and self.camera_watchers > 0
+        now = time.perf_counter()
+        camera_due = watched and now - self._last_camera >= max(1.0, 9.0 * self._camera_cost)
+        pooled = self._pooled_due()
+        if pooled:
+            est = self._pooled_frame(self.camera if watched else None)
+            self._publish_frame(est, "pooled", {})
+        elif self._honest is None and self._probe_due():
+            # before the first pooled map: the grid figure and the interleaved image
+            self._publish_frame(self._probe_frame(image=True), "interleaved", {})
+        if camera_due and time.perf_counter() - self._last_camera >= 1.0:
+            t0 = time.perf_counter()
+            est = s.frame(image=False, shoot=False, camera=self.camera, probes=False)
+            self._camera_cost = time.perf_counter() - t0
+            self.stats.log.append({"mode": self.mode, "quality": "camera", "image": False,
+                                   "frame_s": self._camera_cost})
+            self._publish_camera(est)
+        self.last_status = self._status()
         self.publish("status", self.last_status)
-        # the table needs ~10³ probes per set: only once the scene is still, and at most
-        # a fifth of the time
-        if (self.regulation_hook is not None and self.mode == "accumulation"
-                and not self._busy() and time.perf_counter() - self._last_reg
-                >= max(self.regulation_interval, 4.0 * self._reg_cost)):
+        # the table needs ~10³ probes per set: once the scene is still, then with each
+        # pooled map (the drawn result), at most ``regulation_share`` of the time
+        share = self.regulation_share
+        reg_due = self._last_reg == 0.0 or (
+            pooled and time.perf_counter() - self._last_reg
+            >= max(self.regulation_interval, self._reg_cost * (1 - share) / share))
+        if self.regulation_hook is not None and not self._busy() and reg_due:
             t1 = time.perf_counter()
             table = self.regulation_hook(s)
             self._last_reg = time.perf_counter()
             self._reg_cost = self._last_reg - t1
+            self.stats.log.append({"mode": self.mode, "quality": "regulation",
+                                   "image": False, "frame_s": self._reg_cost})
             self.publish("regulation", {"edit": self.edit, "title": table.title,
                                         "rows": table.rows, "points": table.points,
                                         "unevaluated": table.unevaluated})
 
-    def _pooled_due(self, est) -> bool:
-        """The pooled map (M² times an image's queries) first when the error figure is
-        ≤ ``pooled_error`` or the scene has been still ``pooled_after`` s, then each time
-        the photons have doubled (so it costs a bounded share of the time)."""
-        if self._pooled_photons:
-            return est.photons >= 2 * self._pooled_photons
-        still = time.perf_counter() - self._changed_at
-        err = est.rel_error
-        return still >= self.pooled_after or (err is not None and err <= self.pooled_error)
+    def _accumulate_batch(self) -> None:
+        """Trace one batch of about ``_batch_s`` seconds at the measured rate into every
+        set's map (the batch grows while the scene stays still)."""
+        s = self.session
+        rate = self._rate if self._rate else 1e5
+        n = int(min(s.config.frame_photons, max(s.config.n_sets, rate * self._batch_s)))
+        before = self._photons_now()
+        t0 = time.perf_counter()
+        self._threads_for(accumulating=True)
+        try:
+            s.shoot(self._partial(n))
+        finally:
+            self._threads_for(accumulating=False)
+        dt = time.perf_counter() - t0
+        done = self._photons_now() - before
+        if dt > 0 and done > 0:
+            self._rate = done / dt
+        self._traced_s += dt
+        if time.perf_counter() - self._interaction_done >= self.still_seconds:
+            self._batch_s = min(self.batch_max_seconds, self._batch_s * self.batch_growth)
+        self.stats.log.append({"mode": "accumulation", "quality": "batch", "image": False,
+                               "photons": self._photons_now(), "batch_photons": done,
+                               "batch_s": dt})
 
-    def _converged(self, s) -> bool:
-        """Accumulation has reached ``stop_error`` or ``max_photons``: stop shooting."""
-        if self.mode != "accumulation" or s.last is None or self._pooled_photons == 0:
+    def _photons_now(self) -> int:
+        return int(sum(self.session.emitted_per_set().values()))
+
+    def _probe_due(self) -> bool:
+        """The grid-probe figure: at the first still step, then ≤ ``probe_share``."""
+        share = self.probe_share
+        return self._last_probe == 0.0 or time.perf_counter() - self._last_probe >= \
+            self._probe_cost * (1 - share) / share
+
+    def _probe_frame(self, image: bool = False):
+        """The cheap error figure: the ICI rungs at the grid probes only (or the kNN
+        probes without ICI), with the interleaved image if ``image``."""
+        s = self.session
+        t0 = time.perf_counter()
+        est = s.frame(image=image, shoot=False, probes="ici" if s.config.uses_ici else True)
+        self._last_probe = time.perf_counter()
+        self._probe_cost = self.stats.last_frame_s = self._last_probe - t0
+        self.stats.log.append({"mode": self.mode, "quality": "grid probes", "image": False,
+                               "photons": int(est.photons), "frame_s": self._probe_cost})
+        self.stats.timings = dict(est.timings)
+        self._figure = (est, "grid probes")
+        return est
+
+    def _pooled_frame(self, camera):
+        """The pooled full-resolution map (the written result) and its own error figure
+        over every pixel (ICI rung sums; no kNN probe queries)."""
+        s = self.session
+        t0 = time.perf_counter()
+        est = s.frame(image=True, shoot=False, mode="pooled", camera=camera,
+                      probes="ici" if s.config.uses_ici else True)
+        self._pooled_cost = self.stats.last_frame_s = time.perf_counter() - t0
+        self.stats.timings = dict(est.timings)
+        self.stats.frames += 1
+        self._traced_at_pooled = self._traced_s
+        self._pooled_photons = int(est.photons)
+        self._honest = (_finite(est.rel_error), int(est.photons))
+        if self._honest[0] is not None:  # e √N: where the next edit's first map is due
+            self._error_constant = self._honest[0] * math.sqrt(max(est.photons, 1))
+        self._figure = (est, "written map")
+        return est
+
+    def _pooled_due(self) -> bool:
+        """The next pooled map (M² times an image's work): first after
+        ``first_pooled_seconds`` of tracing (or its own cost); then where the written
+        map's figure is expected to cross the next level (noise ∝ 1/√N, aimed 7 % below
+        it), otherwise at twice the photons, its cost ≤ ``pooled_share`` of the time."""
+        if self._honest is None:
+            first = max(self.first_pooled_seconds, self._pooled_cost)
+            if self._error_constant is None:
+                return self._traced_s >= first
+            # an earlier edit's e √N predicts where this one crosses 5 % (aimed 10 % below
+            # it): one pooled map there instead of one early and one at the crossing
+            n5 = (self._error_constant / (0.9 * ERROR_LEVELS[0])) ** 2
+            return (self._traced_s >= first and self._photons_now() >= n5) or \
+                self._traced_s >= max(self.first_cap_seconds, 2.0 * self._pooled_cost)
+        err, n_last = self._honest
+        photons = self._photons_now()
+        if err is not None:
+            below = [lv for lv in ERROR_LEVELS if lv < err]
+            if below and photons >= n_last * (err / (0.93 * below[0])) ** 2:
+                return True
+        share = self.pooled_share
+        return photons >= 2 * n_last and (self._traced_s - self._traced_at_pooled
+                                          >= self._pooled_cost * (1 - share) / share)
+
+    def _converged(self) -> bool:
+        """Accumulation has reached ``stop_error`` (by the written map's figure),
+        ``max_photons`` or ``memory_share`` of the memory: stop shooting."""
+        if self.mode != "accumulation":
             return False
-        err = s.last.rel_error
-        photons = s.last.photons
+        if self._memory_full():
+            return True
+        if self._honest is None:
+            return False
+        err, photons = self._honest
         return photons >= self.max_photons or (err is not None and err <= self.stop_error)
+
+    def _memory_full(self) -> bool:
+        """The stored photons (at their insertion peak) have reached ``memory_share`` of
+        the memory that was available when the scene last changed; said once."""
+        from lightsim.engine.memory import bytes_per_photon
+
+        if self._memory_budget is None:
+            return False
+        stats = self.session.backend.stats()
+        records = sum(int(st.get("records", 0)) for st in stats.values())
+        full = records * bytes_per_photon(self.session.plan.channels or 1, peak=True) \
+            >= self._memory_budget
+        if full and not self._memory_said:
+            self._memory_said = True
+            self._message("info", f"accumulation stopped at {self._photons_now():,} photons: "
+                          f"the photon maps hold {100 * self.memory_share:.0f} % of the memory "
+                          "available (a change starts afresh)")
+        return full
 
     def _busy(self) -> bool:
         """An edit or a save is waiting: skip optional work so it is served first."""
@@ -517,22 +710,55 @@ class LiveSession:
             or bool(self._save_requests)
 
     # -- what the page receives ---------------------------------------------------------
+    def _publish_frame(self, est, quality: str, entry: dict[str, Any]) -> None:
+        """The wall image (and camera), the status and a log entry of a drawn frame."""
+        entry = {"mode": self.mode, "quality": quality, "image": est.lux is not None,
+                 "photons": int(est.photons), "frame_s": self.stats.last_frame_s,
+                 **entry, **{f"{k}_s": v for k, v in est.timings.items()}}
+        self.stats.timings = dict(est.timings)
+        if est.lux is not None:
+            self.stats.images += 1
+            t1 = time.perf_counter()
+            msg = encode_image(luminous(est.lux), self._header("wall", est, quality))
+            entry.update(encode_s=time.perf_counter() - t1, bytes=len(msg))
+            self.publish("frame:wall", msg)
+        self.stats.log.append(entry)
+        self._publish_camera(est)
+        if self.mode == "interaction":
+            self.last_status = self._status(quality)
+            self.publish("status", self.last_status)
+
+    def _publish_camera(self, est) -> None:
+        if est.camera is not None:
+            self._last_camera = time.perf_counter()
+            self.publish("frame:camera", encode_image(luminous(est.camera),
+                                                      self._header("camera", est,
+                                                                   "interleaved")))
+
     def _header(self, kind: str, est, quality: str) -> dict[str, Any]:
         w = self.session.scene.wall
         return {"kind": kind, "edit": self.edit, "token": self.token, "mode": self.mode,
                 "quality": quality, "photons": int(est.photons),
                 "rel_error": _finite(est.rel_error), "wall": w.to_dict()}
 
-    def _status(self, est, quality: str) -> dict[str, Any]:
-        e = est.error
-        return {"edit": self.edit, "mode": self.mode, "quality": quality,
-                "photons": int(est.photons), "rel_error": _finite(est.rel_error),
+    def _status(self, quality: str | None = None) -> dict[str, Any]:
+        """Mode, photons and the latest error figure with where it comes from: the
+        written map (a pooled map, at ``error_photons``) or the grid probes."""
+        est, source = self._figure
+        e = None if est is None else est.error
+        return {"edit": self.edit, "mode": self.mode, "quality": quality or (
+                    "pooled" if self._pooled_photons else "interleaved"),
+                "photons": self._photons_now(),
+                "rel_error": None if est is None else _finite(est.rel_error),
+                "error_source": source,
+                "error_photons": None if est is None else int(est.photons),
                 "rel_noise": None if e is None else _finite(e.noise),
                 "rel_bias": None if e is None else _finite(e.bias),
                 "error_text": None if e is None else e.describe(),
                 "still_s": time.perf_counter() - self._changed_at,
                 "frame_s": self.stats.last_frame_s, "frames": self.stats.frames,
                 "numba_threads": _numba_threads(),
+                "photons_per_s": self._rate,
                 "timings": self.stats.timings}
 
     def describe(self) -> dict[str, Any]:
@@ -599,7 +825,8 @@ class LiveSession:
             shutil.rmtree(tmp)
         tmp.mkdir(parents=True)
         try:
-            files = self.save_hook(tmp, s, est, self.controls, s.scene)
+            # the GLB is the edited scene as a user loads it: the lamp aimed, the wall fixed
+            files = self.save_hook(tmp, s, est, self.controls, self.editor.build(self.controls))
             shutil.copy2(self.folder / "edits.jsonl", tmp / "edits.jsonl")
             os.replace(tmp, final)
         except BaseException:

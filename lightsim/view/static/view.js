@@ -3,7 +3,7 @@
 "use strict";
 
 const V = window.lightsimView = {
-  client: null, framesDrawn: 0, wallFrames: 0, cameraFrames: 0, latencies: [], sentAt: {},
+  client: null, framesDrawn: 0, wallFrames: 0, cameraFrames: 0, latencies: [], drawMs: [], sentAt: {},
   token: 0, status: null, regulation: null, messages: [], lastHeader: null, plotRect: null,
   lastWallHeader: null,
   connected: false, reconnects: 0, hello: null,
@@ -140,7 +140,8 @@ function showStatus(s) {
   const shown = h ? ` · showing ${h.quality === "pooled" ? "pooled map" :
     "interleaved frame"} of ${h.photons.toLocaleString("en")} photons` : "";
   $("mode").textContent = `${s.mode}${shown}`;
-  $("error").textContent = pct(s.rel_error);
+  $("error").textContent = pct(s.rel_error) + (s.error_source ? ` (${s.error_source}` +
+    (s.error_photons ? ` at ${s.error_photons.toLocaleString("en")} photons)` : ")") : "");
   $("photons").textContent = s.photons.toLocaleString("en");
   $("frame_s").textContent = `${(1000 * s.frame_s).toFixed(0)} ms`;
   $("error_text").textContent = s.error_text || "";
@@ -172,17 +173,25 @@ async function drain(kind) {
   while (pending[kind]) {  // only the newest waiting frame is drawn: a slow page skips
     const { head, payload } = pending[kind];
     pending[kind] = null;
+    const t0 = performance.now();  // the page's share of a frame: inflate, decode, draw
     const stream = new Blob([payload]).stream().pipeThrough(new DecompressionStream("deflate"));
     const codes = new Uint16Array(await new Response(stream).arrayBuffer());
     const lo = head.lo, span = Math.log(head.hi / head.lo);
+    // one exp per code value, not per pixel (65 536 against W·H; the page shares the cores)
+    const decode = (c) => (c === 0 ? 0 : lo * Math.exp((c - 1) / 65534 * span));
     const img = new Float32Array(codes.length);
-    for (let i = 0; i < codes.length; i++)
-      img[i] = codes[i] === 0 ? 0 : lo * Math.exp((codes[i] - 1) / 65534 * span);
-    const frame = { head, img };
+    let value = null;
+    if (codes.length > 65536) {
+      value = new Float32Array(65536);
+      for (let c = 0; c < 65536; c++) value[c] = decode(c);
+      for (let i = 0; i < codes.length; i++) img[i] = value[codes[i]];
+    } else for (let i = 0; i < codes.length; i++) img[i] = decode(codes[i]);
+    const frame = { head, img, codes, value };
     if (kind === "wall") { lastWall = frame; drawWall(frame); V.wallFrames++; V.lastWallHeader = head; }
     else { drawCamera(frame); V.cameraFrames++; }
     V.framesDrawn++;
     V.lastHeader = head;
+    if (kind === "wall") { V.drawMs.push(performance.now() - t0); if (V.drawMs.length > 1000) V.drawMs.shift(); }
     const tok = head.token || {};
     if (kind === "wall" && tok.client === V.client && tok.n) {
       const now = performance.now();
@@ -200,12 +209,17 @@ function paint(ctx, frame, x0, y0, s) {
   const hi = head.hi, lo = hi * Math.pow(10, -DISPLAY_DECADES), span = Math.log(hi / lo);
   const off = new OffscreenCanvas(W, H), octx = off.getContext("2d");
   const data = octx.createImageData(W, H);
+  const row = (v) => Math.round((v > lo ? Math.min(1, Math.log(v / lo) / span) : 0) * 255) * 3;
+  let colour = null;  // colour row per code value (one log per code, not per pixel)
+  if (frame.value) {
+    colour = new Uint16Array(65536);
+    for (let c = 0; c < 65536; c++) colour[c] = row(frame.value[c]);
+  }
+  const px = data.data;
   for (let i = 0; i < W * H; i++) {
-    const v = img[i];
-    const t = v > lo ? Math.min(1, Math.log(v / lo) / span) : 0;
-    const j = Math.round(t * 255) * 3;
-    data.data[4 * i] = LUT[j]; data.data[4 * i + 1] = LUT[j + 1]; data.data[4 * i + 2] = LUT[j + 2];
-    data.data[4 * i + 3] = 255;
+    const j = colour ? colour[frame.codes[i]] : row(img[i]);
+    px[4 * i] = LUT[j]; px[4 * i + 1] = LUT[j + 1]; px[4 * i + 2] = LUT[j + 2];
+    px[4 * i + 3] = 255;
   }
   octx.putImageData(data, 0, 0);
   ctx.imageSmoothingEnabled = false;
