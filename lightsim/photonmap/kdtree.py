@@ -519,26 +519,37 @@ def _dfs_ids(child: np.ndarray, stack_size: int) -> np.ndarray:
 @njit(cache=True)
 def _renumber(new: np.ndarray, box: np.ndarray, child: np.ndarray, start: np.ndarray,
               end: np.ndarray, dim: np.ndarray, split: np.ndarray, depth: np.ndarray,
-              ) -> None:
-    """Move the first ``new.shape[0]`` nodes' fields to their new ids (in place)."""
+              cap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                         np.ndarray, np.ndarray]:
+    """The node arrays (capacity ``cap`` ≥ m nodes) with node ``nd`` moved to id ``new[nd]``.
+
+    Gathers into fresh arrays in the new order (reads are mostly in sequence, as only the
+    nodes added since the last renumbering are out of place).
+    """
     m = new.shape[0]
-    b = box[:m].copy()
-    c = child[:m].copy()
-    s = start[:m].copy()
-    e = end[:m].copy()
-    d = dim[:m].copy()
-    sp = split[:m].copy()
-    dp = depth[:m].copy()
+    old = np.empty(m, np.int64)
     for nd in range(m):
-        t = new[nd]
+        old[new[nd]] = nd
+    # only ``child`` must be initialised beyond m (new nodes are leaves until split)
+    o_box = np.empty((cap, 6), np.float32)
+    o_child = np.full(cap, -1, np.int32)
+    o_start = np.empty(cap, np.int64)
+    o_end = np.empty(cap, np.int64)
+    o_dim = np.empty(cap, np.int32)
+    o_split = np.empty(cap, np.float64)
+    o_depth = np.empty(cap, np.int32)
+    for t in range(m):
+        nd = old[t]
         for a in range(6):
-            box[t, a] = b[nd, a]
-        child[t] = new[c[nd]] if c[nd] >= 0 else -1
-        start[t] = s[nd]
-        end[t] = e[nd]
-        dim[t] = d[nd]
-        split[t] = sp[nd]
-        depth[t] = dp[nd]
+            o_box[t, a] = box[nd, a]
+        c = child[nd]
+        o_child[t] = new[c] if c >= 0 else -1
+        o_start[t] = start[nd]
+        o_end[t] = end[nd]
+        o_dim[t] = dim[nd]
+        o_split[t] = split[nd]
+        o_depth[t] = depth[nd]
+    return o_box, o_child, o_start, o_end, o_dim, o_split, o_depth
 
 
 @njit(cache=True)
@@ -817,8 +828,9 @@ class _BoxTree(PhotonIndex):
             setattr(self, name, arr)
         self._child[cap:] = -1
 
-    def _to_dfs_order(self) -> None:
-        """Renumber the nodes depth-first (see :func:`_dfs_ids`).
+    def _to_dfs_order(self, trim: bool = False) -> None:
+        """Renumber the nodes depth-first (see :func:`_dfs_ids`); ``trim``: drop the spare
+        node capacity (after a build: the next insertion regrows it by doubling).
 
         Levels are split breadth-first and insertions append their nodes at the end, so
         a walk down the tree jumps through memory; in depth-first order a subtree is one
@@ -829,8 +841,10 @@ class _BoxTree(PhotonIndex):
         if m <= 1:
             return
         new = _dfs_ids(self._child[:m], self._depth + 2)
-        _renumber(new, self._box, self._child, self._start, self._end, self._dim,
-                  self._split, self._node_depth)
+        cap = m if trim else self._child.shape[0]
+        (self._box, self._child, self._start, self._end, self._dim, self._split,
+         self._node_depth) = _renumber(new, self._box, self._child, self._start, self._end,
+                                       self._dim, self._split, self._node_depth, cap)
         if self._top_leaf is not None:
             self._top_leaf = new[self._top_leaf]
 
@@ -902,7 +916,7 @@ class _BoxTree(PhotonIndex):
                 self._build_top(root, levels)
         self._perm = self._idx
         del self._idx
-        self._to_dfs_order()
+        self._to_dfs_order(trim=True)
         self._nrm = take_rows(nrm, self._perm) if self._has_normals else nrm
         self._pw = take_rows(pw, self._perm)
 
