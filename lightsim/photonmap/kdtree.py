@@ -72,6 +72,11 @@ _MORTON_AXES = np.tile(np.arange(3, dtype=np.int64), 10)
 
 
 
+def _index_dtype(n: int) -> type:
+    """Smallest integer type of the stored insertion indices 0 … n−1."""
+    return np.int32 if n < 2**31 else np.int64
+
+
 # =========================================================================== build kernels
 @njit(cache=True)
 def _partition_middle(src: np.ndarray, src_idx: np.ndarray, dst: np.ndarray,
@@ -914,7 +919,8 @@ class _BoxTree(PhotonIndex):
                 self._split_nodes(np.zeros(1, np.int64))
             else:
                 self._build_top(root, levels)
-        self._perm = self._idx
+        # insertion indices in 4 bytes while they fit (a kNN result widens them to int64)
+        self._perm = self._idx.astype(_index_dtype(n))
         del self._idx
         self._to_dfs_order(trim=True)
         self._nrm = take_rows(nrm, self._perm) if self._has_normals else nrm
@@ -1072,7 +1078,7 @@ class KdTree(_BoxTree):
         src, cursor = _merge_plan(child, self._start, self._end, count, n, self._depth + 2)
         out = (np.empty((n, 3), np.float32),
                np.empty((n if self._has_normals else 0, 3), np.float32),
-               np.empty((n, self.n_channels), np.float32), np.empty(n, np.int64))
+               np.empty((n, self.n_channels), np.float32), np.empty(n, _index_dtype(n)))
         gather = _merge_gather if n >= SERIAL_BELOW else _merge_gather_serial
         gather(src, self._pts, self._nrm, self._pw, self._perm, *out)
         _merge_place(leaf_of, cursor, pts, b_nrm, take_rows(pw, order), n_old + order, *out)
