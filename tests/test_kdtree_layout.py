@@ -101,3 +101,20 @@ def test_insertion_carries_normals_powers_and_indices_with_their_photons() -> No
     q = np.concatenate([pos[:50], pos[-50:]]).astype(np.float64)
     built = KdTree(pos, nrm, pw, leaf_size=4, channels=3)
     np.testing.assert_allclose(tree.estimate(q, k=16).E, built.estimate(q, k=16).E, rtol=1e-12)
+
+
+def test_insertion_splits_a_leaf_only_past_the_slack_and_then_down_to_leaf_size() -> None:
+    rng = np.random.default_rng(11)
+    pts = rng.random((9, 3)).astype(np.float32)
+    tree = KdTree(pts[:4], leaf_size=4)
+    assert tree.n_nodes == 1
+    tree.add(pts[4:8])  # 8 = INSERT_SLACK · leaf_size photons: still one leaf
+    assert tree.n_nodes == 1 and len(tree) == 8
+    tree.add(pts[8:])  # 9 > 8: split until every leaf holds ≤ leaf_size
+    child = tree._child[:tree.n_nodes]
+    leaves = np.flatnonzero(child < 0)
+    assert tree.n_nodes > 1
+    assert (tree._end[leaves] - tree._start[leaves]).max() <= 4
+    d2, _ = tree.query(pts.astype(np.float64), 3)
+    _, expect = _brute(pts, pts.astype(np.float64), 3)
+    np.testing.assert_array_equal(d2, expect)
