@@ -15,7 +15,7 @@ item                bytes  why
 position            12     float32 × 3
 normal              12     float32 × 3 (the normal filter)
 power               4 C    float32 × C
-permutation         8      int64 slot → insertion index
+permutation         4      int32 slot → insertion index (int64 from 2³¹ photons)
 nodes               ≤ 36   60 B per node (box 24, start/end 16, split 8, child, dim,
                            depth 12) × ≤ 0.6 nodes per photon (≈ 0.3 used, arrays
                            grown by doubling)
@@ -70,7 +70,7 @@ HEADROOM = 1.15
 
 def bytes_per_photon(channels: int = 1, normals: bool = True, peak: bool = False) -> float:
     """Bytes one stored photon takes in a kd-tree map (``peak``: during an insertion)."""
-    stored = 12.0 + (12.0 if normals else 0.0) + 4.0 * channels + 8.0 \
+    stored = 12.0 + (12.0 if normals else 0.0) + 4.0 * channels + 4.0 \
         + NODE_BYTES * NODES_PER_PHOTON
     return stored + (32.0 + 4.0 * channels if peak else 0.0)
 

@@ -50,6 +50,10 @@ QUERY_CHUNK = 4
 
 _EMPTY_KEYS = np.zeros(0, np.int64)
 
+#: kNN results of up to this many photons are ordered by rank sort (n² branch-free
+#: compares), larger ones by quicksort
+RANK_SORT_MAX = 128
+
 
 class RadiusNeighbours(NamedTuple):
     """All photons within a fixed radius of each query, in CSR form.
@@ -412,10 +416,25 @@ def finish_knn(cd: np.ndarray, cs: np.ndarray, n: int, k: int, perm: np.ndarray,
     ``stack`` is scratch for :func:`~lightsim.photonmap.select.sort_k`.
     """
     n, kth = kth_d2(cd, cs, n, k)
-    sort_k(cd, cs, n, stack)
-    for j in range(n):
-        out_d[j] = cd[j]
-        out_i[j] = perm[cs[j]]
+    if n <= RANK_SORT_MAX:
+        # rank sort straight into the output: photon i goes to the number of candidates
+        # closer than it (ties by buffer position). Branch-free compares: on the
+        # quickselected buffer of a query (k = 64) this measured ≈ 2× faster than
+        # quicksort, whose partitions mispredict about every other comparison.
+        for i in range(n):
+            x = cd[i]
+            r = 0
+            for j in range(n):
+                r += cd[j] < x
+            for j in range(i):
+                r += cd[j] == x
+            out_d[r] = x
+            out_i[r] = perm[cs[i]]
+    else:
+        sort_k(cd, cs, n, stack)
+        for j in range(n):
+            out_d[j] = cd[j]
+            out_i[j] = perm[cs[j]]
     for j in range(n, out_d.shape[0]):
         out_d[j] = np.inf
         out_i[j] = -1
