@@ -160,9 +160,11 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
 
             Console(width=None if sys.stdout.isatty() else 160).print(
                 format_regulation(s["regulation"]))
-        extra = ", probes.npz" if "regulation" in s else ""
-        click.echo(f"wrote {result.out_dir}/wall_lux.exr, wall_lux.png, isolux.png, road.png, "
-                   f"error_vs_time.png, summary.json{extra}")
+        order = ("wall_lux.exr", "wall_lux.png", "isolux.png", "road.png",
+                 "error_vs_time.png", "summary.json", "probes.npz")
+        wrote = sorted(s.get("outputs", []), key=lambda n: (order.index(n) if n in order
+                                                            else len(order), n))
+        click.echo(f"wrote {result.out_dir}/{', '.join(wrote)}")
         for f in s.get("farfield", {}).get("files", []):
             click.echo(f"wrote {f} ({s['farfield']['total_flux_lm']:.1f} lm leave the lamp)")
 

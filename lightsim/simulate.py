@@ -143,6 +143,13 @@ class SimulateOptions:
                                    flag=("--farfield-photons",), low=1)
     mount_height: float = option(0.65, "Lamp height above the road for the road view.",
                                  unit="m", flag=("--mount-height",), low=0, low_open=True)
+    outputs: tuple[str, ...] = option(
+        ("exr", "png", "error_vs_time", "isolux", "road", "json"),
+        "Files to write, comma-separated: exr (wall_lux.exr), png (wall_lux.png), "
+        "error_vs_time, isolux, road (their .png), json (summary.json, always written: it "
+        "marks a finished run); all = every one.", flag=("--outputs",), kind="names",
+        choices=("exr", "png", "error_vs_time", "isolux", "road", "json"), resume=True,
+        default_text="all")
     log_scale: bool = option(False, "Logarithmic colour scale in the PNG.",
                              flag=("--log",), kind="flag")
     workers: int = option(0, "0: in-process; N: N Ray actors on this machine.",
@@ -406,7 +413,8 @@ def _lux_stats(lux: np.ndarray, frame) -> dict[str, Any]:
 def write_outputs(out: Path, opts: SimulateOptions, session, est,
                   analyses: Sequence[Analysis] = ()) -> SimulationResult:
     """Write wall_lux.exr, wall_lux.png, error_vs_time.png, the engineering outputs and
-    summary.json as one set (staged inside ``out``, summary.json published last)."""
+    summary.json as one set (staged inside ``out``, summary.json published last); only
+    the files ``opts.outputs`` names, and summary.json always."""
     from lightsim.io.atomic import OutputSet
     from lightsim.io.summary import read_json
 
@@ -426,9 +434,7 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est,
 def _write_set(out: Path, opts: SimulateOptions, session, est,
                analyses: Sequence[Analysis]) -> SimulationResult:
     """Write every output file into ``out`` (the staging folder), summary.json last."""
-    from lightsim.io.errorplot import error_vs_time_plot
     from lightsim.io.exr import wall_metadata, write_exr
-    from lightsim.io.png import write_lux_png
     from lightsim.io.summary import write_json
     from lightsim.render.frame import luminous
 
@@ -482,10 +488,18 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
     if rgb is not None:
         for i, ch in enumerate("RGB"):
             channels[ch] = rgb[..., i].astype(np.float32)
-    write_exr(out / "wall_lux.exr", channels, meta)
-    write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
-                  title=f"{Path(opts.scene_path).name}: {photons:,} photons")
-    error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
+    wanted = set(opts.outputs)
+    if "exr" in wanted:
+        write_exr(out / "wall_lux.exr", channels, meta)
+    if "png" in wanted:
+        from lightsim.io.png import write_lux_png  # matplotlib: only when a plot is asked
+
+        write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
+                      title=f"{Path(opts.scene_path).name}: {photons:,} photons")
+    if "error_vs_time" in wanted:
+        from lightsim.io.errorplot import error_vs_time_plot
+
+        error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
     _engineering_outputs(out, opts, session, lux, summary, analyses)
     summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
                                  and not p.name.startswith(".")] + ["summary.json"])
@@ -506,7 +520,8 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
         result = analysis.report(run, out)
         summary[analysis.name] = result.summary
         marks = result.marks if result.marks is not None else marks
-    report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary)
+    report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary,
+                             which=tuple(n for n in ("isolux", "road") if n in opts.outputs))
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:

@@ -180,6 +180,11 @@ def mitsuba_spec(case: an.AnalyticScene, folder: Path, spp: int, seed: int = 0
 
 
 # =========================================================================== lightsim setup
+LIGHTSIM_OUTPUTS = "exr,json"
+"""What the bench's lightsim runs write (``--outputs``): the map the score reads and the
+summary (its own error, photons); the plots are left out as Mitsuba writes only its EXR.
+A later ``--lightsim-arg --outputs …`` overrides it."""
+
 def write_scene_glb(case: an.AnalyticScene, path: Path) -> Path:
     """The case's scene as glTF (the mirror with its analytic vertex normals)."""
     from lightsim.cli.view import scene_gltf_parts
@@ -281,9 +286,10 @@ def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: flo
     W, H = case.frame.resolution
     budget = (["--target-error", f"{target:g}"] if photons is None
               else ["--photons", str(int(photons))])
+    # like Mitsuba, which writes only its image: the map and the summary, no plots
     cmd = [sys.executable, "-m", "lightsim.cli.main", "simulate", str(glb), *budget,
            "--resolution", f"{W}x{H}", "--out", str(out), "--quiet", "--time",
-           f"{timeout:g}", *extra_args]
+           f"{timeout:g}", "--outputs", LIGHTSIM_OUTPUTS, *extra_args]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout + 120,
                           check=False)
