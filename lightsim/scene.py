@@ -340,10 +340,10 @@ def solid_wall_face(part: Part) -> tuple[Part, str] | None:
     nearest to it. Returns the reduced part and a one-line description, or None when the
     part is open, not thin, or has no planar front face (then it stays "not planar").
     """
+    if len(part.faces) < 4:  # no closed solid (and no trimesh import for a plain wall)
+        return None
     import trimesh
 
-    if len(part.faces) < 4:
-        return None
     mesh = trimesh.Trimesh(part.vertices, part.faces, process=True, validate=False)
     if not mesh.is_watertight:
         return None

@@ -31,14 +31,16 @@ def for_options(opts: Any) -> list[Analysis]:
     raise :class:`~lightsim.errors.InputError` before any work).
     """
     from .photometric import resolve_ies_type
-    from .photometric.analysis import FarfieldAnalysis
-    from .regulations.check import RegulationAnalysis
 
     resolve_ies_type(opts.ies_type, None)  # a misspelt --ies-type fails even without --ies
     out: list[Analysis] = []
-    if opts.regulation is not None:
+    if opts.regulation is not None:  # imported only when asked (scipy: start-up time)
+        from .regulations.check import RegulationAnalysis
+
         out.append(RegulationAnalysis(opts.regulation, opts.traffic, opts.aim, opts.aperture,
                                       opts.spt_points))
     if opts.ies or opts.ldt:
+        from .photometric.analysis import FarfieldAnalysis
+
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons))
     return out
