@@ -135,6 +135,31 @@ class SetState:
             self.emitted_power = np.zeros(self.channels)
 
 
+class _WallHits:
+    """The wall records of one frame: their positions in the frame's record arrays and
+    their wall coordinates (h, v in m), computed once for all sets.
+
+    h, v are evaluated element by element (no BLAS product), so a record's coordinates
+    do not depend on which other records share the frame.
+    """
+
+    def __init__(self, sets: PhotonSets, rec: PhotonRecords) -> None:
+        ids = sets._wall_part_ids
+        on = rec.part == ids[0] if len(ids) == 1 else np.isin(rec.part, ids)
+        self.index = np.flatnonzero(on)
+        fr = sets.frame
+        d = rec.position[self.index].astype(np.float64) - fr.centre
+        ha, va = np.asarray(fr.h_axis, np.float64), np.asarray(fr.v_axis, np.float64)
+        self.h = d[:, 0] * ha[0] + d[:, 1] * ha[1] + d[:, 2] * ha[2]
+        self.v = d[:, 0] * va[0] + d[:, 1] * va[1] + d[:, 2] * va[2]
+
+    def span(self, a: int, b: int) -> tuple[slice, np.ndarray]:
+        """The wall records among records ``a:b``: their slice of ``h``, ``v`` and their
+        record indices."""
+        lo, hi = (int(x) for x in np.searchsorted(self.index, (a, b)))
+        return slice(lo, hi), self.index[lo:hi]
+
+
 class PhotonSets:
     """The interleave sets of one client: shoot, insert, count, replay.
 
@@ -146,15 +171,17 @@ class PhotonSets:
         Which stages run (SPT, channels, recording).
     set_indices : list of int
         The interleave sets this client owns (static assignment).
+    caster : RayCaster, optional
+        The scene's embree scene when the caller already built it.
     """
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
-                 set_indices: list[int]) -> None:
+                 set_indices: list[int], caster=None) -> None:
         self.config = config
         self.plan = plan
         self.set_indices = list(set_indices)
         self._perm_cache: dict[int, np.ndarray] = {}
-        self.set_scene(scene)
+        self.set_scene(scene, caster)
         self.reset()
 
     # -- scene and state ------------------------------------------------------------------
@@ -241,24 +268,27 @@ class PhotonSets:
         res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
                                        group=group, n_groups=len(self.set_indices))
         rec = res.records
-        rec_group = group[rec.source] if len(rec) else np.zeros(0, np.int64)
         offsets = np.cumsum([0] + [len(o) for o in owners])
+        # One stable sort by photon index for the whole frame: a set's photons are one
+        # index range, so its records become one slice, in the order (photon, bounce)
+        # that keeps maps identical across batching. What every store needs (on the wall?,
+        # h, v) is computed once per frame, not once per set.
+        order = np.argsort(rec.source, kind="stable")
+        rec = PhotonRecords(rec.position[order], rec.normal[order], rec.power[order],
+                            rec.part[order], rec.flags[order], rec.source[order])
+        bounds = np.searchsorted(rec.source, offsets)
+        wall = _WallHits(self, rec)
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             lo, hi = offsets[g], offsets[g + 1]
-            sel = np.flatnonzero(rec_group == g)
-            # a stable order (photon index, then bounce) keeps maps identical across batching
-            sel = sel[np.argsort(rec.source[sel], kind="stable")]
-            part = PhotonRecords(rec.position[sel], rec.normal[sel], rec.power[sel],
-                                 rec.part[sel], rec.flags[sel], rec.source[sel] - lo)
-            self.insert(st, part)
+            self._insert_slice(st, rec, wall, int(bounds[g]), int(bounds[g + 1]), lo)
             st.emitted += hi - lo
             st.frames += 1
             st.ledger += res.ledger[g]
             st.emitted_power += res.emitted[g]
             caustic = res.caustic_source[lo:hi]
             st.caustic += int(caustic.sum())
-            st.records += len(part)
+            st.records += int(bounds[g + 1] - bounds[g])
             if st.sampler is not None:
                 trigger = caustic if self.plan.spt else np.zeros(hi - lo, np.bool_)
                 if st.aperture_hits is not None:  # SPT aimed at test points
@@ -274,44 +304,49 @@ class PhotonSets:
 
     # -- insertion -----------------------------------------------------------------------
     def insert(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add one frame's records of set ``st`` to every store it keeps."""
+        """Add one frame's records of set ``st`` to every store it keeps (``rec.source``:
+        the set's photon indices of the frame, from 0)."""
+        self._insert_slice(st, rec, _WallHits(self, rec), 0, len(rec), 0)
+
+    def _insert_slice(self, st: SetState, rec: PhotonRecords, wall: _WallHits, a: int,
+                      b: int, first: int) -> None:
+        """Add records ``a:b`` of the frame (set ``st``'s, photon indices from ``first``)
+        to every store the set keeps; ``wall`` holds the frame's wall coordinates."""
+        sl, idx = wall.span(a, b)
+        h, v = wall.h[sl], wall.v[sl]
         if st.apertures is not None:  # detector apertures count every wall photon directly
-            on_wall = np.isin(rec.part, self._wall_part_ids)
-            h, v = self.frame.to_hv(rec.position[on_wall])
-            hit = st.apertures.add(h, v, rec.power[on_wall])
-            st.aperture_hits = rec.source[on_wall][hit]
+            hit = st.apertures.add(h, v, rec.power[idx])
+            st.aperture_hits = rec.source[idx][hit] - first
         if st.bins is not None:
-            self._add_to_bins(st, rec)
+            self._add_to_bins(st, h, v, rec.power[idx].astype(np.float64))
             return
-        if len(rec):
-            st.photonmap.add(rec.position, rec.normal, rec.power)
-            self._add_to_windows(st, rec)
-            self._add_to_lattice(st, rec)
+        if b > a:
+            st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
+            if len(idx):
+                power = rec.power[idx].astype(np.float64)
+                self._add_to_windows(st, h, v, power)
+                self._add_to_lattice(st, h, v, power)
 
-    def _add_to_bins(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add the wall photons to their pixels (the binning estimator)."""
+    def _add_to_bins(self, st: SetState, h: np.ndarray, v: np.ndarray,
+                     power: np.ndarray) -> None:
+        """Add wall photons (h, v in m; power (n, C) lm) to their pixels (the binning
+        estimator)."""
         W, H = self.frame.resolution
-        h, v = self.frame.to_hv(rec.position)
         row, col = self.frame.pixel_index(h, v)
-        ok = ((col >= 0) & (col < W) & (row >= 0) & (row < H)
-              & np.isin(rec.part, self._wall_part_ids))
-        add_to_cells(st.bins.reshape(W * H, self.channels), row[ok] * W + col[ok],
-                     rec.power[ok].astype(np.float64))
+        ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        add_to_cells(st.bins.reshape(W * H, self.channels), row[ok] * W + col[ok], power[ok])
 
-    def _add_to_lattice(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add the wall photons to the set's half-pixel lattice (the ICI windows) and to
-        ΣΦ, ΣΦ² (their standard errors)."""
+    def _add_to_lattice(self, st: SetState, h: np.ndarray, v: np.ndarray,
+                        power: np.ndarray) -> None:
+        """Add wall photons (h, v in m; power (n, C) lm) to the set's half-pixel lattice
+        (the ICI windows) and to ΣΦ, ΣΦ² (their standard errors)."""
         from lightsim.render import ici
         from lightsim.render.frame import luminous
 
         if not self.config.uses_ici:
             return
-        on_wall = np.isin(rec.part, self._wall_part_ids)
-        if not on_wall.any():
-            return
-        h, v = self.frame.to_hv(rec.position[on_wall])
         flat, ok = ici.lattice_index(h, v, self.frame)
-        power = rec.power[on_wall][ok].astype(np.float64)
+        power = power[ok]
         W, H = self.frame.resolution
         if st.lattice is None:
             st.lattice = np.zeros((4 * H * W, self.channels))
@@ -319,30 +354,28 @@ class PhotonSets:
         lum = luminous(power)
         st.wall_moments += (float(lum.sum()), float((lum * lum).sum()), float(ok.sum()))
 
-    def _add_to_windows(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add the wall photons to the pixel-sized windows centred on the grid probes.
+    def _add_to_windows(self, st: SetState, h: np.ndarray, v: np.ndarray,
+                        power: np.ndarray) -> None:
+        """Add wall photons (h, v in m; power (n, C) lm) to the pixel-sized windows
+        centred on the grid probes.
 
         The probe grid (:func:`~lightsim.render.frame.probe_grid`) has cell pitch Δ; a
         window is one pixel (dh × dv, half-open) around a cell centre. Windows overlap only
         when pixels are coarser than the grid, hence the loop over neighbouring cells.
         """
-        on_wall = np.isin(rec.part, self._wall_part_ids)
-        if not on_wall.any():
-            return
-        h, v = self.frame.to_hv(rec.position[on_wall])
-        power = rec.power[on_wall].astype(np.float64)
         (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
         nh, nv = self._grid_shape
         pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
         dh, dv = self.frame.pixel_size_m
         uh, uv = (h - h0) / pitch_h - 0.5, (v - v0) / pitch_v - 0.5  # in cell-centre units
         reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        rh, rv = np.round(uh).astype(np.int64), np.round(uv).astype(np.int64)
         for i in range(int(np.floor(-reach_h)), int(np.ceil(reach_h)) + 1):
-            ci = np.round(uh).astype(np.int64) + i
+            ci = rh + i
             oh = (uh - ci) * pitch_h  # offset from the window centre (m), half-open
             in_h = (ci >= 0) & (ci < nh) & (oh >= -0.5 * dh) & (oh < 0.5 * dh)
             for j in range(int(np.floor(-reach_v)), int(np.ceil(reach_v)) + 1):
-                cj = np.round(uv).astype(np.int64) + j
+                cj = rv + j
                 ov = (uv - cj) * pitch_v
                 ok = in_h & (cj >= 0) & (cj < nv) & (ov >= -0.5 * dv) & (ov < 0.5 * dv)
                 if ok.any():

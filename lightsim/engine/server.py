@@ -111,8 +111,13 @@ class Session:
             raise InputError("the scene has no measurement wall")
         self.config = config or RunConfig()
         self.scene = scene
+        caster = None
+        if not (workers or address):  # one embree scene for the pilot and the run
+            from lightsim.raycast import RayCaster
+
+            caster = RayCaster(scene.triangles, threads=self.config.threads)
         self.plan = plan or make_plan(scene, self.config, camera=camera, farfield=farfield,
-                                      regulation=regulation)
+                                      regulation=regulation, caster=caster)
         W, H = scene.wall.resolution
         if W < 1 or H < 1:
             raise InputError(f"resolution must be at least 1x1, got {W}x{H}")
@@ -134,7 +139,7 @@ class Session:
             from lightsim.engine.local import LocalBackend
 
             self.backend = LocalBackend(scene, self.config, self.plan, self.assignment,
-                                        self.probes_hv)
+                                        self.probes_hv, caster=caster)
         self.log: list[dict[str, Any]] = []
         self.frames = 0
         self.partial: dict[int, int] = {}  # frame index → photons of a partial frame
