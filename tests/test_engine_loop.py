@@ -172,3 +172,18 @@ def test_target_error_stops_at_the_first_estimate_below_it(point):
     # no stop was proposed before the minimum frames
     assert all(e.photons >= 3 * 8_000 for e in estimated if e.error.upper <= 0.08)
     assert len(estimated) < s.frames  # not every frame paid for an estimate
+
+
+def test_final_map_without_probes_is_the_ici_map(point):
+    """``simulate`` asks the final image without probe estimates (``probes=False``): the
+    written ICI map must still be chosen with the sets' ΣΦ² (q), i.e. be the same map as
+    with probes; without them every pixel fell back to its plain count (rung 0)."""
+    cfg = RunConfig(frame_photons=8_000, interleave=2, spt=False)
+    maps, rungs = [], []
+    for probes in (True, False):
+        with Session(point, cfg) as s:
+            est = s.run(photons=32_000, probes=probes)
+            maps.append(est.lux)
+            rungs.append(est.rungs)
+    assert np.array_equal(maps[0], maps[1])
+    assert np.array_equal(rungs[0], rungs[1]) and rungs[1].max() > 0  # windows were used

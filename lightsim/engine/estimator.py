@@ -207,6 +207,8 @@ class SetEstimator:
             rows, cols = np.divmod(np.arange(H * W), W)
             r = self.ici_rungs(st, rows, cols)
             out.full_rungs = r.reshape((len(r), H, W, self.channels))
+            if st.wall_moments is not None:  # the map's rung choice needs ΣΦ² (q)
+                out.moments = st.wall_moments.copy()
         elif request.full_image:
             h_all, v_all = self.frame.pixel_centres()
             hh, vv = np.meshgrid(h_all, v_all)
