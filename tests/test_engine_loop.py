@@ -147,6 +147,18 @@ def test_bench_pipeline_rows(point):
     assert r["frames"] == 3 and r["estimates"] == 2
     assert r["ratio"] == pytest.approx(r["simulate_photons_per_s"] / r["tracer_photons_per_s"])
     assert 0 < r["ratio"] < 10
+    # the run's own clock split: sampling + tracing + insertion = shooting, within the run
+    assert 0 < r["sample_s"] and 0 < r["trace_s"] and r["insert_s"] >= 0
+    assert r["sample_s"] + r["trace_s"] + r["insert_s"] <= r["run_s"]
+    assert 0 < r["trace_share"] < 1 and 0 < r["ray_ratio"] < 10
+
+
+def test_session_sums_what_the_clients_shot(point):
+    with Session(point, RunConfig(frame_photons=8_000, interleave=2, spt=False)) as s:
+        s.run(photons=24_000)
+        tot = s.shoot_totals
+    assert tot.photons == 24_000 and tot.rays >= tot.photons
+    assert 0 < tot.sample_s + tot.trace_s <= tot.seconds
 
 
 def test_grouped_halton_points_are_each_sets_points():

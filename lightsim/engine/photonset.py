@@ -265,8 +265,10 @@ class PhotonSets:
         group = np.concatenate(groups)
         # every set's Halton points in one parallel pass (one thread launch per frame)
         points = halton_points_grouped(np.concatenate(owners), group, np.stack(perms))
+        t1 = time.perf_counter()
         res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
                                        group=group, n_groups=len(self.set_indices))
+        t2 = time.perf_counter()
         rec = res.records
         offsets = np.cumsum([0] + [len(o) for o in owners])
         # One stable sort by photon index for the whole frame: a set's photons are one
@@ -295,7 +297,8 @@ class PhotonSets:
                     trigger = trigger.copy()
                     trigger[st.aperture_hits] = True
                 st.sampler.update(owners[g], trigger)
-        return ShootResult(len(points), len(rec), int(res.rays), time.perf_counter() - t0)
+        return ShootResult(len(points), len(rec), int(res.rays), time.perf_counter() - t0,
+                           t1 - t0, t2 - t1)
 
     def _perms(self, s: int) -> np.ndarray:
         if s not in self._perm_cache:

@@ -40,7 +40,13 @@ from lightsim.engine.client import apply_changes
 from lightsim.engine.config import RunConfig
 from lightsim.engine.estimator import effective_radii, normalise_flux
 from lightsim.engine.plan import Plan, make_plan
-from lightsim.engine.results import Estimate, FrameResult, RenderRequest, SetFrames
+from lightsim.engine.results import (
+    Estimate,
+    FrameResult,
+    RenderRequest,
+    SetFrames,
+    ShootResult,
+)
 from lightsim.errors import InputError
 from lightsim.render.frame import (
     ErrorEstimate,
@@ -84,6 +90,26 @@ class ErrorSchedule:
             ratio = (est.error.upper / self.target_error) ** 2
             factor = min(self.growth, ratio) if math.isfinite(ratio) else 1.0
         self.next_photons = photons * max(1.0, factor)
+
+
+@dataclass
+class ShootTotals:
+    """Sums of the clients' :class:`~lightsim.engine.results.ShootResult` over a session's
+    frames (photons, rays; seconds: all of shooting, the sample points, the tracer —
+    client-side, summed over clients)."""
+
+    photons: int = 0
+    rays: int = 0
+    seconds: float = 0.0
+    sample_s: float = 0.0
+    trace_s: float = 0.0
+
+    def add(self, r: ShootResult) -> None:
+        self.photons += int(r.photons)
+        self.rays += int(r.rays)
+        self.seconds += float(r.seconds)
+        self.sample_s += float(r.sample_s)
+        self.trace_s += float(r.trace_s)
 
 
 class Session:
@@ -141,6 +167,7 @@ class Session:
             self.backend = LocalBackend(scene, self.config, self.plan, self.assignment,
                                         self.probes_hv, caster=caster)
         self.log: list[dict[str, Any]] = []
+        self.shoot_totals = ShootTotals()
         self.frames = 0
         self.partial: dict[int, int] = {}  # frame index → photons of a partial frame
         self._t0: float | None = None
@@ -165,7 +192,8 @@ class Session:
         stores (``photons`` over all sets makes the frame partial)."""
         if photons is not None:
             self.partial[self.frames] = int(photons)
-        self.backend.shoot(photons)
+        for r in self.backend.shoot(photons):  # where the shooting time went (bench pipeline)
+            self.shoot_totals.add(r)
         self.frames += 1
 
     def request(self, image: bool, mode: str = "interleaved", camera=None,
