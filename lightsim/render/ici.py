@@ -240,11 +240,12 @@ def ici_rungs(E: np.ndarray, n: float, q: float, areas: np.ndarray, gamma: float
 
 
 def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
-                  areas: np.ndarray, gamma: float, groups: list[np.ndarray] | None = None
-                  ) -> np.ndarray:
+                  areas: np.ndarray, gamma: float, groups: list[np.ndarray] | None = None,
+                  queries: np.ndarray | None = None) -> np.ndarray:
     """(G, Q) lx²: per query an unbiased estimate of the squared blur of an ICI choice,
     from the pairs of sets within each of the G ``groups`` (positions in set order;
-    default one group of all sets).
+    default one group of all sets). ``queries`` (indices): only those are computed (every
+    query stands alone), the others are 0 — the figure reads only the lit ones.
 
     The blur of the chosen rung is measured against rung 0 by D = E_j − E_0, but the
     rung is chosen from the same photons: ICI keeps the large rung exactly where D came
@@ -257,11 +258,19 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
     order = sorted(rungs)
     S = len(order)
     R = np.stack([luminous(np.asarray(rungs[k], np.float64)) for k in order])  # (S, J+1, Q)
+    areas = np.asarray(areas, dtype=np.float64)[:R.shape[1]]
+    if queries is not None:
+        full = np.zeros((1 if groups is None else len(groups), R.shape[2]))
+        queries = np.asarray(queries, np.int64)
+        if len(queries):
+            full[:, queries] = held_out_blur(
+                {k: np.asarray(rungs[k])[:, queries] for k in order}, emitted, q,
+                areas[:, queries] if areas.ndim == 2 else areas, gamma, groups)
+        return full
     e = np.array([emitted[k] for k in order], dtype=np.float64)
     total = R.sum(axis=0) if e.sum() <= 0 else np.tensordot(e, R, 1)  # Σ n_s E_s
     n_all = float(e.sum())
     D = R - R[:, :1]  # (S, J+1, Q)
-    areas = np.asarray(areas, dtype=np.float64)[:R.shape[1]]
     groups = [np.arange(S)] if groups is None else groups
     out = np.zeros((len(groups), R.shape[2]))
     cols = np.arange(R.shape[2])
@@ -388,19 +397,13 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     dim pixels that caught a stray photon come in exactly when they scatter most (on the
     paraboloid 36 such pixels tripled the noise figure).
     """
-    if len(rungs) < 2:
+    lits = _lit_masks(rungs, choice, lit_fraction)
+    if lits is None:
         return None
-    vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
-    win = luminous(np.stack([np.asarray(rungs[s], np.float64)[0] for s in sorted(rungs)]))
+    vals, win, halves, masks = lits
     S = vals.shape[0]
-    if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
-        return None
-    halves = _halves(S) if S >= 4 else [np.arange(S)]
-    thr = lit_fraction * vals.mean(axis=0).max()
     parts = []
-    for h, own in enumerate(halves):
-        other = halves[1 - h] if len(halves) == 2 else own
-        lit = (win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr)
+    for h, (own, lit) in enumerate(zip(halves, masks, strict=True)):
         p = _half_parts(vals[own][:, lit], win[own][:, lit], S,
                         None if blur is None else np.asarray(blur)[h][lit])
         if p is not None:
@@ -411,6 +414,26 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     return _MixParts(*(sum(getattr(p, f) for p in parts) / k for f in ("a", "b", "c", "b2")),
                      math.sqrt(sum(p.se**2 for p in parts)) / k,
                      round(sum(p.lit for p in parts) / k))
+
+
+def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float):
+    """(vals (S, Q), counts (S, Q), halves, lit mask of each half) for :func:`_mix_parts`:
+    half h is measured over the queries the *other* half calls lit; None with fewer than
+    two sets or nothing lit."""
+    if len(rungs) < 2:
+        return None
+    vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
+    win = luminous(np.stack([np.asarray(rungs[s], np.float64)[0] for s in sorted(rungs)]))
+    S = vals.shape[0]
+    if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
+        return None
+    halves = _halves(S) if S >= 4 else [np.arange(S)]
+    thr = lit_fraction * vals.mean(axis=0).max()
+    masks = []
+    for h, own in enumerate(halves):
+        other = halves[1 - h] if len(halves) == 2 else own
+        masks.append((win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr))
+    return vals, win, halves, masks
 
 
 def _half_parts(v_l: np.ndarray, w_l: np.ndarray, S: int, blur: np.ndarray | None
@@ -497,8 +520,13 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     (:func:`shrink_sides`); the other parameters as in :func:`choose`.
     """
     choice = choose(rungs, emitted, q, areas, gamma)
-    blur = (held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)))
-            if len(rungs) >= 4 else None)
+    blur = None
+    if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
+        lits = _lit_masks(rungs, choice, lit_fraction)
+        read = (np.flatnonzero(lits[3][0] | lits[3][1]) if lits is not None
+                else np.zeros(0, np.int64))
+        blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
+                             queries=read)
     order = sorted(rungs)
     w = _weights(emitted, order)
     counts = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64)[0] for s in order]), 1)
