@@ -116,9 +116,25 @@ def lattice_index(h: np.ndarray, v: np.ndarray, frame) -> tuple[np.ndarray, np.n
     return row * (2 * W) + col, ok
 
 
-def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Power in square windows centred on pixels, from the half-pixel lattice.
+@dataclass(frozen=True)
+class WindowGeometry:
+    """The clipped half-pixel bounds of every window (per side: r0, r1, c0, c1) and their
+    cell counts (J, Q): the same for every set, so computed once per query set."""
+
+    bounds: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]
+    cells: np.ndarray
+
+    @classmethod
+    def of(cls, H: int, W: int, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray
+           ) -> WindowGeometry:
+        return cls(tuple(_bounds(2 * H, 2 * W, rows, cols, sides)),
+                   window_cells(H, W, rows, cols, sides))
+
+
+def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray,
+                geometry: WindowGeometry | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Power in square windows centred on pixels, from the half-pixel lattice
+    (``geometry``: :meth:`WindowGeometry.of` these rows, cols and sides, if known).
 
     Parameters
     ----------
@@ -137,12 +153,15 @@ def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.n
         Half-pixel cells inside each clipped window (area = cells · dh dv / 4).
     """
     H2, W2, C = sub.shape
+    if geometry is None:
+        geometry = WindowGeometry.of(H2 // 2, W2 // 2, rows, cols, sides)
     sat = np.zeros((H2 + 1, W2 + 1, C))
-    sat[1:, 1:] = sub.cumsum(axis=0).cumsum(axis=1)
+    np.cumsum(sub, axis=0, out=sat[1:, 1:])
+    np.cumsum(sat[1:, 1:], axis=1, out=sat[1:, 1:])
     sums = np.zeros((len(sides), len(rows), C))
-    for j, (r0, r1, c0, c1) in enumerate(_bounds(H2, W2, rows, cols, sides)):
+    for j, (r0, r1, c0, c1) in enumerate(geometry.bounds):
         sums[j] = sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
-    return sums, window_cells(H2 // 2, W2 // 2, rows, cols, sides)
+    return sums, geometry.cells
 
 
 def _bounds(H2: int, W2: int, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray):
