@@ -407,7 +407,7 @@ def _halves(S: int) -> list[np.ndarray]:
 
 
 def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
-               blur: np.ndarray | None) -> _MixParts | None:
+               blur: np.ndarray | None, lits: tuple | None = None) -> _MixParts | None:
     """The figure's parts, each half of the sets measured over the pixels the other half
     calls lit (``blur``: (2, Q) from :func:`held_out_blur` over :func:`_halves`, or None).
 
@@ -416,7 +416,7 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     dim pixels that caught a stray photon come in exactly when they scatter most (on the
     paraboloid 36 such pixels tripled the noise figure).
     """
-    lits = _lit_masks(rungs, choice, lit_fraction)
+    lits = lits if lits is not None else _lit_masks(rungs, choice, lit_fraction)
     if lits is None:
         return None
     vals, win, halves, masks = lits
@@ -540,8 +540,8 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     """
     choice = choose(rungs, emitted, q, areas, gamma)
     blur = None
+    lits = _lit_masks(rungs, choice, lit_fraction)
     if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
-        lits = _lit_masks(rungs, choice, lit_fraction)
         read = (np.flatnonzero(lits[3][0] | lits[3][1]) if lits is not None
                 else np.zeros(0, np.int64))
         blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
@@ -549,7 +549,7 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     order = sorted(rungs)
     w = _weights(emitted, order)
     counts = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64)[0] for s in order]), 1)
-    mix = _mix_parts(rungs, choice, lit_fraction, blur)
+    mix = None if lits is None else _mix_parts(rungs, choice, lit_fraction, blur, lits)
     fig, alpha = None, 0.0
     if mix is not None:
         figs = [(mix.figure(k / MIX_STEPS), k / MIX_STEPS) for k in range(MIX_STEPS + 1)]
