@@ -65,6 +65,10 @@ def test_summary_only_run(point_lamp, tmp_path, capsys):
                          "--outputs", "json"], capsys)
     assert code == 0, err
     assert [p.name for p in out.iterdir()] == ["summary.json"]
+    t = json.loads((out / "summary.json").read_text())["timings_s"]
+    assert set(t) == {"load", "session", "sample", "trace", "insert", "estimate",
+                      "final_map", "outputs"}
+    assert all(v >= 0 for v in t.values()) and t["trace"] > 0
 
 
 @pytest.mark.parametrize("value,match", [("exr,pdf", "unknown name(s) pdf"),
