@@ -165,11 +165,11 @@ def test_cutoff_interval_degenerate_inputs():
 
 
 def test_numpy_filters_match_scipy_ndimage():
-    """cutoff's own bilinear sampler and Gaussian (scipy.ndimage is not imported by a run)
+    """The numpy bilinear sampler and Gaussian (scipy.ndimage is not imported by a run)
     agree with scipy.ndimage to rounding, edges and out-of-range coordinates included."""
     from scipy import ndimage
 
-    from lightsim.render.cutoff import gaussian_filter1d, map_coordinates
+    from lightsim.render.filters import gaussian_filter1d, map_coordinates
 
     rng = np.random.default_rng(0)
     for H, W in [(1, 1), (1, 5), (7, 1), (40, 64)]:
