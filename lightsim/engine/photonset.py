@@ -280,10 +280,12 @@ class PhotonSets:
                             rec.part[order], rec.flags[order], rec.source[order])
         bounds = np.searchsorted(rec.source, offsets)
         wall = _WallHits(self, rec)
+        frame_level = self._insert_frame(rec, wall, bounds, offsets)
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             lo, hi = offsets[g], offsets[g + 1]
-            self._insert_slice(st, rec, wall, int(bounds[g]), int(bounds[g + 1]), lo)
+            if not frame_level:
+                self._insert_slice(st, rec, wall, int(bounds[g]), int(bounds[g + 1]), lo)
             st.emitted += hi - lo
             st.frames += 1
             st.ledger += res.ledger[g]
@@ -310,6 +312,99 @@ class PhotonSets:
         """Add one frame's records of set ``st`` to every store it keeps (``rec.source``:
         the set's photon indices of the frame, from 0)."""
         self._insert_slice(st, rec, _WallHits(self, rec), 0, len(rec), 0)
+
+    def _insert_frame(self, rec: PhotonRecords, wall: _WallHits, bounds: np.ndarray,
+                      offsets: np.ndarray) -> bool:
+        """Insert a whole frame (every owned set's records, set after set) at once where
+        the stores allow it (kNN/ICI stores, no binning): the windows and the lattice are
+        filled by one bincount / one unique over (set, cell) for all sets instead of one
+        per set — the same sums per cell, photons in the same order, so bit-identical
+        stores. Returns False (nothing done) where :meth:`_insert_slice` must do it."""
+        sets = [self.sets[s] for s in self.set_indices]
+        if any(st.bins is not None or st.photonmap is None for st in sets):
+            return False
+        n = len(sets)
+        wb = np.searchsorted(wall.index, bounds)  # each set's wall records: wb[g]:wb[g+1]
+        for g, st in enumerate(sets):
+            a, b = int(bounds[g]), int(bounds[g + 1])
+            sl, idx = slice(int(wb[g]), int(wb[g + 1])), wall.index[wb[g]:wb[g + 1]]
+            if st.apertures is not None:  # detector apertures count every wall photon
+                hit = st.apertures.add(wall.h[sl], wall.v[sl], rec.power[idx])
+                st.aperture_hits = rec.source[idx][hit] - offsets[g]
+            if b > a:
+                st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
+        if len(wall.index) == 0:
+            return True
+        slot = np.repeat(np.arange(n, dtype=np.int64), np.diff(wb))
+        power = rec.power[wall.index].astype(np.float64)
+        self._add_windows_frame(sets, slot, wall.h, wall.v, power)
+        self._add_lattice_frame(sets, slot, wall.h, wall.v, power, np.diff(wb))
+        return True
+
+    def _add_windows_frame(self, sets: list[SetState], slot: np.ndarray, h: np.ndarray,
+                           v: np.ndarray, power: np.ndarray) -> None:
+        """:meth:`_add_to_windows` for every set at once (``slot``: each wall photon's
+        position in ``sets``)."""
+        (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
+        nh, nv = self._grid_shape
+        G = nh * nv
+        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
+        dh, dv = self.frame.pixel_size_m
+        uh, uv = (h - h0) / pitch_h - 0.5, (v - v0) / pitch_v - 0.5  # in cell-centre units
+        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        rh, rv = np.round(uh).astype(np.int64), np.round(uv).astype(np.int64)
+        base = slot * G
+        rows = []  # per j: (cj, inside in v), the same for every i
+        for j in range(int(np.floor(-reach_v)), int(np.ceil(reach_v)) + 1):
+            cj = rv + j
+            ov = (uv - cj) * pitch_v
+            rows.append((cj, (cj >= 0) & (cj < nv) & (ov >= -0.5 * dv) & (ov < 0.5 * dv)))
+        for i in range(int(np.floor(-reach_h)), int(np.ceil(reach_h)) + 1):
+            ci = rh + i
+            oh = (uh - ci) * pitch_h  # offset from the window centre (m), half-open
+            in_h = (ci >= 0) & (ci < nh) & (oh >= -0.5 * dh) & (oh < 0.5 * dh)
+            if not in_h.any():
+                continue
+            for cj, in_v in rows:
+                ok = in_h & in_v
+                if not ok.any():
+                    continue
+                flat = base[ok] + cj[ok] * nh + ci[ok]
+                for c in range(self.channels):
+                    add = np.bincount(flat, weights=power[ok, c], minlength=len(sets) * G)
+                    add = add.reshape(len(sets), G)
+                    for g, st in enumerate(sets):
+                        st.windows[:, c] += add[g]
+
+    def _add_lattice_frame(self, sets: list[SetState], slot: np.ndarray, h: np.ndarray,
+                           v: np.ndarray, power: np.ndarray, counts: np.ndarray) -> None:
+        """:meth:`_add_to_lattice` for every set at once (``counts``: wall photons per
+        set; a set's lattice is created by its first wall photon)."""
+        from lightsim.render import ici
+        from lightsim.render.frame import luminous
+
+        if not self.config.uses_ici:
+            return
+        W, H = self.frame.resolution
+        n_cells = 4 * H * W
+        flat, ok = ici.lattice_index(h, v, self.frame)
+        p_ok, s_ok = power[ok], slot[ok]
+        cells, inverse = np.unique(s_ok * n_cells + flat[ok], return_inverse=True)
+        sums = [np.bincount(inverse, weights=p_ok[:, c], minlength=len(cells))
+                for c in range(self.channels)]
+        cb = np.searchsorted(cells, np.arange(len(sets) + 1) * n_cells)
+        pb = np.searchsorted(s_ok, np.arange(len(sets) + 1))
+        for g, st in enumerate(sets):
+            if counts[g] == 0:
+                continue
+            if st.lattice is None:
+                st.lattice = np.zeros((n_cells, self.channels))
+            local = cells[cb[g]:cb[g + 1]] - g * n_cells
+            for c in range(self.channels):
+                st.lattice[local, c] += sums[c][cb[g]:cb[g + 1]]
+            lum = luminous(p_ok[pb[g]:pb[g + 1]])
+            st.wall_moments += (float(lum.sum()), float((lum * lum).sum()),
+                                float(pb[g + 1] - pb[g]))
 
     def _insert_slice(self, st: SetState, rec: PhotonRecords, wall: _WallHits, a: int,
                       b: int, first: int) -> None:
