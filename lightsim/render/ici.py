@@ -123,12 +123,20 @@ class WindowGeometry:
 
     bounds: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]
     cells: np.ndarray
+    raster: tuple | None = None  # every pixel in row order: per side (r0, r1, c0, c1) 1-D
 
     @classmethod
     def of(cls, H: int, W: int, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray
            ) -> WindowGeometry:
+        rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+        raster = None
+        if len(rows) == H * W and np.array_equal(rows, np.repeat(np.arange(H), W)) and \
+                np.array_equal(cols, np.tile(np.arange(W), H)):
+            # the whole image: the windows' bounds are an outer product of per-row and
+            # per-column bounds, read with plain outer indexing (cache-friendly)
+            raster = tuple(_bounds(2 * H, 2 * W, np.arange(H), np.arange(W), sides))
         return cls(tuple(_bounds(2 * H, 2 * W, rows, cols, sides)),
-                   window_cells(H, W, rows, cols, sides))
+                   window_cells(H, W, rows, cols, sides), raster)
 
 
 def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray,
@@ -159,6 +167,11 @@ def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.n
     np.cumsum(sub, axis=0, out=sat[1:, 1:])
     np.cumsum(sat[1:, 1:], axis=1, out=sat[1:, 1:])
     sums = np.zeros((len(sides), len(rows), C))
+    if geometry.raster is not None:  # the same four corners, gathered row by row
+        for j, (r0, r1, c0, c1) in enumerate(geometry.raster):
+            sums[j] = (sat[r1[:, None], c1] - sat[r0[:, None], c1] - sat[r1[:, None], c0]
+                       + sat[r0[:, None], c0]).reshape(-1, C)
+        return sums, geometry.cells
     for j, (r0, r1, c0, c1) in enumerate(geometry.bounds):
         sums[j] = sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
     return sums, geometry.cells
