@@ -224,6 +224,25 @@ def _weights(emitted: dict[int, int], order: list[int]) -> np.ndarray:
     return w / w.sum() if w.sum() > 0 else np.full(len(order), 1.0 / max(len(order), 1))
 
 
+def _stack64(rungs: dict[int, np.ndarray], order: list[int], lum: bool = False
+             ) -> np.ndarray:
+    """The sets' rungs in ``order`` as one float64 array (S, J+1, Q, C) — or, with
+    ``lum``, their luminous values (S, J+1, Q) — filled in place: the same values as
+    ``np.stack`` of float64 copies, without the copies (the wire brings float32)."""
+    first = np.asarray(rungs[order[0]])
+    shape = first.shape[:-1] if lum else first.shape
+    out = np.empty((len(order), *shape))
+    for i, s in enumerate(order):
+        r = np.asarray(rungs[s])
+        if not lum:
+            out[i] = r
+        elif r.shape[-1] == 1:
+            out[i] = r[..., 0]
+        else:
+            out[i] = luminous(np.asarray(r, np.float64))
+    return out
+
+
 def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
            areas: np.ndarray, gamma: float) -> IciChoice:
     """ICI over the pooled rungs.
@@ -242,7 +261,7 @@ def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     """
     order = sorted(rungs)
     w = _weights(emitted, order)
-    pooled = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64) for s in order]), 1)
+    pooled = np.tensordot(w, _stack64(rungs, order), 1)
     areas = np.asarray(areas, dtype=np.float64)[:pooled.shape[0]]
     n = sum(emitted[s] for s in order)
     E = luminous(pooled.reshape(-1, pooled.shape[-1])).reshape(pooled.shape[:2])  # (J+1, Q)
@@ -289,16 +308,17 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
     """
     order = sorted(rungs)
     S = len(order)
-    R = np.stack([luminous(np.asarray(rungs[k], np.float64)) for k in order])  # (S, J+1, Q)
-    areas = np.asarray(areas, dtype=np.float64)[:R.shape[1]]
+    areas = np.asarray(areas, dtype=np.float64)[:np.asarray(rungs[order[0]]).shape[0]]
     if queries is not None:
-        full = np.zeros((1 if groups is None else len(groups), R.shape[2]))
+        full = np.zeros((1 if groups is None else len(groups),
+                         np.asarray(rungs[order[0]]).shape[1]))
         queries = np.asarray(queries, np.int64)
         if len(queries):
             full[:, queries] = held_out_blur(
                 {k: np.asarray(rungs[k])[:, queries] for k in order}, emitted, q,
                 areas[:, queries] if areas.ndim == 2 else areas, gamma, groups)
         return full
+    R = _stack64(rungs, order, lum=True)  # (S, J+1, Q) lx
     e = np.array([emitted[k] for k in order], dtype=np.float64)
     total = R.sum(axis=0) if e.sum() <= 0 else np.tensordot(e, R, 1)  # Σ n_s E_s
     n_all = float(e.sum())
