@@ -44,7 +44,7 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
     why = peer.mitsuba_unavailable()
     if why:
         click.echo(f"lightsim bench peer: Mitsuba side skipped: {why}", err=True)
-    runs, results = [], []
+    runs, results, phases = [], [], []
     for rep in range(repeats):
         for name in cases or tuple(peer.CASES):
             res = peer.run_case(name, target=target, resolution=resolution, spp0=spp0,
@@ -53,8 +53,12 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
                                 progress=lambda s: click.echo(f"  {s}", err=True))
             results.append(res)
             runs += [{"repeat": rep + 1, **r.row()} for r in res.runs]
+            phases += [{"repeat": rep + 1, **b} for r in res.runs
+                       if r.tool == "lightsim" and (b := r.breakdown()) is not None]
     print_table(f"peer runs (whole process, wall clock; target {target:g})", runs,
                 ["repeat", *peer.PEER_COLUMNS])
+    if phases:
+        print_table("lightsim: where each process's time went (s)", phases)
     summary = peer.summary_rows(results, target)
     for i, row in enumerate(summary):
         row["repeat"] = i // max(len(cases or peer.CASES), 1) + 1
@@ -72,6 +76,6 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
     if repeats > 1:
         print_table("peer: median ratio over repeats", medians)
     if json_path:
-        write_json(json_path, "peer", runs + summary + medians,
+        write_json(json_path, "peer", runs + summary + medians + phases,
                    meta={"target": target, "resolution": resolution, "spp0": spp0,
                          "lightsim_args": list(lightsim_args), "mitsuba_skipped": why})

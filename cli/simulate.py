@@ -153,23 +153,22 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
         if "road" in s:
             click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
                        f"{s['road']['text']}")
-        from lightsim.luminaires.regulations.check import (
-            format_regulation,
-            probes_file,
-            regulation_tables,
-        )
-
-        tables = regulation_tables(s)
-        if tables:
+        if any(k == "regulation" or k.startswith("regulation:") for k in s):
             from rich.console import Console
 
+            from lightsim.luminaires.regulations.check import (
+                format_regulation,
+                regulation_tables,
+            )
+
             console = Console(width=None if sys.stdout.isatty() else 160)
-            for table in tables:
+            for table in regulation_tables(s):
                 console.print(format_regulation(table))
-        extra = "".join(", " + probes_file(None if i == 0 else t["ruleset"])
-                        for i, t in enumerate(tables))
-        click.echo(f"wrote {result.out_dir}/wall_lux.exr, wall_lux.png, isolux.png, road.png, "
-                   f"error_vs_time.png, summary.json{extra}")
+        order = ("wall_lux.exr", "wall_lux.png", "isolux.png", "road.png",
+                 "error_vs_time.png", "summary.json", "probes.npz")
+        wrote = sorted(s.get("outputs", []), key=lambda n: (order.index(n) if n in order
+                                                            else len(order), n))
+        click.echo(f"wrote {result.out_dir}/{', '.join(wrote)}")
         for f in s.get("farfield", {}).get("files", []):
             click.echo(f"wrote {f} ({s['farfield']['total_flux_lm']:.1f} lm leave the lamp)")
 

@@ -25,7 +25,9 @@ record field       unit    meaning
                            ``pair`` ``AxB``, ``triple`` ``X,Y,Z``, ``flag``
                            (``--x``), ``onoff`` (``--x/--no-x``), ``assign``
                            (repeatable ``NAME=SPEC`` → dict), ``file``, ``dir``,
-                           ``tuple`` (numbers or points, set by code only)
+                           ``tuple`` (numbers or points, set by code only),
+                           ``names`` (``a,b,c``: a subset of ``choices``, ``all``
+                           = every one)
 ``resume``         –       may change on ``--resume`` (budgets, where it runs);
                            every other option must match the checkpoint
 =================  ======  ========================================================
@@ -45,7 +47,8 @@ from typing import Any
 
 from lightsim.errors import InputError
 
-KINDS = ("value", "pair", "triple", "flag", "onoff", "assign", "file", "dir", "tuple")
+KINDS = ("value", "pair", "triple", "flag", "onoff", "assign", "file", "dir", "tuple",
+         "names")
 
 
 @dataclass(frozen=True)
@@ -130,6 +133,17 @@ class Option:
         the declared choices or range; None passes when the default is None."""
         if value is None and self.default is None:
             return
+        if self.kind == "names":
+            names = tuple(self.choices or ())
+            if isinstance(value, str):
+                raise InputError(f"{self.label} must be a sequence of names, got {value!r}")
+            bad = [str(v) for v in value or () if v not in names]
+            if bad:
+                raise InputError(f"{self.label}: unknown name(s) {', '.join(bad)} (choose "
+                                 f"from {', '.join(names)} or all)")
+            if not value:
+                raise InputError(f"{self.label}: give at least one of {', '.join(names)}")
+            return
         if self.choices is not None:
             if value not in self.choices:
                 shown = ", ".join("auto" if c is None else str(c) for c in self.choices)
@@ -176,6 +190,8 @@ class Option:
             return parse_triple(raw, self.label)
         if self.kind == "assign":
             return parse_assign(raw, self.label, self.metavar or "NAME=SPEC")
+        if self.kind == "names":
+            return parse_names(raw, self.choices or ())
         return raw
 
 
@@ -314,6 +330,19 @@ def parse_triple(text: Any, what: str) -> tuple[float, float, float] | None:
     return vals  # type: ignore[return-value]
 
 
+def parse_names(text: Any, choices: Iterable[str]) -> tuple[str, ...]:
+    """``a,b,c`` (or a sequence) → the names in the order of ``choices``, without
+    repeats; ``all`` stands for every choice. Unknown names are kept for the check to
+    name them."""
+    items = ([str(t) for t in text] if isinstance(text, list | tuple)
+             else [t for t in str(text).replace(" ", "").split(",") if t])
+    order = list(choices)
+    if "all" in items:
+        items = [t for t in items if t != "all"] + order
+    known = [c for c in order if c in items]
+    return tuple(known + [t for t in dict.fromkeys(items) if t not in order])
+
+
 def parse_assign(items: Iterable[str] | dict, what: str, metavar: str) -> dict[str, str]:
     """Repeated ``NAME=SPEC`` → {NAME: SPEC}."""
     if isinstance(items, dict):
@@ -346,6 +375,8 @@ def click_option(opt: Option, **override: Any) -> Callable:
         kw.update(is_flag=True, default=bool(opt.default))
     elif opt.kind == "assign":
         kw.update(multiple=True, default=())
+    elif opt.kind == "names":
+        kw.update(default=",".join(opt.default or ()), type=str)
     else:
         kw["default"] = (opt.default_str() if opt.kind in ("pair", "triple")
                          and opt.default is not None else opt.default)
@@ -357,7 +388,7 @@ def click_option(opt: Option, **override: Any) -> Callable:
             kw["type"] = click.Path(file_okay=False)
         elif opt.kind == "value" and opt.cast in (int, float):
             kw["type"] = opt.cast
-    metavar = opt.metavar or {"pair": "WxH", "triple": "X,Y,Z"}.get(opt.kind)
+    metavar = opt.metavar or {"pair": "WxH", "triple": "X,Y,Z", "names": "A,B,…"}.get(opt.kind)
     if metavar and opt.kind != "flag":
         kw["metavar"] = metavar
     if opt.envvar:

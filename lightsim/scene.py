@@ -402,12 +402,12 @@ def solid_wall_face(part: Part) -> tuple[Part, str] | None:
     nearest to it. Returns the reduced part and a one-line description, or None when the
     part is open, not thin, or has no planar front face (then it stays "not planar").
     """
-    import trimesh
+    from lightsim.io.closed_mesh import closed_mesh  # numpy: no trimesh import
 
     if len(part.faces) < 4:
         return None
-    mesh = trimesh.Trimesh(part.vertices, part.faces, process=True, validate=False)
-    if not mesh.is_watertight:
+    mesh = closed_mesh(part.vertices, part.faces)
+    if not mesh.watertight:
         return None
     pts = part.vertices[np.unique(part.faces)]
     centroid = pts.mean(axis=0)
@@ -462,10 +462,10 @@ def make_wall(distance: float, size: tuple[float, float], albedo: float = 0.8,
 
 def _check_dielectric(part: Part, warnings: list[str]) -> Part:
     """Flip a closed dielectric with inward normals; warn about open ones."""
-    import trimesh
+    from lightsim.io.closed_mesh import closed_mesh  # numpy: no trimesh import
 
-    mesh = trimesh.Trimesh(part.vertices, part.faces, process=True, validate=False)
-    if not mesh.is_watertight:
+    mesh = closed_mesh(part.vertices, part.faces)
+    if not mesh.watertight:
         warnings.append(f"dielectric '{part.name}' is not closed: inside/outside follow the "
                         "triangle winding")
         return part

@@ -17,6 +17,8 @@ file                   content
                        seed, estimator, lightsim version
 ``wall_lux.png``       false colour with a lux colour bar, axes H/V in degrees
 ``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings,
+                       ``timings_s``: where the run's time went (load, session, sample,
+                       trace, insert, estimate, final_map, outputs; s, wall clock),
                        ``outputs``: the files of this set (moved in last: the run finished)
 ``error_vs_time.png``  estimated relative error against seconds and photons (log-log)
 ``checkpoint.json``    only while a run is interrupted: ``--resume DIR`` continues it
@@ -30,6 +32,7 @@ import math
 import os
 import platform
 import tempfile
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import MISSING, dataclass, field
 from pathlib import Path
@@ -144,6 +147,13 @@ class SimulateOptions:
                                    flag=("--farfield-photons",), low=1)
     mount_height: float = option(0.65, "Lamp height above the road for the road view.",
                                  unit="m", flag=("--mount-height",), low=0, low_open=True)
+    outputs: tuple[str, ...] = option(
+        ("exr", "png", "error_vs_time", "isolux", "road", "json"),
+        "Files to write, comma-separated: exr (wall_lux.exr), png (wall_lux.png), "
+        "error_vs_time, isolux, road (their .png), json (summary.json, always written: it "
+        "marks a finished run); all = every one.", flag=("--outputs",), kind="names",
+        choices=("exr", "png", "error_vs_time", "isolux", "road", "json"), resume=True,
+        default_text="all")
     log_scale: bool = option(False, "Logarithmic colour scale in the PNG.",
                              flag=("--log",), kind="flag")
     workers: int = option(0, "0: in-process; N: N Ray actors on this machine.",
@@ -313,10 +323,12 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
          analyses: Sequence[Analysis]) -> SimulationResult:
     from lightsim.engine.server import Session
 
+    clock = {"t0": time.perf_counter()}
     out = check_out_dir(opts.out_dir)  # the options were checked when they were made
     if opts.aim and opts.regulation is None:
         raise InputError("--aim aims the pattern for a regulation check: give --regulation")
     scene = load(opts)
+    clock["load"] = time.perf_counter()
     config = opts.run_config()
     check_fits(opts.photons, scene.wall.resolution, config, scene.channels or 3)  # pre-flight
     for analysis in analyses:  # e.g. test points counted in detector apertures
@@ -327,6 +339,7 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     session = Session(scene, config, workers=opts.workers, address=opts.address,
                       checkpoint=(resume or {}).get("session"),
                       regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt))
+    clock["session"] = time.perf_counter()
     try:
         if on_plan is not None:
             on_plan(session)
@@ -342,7 +355,8 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
         if stopped["flag"]:
             write_checkpoint(out, opts, session)
             return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
-        result = write_outputs(out, opts, session, est, analyses)
+        clock["run"] = time.perf_counter()
+        result = write_outputs(out, opts, session, est, analyses, clock=clock)
         ckpt = out / CHECKPOINT
         if ckpt.exists():
             ckpt.unlink()
@@ -405,9 +419,11 @@ def _lux_stats(lux: np.ndarray, frame) -> dict[str, Any]:
 
 
 def write_outputs(out: Path, opts: SimulateOptions, session, est,
-                  analyses: Sequence[Analysis] = ()) -> SimulationResult:
+                  analyses: Sequence[Analysis] = (), clock: dict[str, float] | None = None
+                  ) -> SimulationResult:
     """Write wall_lux.exr, wall_lux.png, error_vs_time.png, the engineering outputs and
-    summary.json as one set (staged inside ``out``, summary.json published last)."""
+    summary.json as one set (staged inside ``out``, summary.json published last); only
+    the files ``opts.outputs`` names, and summary.json always."""
     from lightsim.io.atomic import OutputSet
     from lightsim.io.summary import read_json
 
@@ -418,18 +434,17 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est,
             if isinstance(listed, list):
                 previous |= {str(n) for n in listed if "/" not in str(n)}
     with OutputSet(out, "summary.json", previous) as staged:
-        result = _write_set(staged.dir, opts, session, est, analyses)
+        result = _write_set(staged.dir, opts, session, est, analyses, clock)
         staged.commit()
     result.out_dir = out
     return result
 
 
 def _write_set(out: Path, opts: SimulateOptions, session, est,
-               analyses: Sequence[Analysis]) -> SimulationResult:
+               analyses: Sequence[Analysis], clock: dict[str, float] | None = None
+               ) -> SimulationResult:
     """Write every output file into ``out`` (the staging folder), summary.json last."""
-    from lightsim.io.errorplot import error_vs_time_plot
     from lightsim.io.exr import wall_metadata, write_exr
-    from lightsim.io.png import write_lux_png
     from lightsim.io.summary import write_json
     from lightsim.render.frame import luminous
 
@@ -483,15 +498,42 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
     if rgb is not None:
         for i, ch in enumerate("RGB"):
             channels[ch] = rgb[..., i].astype(np.float32)
-    write_exr(out / "wall_lux.exr", channels, meta)
-    write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
-                  title=f"{Path(opts.scene_path).name}: {photons:,} photons")
-    error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
+    wanted = set(opts.outputs)
+    if "exr" in wanted:
+        write_exr(out / "wall_lux.exr", channels, meta)
+    if "png" in wanted:
+        from lightsim.io.png import write_lux_png  # matplotlib: only when a plot is asked
+
+        write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
+                      title=f"{Path(opts.scene_path).name}: {photons:,} photons")
+    if "error_vs_time" in wanted:
+        from lightsim.io.errorplot import error_vs_time_plot
+
+        error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
     _engineering_outputs(out, opts, session, lux, summary, analyses)
     summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
                                  and not p.name.startswith(".")] + ["summary.json"])
+    summary["timings_s"] = _timings(session, est, clock)
     write_json(out / "summary.json", summary)
     return SimulationResult(lux, rgb, summary, out)
+
+
+def _timings(session, est, clock: dict[str, float] | None) -> dict[str, float] | None:
+    """Where this process's run time went (s, wall clock; see docs/peer.md): loading the
+    scene, the session (plan, pilot, embree, numba), the frames' sample points, tracing
+    and insertion, the error estimates, the final map, and the outputs up to summary.json.
+    ``clock``: perf_counter stamps t0, load, session, run of :func:`_run`; None when the
+    run was not timed (outputs written by a script)."""
+    if not clock or "run" not in clock:
+        return None
+    tot = session.shoot_totals
+    final = float(est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0))
+    run = clock["run"] - clock["session"]
+    return {"load": clock["load"] - clock["t0"], "session": clock["session"] - clock["load"],
+            "sample": tot.sample_s, "trace": tot.trace_s,
+            "insert": tot.seconds - tot.sample_s - tot.trace_s,
+            "estimate": max(run - tot.seconds - final, 0.0), "final_map": final,
+            "outputs": time.perf_counter() - clock["run"]}
 
 
 def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndarray,
@@ -510,7 +552,8 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
             seen = {(m["name"], m.get("h_deg"), m.get("v_deg")) for m in marks or ()}
             marks = (marks or []) + [m for m in result.marks if (
                 m["name"], m.get("h_deg"), m.get("v_deg")) not in seen]
-    report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary)
+    report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary,
+                             which=tuple(n for n in ("isolux", "road") if n in opts.outputs))
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:

@@ -493,7 +493,7 @@ class WallFrame:
                outside: float = np.nan) -> NDArray:
         """Intensity (cd) towards H/V angles, bilinear between the pixel centres of a wall
         lux image (:func:`sample_wall`)."""
-        from scipy.ndimage import map_coordinates
+        from lightsim.render.filters import map_coordinates  # = scipy.ndimage's, numpy
 
         intensity = self.intensity_image(lux)
         h, v = np.broadcast_arrays(np.asarray(h_deg, float), np.asarray(v_deg, float))

@@ -32,16 +32,19 @@ def for_options(opts: Any) -> list[Analysis]:
     raise :class:`~lightsim.errors.InputError` before any work).
     """
     from .photometric import resolve_ies_type
-    from .photometric.analysis import FarfieldAnalysis
-    from .regulations.check import RegulationAnalysis, split_rulesets
 
     resolve_ies_type(opts.ies_type, None)  # a misspelt --ies-type fails even without --ies
     out: list[Analysis] = []
-    if opts.regulation is not None:  # `a,b`: one table per rule set, first = "regulation"
+    if opts.regulation is not None:  # imported only when asked (scipy: start-up time)
+        from .regulations.check import RegulationAnalysis, split_rulesets
+
+        # `a,b`: one table per rule set, the first named "regulation"
         for i, rs in enumerate(split_rulesets(opts.regulation)):
             out.append(RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
                                           opts.spt_points,
                                           name="regulation" if i == 0 else f"regulation:{rs}"))
     if opts.ies or opts.ldt:
+        from .photometric.analysis import FarfieldAnalysis
+
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons))
     return out

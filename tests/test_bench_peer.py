@@ -53,3 +53,11 @@ def test_peer_bench_tiny_both_maps_follow_the_exact_law(tmp_path):
         assert abs(mean - 1) < 0.05, (r.tool, mean)
     assert res.mitsuba_seconds is not None and res.ratio is not None
     assert math.isfinite(res.ratio) and light.own_error is not None
+    # lightsim writes only what the score reads; its process time splits into phases
+    assert sorted(p.name for p in (tmp_path / "lightsim-out").iterdir()) == [
+        "summary.json", "wall_lux.exr"]
+    b = light.breakdown()
+    assert b is not None and b["startup"] > 0 and b["trace"] > 0
+    inside = sum(v for k, v in b.items() if k not in ("case", "setting", "process_s",
+                                                      "startup"))
+    assert b["startup"] + inside == pytest.approx(light.seconds)

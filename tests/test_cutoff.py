@@ -162,3 +162,25 @@ def test_cutoff_interval_degenerate_inputs():
     one = cutoff_interval(_set_values(-0.57, 0.1, 1, sets=1), FRAME, -0.57)
     assert one.interval_deg is None
     assert cutoff_interval(np.zeros((4, 7)), FRAME, None).interval_deg is None  # bad shape
+
+
+def test_numpy_filters_match_scipy_ndimage():
+    """The numpy bilinear sampler and Gaussian (scipy.ndimage is not imported by a run)
+    agree with scipy.ndimage to rounding, edges and out-of-range coordinates included."""
+    from scipy import ndimage
+
+    from lightsim.render.filters import gaussian_filter1d, map_coordinates
+
+    rng = np.random.default_rng(0)
+    for H, W in [(1, 1), (1, 5), (7, 1), (40, 64)]:
+        img = rng.random((H, W))
+        r, c = rng.uniform(-3, H + 2, 300), rng.uniform(-3, W + 2, 300)
+        np.testing.assert_allclose(map_coordinates(img, [r, c]),
+                                   ndimage.map_coordinates(img, [r, c], order=1,
+                                                           mode="nearest"), atol=1e-14)
+    for n in (1, 3, 200):
+        x = rng.random(n)
+        for s in (0.1, 1.0, 2.5, 12.0):
+            np.testing.assert_allclose(gaussian_filter1d(x, s),
+                                       ndimage.gaussian_filter1d(x, s, mode="nearest"),
+                                       atol=1e-14)

@@ -147,6 +147,18 @@ def test_bench_pipeline_rows(point):
     assert r["frames"] == 3 and r["estimates"] == 2
     assert r["ratio"] == pytest.approx(r["simulate_photons_per_s"] / r["tracer_photons_per_s"])
     assert 0 < r["ratio"] < 10
+    # the run's own clock split: sampling + tracing + insertion = shooting, within the run
+    assert 0 < r["sample_s"] and 0 < r["trace_s"] and r["insert_s"] >= 0
+    assert r["sample_s"] + r["trace_s"] + r["insert_s"] <= r["run_s"]
+    assert 0 < r["trace_share"] < 1 and 0 < r["ray_ratio"] < 10
+
+
+def test_session_sums_what_the_clients_shot(point):
+    with Session(point, RunConfig(frame_photons=8_000, interleave=2, spt=False)) as s:
+        s.run(photons=24_000)
+        tot = s.shoot_totals
+    assert tot.photons == 24_000 and tot.rays >= tot.photons
+    assert 0 < tot.sample_s + tot.trace_s <= tot.seconds
 
 
 def test_grouped_halton_points_are_each_sets_points():
@@ -172,3 +184,18 @@ def test_target_error_stops_at_the_first_estimate_below_it(point):
     # no stop was proposed before the minimum frames
     assert all(e.photons >= 3 * 8_000 for e in estimated if e.error.upper <= 0.08)
     assert len(estimated) < s.frames  # not every frame paid for an estimate
+
+
+def test_final_map_without_probes_is_the_ici_map(point):
+    """``simulate`` asks the final image without probe estimates (``probes=False``): the
+    written ICI map must still be chosen with the sets' ΣΦ² (q), i.e. be the same map as
+    with probes; without them every pixel fell back to its plain count (rung 0)."""
+    cfg = RunConfig(frame_photons=8_000, interleave=2, spt=False)
+    maps, rungs = [], []
+    for probes in (True, False):
+        with Session(point, cfg) as s:
+            est = s.run(photons=32_000, probes=probes)
+            maps.append(est.lux)
+            rungs.append(est.rungs)
+    assert np.array_equal(maps[0], maps[1])
+    assert np.array_equal(rungs[0], rungs[1]) and rungs[1].max() > 0  # windows were used

@@ -196,3 +196,25 @@ def test_written_map_figure_is_honest_although_the_rungs_come_from_the_same_phot
     assert 0.92 <= np.median(held) <= 1.12
     assert np.quantile(held, 0.1) >= 0.8 and np.quantile(held, 0.9) <= 1.25
     assert np.median(naive) < np.median(held) - 0.05  # the bias guarded against is real
+
+
+def test_held_out_blur_of_some_queries_is_theirs_of_all():
+    """``queries=`` computes only those columns (the figure reads only the lit ones) and
+    gives exactly the values of the full computation there."""
+    from lightsim.render.ici import held_out_blur
+
+    rng = np.random.default_rng(3)
+    S, J1, Q = 6, 4, 50
+    rungs = {s: rng.gamma(3.0, 10.0, (J1, Q, 1)) for s in range(S)}
+    emitted = {s: 1000 + 10 * s for s in range(S)}
+    areas = np.linspace(1.0, 9.0, J1)[:, None] * np.ones((1, Q)) * 1e-4
+    groups = [np.arange(0, S, 2), np.arange(1, S, 2)]
+    full = held_out_blur(rungs, emitted, 0.02, areas, 2.0, groups)
+    some = np.array([0, 7, 8, 30, 49])
+    part = held_out_blur(rungs, emitted, 0.02, areas, 2.0, groups, queries=some)
+    assert part.shape == full.shape
+    np.testing.assert_array_equal(part[:, some], full[:, some])
+    rest = np.setdiff1d(np.arange(Q), some)
+    assert not part[:, rest].any()
+    none = held_out_blur(rungs, emitted, 0.02, areas, 2.0, groups, queries=np.zeros(0, int))
+    assert none.shape == full.shape and not none.any()

@@ -59,6 +59,8 @@ def _other(opt: Option) -> Any:
     if opt.name in STRUCTURED:
         return STRUCTURED[opt.name]
     assert opt.kind != "tuple", opt.name
+    if opt.kind == "names":
+        return tuple(opt.choices[:1])
     if opt.choices is not None:
         return next(c for c in opt.choices if c != d and c is not None)
     if opt.kind in ("flag", "onoff"):
@@ -96,6 +98,8 @@ def _text(opt: Option, value: Any) -> list[str]:
         return [flag, "x".join(str(v) for v in value)]
     if opt.kind == "triple":
         return [flag, ",".join(repr(v) for v in value)]
+    if opt.kind == "names":
+        return [flag, ",".join(value)]
     return [flag, repr(value) if isinstance(value, float) else str(value)]
 
 

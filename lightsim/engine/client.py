@@ -86,13 +86,15 @@ class Client:
         The interleave sets this client owns (static assignment).
     probes_hv : (P, 2) array
         Wall coordinates (h, v in m) of the probe points every set estimates.
+    caster : RayCaster, optional
+        The scene's embree scene when the caller already built it (else built here).
     """
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan, set_indices: list[int],
-                 probes_hv: np.ndarray) -> None:
+                 probes_hv: np.ndarray, caster=None) -> None:
         self.config = config
         self.probes_hv = np.asarray(probes_hv, dtype=np.float64).reshape(-1, 2)
-        self.photons = PhotonSets(scene, config, plan, set_indices)
+        self.photons = PhotonSets(scene, config, plan, set_indices, caster=caster)
         self._new_estimator()
 
     def _new_estimator(self) -> None:

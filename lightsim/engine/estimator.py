@@ -111,6 +111,7 @@ class SetEstimator:
         nh, nv = (int(n) for n in config.probe_grid)
         grid = self.probes_hv[:min(nh * nv, len(self.probes_hv))]
         self._grid_pixels = pixel_of(self.frame, grid[:, 0], grid[:, 1])
+        self._window_geometry: dict[str, tuple] = {}  # key → (sides, ici.WindowGeometry)
         self._wall_queries: dict[int, np.ndarray] = {}
         self._camera_cache: dict[Any, tuple] = {}
         self._normal = np.broadcast_to(self.frame.normal, (1, 3))
@@ -143,9 +144,12 @@ class SetEstimator:
             max_radius=radius, min_radius=floor, kernel=self.config.kernel)
         return normalise_flux(np.asarray(res.E, dtype=np.float64), st.emitted)
 
-    def ici_rungs(self, st: SetState, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    def ici_rungs(self, st: SetState, rows: np.ndarray, cols: np.ndarray,
+                  key: str | None = None) -> np.ndarray:
         """The set's rung estimates (lx) at pixels: (J+1, Q, C) (see
-        :mod:`lightsim.render.ici`): rung 0 the pixel, then squares 2, 3, … pixels a side."""
+        :mod:`lightsim.render.ici`): rung 0 the pixel, then squares 2, 3, … pixels a side.
+        ``key`` names a fixed query set (every pixel, the grid probes): its window bounds
+        are computed once, not once per set and frame."""
         from lightsim.render import ici
 
         sides = ici.rung_sides(self.frame.pixel_size_m, self.radii["pooled"][1])
@@ -153,8 +157,15 @@ class SetEstimator:
         if st.emitted == 0 or st.lattice is None:
             return np.zeros((len(sides), len(rows), self.channels))
         dh, dv = self.frame.pixel_size_m
+        geometry = None
+        if key is not None:
+            cached = self._window_geometry.get(key)
+            if cached is None or cached[0] != tuple(sides):
+                cached = (tuple(sides), ici.WindowGeometry.of(H, W, rows, cols, sides))
+                self._window_geometry[key] = cached
+            geometry = cached[1]
         sums, cells = ici.window_sums(st.lattice.reshape(2 * H, 2 * W, self.channels),
-                                      rows, cols, sides)
+                                      rows, cols, sides, geometry)
         return normalise_flux(sums, st.emitted, np.maximum(cells, 1.0)[..., None],
                            0.25 * dh * dv)
 
@@ -205,8 +216,10 @@ class SetEstimator:
         if request.full_image and self.config.uses_ici:  # the server picks each rung
             W, H = self.frame.resolution
             rows, cols = np.divmod(np.arange(H * W), W)
-            r = self.ici_rungs(st, rows, cols)
+            r = self.ici_rungs(st, rows, cols, key="every pixel")
             out.full_rungs = r.reshape((len(r), H, W, self.channels))
+            if st.wall_moments is not None:  # the map's rung choice needs ΣΦ² (q)
+                out.moments = st.wall_moments.copy()
         elif request.full_image:
             h_all, v_all = self.frame.pixel_centres()
             hh, vv = np.meshgrid(h_all, v_all)
@@ -214,7 +227,7 @@ class SetEstimator:
             est = self.estimate(st, pts, np.broadcast_to(normal, pts.shape), "pooled")
             out.full_image = est.reshape((*hh.shape, self.channels))
         if request.error and self.config.uses_ici and st.wall_moments is not None:
-            out.probe_rungs = self.ici_rungs(st, *self._grid_pixels)
+            out.probe_rungs = self.ici_rungs(st, *self._grid_pixels, key="grid probes")
             out.moments = st.wall_moments.copy()
         if request.camera is not None:
             camera = request.camera

@@ -22,12 +22,13 @@ class LocalBackend:
     :class:`~lightsim.engine.backend.Backend`)."""
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
-                 assignment: list[list[int]], probes_hv: np.ndarray) -> None:
+                 assignment: list[list[int]], probes_hv: np.ndarray, caster=None) -> None:
         if config.threads:  # numba's pool is per process: honour an explicit thread count
             import numba
 
             numba.set_num_threads(max(1, min(config.threads, numba.config.NUMBA_NUM_THREADS)))
-        self.clients = [Client(scene, config, plan, sets, probes_hv)
+        # ``caster``: the scene's RayCaster, shared (read-only) by the clients
+        self.clients = [Client(scene, config, plan, sets, probes_hv, caster=caster)
                         for sets in assignment if sets]
 
     def shoot(self, total: int | None = None) -> list[ShootResult]:

@@ -135,6 +135,31 @@ class SetState:
             self.emitted_power = np.zeros(self.channels)
 
 
+class _WallHits:
+    """The wall records of one frame: their positions in the frame's record arrays and
+    their wall coordinates (h, v in m), computed once for all sets.
+
+    h, v are evaluated element by element (no BLAS product), so a record's coordinates
+    do not depend on which other records share the frame.
+    """
+
+    def __init__(self, sets: PhotonSets, rec: PhotonRecords) -> None:
+        ids = sets._wall_part_ids
+        on = rec.part == ids[0] if len(ids) == 1 else np.isin(rec.part, ids)
+        self.index = np.flatnonzero(on)
+        fr = sets.frame
+        d = rec.position[self.index].astype(np.float64) - fr.centre
+        ha, va = np.asarray(fr.h_axis, np.float64), np.asarray(fr.v_axis, np.float64)
+        self.h = d[:, 0] * ha[0] + d[:, 1] * ha[1] + d[:, 2] * ha[2]
+        self.v = d[:, 0] * va[0] + d[:, 1] * va[1] + d[:, 2] * va[2]
+
+    def span(self, a: int, b: int) -> tuple[slice, np.ndarray]:
+        """The wall records among records ``a:b``: their slice of ``h``, ``v`` and their
+        record indices."""
+        lo, hi = (int(x) for x in np.searchsorted(self.index, (a, b)))
+        return slice(lo, hi), self.index[lo:hi]
+
+
 class PhotonSets:
     """The interleave sets of one client: shoot, insert, count, replay.
 
@@ -146,15 +171,17 @@ class PhotonSets:
         Which stages run (SPT, channels, recording).
     set_indices : list of int
         The interleave sets this client owns (static assignment).
+    caster : RayCaster, optional
+        The scene's embree scene when the caller already built it.
     """
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
-                 set_indices: list[int]) -> None:
+                 set_indices: list[int], caster=None) -> None:
         self.config = config
         self.plan = plan
         self.set_indices = list(set_indices)
         self._perm_cache: dict[int, np.ndarray] = {}
-        self.set_scene(scene)
+        self.set_scene(scene, caster)
         self.reset()
 
     # -- scene and state ------------------------------------------------------------------
@@ -238,34 +265,42 @@ class PhotonSets:
         group = np.concatenate(groups)
         # every set's Halton points in one parallel pass (one thread launch per frame)
         points = halton_points_grouped(np.concatenate(owners), group, np.stack(perms))
+        t1 = time.perf_counter()
         res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
                                        group=group, n_groups=len(self.set_indices))
+        t2 = time.perf_counter()
         rec = res.records
-        rec_group = group[rec.source] if len(rec) else np.zeros(0, np.int64)
         offsets = np.cumsum([0] + [len(o) for o in owners])
+        # One stable sort by photon index for the whole frame: a set's photons are one
+        # index range, so its records become one slice, in the order (photon, bounce)
+        # that keeps maps identical across batching. What every store needs (on the wall?,
+        # h, v) is computed once per frame, not once per set.
+        order = np.argsort(rec.source, kind="stable")
+        rec = PhotonRecords(rec.position[order], rec.normal[order], rec.power[order],
+                            rec.part[order], rec.flags[order], rec.source[order])
+        bounds = np.searchsorted(rec.source, offsets)
+        wall = _WallHits(self, rec)
+        frame_level = self._insert_frame(rec, wall, bounds, offsets)
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             lo, hi = offsets[g], offsets[g + 1]
-            sel = np.flatnonzero(rec_group == g)
-            # a stable order (photon index, then bounce) keeps maps identical across batching
-            sel = sel[np.argsort(rec.source[sel], kind="stable")]
-            part = PhotonRecords(rec.position[sel], rec.normal[sel], rec.power[sel],
-                                 rec.part[sel], rec.flags[sel], rec.source[sel] - lo)
-            self.insert(st, part)
+            if not frame_level:
+                self._insert_slice(st, rec, wall, int(bounds[g]), int(bounds[g + 1]), lo)
             st.emitted += hi - lo
             st.frames += 1
             st.ledger += res.ledger[g]
             st.emitted_power += res.emitted[g]
             caustic = res.caustic_source[lo:hi]
             st.caustic += int(caustic.sum())
-            st.records += len(part)
+            st.records += int(bounds[g + 1] - bounds[g])
             if st.sampler is not None:
                 trigger = caustic if self.plan.spt else np.zeros(hi - lo, np.bool_)
                 if st.aperture_hits is not None:  # SPT aimed at test points
                     trigger = trigger.copy()
                     trigger[st.aperture_hits] = True
                 st.sampler.update(owners[g], trigger)
-        return ShootResult(len(points), len(rec), int(res.rays), time.perf_counter() - t0)
+        return ShootResult(len(points), len(rec), int(res.rays), time.perf_counter() - t0,
+                           t1 - t0, t2 - t1)
 
     def _perms(self, s: int) -> np.ndarray:
         if s not in self._perm_cache:
@@ -274,44 +309,142 @@ class PhotonSets:
 
     # -- insertion -----------------------------------------------------------------------
     def insert(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add one frame's records of set ``st`` to every store it keeps."""
-        if st.apertures is not None:  # detector apertures count every wall photon directly
-            on_wall = np.isin(rec.part, self._wall_part_ids)
-            h, v = self.frame.to_hv(rec.position[on_wall])
-            hit = st.apertures.add(h, v, rec.power[on_wall])
-            st.aperture_hits = rec.source[on_wall][hit]
-        if st.bins is not None:
-            self._add_to_bins(st, rec)
-            return
-        if len(rec):
-            st.photonmap.add(rec.position, rec.normal, rec.power)
-            self._add_to_windows(st, rec)
-            self._add_to_lattice(st, rec)
+        """Add one frame's records of set ``st`` to every store it keeps (``rec.source``:
+        the set's photon indices of the frame, from 0)."""
+        self._insert_slice(st, rec, _WallHits(self, rec), 0, len(rec), 0)
 
-    def _add_to_bins(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add the wall photons to their pixels (the binning estimator)."""
-        W, H = self.frame.resolution
-        h, v = self.frame.to_hv(rec.position)
-        row, col = self.frame.pixel_index(h, v)
-        ok = ((col >= 0) & (col < W) & (row >= 0) & (row < H)
-              & np.isin(rec.part, self._wall_part_ids))
-        add_to_cells(st.bins.reshape(W * H, self.channels), row[ok] * W + col[ok],
-                     rec.power[ok].astype(np.float64))
+    def _insert_frame(self, rec: PhotonRecords, wall: _WallHits, bounds: np.ndarray,
+                      offsets: np.ndarray) -> bool:
+        """Insert a whole frame (every owned set's records, set after set) at once where
+        the stores allow it (kNN/ICI stores, no binning): the windows and the lattice are
+        filled by one bincount / one unique over (set, cell) for all sets instead of one
+        per set — the same sums per cell, photons in the same order, so bit-identical
+        stores. Returns False (nothing done) where :meth:`_insert_slice` must do it."""
+        sets = [self.sets[s] for s in self.set_indices]
+        if any(st.bins is not None or st.photonmap is None for st in sets):
+            return False
+        n = len(sets)
+        wb = np.searchsorted(wall.index, bounds)  # each set's wall records: wb[g]:wb[g+1]
+        for g, st in enumerate(sets):
+            a, b = int(bounds[g]), int(bounds[g + 1])
+            sl, idx = slice(int(wb[g]), int(wb[g + 1])), wall.index[wb[g]:wb[g + 1]]
+            if st.apertures is not None:  # detector apertures count every wall photon
+                hit = st.apertures.add(wall.h[sl], wall.v[sl], rec.power[idx])
+                st.aperture_hits = rec.source[idx][hit] - offsets[g]
+            if b > a:
+                st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
+        if len(wall.index) == 0:
+            return True
+        slot = np.repeat(np.arange(n, dtype=np.int64), np.diff(wb))
+        power = rec.power[wall.index].astype(np.float64)
+        self._add_windows_frame(sets, slot, wall.h, wall.v, power)
+        self._add_lattice_frame(sets, slot, wall.h, wall.v, power, np.diff(wb))
+        return True
 
-    def _add_to_lattice(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add the wall photons to the set's half-pixel lattice (the ICI windows) and to
-        ΣΦ, ΣΦ² (their standard errors)."""
+    def _add_windows_frame(self, sets: list[SetState], slot: np.ndarray, h: np.ndarray,
+                           v: np.ndarray, power: np.ndarray) -> None:
+        """:meth:`_add_to_windows` for every set at once (``slot``: each wall photon's
+        position in ``sets``)."""
+        (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
+        nh, nv = self._grid_shape
+        G = nh * nv
+        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
+        dh, dv = self.frame.pixel_size_m
+        uh, uv = (h - h0) / pitch_h - 0.5, (v - v0) / pitch_v - 0.5  # in cell-centre units
+        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        rh, rv = np.round(uh).astype(np.int64), np.round(uv).astype(np.int64)
+        base = slot * G
+        rows = []  # per j: (cj, inside in v), the same for every i
+        for j in range(int(np.floor(-reach_v)), int(np.ceil(reach_v)) + 1):
+            cj = rv + j
+            ov = (uv - cj) * pitch_v
+            rows.append((cj, (cj >= 0) & (cj < nv) & (ov >= -0.5 * dv) & (ov < 0.5 * dv)))
+        for i in range(int(np.floor(-reach_h)), int(np.ceil(reach_h)) + 1):
+            ci = rh + i
+            oh = (uh - ci) * pitch_h  # offset from the window centre (m), half-open
+            in_h = (ci >= 0) & (ci < nh) & (oh >= -0.5 * dh) & (oh < 0.5 * dh)
+            if not in_h.any():
+                continue
+            for cj, in_v in rows:
+                ok = in_h & in_v
+                if not ok.any():
+                    continue
+                flat = base[ok] + cj[ok] * nh + ci[ok]
+                for c in range(self.channels):
+                    add = np.bincount(flat, weights=power[ok, c], minlength=len(sets) * G)
+                    add = add.reshape(len(sets), G)
+                    for g, st in enumerate(sets):
+                        st.windows[:, c] += add[g]
+
+    def _add_lattice_frame(self, sets: list[SetState], slot: np.ndarray, h: np.ndarray,
+                           v: np.ndarray, power: np.ndarray, counts: np.ndarray) -> None:
+        """:meth:`_add_to_lattice` for every set at once (``counts``: wall photons per
+        set; a set's lattice is created by its first wall photon)."""
         from lightsim.render import ici
         from lightsim.render.frame import luminous
 
         if not self.config.uses_ici:
             return
-        on_wall = np.isin(rec.part, self._wall_part_ids)
-        if not on_wall.any():
-            return
-        h, v = self.frame.to_hv(rec.position[on_wall])
+        W, H = self.frame.resolution
+        n_cells = 4 * H * W
         flat, ok = ici.lattice_index(h, v, self.frame)
-        power = rec.power[on_wall][ok].astype(np.float64)
+        p_ok, s_ok = power[ok], slot[ok]
+        cells, inverse = np.unique(s_ok * n_cells + flat[ok], return_inverse=True)
+        sums = [np.bincount(inverse, weights=p_ok[:, c], minlength=len(cells))
+                for c in range(self.channels)]
+        cb = np.searchsorted(cells, np.arange(len(sets) + 1) * n_cells)
+        pb = np.searchsorted(s_ok, np.arange(len(sets) + 1))
+        for g, st in enumerate(sets):
+            if counts[g] == 0:
+                continue
+            if st.lattice is None:
+                st.lattice = np.zeros((n_cells, self.channels))
+            local = cells[cb[g]:cb[g + 1]] - g * n_cells
+            for c in range(self.channels):
+                st.lattice[local, c] += sums[c][cb[g]:cb[g + 1]]
+            lum = luminous(p_ok[pb[g]:pb[g + 1]])
+            st.wall_moments += (float(lum.sum()), float((lum * lum).sum()),
+                                float(pb[g + 1] - pb[g]))
+
+    def _insert_slice(self, st: SetState, rec: PhotonRecords, wall: _WallHits, a: int,
+                      b: int, first: int) -> None:
+        """Add records ``a:b`` of the frame (set ``st``'s, photon indices from ``first``)
+        to every store the set keeps; ``wall`` holds the frame's wall coordinates."""
+        sl, idx = wall.span(a, b)
+        h, v = wall.h[sl], wall.v[sl]
+        if st.apertures is not None:  # detector apertures count every wall photon directly
+            hit = st.apertures.add(h, v, rec.power[idx])
+            st.aperture_hits = rec.source[idx][hit] - first
+        if st.bins is not None:
+            self._add_to_bins(st, h, v, rec.power[idx].astype(np.float64))
+            return
+        if b > a:
+            st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
+            if len(idx):
+                power = rec.power[idx].astype(np.float64)
+                self._add_to_windows(st, h, v, power)
+                self._add_to_lattice(st, h, v, power)
+
+    def _add_to_bins(self, st: SetState, h: np.ndarray, v: np.ndarray,
+                     power: np.ndarray) -> None:
+        """Add wall photons (h, v in m; power (n, C) lm) to their pixels (the binning
+        estimator)."""
+        W, H = self.frame.resolution
+        row, col = self.frame.pixel_index(h, v)
+        ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        add_to_cells(st.bins.reshape(W * H, self.channels), row[ok] * W + col[ok], power[ok])
+
+    def _add_to_lattice(self, st: SetState, h: np.ndarray, v: np.ndarray,
+                        power: np.ndarray) -> None:
+        """Add wall photons (h, v in m; power (n, C) lm) to the set's half-pixel lattice
+        (the ICI windows) and to ΣΦ, ΣΦ² (their standard errors)."""
+        from lightsim.render import ici
+        from lightsim.render.frame import luminous
+
+        if not self.config.uses_ici:
+            return
+        flat, ok = ici.lattice_index(h, v, self.frame)
+        power = power[ok]
         W, H = self.frame.resolution
         if st.lattice is None:
             st.lattice = np.zeros((4 * H * W, self.channels))
@@ -319,30 +452,28 @@ class PhotonSets:
         lum = luminous(power)
         st.wall_moments += (float(lum.sum()), float((lum * lum).sum()), float(ok.sum()))
 
-    def _add_to_windows(self, st: SetState, rec: PhotonRecords) -> None:
-        """Add the wall photons to the pixel-sized windows centred on the grid probes.
+    def _add_to_windows(self, st: SetState, h: np.ndarray, v: np.ndarray,
+                        power: np.ndarray) -> None:
+        """Add wall photons (h, v in m; power (n, C) lm) to the pixel-sized windows
+        centred on the grid probes.
 
         The probe grid (:func:`~lightsim.render.frame.probe_grid`) has cell pitch Δ; a
         window is one pixel (dh × dv, half-open) around a cell centre. Windows overlap only
         when pixels are coarser than the grid, hence the loop over neighbouring cells.
         """
-        on_wall = np.isin(rec.part, self._wall_part_ids)
-        if not on_wall.any():
-            return
-        h, v = self.frame.to_hv(rec.position[on_wall])
-        power = rec.power[on_wall].astype(np.float64)
         (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
         nh, nv = self._grid_shape
         pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
         dh, dv = self.frame.pixel_size_m
         uh, uv = (h - h0) / pitch_h - 0.5, (v - v0) / pitch_v - 0.5  # in cell-centre units
         reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        rh, rv = np.round(uh).astype(np.int64), np.round(uv).astype(np.int64)
         for i in range(int(np.floor(-reach_h)), int(np.ceil(reach_h)) + 1):
-            ci = np.round(uh).astype(np.int64) + i
+            ci = rh + i
             oh = (uh - ci) * pitch_h  # offset from the window centre (m), half-open
             in_h = (ci >= 0) & (ci < nh) & (oh >= -0.5 * dh) & (oh < 0.5 * dh)
             for j in range(int(np.floor(-reach_v)), int(np.ceil(reach_v)) + 1):
-                cj = np.round(uv).astype(np.int64) + j
+                cj = rv + j
                 ov = (uv - cj) * pitch_v
                 ok = in_h & (cj >= 0) & (cj < nv) & (ov >= -0.5 * dv) & (ov < 0.5 * dv)
                 if ok.any():

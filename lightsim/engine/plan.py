@@ -61,24 +61,29 @@ class Plan:
                 for s in self.stages]
 
 
-def pilot_yield(scene: Scene, config: RunConfig, photons: int = 4096) -> float:
-    """Fraction of plain-sampled photons whose path is caustic (specular, then diffuse)."""
+def pilot_yield(scene: Scene, config: RunConfig, photons: int = 4096, caster=None) -> float:
+    """Fraction of plain-sampled photons whose path is caustic (specular, then diffuse).
+
+    ``caster`` (a :class:`~lightsim.raycast.RayCaster` of ``scene``, kept open) saves
+    building the embree scene twice when the run traces with the same one."""
     from lightsim.sampling import digit_permutations, halton_points, photon_keys
     from lightsim.tracer import PhotonTracer
 
     tracer = PhotonTracer(scene, max_depth=config.max_depth, record="all",
-                          threads=config.threads)
+                          threads=config.threads, caster=caster)
     idx = np.arange(photons, dtype=np.int64)
     pts = halton_points(idx, digit_permutations(config.seed, PILOT_SET, None))
     res = tracer.trace_points(pts, photon_keys(config.seed, PILOT_SET, 0, idx))
-    tracer.caster.close()
+    if caster is None:
+        tracer.caster.close()
     return float(res.caustic_source.mean()) if photons else 0.0
 
 
 def make_plan(scene: Scene, config: RunConfig, *, camera: bool = False, farfield: bool = False,
               regulation: str | None = None, spt_threshold: float = 0.5,
-              pilot_photons: int = 4096) -> Plan:
-    """Decide the stages for ``scene`` (see the module docstring)."""
+              pilot_photons: int = 4096, caster=None) -> Plan:
+    """Decide the stages for ``scene`` (see the module docstring); ``caster``: the run's
+    ray caster, for the pilot (see :func:`pilot_yield`)."""
     stages: list[dict[str, Any]] = []
 
     def stage(name: str, run: bool, reason: str) -> None:
@@ -96,7 +101,7 @@ def make_plan(scene: Scene, config: RunConfig, *, camera: bool = False, farfield
         spt = False
         stage("selective photon tracing", False, "no mirror or glass: no caustic paths")
     else:
-        yld = pilot_yield(scene, config, pilot_photons)
+        yld = pilot_yield(scene, config, pilot_photons, caster)
         if yld == 0.0:
             spt = False
             stage("selective photon tracing", False,

@@ -106,6 +106,8 @@ class ShootResult:
     records: int
     rays: int
     seconds: float
+    sample_s: float = 0.0  # of ``seconds``: the sample points (Halton, SPT passes)
+    trace_s: float = 0.0   # of ``seconds``: the tracer (emission, rays, shading)
 
 
 @dataclass

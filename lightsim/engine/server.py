@@ -40,7 +40,13 @@ from lightsim.engine.client import apply_changes
 from lightsim.engine.config import RunConfig
 from lightsim.engine.estimator import effective_radii, normalise_flux
 from lightsim.engine.plan import Plan, make_plan
-from lightsim.engine.results import Estimate, FrameResult, RenderRequest, SetFrames
+from lightsim.engine.results import (
+    Estimate,
+    FrameResult,
+    RenderRequest,
+    SetFrames,
+    ShootResult,
+)
 from lightsim.errors import InputError
 from lightsim.render.frame import (
     ErrorEstimate,
@@ -86,6 +92,26 @@ class ErrorSchedule:
         self.next_photons = photons * max(1.0, factor)
 
 
+@dataclass
+class ShootTotals:
+    """Sums of the clients' :class:`~lightsim.engine.results.ShootResult` over a session's
+    frames (photons, rays; seconds: all of shooting, the sample points, the tracer —
+    client-side, summed over clients)."""
+
+    photons: int = 0
+    rays: int = 0
+    seconds: float = 0.0
+    sample_s: float = 0.0
+    trace_s: float = 0.0
+
+    def add(self, r: ShootResult) -> None:
+        self.photons += int(r.photons)
+        self.rays += int(r.rays)
+        self.seconds += float(r.seconds)
+        self.sample_s += float(r.sample_s)
+        self.trace_s += float(r.trace_s)
+
+
 class Session:
     """Distributed photon-mapping session (see the module docstring).
 
@@ -111,8 +137,13 @@ class Session:
             raise InputError("the scene has no measurement wall")
         self.config = config or RunConfig()
         self.scene = scene
+        caster = None
+        if not (workers or address):  # one embree scene for the pilot and the run
+            from lightsim.raycast import RayCaster
+
+            caster = RayCaster(scene.triangles, threads=self.config.threads)
         self.plan = plan or make_plan(scene, self.config, camera=camera, farfield=farfield,
-                                      regulation=regulation)
+                                      regulation=regulation, caster=caster)
         W, H = scene.wall.resolution
         if W < 1 or H < 1:
             raise InputError(f"resolution must be at least 1x1, got {W}x{H}")
@@ -134,8 +165,9 @@ class Session:
             from lightsim.engine.local import LocalBackend
 
             self.backend = LocalBackend(scene, self.config, self.plan, self.assignment,
-                                        self.probes_hv)
+                                        self.probes_hv, caster=caster)
         self.log: list[dict[str, Any]] = []
+        self.shoot_totals = ShootTotals()
         self.frames = 0
         self.partial: dict[int, int] = {}  # frame index → photons of a partial frame
         self._t0: float | None = None
@@ -160,7 +192,8 @@ class Session:
         stores (``photons`` over all sets makes the frame partial)."""
         if photons is not None:
             self.partial[self.frames] = int(photons)
-        self.backend.shoot(photons)
+        for r in self.backend.shoot(photons):  # where the shooting time went (bench pipeline)
+            self.shoot_totals.add(r)
         self.frames += 1
 
     def request(self, image: bool, mode: str = "interleaved", camera=None,

@@ -77,6 +77,9 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
     ax2.xaxis.set_major_formatter(EngFormatter())
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    # fixed margins for this fixed size and these labels: tight_layout would draw the
+    # figure once more only to measure them
+    fig.subplots_adjust(left=0.062, right=0.988, bottom=0.14, top=0.86 if title else 0.955,
+                        wspace=0.19)
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, format="png", dpi=100)

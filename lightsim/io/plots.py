@@ -304,6 +304,21 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     return _save(fig, path, dpi)
 
 
+def road_view_data(lux: ArrayLike | None, frame: Any, *, mount_height_m: float = 0.65,
+                   x_range_m: tuple[float, float] = (-15.0, 15.0),
+                   z_range_m: tuple[float, float] = (0.0, 100.0), resolution_m: float = 0.25
+                   ) -> Any:
+    """The road illuminance :func:`road_view_plot` draws (same defaults), without drawing:
+    None where the wall map cannot be shown (the plot would say why instead)."""
+    from lightsim.render.road import road_illuminance
+
+    if lux is None or frame is None:
+        raise InputError("road_view_plot needs a wall lux map and its frame, or road=")
+    if image_problem(lux, contours=True) is not None:
+        return None
+    return road_illuminance(lux, frame, mount_height_m, x_range_m, z_range_m, resolution_m)
+
+
 def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame: Any = None,
                    *, road: Any = None, mount_height_m: float = 0.65,
                    levels: Sequence[float] = (1.0, 3.0, 5.0, 10.0, 20.0),
@@ -334,8 +349,6 @@ def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame:
     RoadIlluminance
         The road illuminance that was drawn (its ``summary()`` gives the reach per level).
     """
-    from lightsim.render.road import road_illuminance
-
     _levels_checked(levels)
     problem = image_problem(road.lux if road is not None else lux, contours=True)
     if problem is not None and (road is not None or lux is not None):
@@ -343,10 +356,9 @@ def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame:
                         dpi=dpi)
         return road
     if road is None:
-        if lux is None or frame is None:
-            raise InputError("road_view_plot needs a wall lux map and its frame, or road=")
-        road = road_illuminance(lux, frame, mount_height_m, x_range_m, z_range_m,
-                                resolution_m)
+        road = road_view_data(lux, frame, mount_height_m=mount_height_m,
+                              x_range_m=x_range_m, z_range_m=z_range_m,
+                              resolution_m=resolution_m)
     lv = _levels_checked(levels)
     X, Z = np.meshgrid(road.x_m, road.z_m)
     data = np.ma.masked_invalid(road.lux)

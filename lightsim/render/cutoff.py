@@ -64,9 +64,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.ndimage import gaussian_filter1d, map_coordinates
 
 from lightsim.errors import InputError
+from lightsim.render.filters import gaussian_filter1d, map_coordinates
 from lightsim.wall import (
     WallFrame,
     candela_from_lux,

@@ -116,9 +116,33 @@ def lattice_index(h: np.ndarray, v: np.ndarray, frame) -> tuple[np.ndarray, np.n
     return row * (2 * W) + col, ok
 
 
-def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Power in square windows centred on pixels, from the half-pixel lattice.
+@dataclass(frozen=True)
+class WindowGeometry:
+    """The clipped half-pixel bounds of every window (per side: r0, r1, c0, c1) and their
+    cell counts (J, Q): the same for every set, so computed once per query set."""
+
+    bounds: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]
+    cells: np.ndarray
+    raster: tuple | None = None  # every pixel in row order: per side (r0, r1, c0, c1) 1-D
+
+    @classmethod
+    def of(cls, H: int, W: int, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray
+           ) -> WindowGeometry:
+        rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+        raster = None
+        if len(rows) == H * W and np.array_equal(rows, np.repeat(np.arange(H), W)) and \
+                np.array_equal(cols, np.tile(np.arange(W), H)):
+            # the whole image: the windows' bounds are an outer product of per-row and
+            # per-column bounds, read with plain outer indexing (cache-friendly)
+            raster = tuple(_bounds(2 * H, 2 * W, np.arange(H), np.arange(W), sides))
+        return cls(tuple(_bounds(2 * H, 2 * W, rows, cols, sides)),
+                   window_cells(H, W, rows, cols, sides), raster)
+
+
+def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray,
+                geometry: WindowGeometry | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Power in square windows centred on pixels, from the half-pixel lattice
+    (``geometry``: :meth:`WindowGeometry.of` these rows, cols and sides, if known).
 
     Parameters
     ----------
@@ -137,12 +161,20 @@ def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.n
         Half-pixel cells inside each clipped window (area = cells · dh dv / 4).
     """
     H2, W2, C = sub.shape
+    if geometry is None:
+        geometry = WindowGeometry.of(H2 // 2, W2 // 2, rows, cols, sides)
     sat = np.zeros((H2 + 1, W2 + 1, C))
-    sat[1:, 1:] = sub.cumsum(axis=0).cumsum(axis=1)
+    np.cumsum(sub, axis=0, out=sat[1:, 1:])
+    np.cumsum(sat[1:, 1:], axis=1, out=sat[1:, 1:])
     sums = np.zeros((len(sides), len(rows), C))
-    for j, (r0, r1, c0, c1) in enumerate(_bounds(H2, W2, rows, cols, sides)):
+    if geometry.raster is not None:  # the same four corners, gathered row by row
+        for j, (r0, r1, c0, c1) in enumerate(geometry.raster):
+            sums[j] = (sat[r1[:, None], c1] - sat[r0[:, None], c1] - sat[r1[:, None], c0]
+                       + sat[r0[:, None], c0]).reshape(-1, C)
+        return sums, geometry.cells
+    for j, (r0, r1, c0, c1) in enumerate(geometry.bounds):
         sums[j] = sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
-    return sums, window_cells(H2 // 2, W2 // 2, rows, cols, sides)
+    return sums, geometry.cells
 
 
 def _bounds(H2: int, W2: int, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray):
@@ -192,6 +224,25 @@ def _weights(emitted: dict[int, int], order: list[int]) -> np.ndarray:
     return w / w.sum() if w.sum() > 0 else np.full(len(order), 1.0 / max(len(order), 1))
 
 
+def _stack64(rungs: dict[int, np.ndarray], order: list[int], lum: bool = False
+             ) -> np.ndarray:
+    """The sets' rungs in ``order`` as one float64 array (S, J+1, Q, C) — or, with
+    ``lum``, their luminous values (S, J+1, Q) — filled in place: the same values as
+    ``np.stack`` of float64 copies, without the copies (the wire brings float32)."""
+    first = np.asarray(rungs[order[0]])
+    shape = first.shape[:-1] if lum else first.shape
+    out = np.empty((len(order), *shape))
+    for i, s in enumerate(order):
+        r = np.asarray(rungs[s])
+        if not lum:
+            out[i] = r
+        elif r.shape[-1] == 1:
+            out[i] = r[..., 0]
+        else:
+            out[i] = luminous(np.asarray(r, np.float64))
+    return out
+
+
 def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
            areas: np.ndarray, gamma: float) -> IciChoice:
     """ICI over the pooled rungs.
@@ -210,7 +261,7 @@ def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     """
     order = sorted(rungs)
     w = _weights(emitted, order)
-    pooled = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64) for s in order]), 1)
+    pooled = np.tensordot(w, _stack64(rungs, order), 1)
     areas = np.asarray(areas, dtype=np.float64)[:pooled.shape[0]]
     n = sum(emitted[s] for s in order)
     E = luminous(pooled.reshape(-1, pooled.shape[-1])).reshape(pooled.shape[:2])  # (J+1, Q)
@@ -240,11 +291,12 @@ def ici_rungs(E: np.ndarray, n: float, q: float, areas: np.ndarray, gamma: float
 
 
 def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
-                  areas: np.ndarray, gamma: float, groups: list[np.ndarray] | None = None
-                  ) -> np.ndarray:
+                  areas: np.ndarray, gamma: float, groups: list[np.ndarray] | None = None,
+                  queries: np.ndarray | None = None) -> np.ndarray:
     """(G, Q) lx²: per query an unbiased estimate of the squared blur of an ICI choice,
     from the pairs of sets within each of the G ``groups`` (positions in set order;
-    default one group of all sets).
+    default one group of all sets). ``queries`` (indices): only those are computed (every
+    query stands alone), the others are 0 — the figure reads only the lit ones.
 
     The blur of the chosen rung is measured against rung 0 by D = E_j − E_0, but the
     rung is chosen from the same photons: ICI keeps the large rung exactly where D came
@@ -256,12 +308,21 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
     """
     order = sorted(rungs)
     S = len(order)
-    R = np.stack([luminous(np.asarray(rungs[k], np.float64)) for k in order])  # (S, J+1, Q)
+    areas = np.asarray(areas, dtype=np.float64)[:np.asarray(rungs[order[0]]).shape[0]]
+    if queries is not None:
+        full = np.zeros((1 if groups is None else len(groups),
+                         np.asarray(rungs[order[0]]).shape[1]))
+        queries = np.asarray(queries, np.int64)
+        if len(queries):
+            full[:, queries] = held_out_blur(
+                {k: np.asarray(rungs[k])[:, queries] for k in order}, emitted, q,
+                areas[:, queries] if areas.ndim == 2 else areas, gamma, groups)
+        return full
+    R = _stack64(rungs, order, lum=True)  # (S, J+1, Q) lx
     e = np.array([emitted[k] for k in order], dtype=np.float64)
     total = R.sum(axis=0) if e.sum() <= 0 else np.tensordot(e, R, 1)  # Σ n_s E_s
     n_all = float(e.sum())
     D = R - R[:, :1]  # (S, J+1, Q)
-    areas = np.asarray(areas, dtype=np.float64)[:R.shape[1]]
     groups = [np.arange(S)] if groups is None else groups
     out = np.zeros((len(groups), R.shape[2]))
     cols = np.arange(R.shape[2])
@@ -379,7 +440,7 @@ def _halves(S: int) -> list[np.ndarray]:
 
 
 def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
-               blur: np.ndarray | None) -> _MixParts | None:
+               blur: np.ndarray | None, lits: tuple | None = None) -> _MixParts | None:
     """The figure's parts, each half of the sets measured over the pixels the other half
     calls lit (``blur``: (2, Q) from :func:`held_out_blur` over :func:`_halves`, or None).
 
@@ -388,19 +449,13 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     dim pixels that caught a stray photon come in exactly when they scatter most (on the
     paraboloid 36 such pixels tripled the noise figure).
     """
-    if len(rungs) < 2:
+    lits = lits if lits is not None else _lit_masks(rungs, choice, lit_fraction)
+    if lits is None:
         return None
-    vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
-    win = luminous(np.stack([np.asarray(rungs[s], np.float64)[0] for s in sorted(rungs)]))
+    vals, win, halves, masks = lits
     S = vals.shape[0]
-    if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
-        return None
-    halves = _halves(S) if S >= 4 else [np.arange(S)]
-    thr = lit_fraction * vals.mean(axis=0).max()
     parts = []
-    for h, own in enumerate(halves):
-        other = halves[1 - h] if len(halves) == 2 else own
-        lit = (win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr)
+    for h, (own, lit) in enumerate(zip(halves, masks, strict=True)):
         p = _half_parts(vals[own][:, lit], win[own][:, lit], S,
                         None if blur is None else np.asarray(blur)[h][lit])
         if p is not None:
@@ -411,6 +466,26 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     return _MixParts(*(sum(getattr(p, f) for p in parts) / k for f in ("a", "b", "c", "b2")),
                      math.sqrt(sum(p.se**2 for p in parts)) / k,
                      round(sum(p.lit for p in parts) / k))
+
+
+def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float):
+    """(vals (S, Q), counts (S, Q), halves, lit mask of each half) for :func:`_mix_parts`:
+    half h is measured over the queries the *other* half calls lit; None with fewer than
+    two sets or nothing lit."""
+    if len(rungs) < 2:
+        return None
+    vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
+    win = luminous(np.stack([np.asarray(rungs[s], np.float64)[0] for s in sorted(rungs)]))
+    S = vals.shape[0]
+    if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
+        return None
+    halves = _halves(S) if S >= 4 else [np.arange(S)]
+    thr = lit_fraction * vals.mean(axis=0).max()
+    masks = []
+    for h, own in enumerate(halves):
+        other = halves[1 - h] if len(halves) == 2 else own
+        masks.append((win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr))
+    return vals, win, halves, masks
 
 
 def _half_parts(v_l: np.ndarray, w_l: np.ndarray, S: int, blur: np.ndarray | None
@@ -497,12 +572,17 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     (:func:`shrink_sides`); the other parameters as in :func:`choose`.
     """
     choice = choose(rungs, emitted, q, areas, gamma)
-    blur = (held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)))
-            if len(rungs) >= 4 else None)
+    blur = None
+    lits = _lit_masks(rungs, choice, lit_fraction)
+    if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
+        read = (np.flatnonzero(lits[3][0] | lits[3][1]) if lits is not None
+                else np.zeros(0, np.int64))
+        blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
+                             queries=read)
     order = sorted(rungs)
     w = _weights(emitted, order)
     counts = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64)[0] for s in order]), 1)
-    mix = _mix_parts(rungs, choice, lit_fraction, blur)
+    mix = None if lits is None else _mix_parts(rungs, choice, lit_fraction, blur, lits)
     fig, alpha = None, 0.0
     if mix is not None:
         figs = [(mix.figure(k / MIX_STEPS), k / MIX_STEPS) for k in range(MIX_STEPS + 1)]

@@ -180,6 +180,11 @@ def mitsuba_spec(case: an.AnalyticScene, folder: Path, spp: int, seed: int = 0
 
 
 # =========================================================================== lightsim setup
+LIGHTSIM_OUTPUTS = "exr,json"
+"""What the bench's lightsim runs write (``--outputs``): the map the score reads and the
+summary (its own error, photons); the plots are left out as Mitsuba writes only its EXR.
+A later ``--lightsim-arg --outputs …`` overrides it."""
+
 def write_scene_glb(case: an.AnalyticScene, path: Path) -> Path:
     """The case's scene as glTF (the mirror with its analytic vertex normals)."""
     from lightsim.cli.view import scene_gltf_parts
@@ -227,6 +232,7 @@ class PeerRun:
     paths: int              # light paths (Mitsuba) or photons (lightsim) traced
     true_error: float       # relative rms against the exact answer (inner pixels)
     own_error: float | None = None  # lightsim's own estimate at the stop
+    phases: dict[str, float] | None = None  # lightsim: summary.json["timings_s"] (s)
     ok: bool = True
     note: str = ""
     lux: np.ndarray | None = field(default=None, repr=False)
@@ -234,7 +240,18 @@ class PeerRun:
     def row(self) -> dict[str, Any]:
         d = asdict(self)
         d.pop("lux")
+        d.pop("phases")
         return d
+
+    def breakdown(self) -> dict[str, Any] | None:
+        """Where a lightsim process's wall time went (s): ``startup`` (interpreter, imports,
+        option parsing: the process's time outside ``run_simulation``'s phases) and the
+        phases of ``summary.json["timings_s"]``; None without them."""
+        if not self.phases:
+            return None
+        inside = sum(self.phases.values())
+        return {"case": self.case, "setting": self.setting, "process_s": self.seconds,
+                "startup": max(self.seconds - inside, 0.0), **self.phases}
 
 
 def _child_env() -> dict[str, str]:
@@ -281,9 +298,10 @@ def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: flo
     W, H = case.frame.resolution
     budget = (["--target-error", f"{target:g}"] if photons is None
               else ["--photons", str(int(photons))])
+    # like Mitsuba, which writes only its image: the map and the summary, no plots
     cmd = [sys.executable, "-m", "lightsim.cli.main", "simulate", str(glb), *budget,
            "--resolution", f"{W}x{H}", "--out", str(out), "--quiet", "--time",
-           f"{timeout:g}", *extra_args]
+           f"{timeout:g}", "--outputs", LIGHTSIM_OUTPUTS, *extra_args]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout + 120,
                           check=False)
@@ -297,7 +315,8 @@ def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: flo
     lux = read_exr(out / "wall_lux.exr")[0]["Y"].astype(np.float64)
     own = summary.get("rel_error")
     return PeerRun(case.name, "lightsim", setting, dt, int(summary["photons"]),
-                   truth.error(lux), None if own is None else float(own), lux=lux)
+                   truth.error(lux), None if own is None else float(own),
+                   phases=summary.get("timings_s"), lux=lux)
 
 
 @dataclass

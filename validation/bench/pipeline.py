@@ -7,8 +7,15 @@ and (b) a whole :meth:`Session.run` with the CLI's default run configuration, fr
 first shot to the final written map (sampling, tracing, insertion, the error estimates,
 the final image). The ratio (b)/(a) of each pair is measured back to back, so machine
 load moves both; the table gives every pair and the median, and where the run's time
-went: ``shoot_s`` (sampling, tracing, insertion), ``estimate_s`` (the error estimates
-during the run), ``final_s`` (the final map).
+went: ``sample_s`` (the frames' sample points: Halton, SPT passes), ``trace_s`` (the
+tracer inside the run), ``insert_s`` (the rest of shooting: sorting, stores),
+``estimate_s`` (the error estimates during the run), ``final_s`` (the final map).
+
+With Selective Photon Tracing the run traces other photons than the bare tracer's plain
+Halton points (SPT refines the caustic cells: more photons take the mirror, so a photon
+costs more rays), so photons/s compare unlike work there. ``ray_ratio`` (rays/s of the
+run over the tracer's) and ``trace_share`` (the run's own tracer time over its time)
+compare like with like.
 
 =================  =====  ===========  ===============================================
 parameter          unit   default      meaning
@@ -34,10 +41,13 @@ from lightsim.sampling import digit_permutations, halton_points, photon_keys
 from lightsim.tracer import PhotonTracer
 
 
-def _trace_rate(tracer: PhotonTracer, pts: np.ndarray, keys: np.ndarray) -> float:
+def _trace_rate(tracer: PhotonTracer, pts: np.ndarray, keys: np.ndarray
+                ) -> tuple[float, float]:
+    """(photons/s, rays/s) of one bare tracer call."""
     t0 = time.perf_counter()
-    tracer.trace_points(pts, keys)
-    return len(pts) / (time.perf_counter() - t0)
+    res = tracer.trace_points(pts, keys)
+    dt = time.perf_counter() - t0
+    return len(pts) / dt, res.rays / dt
 
 
 def _run(scene, config: RunConfig, photons: int) -> dict[str, Any]:
@@ -55,9 +65,11 @@ def _run(scene, config: RunConfig, photons: int) -> dict[str, Any]:
         est = s.run(photons=photons, callback=tally, probes=False)  # as `simulate` does
         final = est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0)
         # shooting (sampling, tracing, insertion) of every frame: the rest of the run
+        tot = s.shoot_totals
         return {"photons": est.photons, "seconds": est.seconds, "frames": s.frames,
                 "estimates": estimates, "shoot_s": est.seconds - render - final,
-                "estimate_s": render, "final_s": final}
+                "estimate_s": render, "final_s": final, "sample_s": tot.sample_s,
+                "trace_s": tot.trace_s, "rays": tot.rays}
 
 
 def bench_pipeline(scene, config: RunConfig | None = None, photons: int = 1_000_000,
@@ -73,14 +85,19 @@ def bench_pipeline(scene, config: RunConfig | None = None, photons: int = 1_000_
     _run(scene, config.with_(frame_photons=max(config.n_sets, 20_000)), 40_000)  # warm up
     rows: list[dict[str, Any]] = []
     for r in range(repeats):
-        trace = _trace_rate(tracer, pts, keys)
+        trace, trace_rays = _trace_rate(tracer, pts, keys)
         run = _run(scene, config, photons)
         rate = run["photons"] / run["seconds"]
+        rays = run["rays"] / run["seconds"]
         rows.append({"what": f"pair {r + 1}", "tracer_photons_per_s": trace,
                      "simulate_photons_per_s": rate, "ratio": rate / trace,
+                     "ray_ratio": rays / trace_rays,
+                     "trace_share": run["trace_s"] / run["seconds"],
                      "frames": run["frames"], "estimates": run["estimates"],
-                     "shoot_s": run["shoot_s"], "estimate_s": run["estimate_s"],
-                     "final_s": run["final_s"], "run_s": run["seconds"]})
+                     "sample_s": run["sample_s"], "trace_s": run["trace_s"],
+                     "insert_s": run["shoot_s"] - run["sample_s"] - run["trace_s"],
+                     "estimate_s": run["estimate_s"], "final_s": run["final_s"],
+                     "run_s": run["seconds"]})
     tracer.caster.close()
     med = {k: float(np.median([row[k] for row in rows])) for k in rows[0] if k != "what"}
     rows.append({"what": "median", **med})
