@@ -538,6 +538,13 @@ def _caster_for(scene, caster: RayCaster | None, threads: int | None) -> RayCast
     return caster
 
 
+def scene_caster(scene, threads: int | None = None) -> RayCaster:
+    """A new ray caster of ``scene`` built the way :class:`PhotonTracer` builds its own
+    (the wall outside embree when it can be), for callers that share one embree scene
+    between tracers (the plan's pilot and the run's photon sets)."""
+    return _caster_for(scene, None, threads)
+
+
 class PhotonTracer:
     """Traces photon batches through a scene (see the module docstring for parameters)."""
 

@@ -139,9 +139,9 @@ class Session:
         self.scene = scene
         caster = None
         if not (workers or address):  # one embree scene for the pilot and the run
-            from lightsim.raycast import RayCaster
+            from lightsim.tracer import scene_caster
 
-            caster = RayCaster(scene.triangles, threads=self.config.threads)
+            caster = scene_caster(scene, threads=self.config.threads)
         self.plan = plan or make_plan(scene, self.config, camera=camera, farfield=farfield,
                                       regulation=regulation, caster=caster)
         W, H = scene.wall.resolution
