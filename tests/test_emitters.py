@@ -77,10 +77,21 @@ def test_mixture_shares_photons_by_flux():
 def test_registry_says_what_is_missing(monkeypatch):
     monkeypatch.setattr(registry, "_READERS", {})
     monkeypatch.setattr(registry, "_FILAMENTS", [])
+    # no package under the entry point: the one-line errors
+    monkeypatch.setattr(registry, "ENTRY_POINT_GROUP", "lightsim.no-such-group")
+    monkeypatch.setattr(registry, "_PLUGINS_LOADED", False)
     with pytest.raises(InputError, match=r"no photometric reader for '\.ies'"):
         load_scene(IES)
     with pytest.raises(InputError, match="no bulb catalogue"):
         registry.filament_factory()
+
+
+def test_registry_loads_the_entry_point_on_first_need(monkeypatch):
+    monkeypatch.setattr(registry, "_READERS", {})
+    monkeypatch.setattr(registry, "_FILAMENTS", [])
+    monkeypatch.setattr(registry, "_PLUGINS_LOADED", False)
+    assert callable(registry.photometric_reader(".ies"))
+    assert callable(registry.filament_factory())
 
 
 def test_rayfile_source_is_an_emitter():
