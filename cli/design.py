@@ -168,7 +168,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
             "validation_objective": (out.validation_objective
                                      if math.isfinite(out.validation_objective) else None)}
     size = write_design(out_glb, out.x, out.layout, info)
-    click.echo(f"design: {len(out.history)} evaluations in {out.seconds:.1f} s; "
+    what = ("model improvements" if out.model else "evaluations")
+    click.echo(f"design: {len(out.history)} {what} in {out.seconds:.1f} s; "
                f"J = {out.objective:.4f} (validation, fresh seed ×{validate_factor} "
                f"photons: {out.validation_objective:.4f}); wrote {out_glb} ({size:,} bytes)")
     click.echo("x = (" + ", ".join(f"{v:+.4f}" for v in out.x) + "); ring offsets = ("

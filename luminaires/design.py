@@ -53,8 +53,14 @@ for (median of the three annex-9 scans; two steps): the bulb glass and the coil'
 size put the real cut-off a few tenths of a degree — differently for every ring — from
 the traced images' tops. The designed lamp then needs no aiming.
 
-**Optimiser**: :func:`scipy.optimize.minimize` with ``method="Powell"`` (bounded, from the
-geometric start), in ``rounds`` rounds of at most ``evaluations`` function evaluations.
+**Optimiser** ``"model"`` (the CLI's default): after the calibration, ``model_rounds``
+rounds of (measure every movable facet's footprint with the simulator, then Powell on the
+per-facet aim shifts against the deterministic footprint model; the shifts go into
+``Layout.facet_shifts_deg``), :mod:`lightsim.luminaires.facet_model`.
+
+**Optimiser** ``"simulator"``: :func:`scipy.optimize.minimize` with ``method="Powell"``
+(bounded, from the geometric start), in ``rounds`` rounds of at most ``evaluations``
+function evaluations.
 Within a round every evaluation uses the same photon seed (common random numbers: the
 optimiser sees geometry); every round re-draws the noise (seed + round) so that no round's
 winner is an artefact of one noise realisation. The returned lamp is re-simulated with a
@@ -81,6 +87,14 @@ safety            –      0.10         relative margin asked beyond every limit
 reach_m           m      25           1 lx road reach asked for (lamp 0.65 m high)
 smooth_max        –      2.0          largest allowed lux / Gaussian-smoothed lux (σ 1°)
 validate_factor   –      4            photons of the fresh-seed validation run ÷ photons
+optimiser         –      simulator    ``"model"`` (CLI default) or ``"simulator"``
+model_rounds      –      1            footprint-model rounds
+model_photons     –      1 000 000    photons per footprint run
+model_resolution  px     200×256      footprint map W×H
+model_evaluations –      3000         Powell evaluations of the model per round
+model_safety      –      0.05         relative margin of the model beyond every limit
+interval_photons  –      12 000 000   photons of the check run whose intervals the model
+                                      asks for (0: no interval)
 sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet's azimuth
                                       per overhead-sign sliver (× its weight in
                                       ``SIGN_AIMS``), dim light above the cut-off
