@@ -88,6 +88,11 @@ def _resolution(text: str) -> tuple[int, int]:
                    "interval).")
 @click.option("--ring-offsets", default=None,
               help="Comma-separated calibrated ring offsets (deg): skip the calibration.")
+@click.option("--continue-from", "continue_from", type=click.Path(dir_okay=False),
+              default=None,
+              help="A lamp written by lightsim design: start from its x, layout and facet "
+                   "shifts (no calibration) and run --model-rounds more rounds (their seeds "
+                   "follow the rounds it has).")
 @click.option("--quiet", "-q", is_flag=True)
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
@@ -95,7 +100,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            safety: float, reach: float, traffic: str, check_dir: str, start: str | None,
            sign_share: float, optimiser: str, model_rounds: int, model_photons: int,
            model_resolution: str, model_evaluations: int, interval_photons: int,
-           model_safety: float, ring_offsets: str | None,
+           model_safety: float, ring_offsets: str | None, continue_from: str | None,
            quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
@@ -127,6 +132,16 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                     sign_share=sign_share, ring_offsets_deg=offsets)
     layout.check()
     mres = _resolution(model_resolution)
+    first_round = 0
+    previous: list = []
+    if continue_from is not None:
+        from lightsim.luminaires.design import read_design
+
+        x_prev, layout, rec = read_design(continue_from)
+        previous = list(rec.get("model") or [])
+        first_round = len(previous)
+        start = ",".join(repr(float(t)) for t in x_prev)
+        ring_offsets = "given"
     x0 = None
     if start is not None:
         try:
@@ -161,10 +176,12 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          model_photons=model_photons, model_resolution=mres,
                          model_evaluations=model_evaluations,
                          calibrate=ring_offsets is None, note=note,
-                         interval_photons=interval_photons, model_safety=model_safety)
+                         interval_photons=interval_photons, model_safety=model_safety,
+                         first_round=first_round)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),
-            "objective": out.objective, "optimiser": optimiser, "model": out.model,
+            "objective": out.objective, "optimiser": optimiser,
+            "model": previous + out.model,
             "validation_objective": (out.validation_objective
                                      if math.isfinite(out.validation_objective) else None)}
     size = write_design(out_glb, out.x, out.layout, info)

@@ -122,7 +122,7 @@ from .headlight import HeadlightParams, build_headlight, headlight_asset_extras
 from .reflector import Facet, aim_direction, faceted_reflector_mesh
 
 __all__ = ["DesignResult", "Layout", "Term", "design_lowbeam", "facet_images",
-           "facets_for", "objective_terms", "start_vector", "write_design"]
+           "facets_for", "objective_terms", "read_design", "start_vector", "write_design"]
 
 LENS_GAP_M = 0.03  # room for facets aimed off-axis or with longer focal lengths
 STEP_DEG = 15.0  # R112 annex 9: the cut-off rises 15° on the traffic side
@@ -485,6 +485,33 @@ def write_facets(path: str | os.PathLike, facets: list[Facet], layout: Layout,
     return len(data)
 
 
+def read_design(path: str | os.PathLike) -> tuple[np.ndarray, Layout, dict[str, Any]]:
+    """x, layout and the stored design record of a GLB written by :func:`write_design`."""
+    import json
+    import struct
+
+    try:
+        data = Path(path).read_bytes()
+        magic, _version, _length = struct.unpack("<4sII", data[:12])
+        n, kind = struct.unpack("<I4s", data[12:20])
+        if magic != b"glTF" or kind != b"JSON":
+            raise ValueError("not a binary glTF")
+        doc = json.loads(data[20:20 + n])
+        rec = doc["asset"]["extras"]["lightsim"]["design"]
+        lay = dict(rec["layout"])
+        lay["ring_offsets_deg"] = tuple(float(t) for t in lay.get("ring_offsets_deg", ()))
+        lay["facet_shifts_deg"] = tuple((int(k), float(a), float(b))
+                                        for k, a, b in lay.get("facet_shifts_deg", ()))
+        layout = Layout(**lay)
+        x = np.asarray(rec["x"], float)
+    except (OSError, ValueError, KeyError, TypeError, struct.error) as e:
+        raise InputError(f"{path}: not a lamp written by lightsim design ({e})") from None
+    layout.check()
+    if x.shape != (layout.n_params,) or not np.all(np.isfinite(x)):
+        raise InputError(f"{path}: its design vector does not fit its layout")
+    return x, layout, rec
+
+
 # ---------------------------------------------------------------------------------------
 # objective
 # ---------------------------------------------------------------------------------------
@@ -672,6 +699,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    model_resolution: tuple[int, int] = (200, 256),
                    model_evaluations: int = 3000, calibrate: bool = True,
                    interval_photons: int = 12_000_000, model_safety: float = 0.05,
+                   first_round: int = 0,
                    note: Callable[[str], None] | None = None
                    ) -> DesignResult:
     """Optimise the facet layout against ``regulation`` (one rule set id or several,
@@ -764,7 +792,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
             from .facet_model import NOISE_CD, NOISE_PHOTONS, measure_footprints, optimise_shifts
 
             best = {"j": math.nan, "x": [float(t) for t in x], "terms": []}
-            for rnd in range(model_rounds):
+            for rnd in range(first_round, first_round + model_rounds):
                 model = measure_footprints(x, layout, regulation, photons=model_photons,
                                            resolution=model_resolution, seed=seed + rnd,
                                            residual_factor=4, progress=note)

@@ -119,3 +119,18 @@ def test_design_with_the_model_optimiser_writes_the_shifts(tmp_path):
     assert moved and moved <= set(range(LAYOUT.rings * LAYOUT.sectors))
     with pytest.raises(InputError):
         design_lowbeam("r112-b-passing", layout=LAYOUT, optimiser="annealing")
+
+
+def test_design_record_round_trips_through_the_glb(tmp_path):
+    from lightsim.luminaires.design import read_design
+
+    lay = replace(LAYOUT, ring_offsets_deg=(-0.3,), facet_shifts_deg=((2, 0.25, -0.5),))
+    x = start_vector(lay)
+    write_design(tmp_path / "a.glb", x, lay, {"model": [{"round": 0}]})
+    x2, lay2, rec = read_design(tmp_path / "a.glb")
+    np.testing.assert_array_equal(x2, x)
+    assert lay2 == lay and rec["model"] == [{"round": 0}]
+    (tmp_path / "b.glb").write_bytes(b"glTF\x02\x00\x00\x00garbage")
+    for bad in (tmp_path / "b.glb", tmp_path / "missing.glb"):
+        with pytest.raises(InputError):
+            read_design(bad)
