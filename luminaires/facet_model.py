@@ -285,28 +285,36 @@ def optimise_shifts(model: FootprintModel, regulations: Sequence[str], traffic: 
                     progress: Callable[[int, float, list[Any]], None] | None = None
                     ) -> ShiftResult:
     """Minimise J(s) on the model with :func:`scipy.optimize.minimize` (Powell, bounded
-    |Δh| ≤ 3°, |Δv| ≤ 1.5°); deterministic (the model is)."""
+    |Δh| ≤ 3°, |Δv| ≤ 1.5° per facet); deterministic (the model is).
+
+    The variables are a common shift g of every movable facet (|g_h| ≤ 1°, |g_v| ≤ 0.5°:
+    the cut-off's level and the hot spot's side move as a whole, which one facet at a time
+    cannot do) and each facet's own shift; facet k moves by g + s_k."""
     from scipy.optimize import minimize
 
     K = len(model.facets)
     s0 = np.zeros(2 * K) if start is None else np.asarray(start, float).ravel()
+    z0 = np.concatenate([[0.0, 0.0], s0])
     bh, bv = SHIFT_BOUNDS_DEG
-    bnds = [(-bh, bh), (-bv, bv)] * K
+    bnds = [(-1.0, 1.0), (-0.5, 0.5)] + [(-bh, bh), (-bv, bv)] * K
     kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, noise_cd=noise_cd)
     count = [0]
     best: dict[str, Any] = {"j": math.inf}
 
-    def j_of(sv: np.ndarray) -> float:
-        terms = model_terms(model, sv.reshape(K, 2), regulations, traffic, **kw)
+    def shifts(z: np.ndarray) -> np.ndarray:
+        return np.clip(z[2:].reshape(K, 2) + z[None, :2], [-bh, -bv], [bh, bv])
+
+    def j_of(z: np.ndarray) -> float:
+        terms = model_terms(model, shifts(z), regulations, traffic, **kw)
         j = float(sum(t.penalty for t in terms))
         count[0] += 1
         if j < best["j"]:
-            best.update(j=j, s=sv.copy(), terms=terms)
+            best.update(j=j, s=shifts(z), terms=terms)
             if progress is not None:
                 progress(count[0], j, terms)
         return j
 
-    j0 = j_of(s0)
-    minimize(j_of, s0, method="Powell", bounds=bnds,
+    j0 = j_of(z0)
+    minimize(j_of, z0, method="Powell", bounds=bnds,
              options={"maxfev": int(evaluations), "xtol": 0.02, "ftol": 1e-4})
-    return ShiftResult(best["s"].reshape(K, 2), best["j"], j0, best["terms"], count[0])
+    return ShiftResult(best["s"], best["j"], j0, best["terms"], count[0])
