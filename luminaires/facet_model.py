@@ -54,7 +54,8 @@ __all__ = ["AWAY_V_DEG", "NOISE_CD", "NOISE_PHOTONS", "FootprintModel", "ShiftRe
 AWAY_V_DEG = -25.0  # the wall spans ±13.5° at 25 m; −25° puts a facet's images below it
 SHIFT_BOUNDS_DEG = (3.0, 1.5)
 REGULARISER = 0.002
-AIM_TOLERANCE_DEG = 0.12  # the check run's cut-off may sit this far from the model's
+AIM_TOLERANCE_DEG = 0.15  # the check run's cut-off may sit this far from the model's
+# (measured: 0.04° and 0.09° on two designed lamps)
 NOISE_CD = 6.2
 """Half-width of the 95 % interval of a test point (relative) × √I, for the README demo's
 run (12 M photons, 320×128, 0.15° apertures, ``--aim``): measured on the designed lamp
@@ -210,7 +211,10 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
     lux = model.lux(shifts_deg)
     wf = WallFrame.from_any(model.frame)
     cut = find_cutoff(lux, model.frame, traffic).to_dict()
-    dv0 = float(cut.get("aim_dv_deg") or 0.0) if cut.get("found") else 0.0
+    # the lamp is evaluated as it stands (its own cut-off near 0.57° D is a term of J):
+    # the model's cut-off finder jumps between pixel rows as the shifts change, and an aim
+    # taken from it would make J jump with it
+    dv0 = 0.0
     terms: list[Any] = []
     for i, name in enumerate(regulations):
         key = (name, traffic)
@@ -218,9 +222,9 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
             rs0 = load_ruleset(name)
             _PROBES[key] = (rs0, probe_points(rs0, traffic, frame=model.frame))
         rs, probes = _PROBES[key]
-        # the check run aims the pattern at its cut-off (``--aim``); the model's and the
-        # run's cut-off finders differ by up to ~0.1° (pixel sizes, noise): every rule is
-        # taken at its worst over the aimed pattern and the pattern ±AIM_TOLERANCE_DEG
+        # the check run aims the pattern at its cut-off (``--aim``) and its finder can
+        # differ from the model's by ~0.1° (pixel sizes, noise): every rule is taken at its
+        # worst over the pattern and the pattern moved ±AIM_TOLERANCE_DEG
         per_offset = [_results(rs, probes, lux, model.frame, traffic, noise_cd, dv0 + e)
                       for e in (0.0, -AIM_TOLERANCE_DEG, AIM_TOLERANCE_DEG)]
         reg = {"results": per_offset[0], "aim": {"dv_deg": dv0, "cutoff": cut}}
