@@ -66,12 +66,42 @@ def _resolution(text: str) -> tuple[int, int]:
 @click.option("--sign-share", type=float, default=0.03, show_default=True,
               help="Share of a lit vertex-ring facet's azimuth given to each overhead-sign "
                    "sliver (dim light above the cut-off: points 1-8); 0: none.")
+@click.option("--optimiser", type=click.Choice(["model", "simulator"]), default="model",
+              show_default=True,
+              help="model: Powell on per-facet aim shifts against a footprint model "
+                   "measured once per round with the simulator (deterministic); simulator: "
+                   "Powell on the start vector with a simulation per evaluation.")
+@click.option("--model-rounds", type=int, default=1, show_default=True,
+              help="Footprint-model rounds (each re-measures the footprints at the new "
+                   "aims).")
+@click.option("--model-photons", type=int, default=1_000_000, show_default=True,
+              help="Photons per footprint run (one run per lit facet, plus the base).")
+@click.option("--model-resolution", default="200x256", show_default=True,
+              help="Wall pixels WxH of the footprint maps.")
+@click.option("--model-evaluations", type=int, default=3000, show_default=True,
+              help="Powell evaluations of the model per round.")
+@click.option("--interval-photons", type=int, default=12_000_000, show_default=True,
+              help="The model asks every point for the margin of the 95 % interval a check "
+                   "run with this many photons shows (0: none).")
+@click.option("--model-safety", type=float, default=0.05, show_default=True,
+              help="Relative margin the model asks beyond every limit (on top of the "
+                   "interval).")
+@click.option("--ring-offsets", default=None,
+              help="Comma-separated calibrated ring offsets (deg): skip the calibration.")
+@click.option("--continue-from", "continue_from", type=click.Path(dir_okay=False),
+              default=None,
+              help="A lamp written by lightsim design: start from its x, layout and facet "
+                   "shifts (no calibration) and run --model-rounds more rounds (their seeds "
+                   "follow the rounds it has).")
 @click.option("--quiet", "-q", is_flag=True)
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
            resolution: str, validate_factor: int, check_photons: int, seed: int,
            safety: float, reach: float, traffic: str, check_dir: str, start: str | None,
-           sign_share: float, quiet: bool) -> None:
+           sign_share: float, optimiser: str, model_rounds: int, model_photons: int,
+           model_resolution: str, model_evaluations: int, interval_photons: int,
+           model_safety: float, ring_offsets: str | None, continue_from: str | None,
+           quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
     from rich.console import Console
@@ -88,10 +118,30 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     if check_photons < 0:
         raise InputError(f"--check-photons must be ≥ 0, got {check_photons}")
     res = _resolution(resolution)
+    offsets: tuple[float, ...] = ()
+    if ring_offsets is not None:
+        try:
+            offsets = tuple(float(t) for t in ring_offsets.split(","))
+        except ValueError:
+            raise InputError(f"--ring-offsets must be comma-separated numbers, got "
+                             f"{ring_offsets!r}") from None
+        if len(offsets) != rings or not all(map(math.isfinite, offsets)):
+            raise InputError(f"--ring-offsets needs {rings} finite numbers")
     layout = Layout(rings=rings, sectors=sectors, focal_length_m=focal_length * 1e-3,
                     aperture_m=opening * 1e-3, bulb=name, traffic=traffic,
-                    sign_share=sign_share)
+                    sign_share=sign_share, ring_offsets_deg=offsets)
     layout.check()
+    mres = _resolution(model_resolution)
+    first_round = 0
+    previous: list = []
+    if continue_from is not None:
+        from lightsim.luminaires.design import read_design
+
+        x_prev, layout, rec = read_design(continue_from)
+        previous = list(rec.get("model") or [])
+        first_round = len(previous)
+        start = ",".join(repr(float(t)) for t in x_prev)
+        ring_offsets = "given"
     x0 = None
     if start is not None:
         try:
@@ -104,8 +154,16 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     check_out_dir(str(Path(out_glb).resolve().parent))
     t0 = time.perf_counter()
 
-    def progress(i: int, e: dict) -> None:
+    def note(text: str) -> None:
         if not quiet:
+            click.echo(text, err=True)
+
+    def progress(i: int, e: dict) -> None:
+        if not quiet and "model_evaluation" in e:
+            click.echo(f"model round {e['round']} eval {e['model_evaluation']:5d}  "
+                       f"J={e['objective']:.4f}  {e['seconds']:.0f} s  short: "
+                       f"{', '.join(e['failing']) or '-'}", err=True)
+        elif not quiet:
             x = ", ".join(f"{v:+.2f}" for v in e["x"])
             click.echo(f"round {e['round']} eval {i:3d}  J={e['objective']:.4f}  "
                        f"{e['seconds']:.1f} s  x=({x})  short: "
@@ -114,14 +172,21 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     out = design_lowbeam(regulation, layout=layout, photons=photons, resolution=res,
                          evaluations=evaluations, rounds=rounds, seed=seed, safety=safety,
                          reach_m=reach, validate_factor=validate_factor, x0=x0,
-                         progress=progress)
+                         progress=progress, optimiser=optimiser, model_rounds=model_rounds,
+                         model_photons=model_photons, model_resolution=mres,
+                         model_evaluations=model_evaluations,
+                         calibrate=ring_offsets is None, note=note,
+                         interval_photons=interval_photons, model_safety=model_safety,
+                         first_round=first_round)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),
-            "objective": out.objective,
+            "objective": out.objective, "optimiser": optimiser,
+            "model": previous + out.model,
             "validation_objective": (out.validation_objective
                                      if math.isfinite(out.validation_objective) else None)}
     size = write_design(out_glb, out.x, out.layout, info)
-    click.echo(f"design: {len(out.history)} evaluations in {out.seconds:.1f} s; "
+    what = ("model improvements" if out.model else "evaluations")
+    click.echo(f"design: {len(out.history)} {what} in {out.seconds:.1f} s; "
                f"J = {out.objective:.4f} (validation, fresh seed ×{validate_factor} "
                f"photons: {out.validation_objective:.4f}); wrote {out_glb} ({size:,} bytes)")
     click.echo("x = (" + ", ".join(f"{v:+.4f}" for v in out.x) + "); ring offsets = ("
@@ -133,10 +198,14 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
         v = "-" if t.value is None else f"{t.value:,.4g}"
         click.echo(f"{t.name:14s} {v:>10s}  {t.margin:+10.3f}  {t.target}"
                    + ("   SHORT" if t.margin < 0 else ""))
-    if check_photons:
-        opts = SimulateOptions(out_glb, out_dir=check_dir, photons=check_photons,
-                               regulation=regulation, traffic=traffic, aim=True,
-                               config={"seed": seed + 2000})
+    for m in out.model:
+        click.echo(f"model round {m['round']}: {m['facets']} facets' footprints measured in "
+                   f"{m['footprint_seconds']:.0f} s; J {m['start_objective']:.4f} → "
+                   f"{m['objective']:.4f} in {m['evaluations']} model evaluations")
+    for rs in (regulation.split(",") if check_photons else []):
+        opts = SimulateOptions(out_glb, out_dir=str(Path(check_dir) / rs.strip()),
+                               photons=check_photons, regulation=rs.strip(),
+                               traffic=traffic, aim=True, config={"seed": seed + 2000})
         sim = run_simulation(opts, analyses=for_options(opts))
         Console(width=120).print(format_regulation(sim.summary["regulation"]))
     click.echo(f"total {time.perf_counter() - t0:.1f} s")

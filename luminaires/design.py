@@ -53,8 +53,14 @@ for (median of the three annex-9 scans; two steps): the bulb glass and the coil'
 size put the real cut-off a few tenths of a degree — differently for every ring — from
 the traced images' tops. The designed lamp then needs no aiming.
 
-**Optimiser**: :func:`scipy.optimize.minimize` with ``method="Powell"`` (bounded, from the
-geometric start), in ``rounds`` rounds of at most ``evaluations`` function evaluations.
+**Optimiser** ``"model"`` (the CLI's default): after the calibration, ``model_rounds``
+rounds of (measure every movable facet's footprint with the simulator, then Powell on the
+per-facet aim shifts against the deterministic footprint model; the shifts go into
+``Layout.facet_shifts_deg``), :mod:`lightsim.luminaires.facet_model`.
+
+**Optimiser** ``"simulator"``: :func:`scipy.optimize.minimize` with ``method="Powell"``
+(bounded, from the geometric start), in ``rounds`` rounds of at most ``evaluations``
+function evaluations.
 Within a round every evaluation uses the same photon seed (common random numbers: the
 optimiser sees geometry); every round re-draws the noise (seed + round) so that no round's
 winner is an artefact of one noise realisation. The returned lamp is re-simulated with a
@@ -81,6 +87,14 @@ safety            –      0.10         relative margin asked beyond every limit
 reach_m           m      25           1 lx road reach asked for (lamp 0.65 m high)
 smooth_max        –      2.0          largest allowed lux / Gaussian-smoothed lux (σ 1°)
 validate_factor   –      4            photons of the fresh-seed validation run ÷ photons
+optimiser         –      simulator    ``"model"`` (CLI default) or ``"simulator"``
+model_rounds      –      1            footprint-model rounds
+model_photons     –      1 000 000    photons per footprint run
+model_resolution  px     200×256      footprint map W×H
+model_evaluations –      3000         Powell evaluations of the model per round
+model_safety      –      0.05         relative margin of the model beyond every limit
+interval_photons  –      12 000 000   photons of the check run whose intervals the model
+                                      asks for (0: no interval)
 sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet's azimuth
                                       per overhead-sign sliver (× its weight in
                                       ``SIGN_AIMS``), dim light above the cut-off
@@ -108,7 +122,7 @@ from .headlight import HeadlightParams, build_headlight, headlight_asset_extras
 from .reflector import Facet, aim_direction, faceted_reflector_mesh
 
 __all__ = ["DesignResult", "Layout", "Term", "design_lowbeam", "facet_images",
-           "facets_for", "objective_terms", "start_vector", "write_design"]
+           "facets_for", "objective_terms", "read_design", "start_vector", "write_design"]
 
 LENS_GAP_M = 0.03  # room for facets aimed off-axis or with longer focal lengths
 STEP_DEG = 15.0  # R112 annex 9: the cut-off rises 15° on the traffic side
@@ -164,6 +178,10 @@ class Layout:
     cutoff_v_deg: float = TARGET_V_DEG
     ring_offsets_deg: tuple[float, ...] = ()
     sign_share: float = 0.0
+    facet_shifts_deg: tuple[tuple[int, float, float], ...] = ()
+    """(facet index, Δh, Δv in deg) added to the aims of facets (main facets, then the
+    overhead-sign slivers) after the image-based aiming: what the footprint-model
+    optimiser (:mod:`lightsim.luminaires.facet_model`) changes."""
 
     @property
     def n_params(self) -> int:
@@ -348,7 +366,16 @@ def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
             new.append(Facet(fc.phi0_rad, fc.phi1_rad, float(np.clip(hk, -40, 40)),
                              float(np.clip(vk, -40, 40)), fc.r0_m, fc.r1_m, fc.focal_m))
         facets = new
-    return _with_sign_slivers(facets, layout, hole_m)
+    facets = _with_sign_slivers(facets, layout, hole_m)
+    for k, dh, dv in layout.facet_shifts_deg:
+        k = int(k)
+        if not (0 <= k < len(facets) and math.isfinite(dh) and math.isfinite(dv)):
+            raise InputError(f"facet shift ({k}, {dh}, {dv}) is not a finite shift of a "
+                             "facet")
+        fc = facets[k]
+        facets[k] = replace(fc, h_deg=float(np.clip(fc.h_deg + dh, -40, 40)),
+                            v_deg=float(np.clip(fc.v_deg + dv, -40, 40)))
+    return facets
 
 
 def _with_sign_slivers(facets: list[Facet], layout: Layout, hole_m: float) -> list[Facet]:
@@ -439,16 +466,50 @@ def write_design(path: str | os.PathLike, x: np.ndarray, layout: Layout | None =
     if only_ring is not None:
         facets = [f if k // layout.sectors == only_ring else replace(f, v_deg=-15.0)
                   for k, f in enumerate(facets)]
+    return write_facets(path, facets, layout, x, info)
+
+
+def write_facets(path: str | os.PathLike, facets: list[Facet], layout: Layout,
+                 x: np.ndarray | None = None, info: dict[str, Any] | None = None) -> int:
+    """Write the lamp with these facets as a GLB (atomically); returns its size."""
     parts, params = _parts(facets, layout)
     extras = headlight_asset_extras(params)
     extras["lightsim"]["generator"] = "lightsim.luminaires.design"
-    extras["lightsim"]["design"] = {"x": [float(t) for t in x], "layout": asdict(layout),
+    extras["lightsim"]["design"] = {"x": None if x is None else [float(t) for t in x],
+                                    "layout": asdict(layout),
                                     "parameters": "h0, lift (deg); per ring: spread (deg), "
                                                   "drop (deg), focal scale",
                                     **(info or {})}
     data = glb_bytes(parts, asset_extras=extras)
     write_bytes(path, data)
     return len(data)
+
+
+def read_design(path: str | os.PathLike) -> tuple[np.ndarray, Layout, dict[str, Any]]:
+    """x, layout and the stored design record of a GLB written by :func:`write_design`."""
+    import json
+    import struct
+
+    try:
+        data = Path(path).read_bytes()
+        magic, _version, _length = struct.unpack("<4sII", data[:12])
+        n, kind = struct.unpack("<I4s", data[12:20])
+        if magic != b"glTF" or kind != b"JSON":
+            raise ValueError("not a binary glTF")
+        doc = json.loads(data[20:20 + n])
+        rec = doc["asset"]["extras"]["lightsim"]["design"]
+        lay = dict(rec["layout"])
+        lay["ring_offsets_deg"] = tuple(float(t) for t in lay.get("ring_offsets_deg", ()))
+        lay["facet_shifts_deg"] = tuple((int(k), float(a), float(b))
+                                        for k, a, b in lay.get("facet_shifts_deg", ()))
+        layout = Layout(**lay)
+        x = np.asarray(rec["x"], float)
+    except (OSError, ValueError, KeyError, TypeError, struct.error) as e:
+        raise InputError(f"{path}: not a lamp written by lightsim design ({e})") from None
+    layout.check()
+    if x.shape != (layout.n_params,) or not np.all(np.isfinite(x)):
+        raise InputError(f"{path}: its design vector does not fit its layout")
+    return x, layout, rec
 
 
 # ---------------------------------------------------------------------------------------
@@ -549,7 +610,7 @@ def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety:
 def simulate_lamp(glb: str | os.PathLike, regulation: str, *, photons: int,
                   resolution: tuple[int, int], seed: int, traffic: str = "right",
                   aperture: float | None = 0.0, aim: bool = True,
-                  max_radius_m: float | None = MAX_RADIUS_M
+                  max_radius_m: float | None = MAX_RADIUS_M, also: tuple[str, ...] = ()
                   ) -> tuple[dict[str, Any], np.ndarray, Any]:
     """Simulate ``glb`` in this process; (regulation dict, lux map, wall frame).
 
@@ -578,6 +639,10 @@ def simulate_lamp(glb: str | os.PathLike, regulation: str, *, photons: int,
         except InputError:  # no cut-off to aim at
             reg = regulation_check(session, lux, regulation, traffic, False)
             reg["aim"]["cutoff"]["found"] = False
+        # further rule sets on the same run (kNN at their probes)
+        reg["also"] = [regulation_check(session, lux, name, traffic,
+                                        aim and reg["aim"]["cutoff"].get("found", True))
+                       for name in also]
     finally:
         session.close()
     return reg, lux, scene.wall
@@ -619,6 +684,8 @@ class DesignResult:
     validation_objective: float = math.nan
     calibration_deg: list[list[float]] = field(default_factory=list)
     seconds: float = 0.0
+    model: list[dict[str, Any]] = field(default_factory=list)
+    """Per footprint-model round: J at the start and end, evaluations, footprint time."""
 
 
 def design_lowbeam(regulation: str, *, layout: Layout | None = None,
@@ -626,16 +693,40 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    evaluations: int = 30, rounds: int = 2, seed: int = 1,
                    safety: float = 0.10, reach_m: float = 25.0, smooth_max: float = 2.0,
                    validate_factor: int = 4, x0: np.ndarray | None = None,
-                   progress: Callable[[int, dict[str, Any]], None] | None = None
+                   progress: Callable[[int, dict[str, Any]], None] | None = None,
+                   optimiser: str = "simulator", model_rounds: int = 1,
+                   model_photons: int = 1_000_000,
+                   model_resolution: tuple[int, int] = (200, 256),
+                   model_evaluations: int = 3000, calibrate: bool = True,
+                   interval_photons: int = 12_000_000, model_safety: float = 0.05,
+                   first_round: int = 0,
+                   note: Callable[[str], None] | None = None
                    ) -> DesignResult:
-    """Optimise the facet layout against ``regulation`` (see the module docstring)."""
+    """Optimise the facet layout against ``regulation`` (one rule set id or several,
+    comma-separated; see the module docstring).
+
+    ``optimiser="model"``: after the calibration, ``model_rounds`` rounds of (measure the
+    movable facets' footprints with ``model_photons`` photons each, then Powell on the
+    facet shifts against the footprint model, :mod:`lightsim.luminaires.facet_model`);
+    ``"simulator"``: Powell on x with a simulation per evaluation (``rounds`` ×
+    ``evaluations``)."""
     from scipy.optimize import minimize
 
     from lightsim.luminaires.regulations import load_ruleset
 
     layout = layout or Layout()
     layout.check()
-    load_ruleset(regulation)
+    regs = tuple(t.strip() for t in str(regulation).split(",") if t.strip())
+    if not regs:
+        raise InputError("--regulation: give at least one rule set id")
+    for r in regs:
+        load_ruleset(r)
+    regulation, also = regs[0], regs[1:]
+    if optimiser not in ("model", "simulator"):
+        raise InputError(f"--optimiser must be model or simulator, got {optimiser!r}")
+    if model_rounds < 0 or model_photons < 1 or model_evaluations < 1:
+        raise InputError("--model-rounds must be ≥ 0, --model-photons and "
+                         "--model-evaluations ≥ 1")
     if evaluations < 1 or photons < 1 or rounds < 1:
         raise InputError("--evaluations, --rounds and --photons must be ≥ 1")
     if not (0 <= safety < 1):
@@ -661,8 +752,11 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
             # smoothly with the geometry (an aim re-estimated per candidate would not)
             reg, lux, frame = simulate_lamp(glb, regulation, photons=n,
                                             resolution=resolution, seed=s,
-                                            traffic=layout.traffic, aim=False)
+                                            traffic=layout.traffic, aim=False, also=also)
             terms = objective_terms(reg, lux, frame, **kw)
+            for extra in reg["also"]:
+                terms += [replace(t, name=f"{t.name} ({extra['ruleset']})")
+                          for t in _rule_terms(extra["results"], safety)]
             return float(sum(t.penalty for t in terms)), terms
 
         # calibrate the image model's level against the simulator, ring by ring: the bulb
@@ -673,8 +767,8 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
         calibration = []
         x_flat = x.copy()
         x_flat[1] = 0.0  # without the lifted vertex ring
-        offsets = [0.0] * layout.rings
-        for _ in range(CALIBRATION_STEPS):
+        offsets = list(layout.ring_offsets_deg) or [0.0] * layout.rings
+        for _ in range(CALIBRATION_STEPS if calibrate else 0):
             step = []
             for r in range(layout.rings):
                 layout = replace(layout, ring_offsets_deg=tuple(offsets))
@@ -693,7 +787,43 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
             if max(abs(d) for d in step) < 0.05:
                 break
         layout = replace(layout, ring_offsets_deg=tuple(offsets))
-        for rnd in range(rounds):
+        model_info: list[dict[str, Any]] = []
+        if optimiser == "model":
+            from .facet_model import NOISE_CD, NOISE_PHOTONS, measure_footprints, optimise_shifts
+
+            best = {"j": math.nan, "x": [float(t) for t in x], "terms": []}
+            for rnd in range(first_round, first_round + model_rounds):
+                model = measure_footprints(x, layout, regulation, photons=model_photons,
+                                           resolution=model_resolution, seed=seed + rnd,
+                                           residual_factor=4, progress=note)
+
+                def shown(i: int, j: float, terms: list[Term], rnd: int = rnd) -> None:
+                    entry = {"round": rnd, "x": [float(t) for t in x], "objective": j,
+                             "failing": [t.name for t in terms if t.margin < 0],
+                             "seconds": time.perf_counter() - t0, "model_evaluation": i}
+                    history.append(entry)
+                    if progress is not None:
+                        progress(len(history), entry)
+
+                noise = (NOISE_CD * math.sqrt(NOISE_PHOTONS / interval_photons)
+                         if interval_photons > 0 else 0.0)
+                res = optimise_shifts(model, regs, layout.traffic, safety=model_safety,
+                                      reach_m=reach_m, smooth_max=smooth_max,
+                                      evaluations=model_evaluations, progress=shown,
+                                      noise_cd=noise)
+                old = {int(k): (dh, dv) for k, dh, dv in layout.facet_shifts_deg}
+                for k, (dh, dv) in zip(model.facets, res.shifts_deg):
+                    a, b = old.get(k, (0.0, 0.0))
+                    old[k] = (a + float(dh), b + float(dv))
+                layout = replace(layout, facet_shifts_deg=tuple(
+                    (k, round(a, 4), round(b, 4)) for k, (a, b) in sorted(old.items())))
+                best = {"j": res.objective, "x": [float(t) for t in x], "terms": res.terms}
+                model_info.append({"round": rnd, "start_objective": res.start_objective,
+                                   "objective": res.objective,
+                                   "evaluations": res.evaluations,
+                                   "footprint_seconds": model.seconds,
+                                   "facets": len(model.facets)})
+        for rnd in range(rounds if optimiser == "simulator" else 0):
             s_round = seed + rnd
             round_best: dict[str, Any] = {"j": math.inf}
 
@@ -723,4 +853,5 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
             vj, validation = run(np.array(best["x"]), seed + 1000, photons * validate_factor)
     return DesignResult(x=best["x"], objective=best["j"], layout=layout, history=history,
                         terms=best["terms"], validation=validation, validation_objective=vj,
-                        calibration_deg=calibration, seconds=time.perf_counter() - t0)
+                        calibration_deg=calibration, seconds=time.perf_counter() - t0,
+                        model=model_info)

@@ -1,0 +1,136 @@
+"""Footprint model of the design optimiser (``lightsim design --optimiser model``)."""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.ndimage import shift as nd_shift
+
+from lightsim.errors import InputError
+from lightsim.luminaires.design import (
+    Layout,
+    design_lowbeam,
+    facets_for,
+    hole_diameter,
+    simulate_lamp,
+    start_vector,
+    write_design,
+)
+from lightsim.luminaires.facet_model import (
+    _add_shifted,
+    measure_footprints,
+    model_terms,
+    optimise_shifts,
+)
+
+LAYOUT = Layout(rings=1, sectors=4)
+RES = (60, 96)
+
+
+def test_bilinear_shift_matches_scipy_inside_the_image():
+    g = np.random.default_rng(3)
+    img = g.random((40, 50))
+    for dr, dc in [(0.3, -1.7), (-2.5, 3.2), (0.0, 0.0), (5.9, -0.01), (-60.0, 0.5)]:
+        out = np.zeros_like(img)
+        _add_shifted(out, img, dr, dc)
+        ref = nd_shift(img, (dr, dc), order=1, mode="constant", cval=0.0, prefilter=False)
+        np.testing.assert_allclose(out[7:-7, 7:-7], ref[7:-7, 7:-7], atol=1e-12)
+
+
+def test_facet_shifts_move_exactly_the_named_facets():
+    hole = hole_diameter(LAYOUT)
+    x = start_vector(LAYOUT)
+    a = facets_for(x, LAYOUT, hole)
+    b = facets_for(x, replace(LAYOUT, facet_shifts_deg=((1, 0.7, -0.3),)), hole)
+    assert b[1].h_deg == pytest.approx(a[1].h_deg + 0.7)
+    assert b[1].v_deg == pytest.approx(a[1].v_deg - 0.3)
+    assert [f for k, f in enumerate(b) if k != 1] == [f for k, f in enumerate(a) if k != 1]
+    with pytest.raises(InputError):
+        facets_for(x, replace(LAYOUT, facet_shifts_deg=((9, 0.0, 0.0),)), hole)
+    with pytest.raises(InputError):
+        facets_for(x, replace(LAYOUT, facet_shifts_deg=((0, float("nan"), 0.0),)), hole)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return measure_footprints(start_vector(LAYOUT), LAYOUT, "r112-b-passing",
+                              photons=150_000, resolution=RES, seed=4)
+
+
+def test_zero_shift_model_is_the_simulated_lamp(model):
+    """Base + Σ footprints at zero shift is the whole lamp's simulated map (same seed)."""
+    assert model.facets and model.footprints.shape[0] == len(model.facets)
+    with tempfile.TemporaryDirectory() as tmp:
+        glb = Path(tmp) / "lamp.glb"
+        write_design(glb, start_vector(LAYOUT), LAYOUT)
+        _reg, lux, _fr = simulate_lamp(glb, "r112-b-passing", photons=150_000,
+                                       resolution=RES, seed=4, aim=False)
+    lux = np.nan_to_num(lux)
+    pred = model.lux(np.zeros((len(model.facets), 2)))
+    # kNN is not additive where two footprints overlap: a few per cent in total
+    assert abs(pred.sum() / lux.sum() - 1) < 0.05
+    assert np.abs(pred - lux).sum() / lux.sum() < 0.25
+
+
+def test_model_predicts_a_shifted_facet_as_the_simulator_sees_it(model):
+    k = model.facets[0]
+    shifts = np.zeros((len(model.facets), 2))
+    shifts[0] = (1.5, 0.8)
+    lay = replace(LAYOUT, facet_shifts_deg=((k, 1.5, 0.8),))
+    with tempfile.TemporaryDirectory() as tmp:
+        glb = Path(tmp) / "lamp.glb"
+        write_design(glb, start_vector(LAYOUT), lay)
+        _reg, lux, _fr = simulate_lamp(glb, "r112-b-passing", photons=150_000,
+                                       resolution=RES, seed=4, aim=False)
+    lux = np.nan_to_num(lux)
+    moved = model.lux(shifts)
+    still = model.lux(np.zeros_like(shifts))
+    # the shifted model is closer to the simulated shifted lamp than the unshifted one
+    err_moved = np.abs(moved - lux).sum()
+    err_still = np.abs(still - lux).sum()
+    assert err_moved < 0.7 * err_still
+
+
+def test_model_optimiser_is_deterministic_and_does_not_get_worse(model):
+    kw = dict(safety=0.1, reach_m=25.0, smooth_max=2.0, evaluations=60)
+    a = optimise_shifts(model, ("r112-b-passing",), "right", **kw)
+    b = optimise_shifts(model, ("r112-b-passing",), "right", **kw)
+    np.testing.assert_array_equal(a.shifts_deg, b.shifts_deg)
+    assert a.objective == b.objective <= a.start_objective
+    terms = model_terms(model, a.shifts_deg, ("r112-b-passing", "r149-b-passing"), "right",
+                        safety=0.1, reach_m=25.0, smooth_max=2.0)
+    names = {t.name for t in terms}
+    assert {"75R", "III", "IV (r149-b-passing)", "shift size"} <= names
+    assert "smoothness" not in names  # noise-set on the model map: checked on the lamp
+
+
+def test_design_with_the_model_optimiser_writes_the_shifts(tmp_path):
+    out = design_lowbeam("r112-b-passing,r149-b-passing", layout=LAYOUT, photons=20_000,
+                         resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
+                         model_photons=30_000, model_resolution=(40, 64),
+                         model_evaluations=30, calibrate=False)
+    assert len(out.model) == 1 and out.model[0]["evaluations"] >= 1
+    assert out.model[0]["objective"] <= out.model[0]["start_objective"]
+    moved = {k for k, _dh, _dv in out.layout.facet_shifts_deg}
+    assert moved and moved <= set(range(LAYOUT.rings * LAYOUT.sectors))
+    with pytest.raises(InputError):
+        design_lowbeam("r112-b-passing", layout=LAYOUT, optimiser="annealing")
+
+
+def test_design_record_round_trips_through_the_glb(tmp_path):
+    from lightsim.luminaires.design import read_design
+
+    lay = replace(LAYOUT, ring_offsets_deg=(-0.3,), facet_shifts_deg=((2, 0.25, -0.5),))
+    x = start_vector(lay)
+    write_design(tmp_path / "a.glb", x, lay, {"model": [{"round": 0}]})
+    x2, lay2, rec = read_design(tmp_path / "a.glb")
+    np.testing.assert_array_equal(x2, x)
+    assert lay2 == lay and rec["model"] == [{"round": 0}]
+    (tmp_path / "b.glb").write_bytes(b"glTF\x02\x00\x00\x00garbage")
+    for bad in (tmp_path / "b.glb", tmp_path / "missing.glb"):
+        with pytest.raises(InputError):
+            read_design(bad)
