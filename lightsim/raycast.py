@@ -85,18 +85,8 @@ def _merge_wall(o, d, prim, tfar, u, v, lamp_index, wall_tri, wall_index):
     for i in range(prim.shape[0]):
         k = prim[i]
         if k >= 0 and remap:
-            prim[i] = lamp_index[k]
-        best = np.inf if k < 0 else float(tfar[i])
-        ox, oy, oz = float(o[i, 0]), float(o[i, 1]), float(o[i, 2])
-        dx, dy, dz = float(d[i, 0]), float(d[i, 1]), float(d[i, 2])
-        for w in range(wall_tri.shape[0]):
-            t, bu, bv = _tri_hit(ox, oy, oz, dx, dy, dz, wall_tri[w])
-            if t < best:
-                best = t
-                prim[i] = wall_index[w]
-                tfar[i] = t
-                u[i] = bu
-                v[i] = bv
+            prim[i] = lamp_index[k]  # a soup index, ≥ 0 exactly when embree hit
+        merge_wall_hit(i, o, d, prim, tfar, u, v, wall_tri, wall_index)
 
 
 class RayCaster:

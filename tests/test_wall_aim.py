@@ -3,7 +3,6 @@ moving it (the lamp aimed the opposite way) keeps the lamp's embree scene."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -16,25 +15,11 @@ from lightsim.errors import InputError
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.raycast import RayCaster
 from lightsim.sampling import digit_permutations, halton_points, photon_keys
-from lightsim.scene import WALL, Scene, load_scene
+from lightsim.scene import Scene, load_scene
 from lightsim.tracer import Geometry, PhotonTracer
+from lightsim.validation.bench.tracer_aim import aim_rotation as aim
+from lightsim.validation.bench.tracer_aim import rotated_lamp
 from lightsim.validation.scenes.analytic import paraboloid_case
-
-
-def aim(h_deg: float, v_deg: float) -> np.ndarray:
-    """4×4: yaw about +Y by −h, then pitch about +X by −v (the view's lamp aim)."""
-    a, b = math.radians(-h_deg), math.radians(-v_deg)
-    ry = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
-    rx = np.array([[1, 0, 0], [0, math.cos(b), -math.sin(b)], [0, math.sin(b), math.cos(b)]])
-    m = np.eye(4)
-    m[:3, :3] = ry @ rx
-    return m
-
-
-def rotated_lamp(scene: Scene, m: np.ndarray) -> Scene:
-    """The old way: every part but the wall moved (needs a new embree scene)."""
-    parts = [p if p.role == WALL else p.transformed(m) for p in scene.parts]
-    return Scene(parts, scene.wall, scene.source, [], scene.channels)
 
 
 def emitted(tracer: PhotonTracer, n: int, seed: int = 3):

@@ -39,7 +39,7 @@ def aim_rotation(h_deg: float, v_deg: float) -> np.ndarray:
     return m
 
 
-def _rotated_lamp(scene: Scene, m: np.ndarray) -> Scene:
+def rotated_lamp(scene: Scene, m: np.ndarray) -> Scene:
     parts = [p if p.role == WALL else p.transformed(m) for p in scene.parts]
     return Scene(parts, scene.wall, scene.source, list(scene.warnings), scene.channels)
 
@@ -54,7 +54,7 @@ def bench_aim(scene: Scene, repeats: int = 5, frame_photons: int = 20_000,
         for k in range(max(1, repeats)):
             m = aim_rotation(1.0 + k, -0.5 * k)
             t0 = time.perf_counter()
-            s.update(scene=_rotated_lamp(scene, m))
+            s.update(scene=rotated_lamp(scene, m))
             rebuild.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
             s.frame()
