@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 import trimesh
 from click.testing import CliRunner
-from helpers import run_cli
+from helpers import run_cli, write_point_lamp
 
 from lightsim import options
 from lightsim.cli.simulate import simulate
 from lightsim.engine.config import MAX_RADIUS_FACTOR, RunConfig
 from lightsim.errors import InputError
-from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
+from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart
 from lightsim.options import Option
 from lightsim.simulate import SimulateOptions, read_checkpoint, run_simulation
 
@@ -32,15 +32,11 @@ CLI = [o for o in SIM + RUN if o.on_cli]
 @pytest.fixture(scope="module")
 def lamp(tmp_path_factory):
     """An isotropic 1000 lm point-like source 2 m from the wall, a grey plate behind it."""
-    path = tmp_path_factory.mktemp("lamp") / "point.glb"
-    ico = trimesh.creation.icosphere(1, radius=1e-4)
     plate = trimesh.creation.box(bounds=[[-0.2, -0.2, -0.3], [0.2, 0.2, -0.29]])
-    write_glb(path, [GltfPart("filament", np.asarray(ico.vertices), np.asarray(ico.faces),
-                              None, GltfMaterial("f", emissive=(1, 1, 1)),
-                              extras={"lightsim": {"flux_lm": 1000.0}}),
-                     GltfPart("plate", np.asarray(plate.vertices), np.asarray(plate.faces),
-                              None, GltfMaterial("grey", base_color=(0.5, 0.5, 0.5)))])
-    return path
+    return write_point_lamp(
+        tmp_path_factory.mktemp("lamp") / "point.glb",
+        GltfPart("plate", np.asarray(plate.vertices), np.asarray(plate.faces), None,
+                 GltfMaterial("grey", base_color=(0.5, 0.5, 0.5))))
 
 
 TINY = ["--photons", "8000", "--frame-photons", "4000", "-M", "2", "--resolution", "16x8",

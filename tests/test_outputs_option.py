@@ -7,11 +7,10 @@ import json
 
 import numpy as np
 import pytest
-import trimesh
 from helpers import run_cli as _run
+from helpers import write_point_lamp
 
 from lightsim.io.exr import read_exr
-from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.options import lookup, parse_names
 from lightsim.simulate import SimulateOptions
 
@@ -22,12 +21,7 @@ ARGS = ["--photons", "100000", "--wall-distance", "2", "--wall-size", "4x4",
 @pytest.fixture(scope="module")
 def point_lamp(tmp_path_factory):
     """An isotropic 1000 lm source 2 m from the wall, nothing else."""
-    path = tmp_path_factory.mktemp("lamp") / "point.glb"
-    ico = trimesh.creation.icosphere(1, radius=1e-4)
-    write_glb(path, [GltfPart("filament", np.asarray(ico.vertices), np.asarray(ico.faces),
-                              None, GltfMaterial("f", emissive=(1, 1, 1)),
-                              extras={"lightsim": {"flux_lm": 1000.0}})])
-    return path
+    return write_point_lamp(tmp_path_factory.mktemp("lamp") / "point.glb")
 
 
 def test_parse_names_orders_and_expands_all():
