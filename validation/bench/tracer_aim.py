@@ -17,7 +17,6 @@ parameter           unit   default  meaning
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from typing import Any
@@ -27,16 +26,11 @@ import numpy as np
 from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.scene import WALL, Scene
+from lightsim.view.editor import aim_matrix
 
-
-def aim_rotation(h_deg: float, v_deg: float) -> np.ndarray:
-    """4×4: yaw by H (towards world −X), then pitch by V (up) about the origin."""
-    a, b = math.radians(-h_deg), math.radians(-v_deg)
-    ry = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
-    rx = np.array([[1, 0, 0], [0, math.cos(b), -math.sin(b)], [0, math.sin(b), math.cos(b)]])
-    m = np.eye(4)
-    m[:3, :3] = ry @ rx
-    return m
+#: 4×4 lamp aim: yaw by H (towards world −X), then pitch by V (up) about the origin —
+#: the view's own aim, so the bench times exactly what the view does
+aim_rotation = aim_matrix
 
 
 def rotated_lamp(scene: Scene, m: np.ndarray) -> Scene:
