@@ -118,3 +118,38 @@ def test_insertion_splits_a_leaf_only_past_the_slack_and_then_down_to_leaf_size(
     d2, _ = tree.query(pts.astype(np.float64), 3)
     _, expect = _brute(pts, pts.astype(np.float64), 3)
     np.testing.assert_array_equal(d2, expect)
+
+
+def test_leaves_split_after_insertions_keep_their_slots_boxes_and_planes() -> None:
+    """Full leaves of a grown tree are split in a compact copy and mapped back to their
+    slots: the leaves still tile the slots in order, every box is the tight box of its
+    photons, every split plane separates its children, and queries stay exact."""
+    pos, nrm, _ = caustic_ring_set(30_000, seed=9)
+    pw = np.random.default_rng(3).random((len(pos), 2)).astype(np.float32)
+    tree = KdTree(leaf_size=5, channels=2)
+    for part in np.array_split(np.arange(len(pos)), 9):
+        tree.add(pos[part], nrm[part], pw[part])
+    m = tree.n_nodes
+    child, start, end = tree._child[:m], tree._start[:m], tree._end[:m]
+    box, dim, split = tree._box[:m], tree._dim[:m], tree._split[:m]
+    leaves = np.flatnonzero(child < 0)
+    order = leaves[np.lexsort((end[leaves], start[leaves]))]
+    assert start[order[0]] == 0 and end[order[-1]] == len(pos)
+    np.testing.assert_array_equal(start[order[1:]], end[order[:-1]])
+    pts = tree._pts
+    for nd in range(m):
+        s, e = start[nd], end[nd]
+        if e > s:
+            np.testing.assert_array_equal(box[nd, :3], pts[s:e].min(axis=0))
+            np.testing.assert_array_equal(box[nd, 3:], pts[s:e].max(axis=0))
+        c = child[nd]
+        if c >= 0:
+            a = dim[nd]
+            assert end[c] == start[c + 1] and start[c] == s and end[c + 1] == e
+            assert np.all(pts[start[c]:end[c], a] < split[nd])
+            assert np.all(pts[start[c + 1]:end[c + 1], a] >= split[nd])
+    np.testing.assert_array_equal(tree._pw, pw[tree._perm])
+    q = pos[::301].astype(np.float64)
+    d2, _ = tree.query(q, 7)
+    _, expect = _brute(pos, q, 7)
+    np.testing.assert_array_equal(d2, expect)
