@@ -27,7 +27,9 @@ every stored photon goes (its leaf's new range, followed by room for the leaf's 
 photons), and each array (positions, normals, powers, insertion indices) is gathered once,
 in parallel. A leaf is split only when it holds more than ``INSERT_SLACK · leaf_size``
 photons, and then down to ``leaf_size``, so re-splitting is amortised; such leaves query
-as fast as built ones (measured on 1 M ring photons).
+as fast as built ones (measured on 1 M ring photons). The full leaves are split in a
+compact copy of their photons and written back to the same slots (split in place, the
+ping-pong scratch would be first touched at every scattered range).
 
 Layout and queries
 ------------------
