@@ -28,8 +28,11 @@ def example_headlight():
 @click.option("--aim", is_flag=True,
               help="Time aiming the lamp in a session instead: embree rebuilt vs the wall "
                    "moved (Session.update(wall_transform=…)).")
+@click.option("--stages", is_flag=True,
+              help="Time the tracer's stages instead (emission, embree casts, bounce "
+                   "kernel, the rest) for --threads (default here: 1).")
 def command(scene_file: str | None, photons: int, repeats: int, threads: int | None,
-            json_path: str | None, analytic: str | None, aim: bool) -> None:
+            json_path: str | None, analytic: str | None, aim: bool, stages: bool) -> None:
     """Photon tracing vs raw embree on SCENE_FILE (default: the shipped headlight)."""
     from lightsim.scene import load_scene
     from lightsim.validation.bench.tracer import bench_tracer
@@ -52,6 +55,15 @@ def command(scene_file: str | None, photons: int, repeats: int, threads: int | N
         if json_path:
             write_json(json_path, "tracer-aim", rows, {"scene": path,
                                                        "triangles": scene.n_triangles})
+        return
+    if stages:
+        from lightsim.validation.bench.tracer import stage_rows
+
+        rows = stage_rows(scene, photons=photons, threads=threads or 1, repeats=repeats)
+        print_table(f"tracer stages: {path} ({scene.n_triangles} triangles)", rows)
+        if json_path:
+            write_json(json_path, "tracer-stages", rows, {"scene": path,
+                                                          "triangles": scene.n_triangles})
         return
     rows = bench_tracer(scene, photons=photons, repeats=repeats, threads=threads)
     print_table(f"tracer: {path} ({scene.n_triangles} triangles)", rows)

@@ -52,6 +52,8 @@ glass wall at 0.1 m from the origin.
 from __future__ import annotations
 
 import math
+import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -582,6 +584,10 @@ class PhotonTracer:
         self.threads = self.caster.threads
         self.min_chunk = int(min_chunk)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        #: seconds per stage ("emit", "start", "cast", "bounce") summed over all chunks
+        #: and threads when set to a dict (a profile: :func:`stage_seconds`); None: off
+        self.stages: dict[str, float] | None = None
+        self._stages_lock = threading.Lock()
 
     def close(self) -> None:
         """Stop the tracer's threads and the ray caster's."""
@@ -714,10 +720,18 @@ class PhotonTracer:
         records, escaped photons and the ray count."""
         n = hi - lo
         C = self.channels
+        clock = time.perf_counter if self.stages is not None else None
+        t_emit = t_start = t_cast = t_bounce = 0.0
+        t0 = clock() if clock else 0.0
         origins, directions = source(lo, hi)  # fresh arrays: traced in place
         o = np.ascontiguousarray(origins, dtype=np.float64).reshape(n, 3)
         d = np.ascontiguousarray(directions, dtype=np.float64).reshape(n, 3)
+        if clock:
+            t1 = clock()
+            t_emit = t1 - t0
         pw, p_ref, flags, kk, lid, o32, d32 = _start(o, d, power, keys, lo, hi)
+        if clock:
+            t_start = clock() - t1
         wf = Wavefront(o, d, pw, p_ref, flags, kk, lid)
         recs: list[PhotonRecords] = []
         escs: list[tuple[np.ndarray, np.ndarray]] = []
@@ -727,7 +741,12 @@ class PhotonTracer:
         for depth in range(self.max_depth):
             if m == 0:
                 break
+            if clock:
+                t0 = clock()
             hits = self._cast(o[:m], d[:m], o32[:m], d32[:m])
+            if clock:
+                t1 = clock()
+                t_cast += t1 - t0
             rays += m
             rb = RecordBuffer(np.empty((m, 3), np.float32), np.empty((m, 3), np.float32),
                               np.empty((m, C), np.float32), np.empty(m, np.int32),
@@ -737,8 +756,15 @@ class PhotonTracer:
             m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
                               depth == self.max_depth - 1, rb, ledger, o32, d32, esc[0], esc[1],
                               record_escaped, scratch)
+            if clock:
+                t_bounce += clock() - t1
             recs.append(PhotonRecords(*(a[:r] for a in rb)))
             escs.append((esc[0][:e], esc[1][:e]))
+        if clock:
+            with self._stages_lock:
+                for k, v in (("emit", t_emit), ("start", t_start), ("cast", t_cast),
+                             ("bounce", t_bounce)):
+                    self.stages[k] = self.stages.get(k, 0.0) + v
         return recs, escs, rays
 
     def _submit_batch(self, source, lo, hi, power, keys, record_escaped):

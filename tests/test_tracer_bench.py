@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from lightsim.validation.bench.tracer import bench_tracer
 from lightsim.validation.scenes.analytic import paraboloid_case
 
@@ -29,3 +31,31 @@ def test_aim_bench_rows():
     # the aim rotation turns the lamp axis +Z towards +H (world −X) and +V (up)
     axis = aim_rotation(10.0, 5.0)[:3, :3] @ [0.0, 0.0, 1.0]
     assert axis[0] < 0 and axis[1] > 0
+
+
+def test_stage_rows_add_up_to_the_traced_time_and_leave_records_unchanged():
+    import numpy as np
+
+    from lightsim.sampling import digit_permutations, halton_points, photon_keys
+    from lightsim.tracer import PhotonTracer
+    from lightsim.validation.bench.tracer import stage_rows
+
+    scene = paraboloid_case(resolution=(16, 16)).scene
+    rows = stage_rows(scene, photons=20_000, threads=1, repeats=1)
+    assert [r["stage"] for r in rows] == ["emit", "start", "cast", "bounce", "rest"]
+    assert all(r["thread_seconds"] >= 0 for r in rows)
+    assert rows[2]["thread_seconds"] > 0 and rows[3]["thread_seconds"] > 0
+    assert sum(r["share"] for r in rows) == pytest.approx(1.0, abs=1e-9)
+    assert 1.0 < rows[0]["rays"] / rows[0]["photons"] < 2.0
+    # the stage clock changes no record
+    idx = np.arange(5000, dtype=np.int64)
+    pts = halton_points(idx, digit_permutations(3, 0, None))
+    keys = photon_keys(3, 0, 0, idx)
+    tracer = PhotonTracer(scene, threads=2, min_chunk=1024)
+    plain = tracer.trace_points(pts, keys)
+    tracer.stages = {}
+    timed = tracer.trace_points(pts, keys)
+    tracer.close()
+    assert set(tracer.stages) == {"emit", "start", "cast", "bounce"}
+    np.testing.assert_array_equal(plain.records.position, timed.records.position)
+    np.testing.assert_array_equal(plain.ledger, timed.ledger)

@@ -86,3 +86,38 @@ def bench_tracer(scene, photons: int = 500_000, repeats: int = 3, threads: int |
          "wall_photons_per_emitted": 0.0,
          "load_average": load},
     ]
+
+
+def stage_rows(scene, photons: int = 500_000, threads: int | None = 1, repeats: int = 3,
+               seed: int = 7) -> list[dict[str, Any]]:
+    """Where photon tracing spends its time: rows per stage of the tracer.
+
+    The tracer is run ``repeats`` times with its stage clock on
+    (:attr:`~lightsim.tracer.PhotonTracer.stages`); the run with the shortest wall time is
+    reported. Stages are summed over chunks and threads (thread-seconds): *emit* (sample
+    points → rays), *start* (the wavefront's arrays), *cast* (embree, with the re-cast of
+    false self-hits), *bounce* (the interaction kernel with the exact wall, records,
+    ledger, compaction, and its buffers); *rest* is threads × wall time minus the stages
+    (Python, collecting batches, the per-group ledger, and any thread waiting).
+    """
+    tracer = PhotonTracer(scene, threads=threads)
+    idx = np.arange(photons, dtype=np.int64)
+    pts = halton_points(idx, digit_permutations(seed, 0, None))
+    keys = photon_keys(seed, 0, 0, idx)
+    tracer.trace_points(pts[:1000], keys[:1000])  # compile/warm up
+    best = None
+    for _ in range(max(1, repeats)):
+        tracer.stages = {}
+        wall, res = _timed(lambda: tracer.trace_points(pts, keys))
+        if best is None or wall < best[0]:
+            best = (wall, dict(tracer.stages), res.rays)
+    tracer.close()
+    wall, stages, rays = best
+    total = wall * tracer.threads
+    stages["rest"] = max(0.0, total - sum(stages.values()))
+    load = float(os.getloadavg()[0])
+    return [{"stage": k, "thread_seconds": v, "share": v / total,
+             "ns_per_ray": 1e9 * v / max(rays, 1), "ns_per_photon": 1e9 * v / photons,
+             "photons": photons, "rays": rays, "threads": tracer.threads,
+             "photons_per_s": photons / wall, "load_average": load}
+            for k, v in stages.items()]
