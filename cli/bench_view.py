@@ -47,6 +47,10 @@ def command(scene_file: str | None, resolution: tuple[int, int], frame_photons: 
     print_table(f"bench view: {Path(path).name} at {w}x{h}, {frame_photons:,} photons/frame "
                 f"(load average {res['load_average_start']:.1f} → "
                 f"{res['load_average_end']:.1f} on {res['costs']['cores']} cores)", res["rows"])
+    parts = res.get("latency_parts") or {}
+    if parts:
+        print_table("change → image drawn: where the time went (ms, median)",
+                    [{"part": k, "ms": v} for k, v in parts.items()])
     print_table("model for Ray workers from the measured costs (docs/scaling.md)", res["model"])
     if json_path:
         write_json(json_path, "view", res["rows"] + res["model"],

@@ -125,6 +125,47 @@ def frame_model(t_clients: float, t_server: float, nbytes: float, workers: int
     return {"frame_s": t, "fps": 1.0 / t, "server_share": server / t}
 
 
+def still_log(log: list[dict[str, Any]]) -> dict[str, Any]:
+    """What the still scene's seconds went to: tracing (batches) and every other step
+    (pooled maps, grid figure, table, interleaved images), seconds and counts, and the
+    steps other than batches in order (t: seconds since the last change)."""
+    acc = [e for e in log if e.get("mode") == "accumulation"]
+    spent: dict[str, list[float]] = {}
+    for e in acc:
+        q = e.get("quality", "?")
+        spent.setdefault(q, []).append(e.get("batch_s", e.get("frame_s", 0.0)))
+    return {"seconds": {k: float(sum(v)) for k, v in spent.items()},
+            "counts": {k: len(v) for k, v in spent.items()},
+            "traced_photons": int(sum(e.get("batch_photons", 0) for e in acc)),
+            "steps": [[round(e.get("t", 0.0), 3), e.get("quality"), e.get("photons"),
+                       round(e.get("frame_s", 0.0), 3)] for e in acc
+                      if e.get("quality") != "batch"]}
+
+
+def latency_parts(samples: list[tuple[int, dict[str, float]]], log: list[dict[str, Any]]
+                  ) -> dict[str, float]:
+    """Where the change → image time went (ms, medians over the samples): the server's
+    wait for a batch or frame in progress, update, shoot, render (+ assemble), encode (from
+    the live session's log entry of the frame that carried the change), the page's draw
+    (inflate, decode, paint) and the rest: browser → server → browser transport."""
+    rows = []
+    for n, page in samples:
+        e = next((x for x in log if x.get("token_n") == n and x.get("mode") == "interaction"),
+                 None)
+        if e is None:
+            continue
+        server = {"wait": e.get("wait_s", 0.0), "update": e.get("update_s", 0.0),
+                  "shoot": e.get("shoot_s", 0.0),
+                  "render": e.get("render_s", 0.0) + e.get("assemble_s", 0.0),
+                  "encode": e.get("encode_s", 0.0)}
+        row = {k: 1e3 * v for k, v in server.items()}
+        row["page draw"] = page.get("draw", 0.0)
+        row["transport"] = page.get("arrived", 0.0) - sum(row[k] for k in server)
+        row["total"] = page["ms"]
+        rows.append(row)
+    return {k: float(np.median([r[k] for r in rows])) for k in rows[0]} if rows else {}
+
+
 _DRAG_JS = """async (seconds) => {
   const V = window.lightsimView;
   const t0 = performance.now(), n0 = V.wallFrames;
@@ -188,16 +229,19 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
             page.wait_for_function("window.lightsimView.wallFrames >= 2 && "
                                    "window.lightsimView.regulation !== null", timeout=120_000)
             # 1. latency of single changes
-            lat = []
+            lat, parts = [], []
             for i in range(changes):
                 n = page.evaluate(f"window.lightsimView.setControl('aim_h_deg', {0.1 * (i + 1)})")
                 page.wait_for_function(
                     f"window.lightsimView.latencies.some((l) => l.token === {n})",
                     timeout=60_000)
-                lat.append(page.evaluate(
-                    f"window.lightsimView.latencies.find((l) => l.token === {n}).ms"))
+                got = page.evaluate(
+                    f"window.lightsimView.latencies.find((l) => l.token === {n})")
+                lat.append(got["ms"])
+                parts.append((n, got))
                 page.wait_for_timeout(300)
             out["latency_ms"] = lat
+            out["latency_parts"] = latency_parts(parts, list(live.stats.log))
             # 2. interaction frames/s during a drag
             frames0 = len(live.stats.log)
             fps, drawn = page.evaluate(_DRAG_JS, drag_seconds)
@@ -213,9 +257,11 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
                 page.screenshot(path=str(screenshots / "view-interaction.png"))
             # 3. convergence after the last change
             edit = page.evaluate("window.lightsimView.status.edit")
+            n_log = len(live.stats.log)
             conv = page.evaluate(_CONVERGE_JS, [converge_timeout,
                                                 {"edit": edit, "levels": [0.05, 0.02]}])
             out["converge"] = conv
+            out["still_log"] = still_log(list(live.stats.log)[n_log:])
             batches = [e for e in list(live.stats.log) if e.get("quality") == "batch"]
             traced = sum(e["batch_s"] for e in batches)
             out["tracing_photons_per_s"] = (sum(e["batch_photons"] for e in batches)
