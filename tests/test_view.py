@@ -523,6 +523,30 @@ def test_interaction_frame_without_probes_and_ici_only_error_figure():
         assert fa.photons == fb.photons == 4 * 1600
 
 
+@pytest.mark.parametrize("size", [(64, 32), (63, 31)])
+def test_interaction_image_at_every_second_pixel_is_the_coarser_wall(size):
+    """``frame(image_step=2)`` (the view's interaction frames) is the interleaved image of
+    the same photons on a wall of ⌈W/2⌉ × ⌈H/2⌉ pixels over the same extent — bit for bit
+    what a session at that resolution draws (radii fixed, so they do not follow the
+    pixel size) — and needs a quarter of the queries."""
+    from lightsim.engine.config import RunConfig
+    from lightsim.engine.server import Session
+
+    W, H = size
+    fine = load_scene(HEADLIGHT, resolution=(W, H))
+    coarse = load_scene(HEADLIGHT, resolution=(-(-W // 2), -(-H // 2)))
+    cfg = RunConfig(frame_photons=3200, probe_grid=(8, 4), min_radius=0.05, max_radius=0.4)
+    with Session(fine, cfg) as a, Session(coarse, cfg) as b:
+        ea = a.frame(probes=False, image_step=2)
+        eb = b.frame(probes=False)
+        assert ea.lux.shape == eb.lux.shape == (-(-H // 2), -(-W // 2), ea.lux.shape[2])
+        assert ea.lux.max() > 0
+        np.testing.assert_array_equal(ea.raw, eb.raw)
+        np.testing.assert_array_equal(ea.lux, eb.lux)
+        full = a.frame(probes=False, shoot=False)  # step 1 again: the wall's own pixels
+        assert full.lux.shape[:2] == (H, W)
+
+
 def test_live_session_warm_up_and_quick_first_frame(tmp_path):
     """The session thread warms up before ``ready`` (threads chosen from timed frames),
     then an edit's first frame is an interaction frame of ``quick_photons`` with no error

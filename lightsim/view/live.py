@@ -77,6 +77,9 @@ parameter                  unit   default  meaning
                                            fit them into this beside the frame's render,
                                            update and encode (a drag at ≥ 5 frames/s)
 ``min_photons``            –      3 000    … but at least this many
+``interaction_step``       px     2        interaction frames render the interleaved image
+                                           at every 2nd pixel (¼ of the kNN queries; the
+                                           page scales it to the wall's size)
 ``settle_seconds``         s      0.45     after an interaction frame, wait this long for the
                                            next edit before accumulating (an edit then
                                            need not wait for a batch in progress)
@@ -190,7 +193,7 @@ class LiveSession:
                  frame_seconds: float = 0.18, min_photons: int = 3_000,
                  still_seconds: float = 0.75, memory_share: float = 0.5,
                  warm_up: bool = True, threads: int | str = "auto",
-                 settle_seconds: float = 0.45) -> None:
+                 settle_seconds: float = 0.45, interaction_step: int = 2) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -217,6 +220,7 @@ class LiveSession:
         self.quick_photons = int(quick_photons)
         self.warm_up = bool(warm_up)
         self.settle_seconds = float(settle_seconds)
+        self.interaction_step = max(1, int(interaction_step))
         self._interaction_done = 0.0  # end of the last interaction frame
         if threads != "auto" and (not isinstance(threads, int) or threads < 1):
             raise LightsimError(f"threads must be 'auto' or ≥ 1, got {threads!r}")
@@ -341,7 +345,7 @@ class LiveSession:
         s = self.session
         t0 = time.perf_counter()
         s.frame(image=True, probes=False, camera=self.camera,
-                photons=self._frame_photons(quick=True))
+                photons=self._frame_photons(quick=True), image_step=self.interaction_step)
         self._accumulate_batch()
         s.frame(image=True)  # the kNN probes (the regulation table's path)
         self._probe_frame()
@@ -374,7 +378,8 @@ class LiveSession:
             times, acc = [], []
             for _ in range(2):
                 t0 = time.perf_counter()
-                s.frame(image=True, probes=False, photons=self._frame_photons(quick=False))
+                s.frame(image=True, probes=False, photons=self._frame_photons(quick=False),
+                        image_step=self.interaction_step)
                 t1 = time.perf_counter()
                 s.shoot(batch)
                 acc.append(time.perf_counter() - t1)
@@ -537,7 +542,8 @@ class LiveSession:
             else None
         t0 = time.perf_counter()
         est = s.frame(image=True, camera=camera, probes=False,
-                      photons=self._frame_photons(quick=self._quick_due))
+                      photons=self._frame_photons(quick=self._quick_due),
+                      image_step=self.interaction_step)
         self._quick_due = False
         self._interaction_done = time.perf_counter()
         self.stats.last_frame_s = self._interaction_done - t0
