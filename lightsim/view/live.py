@@ -42,6 +42,10 @@ parameter                  unit   default  meaning
 ``batch_max_seconds``      s      0.3      … up to this (from ~10⁵ photons a batch traces
                                            at the engine's full rate: larger batches gain
                                            nothing and make an edit wait longer)
+``still_batch_photons``    –      10⁵      … but, once the scene is still, at least this
+                                           many (per-call costs: a batch traces at the
+                                           engine's full rate from ~10⁵ photons, which a
+                                           loaded machine does not fit into 0.3 s)
 ``still_seconds``          s      0.75     the scene is still this long after the last
                                            interaction frame;
                                            before, no estimate, pooled map or table either
@@ -193,7 +197,8 @@ class LiveSession:
                  frame_seconds: float = 0.18, min_photons: int = 3_000,
                  still_seconds: float = 0.75, memory_share: float = 0.5,
                  warm_up: bool = True, threads: int | str = "auto",
-                 settle_seconds: float = 0.45, interaction_step: int = 2) -> None:
+                 settle_seconds: float = 0.45, interaction_step: int = 2,
+                 still_batch_photons: int = 100_000) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -221,6 +226,7 @@ class LiveSession:
         self.warm_up = bool(warm_up)
         self.settle_seconds = float(settle_seconds)
         self.interaction_step = max(1, int(interaction_step))
+        self.still_batch_photons = int(still_batch_photons)
         self._interaction_done = 0.0  # end of the last interaction frame
         if threads != "auto" and (not isinstance(threads, int) or threads < 1):
             raise LightsimError(f"threads must be 'auto' or ≥ 1, got {threads!r}")
@@ -620,7 +626,10 @@ class LiveSession:
         set's map (the batch grows while the scene stays still)."""
         s = self.session
         rate = self._rate if self._rate else 1e5
-        n = int(min(s.config.frame_photons, max(s.config.n_sets, rate * self._batch_s)))
+        n = max(s.config.n_sets, rate * self._batch_s)
+        if time.perf_counter() - self._interaction_done >= self.still_seconds:
+            n = max(n, self.still_batch_photons)  # a loaded machine: not below full rate
+        n = int(min(s.config.frame_photons, n))
         before = self._photons_now()
         t0 = time.perf_counter()
         self._threads_for(accumulating=True)
