@@ -547,6 +547,23 @@ def test_interaction_image_at_every_second_pixel_is_the_coarser_wall(size):
         assert full.lux.shape[:2] == (H, W)
 
 
+def test_error_law_bench_and_its_bad_input(capsys):
+    """``lightsim bench view --law``: the written map's figure at growing photons (noise
+    falls with N); a malformed list is one line and exit code 2."""
+    from lightsim.cli.main import main
+    from lightsim.validation.bench.view import error_law
+
+    rows = error_law(str(HEADLIGHT), (48, 24), (20_000, 80_000), batch=20_000)
+    assert [r["photons"] for r in rows] == [20_000, 80_000]
+    assert rows[1]["noise"] < rows[0]["noise"] and 0 < rows[1]["written map error"] < 1
+    for bad in ("1,x", "0"):
+        with pytest.raises(SystemExit) as ex:
+            main(["bench", "view", "--law", bad])
+        assert ex.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--law" in err[0]
+
+
 def test_live_session_warm_up_and_quick_first_frame(tmp_path):
     """The session thread warms up before ``ready`` (threads chosen from timed frames),
     then an edit's first frame is an interaction frame of ``quick_photons`` with no error

@@ -112,6 +112,49 @@ def _engine_baseline(scene_path: str, resolution: tuple[int, int], frame_photons
             "render_s": statistics.median(render), "accumulate_photons_per_s": rate}
 
 
+def error_law(scene_path: str, resolution: tuple[int, int] = (640, 256),
+              marks: tuple[float, ...] = (1e6, 2e6, 4e6, 8e6, 16e6),
+              batch: int = 400_000) -> list[dict[str, Any]]:
+    """The written map's error figure against photons, as the view accumulates it: one
+    session at the view's configuration (M = 4, k = 64, batches of ``batch`` photons, one
+    numba thread) and a pooled map with its figure at each of ``marks`` photons. Shows
+    which part falls: noise ∝ 1/√N, the blur (ICI bandwidth bias) does not, so the
+    photons a level needs follow from √(noise² + blur²)."""
+    import numba
+
+    from lightsim.cli.view import build_live
+
+    live = build_live(scene_path, resolution=tuple(resolution), regulation=None,
+                      camera=False)
+    live._open(live.editor.session_scene(live.controls), live.controls)
+    s = live.session
+    rows: list[dict[str, Any]] = []
+    try:
+        numba.set_num_threads(1)
+        s.shoot(50_000)  # compile, then start afresh
+        s.frame(image=True, shoot=False, mode="pooled", probes="ici")
+        s.update(light_transform=np.eye(4))
+        traced = 0.0
+        for mark in sorted(marks):
+            while live._photons_now() < mark:
+                t0 = time.perf_counter()
+                s.shoot(batch)
+                traced += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            est = s.frame(image=True, shoot=False, mode="pooled", probes="ici")
+            cost = time.perf_counter() - t0
+            e, n = est.error, int(est.photons)
+            rows.append({"photons": n, "written map error": est.rel_error,
+                         "noise": None if e is None else e.noise,
+                         "blur": None if e is None else e.bias,
+                         "e·√N": est.rel_error * n ** 0.5 if est.rel_error else None,
+                         "pooled map s": cost, "tracing photons/s": n / traced,
+                         "load average": load_average()})
+    finally:
+        s.close()
+    return rows
+
+
 def frame_model(t_clients: float, t_server: float, nbytes: float, workers: int
                 ) -> dict[str, float]:
     """The scaling bench's per-frame model (docs/scaling.md) for ``workers`` one-core workers.
