@@ -42,10 +42,11 @@ parameter                  unit   default  meaning
 ``batch_max_seconds``      s      0.3      … up to this (from ~10⁵ photons a batch traces
                                            at the engine's full rate: larger batches gain
                                            nothing and make an edit wait longer)
-``still_batch_photons``    –      10⁵      … but, once the scene is still, at least this
-                                           many (per-call costs: a batch traces at the
-                                           engine's full rate from ~10⁵ photons, which a
-                                           loaded machine does not fit into 0.3 s)
+``still_batch_photons``    –      5·10⁴    … but, once the scene is still, at least this
+                                           many (per-call costs: a batch traces near
+                                           the engine's full rate from ~5·10⁴ photons,
+                                           which a loaded machine does not fit into
+                                           0.3 s; more would make an edit wait ~1 s)
 ``still_seconds``          s      0.75     the scene is still this long after the last
                                            interaction frame;
                                            before, no estimate, pooled map or table either
@@ -198,7 +199,7 @@ class LiveSession:
                  still_seconds: float = 0.75, memory_share: float = 0.5,
                  warm_up: bool = True, threads: int | str = "auto",
                  settle_seconds: float = 0.45, interaction_step: int = 2,
-                 still_batch_photons: int = 100_000) -> None:
+                 still_batch_photons: int = 50_000) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
