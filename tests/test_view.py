@@ -564,6 +564,44 @@ def test_error_law_bench_and_its_bad_input(capsys):
         assert len(err) == 1 and "--law" in err[0]
 
 
+def test_pooled_maps_are_scheduled_from_the_noise_and_blur_of_the_error_law():
+    """The first pooled map after an edit comes where e·√N of the map nearest 5 % predicts
+    5 % (aimed 10 % below); later ones where noise ∝ 1/√N beside the kept blur reaches the
+    next level (7 % below) — none where the blur alone is above it."""
+    from lightsim.cli.view import build_live
+    from lightsim.view import live as live_mod
+
+    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
+                      regulation=None, warm_up=False)
+    photons = {"n": 0}
+    live._photons_now = lambda: photons["n"]
+    live._traced_s, live._pooled_cost = 5.0, 0.5
+    assert live._pooled_due()  # no law yet: after first_pooled_seconds of tracing
+    live._law_5 = (1_000_000, 0.06)
+    n5 = 1_000_000 * (0.06 / (live_mod.FIRST_AIM * 0.05)) ** 2
+    photons["n"] = int(n5) - 1
+    assert not live._pooled_due()
+    photons["n"] = int(n5) + 1
+    assert live._pooled_due()
+    # after a map at 4 %: noise 3 %, blur 2.6 % → 2 % is out of reach, 1 % too
+    live._honest, live._law = (0.04, 2_000_000), (2_000_000, 0.04, 0.03, 0.0265)
+    assert live._photons_for(0.02) is None and live._photons_for(0.01) is None
+    live._traced_at_pooled = live._traced_s = 100.0
+    photons["n"] = 3_000_000
+    assert not live._pooled_due()  # neither a crossing nor doubled photons
+    # blur 1 %: 2 % is due at N·noise² / ((0.93·2 %)² − blur²)
+    live._law = (2_000_000, 0.04, 0.03, 0.01)
+    due = 2_000_000 * 0.03 ** 2 / ((live_mod.LEVEL_AIM * 0.02) ** 2 - 0.01 ** 2)
+    assert live._photons_for(0.02) == pytest.approx(due)
+    photons["n"] = int(due) + 1
+    assert live._pooled_due()
+    photons["n"] = int(due) - 1  # twice the photons, but the map's share not yet paid
+    assert not live._pooled_due()
+    live._traced_s += 4 * live._pooled_cost  # … now it is: the doubling rule
+    assert live._pooled_due()
+    live.stop()
+
+
 def test_live_session_warm_up_and_quick_first_frame(tmp_path):
     """The session thread warms up before ``ready`` (threads chosen from timed frames),
     then an edit's first frame is an interaction frame of ``quick_photons`` with no error
