@@ -521,6 +521,13 @@ def test_interaction_frame_without_probes_and_ici_only_error_figure():
         assert fb.probes is None and fa.probes is not None
         assert fb.rel_error == pytest.approx(fa.rel_error, rel=1e-12)
         assert fa.photons == fb.photons == 4 * 1600
+        # the pooled (written) map carries its own figure over every pixel: without the
+        # grid probes' rungs (the view's pooled maps) it is the same map and figure
+        pa = a.frame(shoot=False, mode="pooled", probes="ici")
+        pb = a.frame(shoot=False, mode="pooled", probes=False)
+        np.testing.assert_array_equal(pa.lux, pb.lux)
+        assert pa.rel_error is not None and pb.rel_error == pa.rel_error
+        assert pb.error == pa.error
 
 
 @pytest.mark.parametrize("size", [(64, 32), (63, 31)])

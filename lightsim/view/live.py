@@ -680,8 +680,11 @@ class LiveSession:
         over every pixel (ICI rung sums; no kNN probe queries)."""
         s = self.session
         t0 = time.perf_counter()
+        # with ICI the written map's figure comes from its own rung sums over every pixel:
+        # asking for the grid probes' rungs too would build every set's summed-area
+        # table a second time for a figure that is then not used
         est = s.frame(image=True, shoot=False, mode="pooled", camera=camera,
-                      probes="ici" if s.config.uses_ici else True)
+                      probes=False if s.config.uses_ici else True)
         self._pooled_cost = self.stats.last_frame_s = time.perf_counter() - t0
         self.stats.timings = dict(est.timings)
         self.stats.frames += 1

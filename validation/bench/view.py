@@ -141,7 +141,7 @@ def error_law(scene_path: str, resolution: tuple[int, int] = (640, 256),
                 s.shoot(batch)
                 traced += time.perf_counter() - t0
             t0 = time.perf_counter()
-            est = s.frame(image=True, shoot=False, mode="pooled", probes="ici")
+            est = s.frame(image=True, shoot=False, mode="pooled", probes=False)
             cost = time.perf_counter() - t0
             e, n = est.error, int(est.photons)
             rows.append({"photons": n, "written map error": est.rel_error,
