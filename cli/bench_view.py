@@ -22,10 +22,13 @@ from lightsim.validation.bench.table import print_table, write_json
               type=click.Path(dir_okay=False), help="Chromium executable.")
 @click.option("--screenshots", type=click.Path(file_okay=False),
               help="Save the page (interaction, converged) as PNG here.")
+@click.option("--law", "law_marks", metavar="N1,N2,…",
+              help="Instead: the written map's error (noise, blur) at these photon counts "
+              "(millions, e.g. 1,2,4,8,16), no browser.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write rows as JSON.")
 def command(scene_file: str | None, resolution: tuple[int, int], frame_photons: int, changes: int,
             drag_seconds: float, converge_timeout: float, chromium: str,
-            screenshots: str | None, json_path: str | None) -> None:
+            screenshots: str | None, law_marks: str | None, json_path: str | None) -> None:
     """Time from a control change to the drawn image, interaction frames/s, convergence."""
     from pathlib import Path
 
@@ -33,20 +36,39 @@ def command(scene_file: str | None, resolution: tuple[int, int], frame_photons: 
     from lightsim.errors import InputError
     from lightsim.validation.bench.view import bench_view
 
+    w, h = resolution
+    path = scene_file or str(example_headlight())
+    if law_marks is not None:
+        from lightsim.validation.bench.view import error_law
+
+        try:
+            marks = tuple(float(x) * 1e6 for x in law_marks.split(","))
+        except ValueError:
+            raise InputError(f"--law: expected millions of photons like 1,2,4, got "
+                             f"'{law_marks}'") from None
+        if not marks or not all(0 < m < 1e10 for m in marks):
+            raise InputError(f"--law: photon counts must be positive, got '{law_marks}'")
+        rows = error_law(path, (w, h), marks)
+        print_table(f"written map's error against photons: {Path(path).name} at {w}x{h}", rows)
+        if json_path:
+            write_json(json_path, "view-law", rows, {})
+        return
     try:
         import playwright  # noqa: F401
     except ImportError:
         raise InputError("bench view needs Playwright for Python: pip install playwright") \
             from None
-    w, h = resolution
     if changes < 1 or drag_seconds <= 0 or converge_timeout <= 0:
         raise InputError("--changes, --drag-seconds and --converge-timeout must be positive")
-    path = scene_file or str(example_headlight())
     res = bench_view(path, (w, h), frame_photons, changes, drag_seconds, converge_timeout,
                      chromium, Path(screenshots) if screenshots else None)
     print_table(f"bench view: {Path(path).name} at {w}x{h}, {frame_photons:,} photons/frame "
                 f"(load average {res['load_average_start']:.1f} → "
                 f"{res['load_average_end']:.1f} on {res['costs']['cores']} cores)", res["rows"])
+    parts = res.get("latency_parts") or {}
+    if parts:
+        print_table("change → image drawn: where the time went (ms, median)",
+                    [{"part": k, "ms": v} for k, v in parts.items()])
     print_table("model for Ray workers from the measured costs (docs/scaling.md)", res["model"])
     if json_path:
         write_json(json_path, "view", res["rows"] + res["model"],

@@ -521,6 +521,92 @@ def test_interaction_frame_without_probes_and_ici_only_error_figure():
         assert fb.probes is None and fa.probes is not None
         assert fb.rel_error == pytest.approx(fa.rel_error, rel=1e-12)
         assert fa.photons == fb.photons == 4 * 1600
+        # the pooled (written) map carries its own figure over every pixel: without the
+        # grid probes' rungs (the view's pooled maps) it is the same map and figure
+        pa = a.frame(shoot=False, mode="pooled", probes="ici")
+        pb = a.frame(shoot=False, mode="pooled", probes=False)
+        np.testing.assert_array_equal(pa.lux, pb.lux)
+        assert pa.rel_error is not None and pb.rel_error == pa.rel_error
+        assert pb.error == pa.error
+
+
+@pytest.mark.parametrize("size", [(64, 32), (63, 31)])
+def test_interaction_image_at_every_second_pixel_is_the_coarser_wall(size):
+    """``frame(image_step=2)`` (the view's interaction frames) is the interleaved image of
+    the same photons on a wall of ⌈W/2⌉ × ⌈H/2⌉ pixels over the same extent — bit for bit
+    what a session at that resolution draws (radii fixed, so they do not follow the
+    pixel size) — and needs a quarter of the queries."""
+    from lightsim.engine.config import RunConfig
+    from lightsim.engine.server import Session
+
+    W, H = size
+    fine = load_scene(HEADLIGHT, resolution=(W, H))
+    coarse = load_scene(HEADLIGHT, resolution=(-(-W // 2), -(-H // 2)))
+    cfg = RunConfig(frame_photons=3200, probe_grid=(8, 4), min_radius=0.05, max_radius=0.4)
+    with Session(fine, cfg) as a, Session(coarse, cfg) as b:
+        ea = a.frame(probes=False, image_step=2)
+        eb = b.frame(probes=False)
+        assert ea.lux.shape == eb.lux.shape == (-(-H // 2), -(-W // 2), ea.lux.shape[2])
+        assert ea.lux.max() > 0
+        np.testing.assert_array_equal(ea.raw, eb.raw)
+        np.testing.assert_array_equal(ea.lux, eb.lux)
+        full = a.frame(probes=False, shoot=False)  # step 1 again: the wall's own pixels
+        assert full.lux.shape[:2] == (H, W)
+
+
+def test_error_law_bench_and_its_bad_input(capsys):
+    """``lightsim bench view --law``: the written map's figure at growing photons (noise
+    falls with N); a malformed list is one line and exit code 2."""
+    from lightsim.cli.main import main
+    from lightsim.validation.bench.view import error_law
+
+    rows = error_law(str(HEADLIGHT), (48, 24), (20_000, 80_000), batch=20_000)
+    assert [r["photons"] for r in rows] == [20_000, 80_000]
+    assert rows[1]["noise"] < rows[0]["noise"] and 0 < rows[1]["written map error"] < 1
+    for bad in ("1,x", "0"):
+        with pytest.raises(SystemExit) as ex:
+            main(["bench", "view", "--law", bad])
+        assert ex.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--law" in err[0]
+
+
+def test_pooled_maps_are_scheduled_from_the_noise_and_blur_of_the_error_law():
+    """The first pooled map after an edit comes where e·√N of the map nearest 5 % predicts
+    5 % (aimed 10 % below); later ones where noise ∝ 1/√N beside the kept blur reaches the
+    next level (7 % below) — none where the blur alone is above it."""
+    from lightsim.cli.view import build_live
+    from lightsim.view import live as live_mod
+
+    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
+                      regulation=None, warm_up=False)
+    photons = {"n": 0}
+    live._photons_now = lambda: photons["n"]
+    live._traced_s, live._pooled_cost = 5.0, 0.5
+    assert live._pooled_due()  # no law yet: after first_pooled_seconds of tracing
+    live._law_5 = (1_000_000, 0.06)
+    n5 = 1_000_000 * (0.06 / (live_mod.FIRST_AIM * 0.05)) ** 2
+    photons["n"] = int(n5) - 1
+    assert not live._pooled_due()
+    photons["n"] = int(n5) + 1
+    assert live._pooled_due()
+    # after a map at 4 %: noise 3 %, blur 2.6 % → 2 % is out of reach, 1 % too
+    live._honest, live._law = (0.04, 2_000_000), (2_000_000, 0.04, 0.03, 0.0265)
+    assert live._photons_for(0.02) is None and live._photons_for(0.01) is None
+    live._traced_at_pooled = live._traced_s = 100.0
+    photons["n"] = 3_000_000
+    assert not live._pooled_due()  # neither a crossing nor doubled photons
+    # blur 1 %: 2 % is due at N·noise² / ((0.93·2 %)² − blur²)
+    live._law = (2_000_000, 0.04, 0.03, 0.01)
+    due = 2_000_000 * 0.03 ** 2 / ((live_mod.LEVEL_AIM * 0.02) ** 2 - 0.01 ** 2)
+    assert live._photons_for(0.02) == pytest.approx(due)
+    photons["n"] = int(due) + 1
+    assert live._pooled_due()
+    photons["n"] = int(due) - 1  # twice the photons, but the map's share not yet paid
+    assert not live._pooled_due()
+    live._traced_s += 4 * live._pooled_cost  # … now it is: the doubling rule
+    assert live._pooled_due()
+    live.stop()
 
 
 def test_live_session_warm_up_and_quick_first_frame(tmp_path):

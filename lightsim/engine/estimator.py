@@ -112,7 +112,7 @@ class SetEstimator:
         grid = self.probes_hv[:min(nh * nv, len(self.probes_hv))]
         self._grid_pixels = pixel_of(self.frame, grid[:, 0], grid[:, 1])
         self._window_geometry: dict[str, tuple] = {}  # key → (sides, ici.WindowGeometry)
-        self._wall_queries: dict[int, np.ndarray] = {}
+        self._wall_queries: dict[Any, np.ndarray] = {}  # set (, step) → points
         self._camera_cache: dict[Any, tuple] = {}
         self._normal = np.broadcast_to(self.frame.normal, (1, 3))
 
@@ -177,13 +177,24 @@ class SetEstimator:
         return normalise_flux(st.windows, st.emitted, dh, dv)
 
     # -- query points ----------------------------------------------------------------------
-    def _wall_points(self, s: int) -> np.ndarray:
-        if s not in self._wall_queries:
-            rows, cols = self.pattern.set_pixels(s)
-            h_all, v_all = self.frame.pixel_centres()
+    def coarse(self, step: int = 1) -> tuple[WallFrame, InterleavePattern]:
+        """The wall frame and interleave pattern of an image at every ``step``-th pixel
+        (⌈W/step⌉ × ⌈H/step⌉ pixels over the same extent; step 1: the wall's own)."""
+        if step <= 1:
+            return self.frame, self.pattern
+        W, H = self.frame.resolution
+        frame = self.frame.with_resolution(-(-W // step), -(-H // step))
+        return frame, InterleavePattern(self.config.interleave, *frame.resolution)
+
+    def _wall_points(self, s: int, step: int = 1) -> np.ndarray:
+        key = s if step <= 1 else (s, step)
+        if key not in self._wall_queries:
+            frame, pattern = self.coarse(step)
+            rows, cols = pattern.set_pixels(s)
+            h_all, v_all = frame.pixel_centres()
             hh, vv = np.meshgrid(h_all[cols], v_all[rows])
-            self._wall_queries[s] = self.frame.to_world(hh, vv).reshape(-1, 3)
-        return self._wall_queries[s]
+            self._wall_queries[key] = frame.to_world(hh, vv).reshape(-1, 3)
+        return self._wall_queries[key]
 
     def _camera_queries(self, s: int, camera, n_owned: int
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -210,9 +221,10 @@ class SetEstimator:
         out = SetFrame(s)
         normal = self._normal
         if request.image:
-            pts = self._wall_points(s)
+            step = max(1, int(request.image_step))
+            pts = self._wall_points(s, step)
             est = self.estimate(st, pts, np.broadcast_to(normal, pts.shape), "interleaved")
-            out.sub_image = est.reshape((*self.pattern.sub_shape(s), self.channels))
+            out.sub_image = est.reshape((*self.coarse(step)[1].sub_shape(s), self.channels))
         if request.full_image and self.config.uses_ici:  # the server picks each rung
             W, H = self.frame.resolution
             rows, cols = np.divmod(np.arange(H * W), W)

@@ -47,6 +47,10 @@ class RenderRequest:
         (kNN blur bias) or the ICI rungs there and the wall-photon moments.
     camera : PinholeCamera, optional
         A camera view to render (interleaved, cd/m²).
+    image_step : int
+        The interleaved image at every ``image_step``-th pixel: a wall of
+        ⌈W/step⌉ × ⌈H/step⌉ pixels over the same extent (``lightsim view``'s interaction
+        frames: step² times fewer queries; 1 = the wall's own pixels).
     """
 
     image: bool = False
@@ -54,6 +58,7 @@ class RenderRequest:
     probes: bool = True
     error: bool = True
     camera: Any = None
+    image_step: int = 1
 
 
 _ARRAYS = ("sub_image", "full_image", "full_rungs", "camera", "probes", "window",

@@ -197,26 +197,27 @@ class Session:
         self.frames += 1
 
     def request(self, image: bool, mode: str = "interleaved", camera=None,
-                probes: bool | str = True) -> RenderRequest:
+                probes: bool | str = True, image_step: int = 1) -> RenderRequest:
         """What a frame asks every set for: the binning estimator and ``pooled`` frames
         want every pixel of every set, ``interleaved`` frames each set's own pixels.
         ``probes``: True = probe estimates and what the error figure needs; ``"ici"`` =
         only the error figure's ICI rungs (no kNN probe queries); False = neither."""
         full = self.config.estimator == "bin" or mode == "pooled"
         return RenderRequest(image=image and not full, full_image=image and full,
-                             probes=probes is True, error=probes is not False, camera=camera)
+                             probes=probes is True, error=probes is not False, camera=camera,
+                             image_step=max(1, int(image_step)))
 
     def render(self, request: RenderRequest) -> SetFrames:
         """Every set's estimates for ``request`` (lx), keyed by set."""
         return SetFrames.gather(self.backend.render(request))
 
     def assemble(self, frames: SetFrames, timings: dict[str, float] | None = None,
-                 camera=None) -> FrameResult:
+                 camera=None, image_step: int = 1) -> FrameResult:
         """Estimate at probes → error → image: the server's half of a frame."""
         timings = {} if timings is None else timings
         t0 = time.perf_counter()
         emitted = self.emitted_per_set()
-        lux, raw, rungs, map_error = self.image(frames, emitted)
+        lux, raw, rungs, map_error = self.image(frames, emitted, image_step)
         error = map_error if map_error is not None else self.ici_error(frames, emitted)
         cam_img = self.camera_image(frames, camera)
         timings["assemble"] = time.perf_counter() - t0
@@ -231,7 +232,7 @@ class Session:
 
     def frame(self, image: bool = True, shoot: bool = True, camera=None,
               mode: str = "interleaved", photons: int | None = None,
-              probes: bool | str = True) -> FrameResult:
+              probes: bool | str = True, image_step: int = 1) -> FrameResult:
         """One frame: every client shoots (unless ``shoot`` is False) and renders.
 
         ``mode`` ``interleaved`` is the paper's frame (each set its own pixels, then the box
@@ -243,7 +244,9 @@ class Session:
         ``probes=False`` skips the probe estimates (no error figure, ``probes`` None): an
         interaction frame that only draws the image (``lightsim view``); ``probes="ici"``
         (with the ICI bandwidth) only the rung sums the error figure needs, no kNN probe
-        queries (``probes`` None).
+        queries (``probes`` None). ``image_step`` > 1 renders the interleaved image at
+        every ``image_step``-th pixel (⌈W/step⌉ × ⌈H/step⌉ over the same wall, step² times
+        fewer queries: ``lightsim view``'s interaction frames).
         """
         if mode not in ("interleaved", "pooled"):
             raise ValueError(f"mode must be 'interleaved' or 'pooled', got {mode!r}")
@@ -257,9 +260,9 @@ class Session:
             self.shoot(photons)
             timings["shoot"] = time.perf_counter() - t0
         t1 = time.perf_counter()
-        frames = self.render(self.request(image, mode, camera, probes))
+        frames = self.render(self.request(image, mode, camera, probes, image_step))
         timings["render"] = time.perf_counter() - t1
-        est = self.assemble(frames, timings, camera)
+        est = self.assemble(frames, timings, camera, image_step)
         self.last = est
         if shoot:
             self.log.append({**est.error_entry(), "frames": self.frames})
@@ -294,7 +297,7 @@ class Session:
         return self._ici_error(frames.collect("probe_rungs"), frames.collect("moments"),
                                emitted)
 
-    def image(self, frames: SetFrames, emitted: dict[int, int]
+    def image(self, frames: SetFrames, emitted: dict[int, int], image_step: int = 1
               ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None,
                          ErrorEstimate | None]:
         """The wall image of a frame: (lux, raw, ICI rungs, the written map's error figure
@@ -309,7 +312,12 @@ class Session:
         full_rungs = frames.collect("full_rungs")
         fulls = frames.collect("full_image")
         if subs:
-            lux, raw = assemble_interleaved(self.pattern, subs, self.config.filter_n)
+            pattern = self.pattern
+            if image_step > 1:  # the image at every image_step-th pixel
+                W, H = self.scene.wall.resolution
+                pattern = InterleavePattern(self.config.interleave, -(-W // image_step),
+                                            -(-H // image_step))
+            lux, raw = assemble_interleaved(pattern, subs, self.config.filter_n)
             return lux, raw, None, None
         if full_rungs:
             lux, rungs, error = self._ici_image(full_rungs, frames.collect("moments"),

@@ -12,15 +12,18 @@ builds a queue.
   Filament moves are a light transform and aim / wall distance a wall placement (the
   embree scene stays, when the engine offers it); an interaction frame is a partial frame
   of ``photons per frame`` (the session's frame is the accumulation's batch cap).
-* **Accumulation** (the paper's walkthrough with a still scene): no edit → photon batches
-  sized by time (``batch_seconds``, growing by ``batch_growth`` per batch up to
-  ``batch_max_seconds`` while the scene stays still, at most ``batch_photons``) are added
-  to every set's map, so accumulation runs at the tracer's rate. The **pooled**
-  full-resolution map — what ``simulate`` writes — is drawn with the written map's own
-  error figure (over every pixel: the honest one), first after ``first_pooled_seconds``
-  of tracing (or the pooled map's own cost, if more), then where that figure is expected
-  to cross the next of 5 %, 2 %, 1 %, 0.5 % (noise ∝ 1/√N), otherwise each time the
-  photons have doubled with its cost kept to ``pooled_share`` of the time.
+* **Accumulation** (the paper's walkthrough with a still scene): no edit for
+  ``settle_seconds`` → photon batches sized by time (``batch_seconds``, growing by
+  ``batch_growth`` per batch up to ``batch_max_seconds``, at most ``batch_photons``) are
+  added to every set's map, so accumulation runs at the tracer's rate and an edit waits
+  at most one batch. The **pooled** full-resolution map — what ``simulate`` writes — is
+  drawn with the written map's own error figure (over every pixel: the honest one),
+  first where the scene's error law (from the warm-up's map at one whole frame of
+  photons, then from every map) predicts 5 % — until then nothing that builds kNN
+  trees, only the grid figure once — then where the figure is expected to cross the
+  next of 5 %, 2 %, 1 %, 0.5 % (noise ∝ 1/√N beside a blur that does not fall),
+  otherwise each time the photons have doubled with its cost kept to ``pooled_share``
+  of the time.
 * After every batch the photon count is published with the error figure of the last
   pooled map (``error_source`` "written map") or, before the first, the cheap figure of
   the ICI rungs at the grid probes (``error_source`` "grid probes", at most
@@ -33,10 +36,17 @@ builds a queue.
 =========================  =====  =======  ==================================================
 parameter                  unit   default  meaning
 =========================  =====  =======  ==================================================
-``batch_seconds``          s      0.1      accumulation: tracing time of the first batch
+``batch_seconds``          s      0.05     accumulation: tracing time of the first batch
                                            after an edit (an edit waits at most one batch)
-``batch_growth``           –      1.5      … times this per batch once the scene is still
-``batch_max_seconds``      s      1.0      … up to this
+``batch_growth``           –      1.5      … times this per batch
+``batch_max_seconds``      s      0.3      … up to this (from ~10⁵ photons a batch traces
+                                           at the engine's full rate: larger batches gain
+                                           nothing and make an edit wait longer)
+``still_batch_photons``    –      5·10⁴    … but, once the scene is still, at least this
+                                           many (per-call costs: a batch traces near
+                                           the engine's full rate from ~5·10⁴ photons,
+                                           which a loaded machine does not fit into
+                                           0.3 s; more would make an edit wait ~1 s)
 ``still_seconds``          s      0.75     the scene is still this long after the last
                                            interaction frame;
                                            before, no estimate, pooled map or table either
@@ -45,13 +55,13 @@ parameter                  unit   default  meaning
 ``batch_photons``          –      2²⁰      photons of one batch at most (the session's
                                            frame; memory ≈ 100 B per photon of a batch)
 ``first_pooled_seconds``   s      1.0      tracing before the first pooled map (or the
-                                           pooled map's own cost, if more); after an
-                                           earlier edit's map, at the photons where its
-                                           e √N predicts 5 % ...
+                                           pooled map's own cost, if more) while no error
+                                           law is known; with one, at the photons where
+                                           e √N of the map nearest 5 % predicts 5 % ...
 ``first_cap_seconds``      s      30       ... but after at most this much tracing (or
                                            twice the pooled map's cost; meanwhile the
                                            interleaved image and grid figure go on)
-``pooled_share``           –      1/3      pooled maps at doubled photons take at most this
+``pooled_share``           –      0.2      pooled maps at doubled photons take at most this
                                            share of the time (a predicted crossing of
                                            5 %, 2 %, 1 %, 0.5 % is not delayed)
 ``probe_share``            –      0.1      the grid-probe error figure (only before the
@@ -66,13 +76,16 @@ parameter                  unit   default  meaning
                                            scene would otherwise fill the machine)
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
                                            the second tab (rendered while a tab shows it)
-``quick_photons``          –      10 000   photons of an interaction frame after an edit (at
+``quick_photons``          –      5 000    photons of an interaction frame after an edit (at
                                            most the frame's photons): the low-quality frame
 ``frame_seconds``          s      0.18     … fewer if the tracer's measured rate does not
                                            fit them into this beside the frame's render,
                                            update and encode (a drag at ≥ 5 frames/s)
 ``min_photons``            –      3 000    … but at least this many
-``settle_seconds``         s      0.75     after an interaction frame, wait this long for the
+``interaction_step``       px     2        interaction frames render the interleaved image
+                                           at every 2nd pixel (¼ of the kNN queries; the
+                                           page scales it to the wall's size)
+``settle_seconds``         s      0.45     after an interaction frame, wait this long for the
                                            next edit before accumulating (an edit then
                                            need not wait for a batch in progress)
 ``warm_up``                –      True     run every code path once before ``ready`` is
@@ -128,6 +141,9 @@ class RegulationTable:
 
 # error figures at which the next pooled map is scheduled (where it is expected to cross)
 ERROR_LEVELS = (0.05, 0.02, 0.01, 0.005)
+LEVEL_AIM = 0.93  # a level's pooled map is aimed this far below it (the law's scatter) …
+FIRST_AIM = 0.9  # … the first after an edit further: e √N moves ~10 % from edit to edit
+LAW_MIN_PHOTONS = 200_000  # maps with fewer photons do not set the error law
 
 RegulationHook = Callable[[Any], RegulationTable]
 SaveHook = Callable[[Path, Any, Any, Controls, Scene], list[str]]
@@ -172,17 +188,18 @@ class LiveSession:
                  config: RunConfig, publish: Publish, *, controls: Controls | None = None,
                  regulation: RegulationHook | None = None, save_run: SaveHook | None = None,
                  folder: Path | None = None, camera: Any = None,
-                 batch_seconds: float = 0.1, batch_growth: float = 1.5,
-                 batch_max_seconds: float = 1.0, batch_photons: int = 1 << 20,
+                 batch_seconds: float = 0.05, batch_growth: float = 1.5,
+                 batch_max_seconds: float = 0.3, batch_photons: int = 1 << 20,
                  first_pooled_seconds: float = 1.0, first_cap_seconds: float = 30.0,
-                 pooled_share: float = 1.0 / 3.0,
+                 pooled_share: float = 0.2,
                  probe_share: float = 0.1, regulation_interval: float = 1.0,
                  regulation_share: float = 0.1, stop_error: float = 0.005,
-                 max_photons: int = 200_000_000, quick_photons: int = 10_000,
+                 max_photons: int = 200_000_000, quick_photons: int = 5_000,
                  frame_seconds: float = 0.18, min_photons: int = 3_000,
                  still_seconds: float = 0.75, memory_share: float = 0.5,
                  warm_up: bool = True, threads: int | str = "auto",
-                 settle_seconds: float = 0.75) -> None:
+                 settle_seconds: float = 0.45, interaction_step: int = 2,
+                 still_batch_photons: int = 50_000) -> None:
         self.editor = editor
         self.make_session = make_session
         self.base_config = config
@@ -202,12 +219,15 @@ class LiveSession:
         self.regulation_share = min(max(float(regulation_share), 0.01), 0.9)
         self._reg_cost = 0.0
         self._update_s = 0.0
+        self._edit_wait = 0.0
         self.regulation_interval = regulation_interval
         self.stop_error = stop_error
         self.max_photons = max_photons
         self.quick_photons = int(quick_photons)
         self.warm_up = bool(warm_up)
         self.settle_seconds = float(settle_seconds)
+        self.interaction_step = max(1, int(interaction_step))
+        self.still_batch_photons = int(still_batch_photons)
         self._interaction_done = 0.0  # end of the last interaction frame
         if threads != "auto" and (not isinstance(threads, int) or threads < 1):
             raise LightsimError(f"threads must be 'auto' or ≥ 1, got {threads!r}")
@@ -222,7 +242,10 @@ class LiveSession:
         self.memory_share = float(memory_share)
         self.min_photons = int(min_photons)
         self._overhead_s: float | None = None  # an interaction frame's seconds besides shooting
-        self._error_constant: float | None = None  # e √N of the last written map
+        # the written map's error law, noise ∝ 1/√N beside a blur that does not fall:
+        # (photons, total, noise, blur) of the last written map with ≥ LAW_MIN_PHOTONS
+        self._law: tuple[int, float, float, float] | None = None
+        self._law_5: tuple[int, float] | None = None  # (N, e) of the map nearest 5 %
         self._rate: float | None = None  # photons/s of the last batch or frame
         self._pooled_cost = self._probe_cost = self._camera_cost = 0.0  # seconds
         self._quick_due = False  # the next frame is the first after an edit
@@ -264,7 +287,8 @@ class LiveSession:
                 merged = {**self._pending[1], **changes}
             else:
                 merged = dict(changes)
-            self._pending = (new, {"changes": merged, "token": token or {}})
+            self._pending = (new, {"changes": merged, "token": token or {},
+                                   "received": time.perf_counter()})
         self._wake.set()
         return new
 
@@ -328,11 +352,13 @@ class LiveSession:
         s = self.session
         t0 = time.perf_counter()
         s.frame(image=True, probes=False, camera=self.camera,
-                photons=self._frame_photons(quick=True))
+                photons=self._frame_photons(quick=True), image_step=self.interaction_step)
         self._accumulate_batch()
         s.frame(image=True)  # the kNN probes (the regulation table's path)
         self._probe_frame()
-        self._pooled_frame(None)  # also its cost: the first pooled map's schedule
+        # also its cost and, at one whole frame of photons, the scene's error law: the
+        # first edit's first map is then drawn where 5 % is predicted
+        self._pooled_frame(None)
         if self.regulation_hook is not None:
             self.regulation_hook(s)
         s.update(light_transform=np.eye(4))
@@ -359,7 +385,8 @@ class LiveSession:
             times, acc = [], []
             for _ in range(2):
                 t0 = time.perf_counter()
-                s.frame(image=True, probes=False, photons=self._frame_photons(quick=False))
+                s.frame(image=True, probes=False, photons=self._frame_photons(quick=False),
+                        image_step=self.interaction_step)
                 t1 = time.perf_counter()
                 s.shoot(batch)
                 acc.append(time.perf_counter() - t1)
@@ -453,6 +480,7 @@ class LiveSession:
             return False
         new, info = pending
         t0 = time.perf_counter()
+        self._edit_wait = t0 - info.get("received", t0)  # waited for a batch or a frame
         try:
             changed = new.changed(self.controls)
             ed, old = self.editor, self.controls
@@ -521,7 +549,8 @@ class LiveSession:
             else None
         t0 = time.perf_counter()
         est = s.frame(image=True, camera=camera, probes=False,
-                      photons=self._frame_photons(quick=self._quick_due))
+                      photons=self._frame_photons(quick=self._quick_due),
+                      image_step=self.interaction_step)
         self._quick_due = False
         self._interaction_done = time.perf_counter()
         self.stats.last_frame_s = self._interaction_done - t0
@@ -530,7 +559,8 @@ class LiveSession:
         self.stats.frames += 1
         self.stats.interaction_frames += 1
         update = self._update_s if changed else 0.0
-        self._publish_frame(est, "interleaved", {"update_s": update})
+        self._publish_frame(est, "interleaved", {"update_s": update, "token_n": self.token.get(
+            "n"), "wait_s": self._edit_wait if changed else 0.0})
         entry = self.stats.log[-1]
         overhead = (self.stats.last_frame_s - est.timings.get("shoot", 0.0) + update
                     + entry.get("encode_s", 0.0))
@@ -553,17 +583,24 @@ class LiveSession:
         now = time.perf_counter()
         camera_due = watched and now - self._last_camera >= max(1.0, 9.0 * self._camera_cost)
         pooled = self._pooled_due()
+        # with the scene's error law the first pooled map is due within seconds: until
+        # then nothing that builds the kNN trees (interleaved image, table), only the
+        # cheap grid figure — every second goes to tracing
+        run_up = self._honest is None and self._law_5 is not None
         if pooled:
             est = self._pooled_frame(self.camera if watched else None)
             self._publish_frame(est, "pooled", {})
-        elif self._honest is None and self._probe_due():
-            # before the first pooled map: the grid figure and the interleaved image
-            self._publish_frame(self._probe_frame(image=True), "interleaved", {})
+        elif self._honest is None and self._probe_due() and not (run_up
+                                                                  and self._last_probe):
+            # before the first pooled map: the grid figure (and the interleaved image)
+            est = self._probe_frame(image=not run_up)
+            if not run_up:
+                self._publish_frame(est, "interleaved", {})
         if camera_due and time.perf_counter() - self._last_camera >= 1.0:
             t0 = time.perf_counter()
             est = s.frame(image=False, shoot=False, camera=self.camera, probes=False)
             self._camera_cost = time.perf_counter() - t0
-            self.stats.log.append({"mode": self.mode, "quality": "camera", "image": False,
+            self._log({"mode": self.mode, "quality": "camera", "image": False,
                                    "frame_s": self._camera_cost})
             self._publish_camera(est)
         self.last_status = self._status()
@@ -571,7 +608,7 @@ class LiveSession:
         # the table needs ~10³ probes per set: once the scene is still, then with each
         # pooled map (the drawn result), at most ``regulation_share`` of the time
         share = self.regulation_share
-        reg_due = self._last_reg == 0.0 or (
+        reg_due = (self._last_reg == 0.0 and not run_up) or (
             pooled and time.perf_counter() - self._last_reg
             >= max(self.regulation_interval, self._reg_cost * (1 - share) / share))
         if self.regulation_hook is not None and not self._busy() and reg_due:
@@ -579,7 +616,7 @@ class LiveSession:
             table = self.regulation_hook(s)
             self._last_reg = time.perf_counter()
             self._reg_cost = self._last_reg - t1
-            self.stats.log.append({"mode": self.mode, "quality": "regulation",
+            self._log({"mode": self.mode, "quality": "regulation",
                                    "image": False, "frame_s": self._reg_cost})
             self.publish("regulation", {"edit": self.edit, "title": table.title,
                                         "rows": table.rows, "points": table.points,
@@ -590,7 +627,10 @@ class LiveSession:
         set's map (the batch grows while the scene stays still)."""
         s = self.session
         rate = self._rate if self._rate else 1e5
-        n = int(min(s.config.frame_photons, max(s.config.n_sets, rate * self._batch_s)))
+        n = max(s.config.n_sets, rate * self._batch_s)
+        if time.perf_counter() - self._interaction_done >= self.still_seconds:
+            n = max(n, self.still_batch_photons)  # a loaded machine: not below full rate
+        n = int(min(s.config.frame_photons, n))
         before = self._photons_now()
         t0 = time.perf_counter()
         self._threads_for(accumulating=True)
@@ -603,11 +643,14 @@ class LiveSession:
         if dt > 0 and done > 0:
             self._rate = done / dt
         self._traced_s += dt
-        if time.perf_counter() - self._interaction_done >= self.still_seconds:
-            self._batch_s = min(self.batch_max_seconds, self._batch_s * self.batch_growth)
-        self.stats.log.append({"mode": "accumulation", "quality": "batch", "image": False,
-                               "photons": self._photons_now(), "batch_photons": done,
-                               "batch_s": dt})
+        self._batch_s = min(self.batch_max_seconds, self._batch_s * self.batch_growth)
+        self._log({"mode": "accumulation", "quality": "batch", "image": False,
+                   "photons": self._photons_now(), "batch_photons": done, "batch_s": dt})
+
+    def _log(self, entry: dict[str, Any]) -> None:
+        """A log entry (the bench's breakdown), stamped ``t``: seconds since the last change."""
+        entry.setdefault("t", time.perf_counter() - self._changed_at)
+        self.stats.log.append(entry)
 
     def _photons_now(self) -> int:
         return int(sum(self.session.emitted_per_set().values()))
@@ -626,7 +669,7 @@ class LiveSession:
         est = s.frame(image=image, shoot=False, probes="ici" if s.config.uses_ici else True)
         self._last_probe = time.perf_counter()
         self._probe_cost = self.stats.last_frame_s = self._last_probe - t0
-        self.stats.log.append({"mode": self.mode, "quality": "grid probes", "image": False,
+        self._log({"mode": self.mode, "quality": "grid probes", "image": False,
                                "photons": int(est.photons), "frame_s": self._probe_cost})
         self.stats.timings = dict(est.timings)
         self._figure = (est, "grid probes")
@@ -637,38 +680,63 @@ class LiveSession:
         over every pixel (ICI rung sums; no kNN probe queries)."""
         s = self.session
         t0 = time.perf_counter()
+        # with ICI the written map's figure comes from its own rung sums over every pixel:
+        # asking for the grid probes' rungs too would build every set's summed-area
+        # table a second time for a figure that is then not used
         est = s.frame(image=True, shoot=False, mode="pooled", camera=camera,
-                      probes="ici" if s.config.uses_ici else True)
+                      probes=False if s.config.uses_ici else True)
         self._pooled_cost = self.stats.last_frame_s = time.perf_counter() - t0
         self.stats.timings = dict(est.timings)
         self.stats.frames += 1
         self._traced_at_pooled = self._traced_s
         self._pooled_photons = int(est.photons)
         self._honest = (_finite(est.rel_error), int(est.photons))
-        if self._honest[0] is not None:  # e √N: where the next edit's first map is due
-            self._error_constant = self._honest[0] * math.sqrt(max(est.photons, 1))
+        e = est.error
+        if self._honest[0] is not None and est.photons >= LAW_MIN_PHOTONS:
+            # the error law of this scene: where the next maps (and the next edit's first
+            # map) are due; a warm-up-sized map is not yet in the 1/√N regime
+            noise = _finite(e.noise) if e is not None else None
+            blur = (_finite(e.bias) or 0.0) if e is not None else 0.0
+            self._law = (int(est.photons), self._honest[0],
+                         self._honest[0] if noise is None else noise, blur)
+            near = self._law_5
+            if near is None or abs(math.log(self._honest[0] / ERROR_LEVELS[0])) <= \
+                    abs(math.log(near[1] / ERROR_LEVELS[0])):
+                self._law_5 = (int(est.photons), self._honest[0])
         self._figure = (est, "written map")
         return est
 
+    def _photons_for(self, level: float) -> float | None:
+        """Photons at which the written map's figure is expected to reach ``level``
+        (aimed ``LEVEL_AIM`` below it) from the last map's noise (∝ 1/√N) and blur (kept);
+        None where the blur alone is above it."""
+        if self._law is None:
+            return None
+        n, _, noise, blur = self._law
+        room = (LEVEL_AIM * level) ** 2 - blur ** 2
+        return None if room <= 0 else n * noise ** 2 / room
+
     def _pooled_due(self) -> bool:
-        """The next pooled map (M² times an image's work): first after
-        ``first_pooled_seconds`` of tracing (or its own cost); then where the written
-        map's figure is expected to cross the next level (noise ∝ 1/√N, aimed 7 % below
-        it), otherwise at twice the photons, its cost ≤ ``pooled_share`` of the time."""
+        """The next pooled map (M² times an image's work). The first: where the scene's
+        error law (the map nearest 5 % so far: e √N) predicts 5 % (aimed ``FIRST_AIM``
+        below it), after at least the map's own cost of tracing — or, with no law yet,
+        after ``first_pooled_seconds`` of tracing. Then where the figure is expected to
+        cross the next level (noise ∝ 1/√N beside the blur), otherwise at twice the
+        photons with its cost ≤ ``pooled_share`` of the time."""
         if self._honest is None:
             first = max(self.first_pooled_seconds, self._pooled_cost)
-            if self._error_constant is None:
+            if self._law_5 is None:
                 return self._traced_s >= first
-            # an earlier edit's e √N predicts where this one crosses 5 % (aimed 10 % below
-            # it): one pooled map there instead of one early and one at the crossing
-            n5 = (self._error_constant / (0.9 * ERROR_LEVELS[0])) ** 2
-            return (self._traced_s >= first and self._photons_now() >= n5) or \
+            n, e = self._law_5
+            n5 = n * (e / (FIRST_AIM * ERROR_LEVELS[0])) ** 2
+            return (self._traced_s >= self._pooled_cost and self._photons_now() >= n5) or \
                 self._traced_s >= max(self.first_cap_seconds, 2.0 * self._pooled_cost)
         err, n_last = self._honest
         photons = self._photons_now()
         if err is not None:
             below = [lv for lv in ERROR_LEVELS if lv < err]
-            if below and photons >= n_last * (err / (0.93 * below[0])) ** 2:
+            due = self._photons_for(below[0]) if below else None
+            if due is not None and photons >= due:
                 return True
         share = self.pooled_share
         return photons >= 2 * n_last and (self._traced_s - self._traced_at_pooled
@@ -722,7 +790,7 @@ class LiveSession:
             msg = encode_image(luminous(est.lux), self._header("wall", est, quality))
             entry.update(encode_s=time.perf_counter() - t1, bytes=len(msg))
             self.publish("frame:wall", msg)
-        self.stats.log.append(entry)
+        self._log(entry)
         self._publish_camera(est)
         if self.mode == "interaction":
             self.last_status = self._status(quality)

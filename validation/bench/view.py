@@ -112,6 +112,49 @@ def _engine_baseline(scene_path: str, resolution: tuple[int, int], frame_photons
             "render_s": statistics.median(render), "accumulate_photons_per_s": rate}
 
 
+def error_law(scene_path: str, resolution: tuple[int, int] = (640, 256),
+              marks: tuple[float, ...] = (1e6, 2e6, 4e6, 8e6, 16e6),
+              batch: int = 400_000) -> list[dict[str, Any]]:
+    """The written map's error figure against photons, as the view accumulates it: one
+    session at the view's configuration (M = 4, k = 64, batches of ``batch`` photons, one
+    numba thread) and a pooled map with its figure at each of ``marks`` photons. Shows
+    which part falls: noise ∝ 1/√N, the blur (ICI bandwidth bias) does not, so the
+    photons a level needs follow from √(noise² + blur²)."""
+    import numba
+
+    from lightsim.cli.view import build_live
+
+    live = build_live(scene_path, resolution=tuple(resolution), regulation=None,
+                      camera=False)
+    live._open(live.editor.session_scene(live.controls), live.controls)
+    s = live.session
+    rows: list[dict[str, Any]] = []
+    try:
+        numba.set_num_threads(1)
+        s.shoot(50_000)  # compile, then start afresh
+        s.frame(image=True, shoot=False, mode="pooled", probes="ici")
+        s.update(light_transform=np.eye(4))
+        traced = 0.0
+        for mark in sorted(marks):
+            while live._photons_now() < mark:
+                t0 = time.perf_counter()
+                s.shoot(batch)
+                traced += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            est = s.frame(image=True, shoot=False, mode="pooled", probes=False)
+            cost = time.perf_counter() - t0
+            e, n = est.error, int(est.photons)
+            rows.append({"photons": n, "written map error": est.rel_error,
+                         "noise": None if e is None else e.noise,
+                         "blur": None if e is None else e.bias,
+                         "e·√N": est.rel_error * n ** 0.5 if est.rel_error else None,
+                         "pooled map s": cost, "tracing photons/s": n / traced,
+                         "load average": load_average()})
+    finally:
+        s.close()
+    return rows
+
+
 def frame_model(t_clients: float, t_server: float, nbytes: float, workers: int
                 ) -> dict[str, float]:
     """The scaling bench's per-frame model (docs/scaling.md) for ``workers`` one-core workers.
@@ -123,6 +166,47 @@ def frame_model(t_clients: float, t_server: float, nbytes: float, workers: int
          + workers * T_RESULT)
     server = T_RPC + nbytes / BANDWIDTH + t_server + workers * T_RESULT
     return {"frame_s": t, "fps": 1.0 / t, "server_share": server / t}
+
+
+def still_log(log: list[dict[str, Any]]) -> dict[str, Any]:
+    """What the still scene's seconds went to: tracing (batches) and every other step
+    (pooled maps, grid figure, table, interleaved images), seconds and counts, and the
+    steps other than batches in order (t: seconds since the last change)."""
+    acc = [e for e in log if e.get("mode") == "accumulation"]
+    spent: dict[str, list[float]] = {}
+    for e in acc:
+        q = e.get("quality", "?")
+        spent.setdefault(q, []).append(e.get("batch_s", e.get("frame_s", 0.0)))
+    return {"seconds": {k: float(sum(v)) for k, v in spent.items()},
+            "counts": {k: len(v) for k, v in spent.items()},
+            "traced_photons": int(sum(e.get("batch_photons", 0) for e in acc)),
+            "steps": [[round(e.get("t", 0.0), 3), e.get("quality"), e.get("photons"),
+                       round(e.get("frame_s", 0.0), 3)] for e in acc
+                      if e.get("quality") != "batch"]}
+
+
+def latency_parts(samples: list[tuple[int, dict[str, float]]], log: list[dict[str, Any]]
+                  ) -> dict[str, float]:
+    """Where the change → image time went (ms, medians over the samples): the server's
+    wait for a batch or frame in progress, update, shoot, render (+ assemble), encode (from
+    the live session's log entry of the frame that carried the change), the page's draw
+    (inflate, decode, paint) and the rest: browser → server → browser transport."""
+    rows = []
+    for n, page in samples:
+        e = next((x for x in log if x.get("token_n") == n and x.get("mode") == "interaction"),
+                 None)
+        if e is None:
+            continue
+        server = {"wait": e.get("wait_s", 0.0), "update": e.get("update_s", 0.0),
+                  "shoot": e.get("shoot_s", 0.0),
+                  "render": e.get("render_s", 0.0) + e.get("assemble_s", 0.0),
+                  "encode": e.get("encode_s", 0.0)}
+        row = {k: 1e3 * v for k, v in server.items()}
+        row["page draw"] = page.get("draw", 0.0)
+        row["transport"] = page.get("arrived", 0.0) - sum(row[k] for k in server)
+        row["total"] = page["ms"]
+        rows.append(row)
+    return {k: float(np.median([r[k] for r in rows])) for k in rows[0]} if rows else {}
 
 
 _DRAG_JS = """async (seconds) => {
@@ -188,16 +272,19 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
             page.wait_for_function("window.lightsimView.wallFrames >= 2 && "
                                    "window.lightsimView.regulation !== null", timeout=120_000)
             # 1. latency of single changes
-            lat = []
+            lat, parts = [], []
             for i in range(changes):
                 n = page.evaluate(f"window.lightsimView.setControl('aim_h_deg', {0.1 * (i + 1)})")
                 page.wait_for_function(
                     f"window.lightsimView.latencies.some((l) => l.token === {n})",
                     timeout=60_000)
-                lat.append(page.evaluate(
-                    f"window.lightsimView.latencies.find((l) => l.token === {n}).ms"))
+                got = page.evaluate(
+                    f"window.lightsimView.latencies.find((l) => l.token === {n})")
+                lat.append(got["ms"])
+                parts.append((n, got))
                 page.wait_for_timeout(300)
             out["latency_ms"] = lat
+            out["latency_parts"] = latency_parts(parts, list(live.stats.log))
             # 2. interaction frames/s during a drag
             frames0 = len(live.stats.log)
             fps, drawn = page.evaluate(_DRAG_JS, drag_seconds)
@@ -213,9 +300,11 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
                 page.screenshot(path=str(screenshots / "view-interaction.png"))
             # 3. convergence after the last change
             edit = page.evaluate("window.lightsimView.status.edit")
+            n_log = len(live.stats.log)
             conv = page.evaluate(_CONVERGE_JS, [converge_timeout,
                                                 {"edit": edit, "levels": [0.05, 0.02]}])
             out["converge"] = conv
+            out["still_log"] = still_log(list(live.stats.log)[n_log:])
             batches = [e for e in list(live.stats.log) if e.get("quality") == "batch"]
             traced = sum(e["batch_s"] for e in batches)
             out["tracing_photons_per_s"] = (sum(e["batch_photons"] for e in batches)

@@ -165,28 +165,20 @@ function onBinary(buf) {
   const n = dv.getUint32(4, true);
   const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 8, n)));
   const kind = head.kind;
-  pending[kind] = { head, payload: new Uint8Array(buf, 8 + n) };
+  pending[kind] = { head, payload: new Uint8Array(buf, 8 + n), at: performance.now() };
   if (!busy[kind]) drain(kind);
 }
 async function drain(kind) {
   busy[kind] = true;
   while (pending[kind]) {  // only the newest waiting frame is drawn: a slow page skips
-    const { head, payload } = pending[kind];
+    const { head, payload, at } = pending[kind];
     pending[kind] = null;
     const t0 = performance.now();  // the page's share of a frame: inflate, decode, draw
     const stream = new Blob([payload]).stream().pipeThrough(new DecompressionStream("deflate"));
+    // the page works on the codes themselves: they are logarithmic, so a colour or an
+    // isolux level is a code threshold (no exp/log per pixel or per code value)
     const codes = new Uint16Array(await new Response(stream).arrayBuffer());
-    const lo = head.lo, span = Math.log(head.hi / head.lo);
-    // one exp per code value, not per pixel (65 536 against W·H; the page shares the cores)
-    const decode = (c) => (c === 0 ? 0 : lo * Math.exp((c - 1) / 65534 * span));
-    const img = new Float32Array(codes.length);
-    let value = null;
-    if (codes.length > 65536) {
-      value = new Float32Array(65536);
-      for (let c = 0; c < 65536; c++) value[c] = decode(c);
-      for (let i = 0; i < codes.length; i++) img[i] = value[codes[i]];
-    } else for (let i = 0; i < codes.length; i++) img[i] = decode(codes[i]);
-    const frame = { head, img, codes, value };
+    const frame = { head, codes };
     if (kind === "wall") { lastWall = frame; drawWall(frame); V.wallFrames++; V.lastWallHeader = head; }
     else { drawCamera(frame); V.cameraFrames++; }
     V.framesDrawn++;
@@ -196,7 +188,11 @@ async function drain(kind) {
     if (kind === "wall" && tok.client === V.client && tok.n) {
       const now = performance.now();
       for (const [k, t0] of Object.entries(V.sentAt)) {
-        if (Number(k) <= tok.n) { V.latencies.push({ token: Number(k), ms: now - t0 }); delete V.sentAt[k]; }
+        // ms: sent → drawn; arrived: sent → the frame's message received; draw: its share
+        if (Number(k) <= tok.n) {
+          V.latencies.push({ token: Number(k), ms: now - t0, arrived: at - t0, draw: now - at });
+          delete V.sentAt[k];
+        }
         if (V.latencies.length > 1000) V.latencies.shift();
       }
     }
@@ -204,22 +200,42 @@ async function drain(kind) {
   busy[kind] = false;
 }
 
-function paint(ctx, frame, x0, y0, s) {
-  const { head, img } = frame, W = head.width, H = head.height;
+// code c ≥ 1 ↔ lo·exp((c − 1)/65534 · ln(hi/lo)) (lightsim/view/encode.py); 0 = below lo
+function codeOf(head, value) {
+  return 1 + Math.log(value / head.lo) / Math.log(head.hi / head.lo) * 65534;
+}
+
+// the frame's pixels as RGBA (colour by code, isolux lines on top when asked): W·H
+// table look-ups, the colour row of every code from a linear rule (the codes are log)
+function paint(ctx, frame, x0, y0, s, levels = []) {
+  const { head, codes } = frame, W = head.width, H = head.height;
   const hi = head.hi, lo = hi * Math.pow(10, -DISPLAY_DECADES), span = Math.log(hi / lo);
   const off = new OffscreenCanvas(W, H), octx = off.getContext("2d");
   const data = octx.createImageData(W, H);
-  const row = (v) => Math.round((v > lo ? Math.min(1, Math.log(v / lo) / span) : 0) * 255) * 3;
-  let colour = null;  // colour row per code value (one log per code, not per pixel)
-  if (frame.value) {
-    colour = new Uint16Array(65536);
-    for (let c = 0; c < 65536; c++) colour[c] = row(frame.value[c]);
+  // display t = ln(v/lo)/span is linear in the code: t = a + b·(c − 1)
+  const a = Math.log(head.lo / lo) / span, b = Math.log(head.hi / head.lo) / 65534 / span;
+  const colour = new Uint16Array(65536);
+  for (let c = 1; c < 65536; c++) {
+    const t = a + b * (c - 1);
+    colour[c] = Math.round((t > 0 ? Math.min(1, t) : 0) * 255) * 3;
   }
   const px = data.data;
   for (let i = 0; i < W * H; i++) {
-    const j = colour ? colour[frame.codes[i]] : row(img[i]);
+    const j = colour[codes[i]];
     px[4 * i] = LUT[j]; px[4 * i + 1] = LUT[j + 1]; px[4 * i + 2] = LUT[j + 2];
     px[4 * i + 3] = 255;
+  }
+  if (levels.length) {  // iso-lux lines: pixels where the level index changes
+    const thr = levels.map((l) => Math.ceil(codeOf(head, l)));
+    const level = new Uint8Array(65536);
+    for (let c = 1, k = 0; c < 65536; c++) { while (k < thr.length && c >= thr[k]) k++; level[c] = k; }
+    for (let r = 0; r < H - 1; r++) for (let q = 0; q < W - 1; q++) {
+      const i = r * W + q, k = level[codes[i]];
+      if (k !== level[codes[i + 1]] || k !== level[codes[i + W]]) {
+        // 80 % white over the colour, as the lines were drawn before
+        for (let ch = 0; ch < 3; ch++) px[4 * i + ch] = 204 + 0.2 * px[4 * i + ch];
+      }
+    }
   }
   octx.putImageData(data, 0, 0);
   ctx.imageSmoothingEnabled = false;
@@ -246,26 +262,17 @@ function colourBar(ctx, x, y, h, lo, hi, unit) {
 
 function drawWall(frame) {
   const c = $("wall"), ctx = c.getContext("2d");
-  const { head, img } = frame, W = head.width, H = head.height, w = head.wall;
+  const { head } = frame, W = head.width, H = head.height, w = head.wall;
   const s = Math.min((c.width - MARGIN.left - MARGIN.right) / W, (c.height - MARGIN.top - MARGIN.bottom) / H);
   const x0 = MARGIN.left, y0 = MARGIN.top;
   ctx.fillStyle = "#111"; ctx.fillRect(0, 0, c.width, c.height);
-  const { lo, hi } = paint(ctx, frame, x0, y0, s);
+  const lo0 = head.hi * Math.pow(10, -DISPLAY_DECADES);  // the colour scale's bottom
+  const levels = $("isolux").checked ? ISOLUX.filter((l) => l > lo0 && l < head.hi) : [];
+  const { lo, hi } = paint(ctx, frame, x0, y0, s, levels);
   V.plotRect = { x: x0, y: y0, w: W * s, h: H * s };
   const [h0, h1] = w.h_range_m, [v0, v1] = w.v_range_m, D = w.distance_m;
   const X = (hdeg) => x0 + (D * Math.tan(hdeg * Math.PI / 180) - h0) / (h1 - h0) * W * s;
   const Y = (vdeg) => y0 + (v1 - D * Math.tan(vdeg * Math.PI / 180)) / (v1 - v0) * H * s;
-  if ($("isolux").checked) {  // iso-lux lines: pixels where the level index changes
-    ctx.fillStyle = "rgba(255,255,255,0.8)";
-    const levels = ISOLUX.filter((l) => l > lo && l < hi);
-    const idx = new Uint8Array(W * H);
-    for (let i = 0; i < W * H; i++) { let k = 0; while (k < levels.length && img[i] >= levels[k]) k++; idx[i] = k; }
-    const d = Math.max(1, s / 2);
-    for (let r = 0; r < H - 1; r++) for (let q = 0; q < W - 1; q++) {
-      const i = r * W + q;
-      if (idx[i] !== idx[i + 1] || idx[i] !== idx[i + W]) ctx.fillRect(x0 + (q + 0.5) * s, y0 + (r + 0.5) * s, d, d);
-    }
-  }
   // axes in degrees: H every 5°, V every 2°
   ctx.strokeStyle = "#888"; ctx.fillStyle = "#ccc"; ctx.font = "11px sans-serif";
   const hmin = Math.atan2(h0, D) * 180 / Math.PI, hmax = Math.atan2(h1, D) * 180 / Math.PI;
