@@ -40,6 +40,8 @@ from lightsim.engine.config import RunConfig
 from lightsim.render import ici
 from lightsim.render.frame import luminous
 
+REFERENCE_FACTOR = 6  # reference photons / largest budget (scene files)
+
 
 def edge_band(truth: np.ndarray, lit: np.ndarray, band: int = 2) -> np.ndarray:
     """Lit pixels within ``band`` pixels of a factor-2 step of ``truth`` (H, W)."""
@@ -60,13 +62,17 @@ def edge_band(truth: np.ndarray, lit: np.ndarray, band: int = 2) -> np.ndarray:
     return near & lit
 
 
-def rel_rmse(lux: np.ndarray, truth: np.ndarray, mask: np.ndarray, mean_lit: float
-             ) -> float:
-    """rms error over ``mask`` relative to the mean truth over all lit pixels."""
+def rel_rmse(lux: np.ndarray, truth: np.ndarray, mask: np.ndarray, mean_lit: float,
+             truth_var: np.ndarray | None = None) -> float:
+    """rms error over ``mask`` relative to the mean truth over all lit pixels; a
+    reference's own noise variance ``truth_var`` (lx²) is subtracted from the mean square."""
     if not mask.any():
         return math.nan
     d = lux[mask] - truth[mask]
-    return math.sqrt(float(np.mean(d * d))) / mean_lit
+    mse = float(np.mean(d * d))
+    if truth_var is not None:
+        mse = max(mse - float(np.mean(truth_var[mask])), 0.0)
+    return math.sqrt(mse) / mean_lit
 
 
 @dataclass
@@ -134,8 +140,10 @@ def capture_run(session, photons: int) -> Capture:
 
 
 def score(cap: Capture, truth: np.ndarray, lit: np.ndarray, band: np.ndarray,
-          inner: np.ndarray | None, photons: int) -> list[MapScore]:
-    """Both written maps of one capture against the truth."""
+          inner: np.ndarray | None, photons: int, truth_var: np.ndarray | None = None
+          ) -> list[MapScore]:
+    """Both written maps of one capture against the truth (``truth_var``: a reference's
+    noise variance, lx²)."""
     out = []
     mean_lit = float(truth[lit].mean())
     for name, directional in (("centred", False), ("fused", True)):
@@ -149,16 +157,17 @@ def score(cap: Capture, truth: np.ndarray, lit: np.ndarray, band: np.ndarray,
         share = {int(k): float(np.mean(rung == k)) for k in np.unique(rung)}
         out.append(MapScore(
             name, photons, None if wm.error is None else wm.error.total, wm.alpha,
-            rel_rmse(lux, truth, lit, mean_lit), rel_rmse(lux, truth, lit & ~band, mean_lit),
-            rel_rmse(lux, truth, band, mean_lit),
-            None if inner is None else rel_rmse(lux, truth, inner & lit, mean_lit), dt,
+            *(rel_rmse(lux, truth, m, mean_lit, truth_var) for m in (lit, lit & ~band, band)),
+            None if inner is None else rel_rmse(lux, truth, inner & lit, mean_lit, truth_var),
+            dt,
             share))
     return out
 
 
 def study(scene, truth: np.ndarray, budgets: list[int], inner: np.ndarray | None = None,
-          seed: int = 1, frame_photons: int = 250_000, band: int = 2,
-          lit_fraction: float = 0.1, progress=print, **settings: Any) -> list[MapScore]:
+          truth_var: np.ndarray | None = None, seed: int = 1, frame_photons: int = 250_000,
+          band: int = 2, lit_fraction: float = 0.1, progress=print, **settings: Any
+          ) -> list[MapScore]:
     """Score both maps at every budget in one accumulating session (``settings``: more
     :class:`RunConfig` fields)."""
     from lightsim.engine.server import Session
@@ -172,32 +181,56 @@ def study(scene, truth: np.ndarray, budgets: list[int], inner: np.ndarray | None
     with Session(scene, cfg) as s:
         for b in sorted(budgets):
             cap = capture_run(s, int(b))
-            for r in score(cap, truth, lit, bnd, inner, int(b)):
+            for r in score(cap, truth, lit, bnd, inner, int(b), truth_var):
                 progress(r.row())
                 rows.append(r)
     return rows
 
 
-def reference(scene, photons: int, seed: int = 99, frame_photons: int = 1_000_000
-              ) -> np.ndarray:
-    """(H, W) luminous lx: a ``bin`` run (pixel counts, no blur) of ``photons``."""
-    from lightsim.engine.server import Session
+def time_maps(cap: Capture, repeats: int = 3) -> dict[str, float]:
+    """Median seconds of :func:`lightsim.render.ici.written_map` on one capture: the
+    centred map and the fused one (after a first call that loads numba's kernels)."""
+    out = {}
+    for name, directional in (("centred", False), ("fused", True)):
+        ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
+                        directional=directional)
+        ts = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
+                            directional=directional)
+            ts.append(time.perf_counter() - t0)
+        out[name] = float(np.median(ts))
+    return out
 
-    cfg = RunConfig(seed=seed, frame_photons=frame_photons, estimator="bin")
-    with Session(scene, cfg) as s:
-        est = s.run(photons=photons, probes=False)
-    return luminous(est.lux)
+
+def timing(path: str, resolution: tuple[int, int], photons: int, repeats: int = 3
+           ) -> dict[str, float]:
+    """:func:`time_maps` on a run of ``photons`` of the scene file at ``resolution``."""
+    from lightsim.engine.server import Session
+    from lightsim.scene import load_scene
+
+    scene = load_scene(path, resolution=resolution)
+    with Session(scene, RunConfig(seed=1, frame_photons=500_000)) as s:
+        cap = capture_run(s, photons)
+    return time_maps(cap, repeats)
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m lightsim.validation.edge_study paraboloid|FILE.glb [WxH] budgets…``"""
+    """``python -m lightsim.validation.edge_study paraboloid|FILE.glb [WxH] budgets…`` or
+    ``… --time FILE.glb WxH photons``."""
     import sys
-    from pathlib import Path
 
     from lightsim.validation.bench.peer import CASES, truth_of
 
     args = list(sys.argv[1:] if argv is None else argv)
     name = args.pop(0)
+    if name == "--time":  # --time FILE WxH photons
+        W, H = (int(v) for v in args[1].split("x"))
+        t = timing(args[0], (W, H), int(float(args[2])))
+        print(f"written map at {W} x {H}: centred {t['centred']:.3f} s, fused "
+              f"{t['fused']:.3f} s (ratio {t['fused'] / t['centred']:.2f})")
+        return
     budgets = [int(float(x)) for x in args if "x" not in x]
     res = [tuple(int(v) for v in x.split("x")) for x in args if "x" in x]
     if name in CASES:
@@ -205,13 +238,14 @@ def main(argv: list[str] | None = None) -> None:
         tr = truth_of(case)
         study(case.scene, tr.exact_px, budgets, tr.inner)
         return
-    from lightsim.scene import load_scene
+    from lightsim.validation import converge as cv
 
-    scene = load_scene(Path(name), **({"resolution": res[0]} if res else {}))
+    target = cv.scene_target(name, res[0] if res else (320, 128))
     t0 = time.perf_counter()
-    ref = reference(scene, 6 * max(budgets))
-    print(f"reference: {6 * max(budgets):,} bin photons in {time.perf_counter() - t0:.0f} s")
-    study(scene, ref, budgets)
+    cv.reference_run(target, None, 1, 1_000_000, photons=REFERENCE_FACTOR * max(budgets))
+    print(f"reference: {REFERENCE_FACTOR * max(budgets):,} bin photons in "
+          f"{time.perf_counter() - t0:.0f} s")
+    study(target.scene, target.ref_px, budgets, truth_var=target.ref_se**2)
 
 
 if __name__ == "__main__":

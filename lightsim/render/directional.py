@@ -4,10 +4,10 @@ The centred ICI ladder (:mod:`lightsim.render.ici`) has one weakness: next to a 
 or a cut-off every centred window larger than the pixel straddles the step, ICI rejects
 them all and the pixel falls back to rung 0 — its own count, the noisiest estimate there
 is — so the photons a run needs are set by its edge pixels. This module adds the
-directional windows of LPA-ICI (Katkovnik, Foi, Egiazarian, "Directional varying scale
-approximations for anisotropic signal processing", EUSIPCO 2004; Katkovnik, Egiazarian,
-Astola, *Local Approximation Techniques in Signal and Image Processing*, SPIE 2006, ch. 6:
-the ICI rule run per direction over one-sided/sector windows, the directional estimates
+directional windows of LPA-ICI (Katkovnik, Foi, Egiazarian, Astola, "Directional varying
+scale approximations for anisotropic signal processing", EUSIPCO 2004; Katkovnik,
+Egiazarian, Astola, *Local Approximation Techniques in Signal and Image Processing*, SPIE
+Press 2006: the ICI rule run per direction over one-sided/sector windows, the directional estimates
 fused by their inverse variances). Here, for every pixel, K = 9 ladders share rung 0 (the
 pixel itself):
 
@@ -18,7 +18,9 @@ pixel itself):
 
 each run through the ICI rule with the same Γ and the same compound-Poisson σ as the
 centred ladder; the K chosen estimates are fused with weights w_k ∝ 1/σ_k² (σ_k the
-standard error of ladder k's chosen rung). Next to an edge the ladders reaching inwards
+standard error of ladder k's chosen rung, at the pixel's one intensity: w_k ∝ the
+window's area; weights ∝ 1/E_k of each window's own value would favour the dimmer,
+Poisson-low windows and bias the map down). Next to an edge the ladders reaching inwards
 stay unbiased and keep large windows, so the pixel is no longer left with rung 0; where
 the pixel itself is crossed by the edge, every ladder that leaves it disagrees with
 rung 0 and is cut back to it, so rung 0 stays. In a smooth region opposite one-sided
@@ -30,11 +32,16 @@ per set: O(1) per pixel and rung, from the same data the centred map uses, only 
 whole wall raster (queries at scattered probes have no neighbours: they keep the centred
 map). Directional windows that would leave the wall end their ladder.
 
-The error figure stays the written map's (:func:`lightsim.render.ici.written_map`): the
-noise is the sets' scatter of the fused values (the fusion weights applied to each set),
-the blur the held-out estimate of :func:`lightsim.render.ici.held_out_blur` — for every
-pair of sets the whole choice (nine ICI runs and the fusion) is made from the other sets,
-so E[D_s D_t] is the squared blur of a map chosen without those photons.
+The error figure stays the written map's (:func:`lightsim.render.ici.written_map`: noise
+plus blur, mixed with the counts by α) and stays honest by **cross-fitting**: each half of
+the interleave sets is read at the fusion chosen from the other half, so a set's value
+depends on its own photons only through the windows it sums. Its scatter is then the
+map's noise, and D̄² − se_D² of a half (D = value − rung 0, rung 0 unbiased for the pixel
+mean) is unbiased for the squared blur of the other half's choice. (A choice made from the
+same photons, with nine ladders to pick from, prefers windows whose noise happens to agree
+with the pixel; even the held-out pairs of :func:`~lightsim.render.ici.held_out_blur`,
+which leave the pair's photons out of the choice but not out of the map, read 0.75 × the
+actual error on the paraboloid at 250 k photons.)
 
 ===============  =====  ========  ========================================================
 parameter        unit   default   meaning
