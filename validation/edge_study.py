@@ -146,7 +146,7 @@ def score(cap: Capture, truth: np.ndarray, lit: np.ndarray, band: np.ndarray,
     noise variance, lx²)."""
     out = []
     mean_lit = float(truth[lit].mean())
-    for name, directional in (("centred", False), ("fused", True)):
+    for name, directional in (("centred", False), ("fused", True), ("written", None)):
         t0 = time.perf_counter()
         wm = ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
                              shape=cap.shape if directional else None,
@@ -191,7 +191,7 @@ def time_maps(cap: Capture, repeats: int = 3) -> dict[str, float]:
     """Median seconds of :func:`lightsim.render.ici.written_map` on one capture: the
     centred map and the fused one (after a first call that loads numba's kernels)."""
     out = {}
-    for name, directional in (("centred", False), ("fused", True)):
+    for name, directional in (("centred", False), ("fused", True), ("written", None)):
         ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
                         directional=directional)
         ts = []
@@ -216,21 +216,93 @@ def timing(path: str, resolution: tuple[int, int], photons: int, repeats: int = 
     return time_maps(cap, repeats)
 
 
+@dataclass
+class StopRun:
+    """One ``lightsim simulate --target-error`` run of a peer-bench case."""
+
+    estimator: str
+    photons: int
+    figure: float | None
+    all_lit: float
+    inner: float
+    seconds: float
+
+
+def stop_study(name: str = "paraboloid", target: float = 0.02, seed: int = 1,
+               resolution: int = 64, folder=None) -> list[StopRun]:
+    """``lightsim simulate CASE.glb --target-error T`` in this process, with the centred
+    and with the fused written map (:data:`lightsim.render.ici.DIRECTIONAL`), each map
+    scored against the exact answer over all lit pixels and the inner 80 % of the beam."""
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from lightsim.cli.main import main as cli
+    from lightsim.io.exr import read_exr
+    from lightsim.validation.bench.peer import (
+        CASES,
+        LIGHTSIM_OUTPUTS,
+        truth_of,
+        write_scene_glb,
+    )
+
+    case = CASES[name](resolution)
+    tr = truth_of(case)
+    lit = tr.exact_px >= 0.1 * tr.exact_px.max()
+    mean_lit = float(tr.exact_px[lit].mean())
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        base = Path(folder or tmp)
+        glb = write_scene_glb(case, base / "scene.glb")
+        before = ici.DIRECTIONAL
+        try:
+            for label, directional in (("centred", False), ("written", True)):
+                ici.DIRECTIONAL = directional
+                out = base / f"out-{label}"
+                t0 = time.perf_counter()
+                try:
+                    cli(["simulate", str(glb), "--target-error", f"{target:g}",
+                         "--resolution", f"{resolution}x{resolution}", "--seed", str(seed),
+                         "--out", str(out), "--quiet", "--outputs", LIGHTSIM_OUTPUTS])
+                except SystemExit as exc:
+                    if exc.code:
+                        raise
+                dt = time.perf_counter() - t0
+                summary = json.loads((out / "summary.json").read_text())
+                lux = read_exr(out / "wall_lux.exr")[0]["Y"].astype(np.float64)
+                runs.append(StopRun(label, int(summary["photons"]), summary.get("rel_error"),
+                                    rel_rmse(lux, tr.exact_px, lit, mean_lit),
+                                    tr.error(lux), dt))
+        finally:
+            ici.DIRECTIONAL = before
+    return runs
+
+
 def main(argv: list[str] | None = None) -> None:
-    """``python -m lightsim.validation.edge_study paraboloid|FILE.glb [WxH] budgets…`` or
+    """``python -m lightsim.validation.edge_study paraboloid|FILE.glb [WxH] budgets…
+    [--reference=FILE.npz]`` (the scene file's reference kept there for the next run) or
     ``… --time FILE.glb WxH photons``."""
     import sys
+    from pathlib import Path
 
     from lightsim.validation.bench.peer import CASES, truth_of
 
     args = list(sys.argv[1:] if argv is None else argv)
     name = args.pop(0)
+    if name == "--stop":  # --stop CASE [target]
+        for r in stop_study(args[0], float(args[1]) if len(args) > 1 else 0.02):
+            fig = "–" if r.figure is None else f"{r.figure:.4f}"
+            print(f"{r.estimator:8s} stopped at {r.photons:>11,} photons, figure {fig}, "
+                  f"true all-lit {r.all_lit:.4f}, inner {r.inner:.4f} ({r.seconds:.1f} s)")
+        return
     if name == "--time":  # --time FILE WxH photons
         W, H = (int(v) for v in args[1].split("x"))
         t = timing(args[0], (W, H), int(float(args[2])))
         print(f"written map at {W} x {H}: centred {t['centred']:.3f} s, fused "
-              f"{t['fused']:.3f} s (ratio {t['fused'] / t['centred']:.2f})")
+              f"{t['fused']:.3f} s, written (both, the better) {t['written']:.3f} s "
+              f"(ratio {t['written'] / t['centred']:.2f})")
         return
+    args = [x for x in args if not x.startswith("--reference=")]
     budgets = [int(float(x)) for x in args if "x" not in x]
     res = [tuple(int(v) for v in x.split("x")) for x in args if "x" in x]
     if name in CASES:
@@ -241,10 +313,17 @@ def main(argv: list[str] | None = None) -> None:
     from lightsim.validation import converge as cv
 
     target = cv.scene_target(name, res[0] if res else (320, 128))
-    t0 = time.perf_counter()
-    cv.reference_run(target, None, 1, 1_000_000, photons=REFERENCE_FACTOR * max(budgets))
-    print(f"reference: {REFERENCE_FACTOR * max(budgets):,} bin photons in "
-          f"{time.perf_counter() - t0:.0f} s")
+    saved = [x.split("=", 1)[1] for x in sys.argv if x.startswith("--reference=")]
+    if saved and Path(saved[0]).exists():  # a reference kept from an earlier run
+        with np.load(saved[0]) as z:
+            target.ref_px, target.ref_se = z["px"], z["se"]
+    else:
+        t0 = time.perf_counter()
+        cv.reference_run(target, None, 1, 1_000_000, photons=REFERENCE_FACTOR * max(budgets))
+        print(f"reference: {REFERENCE_FACTOR * max(budgets):,} bin photons in "
+              f"{time.perf_counter() - t0:.0f} s")
+        if saved:
+            np.savez(saved[0], px=target.ref_px, se=target.ref_se)
     study(target.scene, target.ref_px, budgets, truth_var=target.ref_se**2)
 
 

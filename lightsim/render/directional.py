@@ -170,19 +170,6 @@ def _choose(E, A, J, scale, gamma, jk, wk):
         wk[k] /= tot
 
 
-@njit(cache=True)
-def _value(sat, Ec, r, c, dirs, k, j):
-    """Ladder k's value at rung j at pixel (r, c) from a SAT and centred rungs (J+1,)."""
-    if k == 0 or j == 0:
-        return Ec[j] if k == 0 else Ec[0]
-    H = sat.shape[0] - 1
-    W = sat.shape[1] - 1
-    m = j + 1
-    r0, r1 = _extent(r, dirs[k - 1, 0], m, H)
-    c0, c1 = _extent(c, dirs[k - 1, 1], m, W)
-    return _rect(sat, r0, r1, c0, c1) / ((r1 - r0) * (c1 - c0))
-
-
 @njit(cache=True, parallel=True)
 def choose_fused(sat, Ec, Ac, rows, cols, dirs, a_pix, scale, gamma):
     """The fused choice at every query: (jk (Q, K) int64, wk (Q, K) float64).
@@ -206,21 +193,34 @@ def choose_fused(sat, Ec, Ac, rows, cols, dirs, a_pix, scale, gamma):
 
 
 @njit(cache=True, parallel=True)
-def apply_fused(sats, Ecs, rows, cols, dirs, jk, wk):
-    """(S, Q) the fused values of S images: sats (S, H+1, W+1), centred rungs
-    Ecs (S, J+1, Q), at the choice (jk, wk) of :func:`choose_fused`."""
-    S = sats.shape[0]
+def apply_fused(sats, Ecs, which, rows, cols, dirs, jk, wk):
+    """(len(which), Q) the fused values of the images ``which`` of sats (S, H+1, W+1) and
+    centred rungs Ecs (S, J+1, Q) at the choice (jk, wk) of :func:`choose_fused`."""
     Q = rows.shape[0]
     K = jk.shape[1]
-    out = np.zeros((S, Q))
-    for i in prange(Q):
-        for s in range(S):
-            v = 0.0
-            for k in range(K):
-                if wk[i, k] != 0.0:
-                    v += wk[i, k] * _value(sats[s], Ecs[s, :, i], rows[i], cols[i], dirs,
-                                           k, jk[i, k])
-            out[s, i] = v
+    out = np.zeros((which.shape[0], Q))
+    for t in range(which.shape[0]):  # one image at a time: its SAT stays in cache
+        s = which[t]
+        sat = sats[s]
+        H = sat.shape[0] - 1
+        W = sat.shape[1] - 1
+        for i in prange(Q):
+            r = rows[i]
+            c = cols[i]
+            v = wk[i, 0] * Ecs[s, jk[i, 0], i]
+            for k in range(1, K):
+                w = wk[i, k]
+                j = jk[i, k]
+                if w == 0.0:
+                    continue
+                if j == 0:
+                    v += w * Ecs[s, 0, i]
+                    continue
+                r0, r1 = _extent(r, dirs[k - 1, 0], j + 1, H)
+                c0, c1 = _extent(c, dirs[k - 1, 1], j + 1, W)
+                v += w * ((sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0])
+                          / ((r1 - r0) * (c1 - c0)))
+            out[t, i] = v
     return out
 
 
@@ -296,14 +296,21 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
             if S >= 4 else [(everyone, everyone)])
     vals = np.zeros((S, Q))
     choices = []
+    pooled_sat = np.empty_like(sats[0])
+    pooled_c = np.empty((J1, Q))
     for read, chooser in plan:
         w = ici._weights({k: emitted[order[k]] for k in chooser}, list(chooser))
         n = float(e[chooser].sum())
         scale = q / n if n > 0 and q > 0 else 0.0
-        jk, wk = choose_fused(np.tensordot(w, sats[chooser], 1),
-                              np.tensordot(w, Rl[chooser], 1), areas, rows, cols,
-                              DIRECTIONS, a_pix, scale, gamma)
-        vals[read] = apply_fused(sats[read], Rl[read], rows, cols, DIRECTIONS, jk, wk)
+        pooled_sat[:] = 0.0
+        pooled_c[:] = 0.0
+        for wi, k in zip(w, chooser, strict=True):  # in place: no copies of the stacks
+            pooled_sat += wi * sats[k]
+            pooled_c += wi * Rl[k]
+        jk, wk = choose_fused(pooled_sat, pooled_c, areas, rows, cols, DIRECTIONS, a_pix,
+                              scale, gamma)
+        vals[read] = apply_fused(sats, Rl, np.asarray(read, np.int64), rows, cols,
+                                 DIRECTIONS, jk, wk)
         choices.append((read, jk, wk))
     w_all = ici._weights(emitted, order)
     C = np.asarray(rungs[order[0]]).shape[-1]
@@ -316,8 +323,9 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
             for k in read:
                 part += w_all[k] * np.asarray(rungs[order[k]], np.float64)
             pc = np.ascontiguousarray(np.moveaxis(part, -1, 0))  # (C, J+1, Q)
-            lux += apply_fused(pixel_sat(pc[:, 0].reshape(C, H, W)), pc, rows, cols,
-                               DIRECTIONS, jk, wk).T
+            lux += apply_fused(pixel_sat(pc[:, 0].reshape(C, H, W)), pc,
+                               np.arange(C, dtype=np.int64), rows, cols, DIRECTIONS, jk,
+                               wk).T
     _, jk, wk = choices[0]
     choice = FusedChoice(jk[np.arange(Q), np.argmax(wk, axis=1)], lux, jk, wk)
     return FusedMap(choice, vals, None, ici._lit_masks(rungs, choice, lit_fraction, vals))
