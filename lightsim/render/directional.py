@@ -183,12 +183,18 @@ def choose_fused(sat, Ec, Ac, rows, cols, dirs, a_pix, scale, gamma):
     W = sat.shape[1] - 1
     jk = np.zeros((Q, K), np.int64)
     wk = np.zeros((Q, K))
-    for i in prange(Q):
+    chunk = 256  # queries per work item: the scratch arrays are made once per item
+    for b in prange((Q + chunk - 1) // chunk):
         E = np.empty((K, J + 1))
         A = np.empty((K, J + 1))
-        _ladders(sat, 0, 0, H, W, Ec[:, i], Ac[:, i], rows[i], cols[i], dirs, a_pix, E, A,
-                 J)
-        _choose(E, A, J, scale, gamma, jk[i], wk[i])
+        ec = np.empty(J + 1)
+        ac = np.empty(J + 1)
+        for i in range(b * chunk, min(Q, (b + 1) * chunk)):
+            for j in range(J + 1):
+                ec[j] = Ec[j, i]
+                ac[j] = Ac[j, i]
+            _ladders(sat, 0, 0, H, W, ec, ac, rows[i], cols[i], dirs, a_pix, E, A, J)
+            _choose(E, A, J, scale, gamma, jk[i], wk[i])
     return jk, wk
 
 
