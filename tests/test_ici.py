@@ -202,7 +202,7 @@ def test_fused_map_figure_is_honest_and_its_edge_error_lower():
     """The fused directional map (the raster recognised from its window areas) on the
     oblique step: its figure within 0.8–1.25 of its actual error over repeats, and its
     true error in the band along the step below the centred map's from the same photons;
-    the default writes the map with the lower figure."""
+    the default writes the fused map only with a figure clearly below the centred's."""
     H, W, S, R = 10, 20, 16, 30
     sides = np.arange(1, 5)
     lam = _lattice_field(H, W, 3.0)
@@ -220,8 +220,9 @@ def test_fused_map_figure_is_honest_and_its_edge_error_lower():
         fused = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=True)
         centred = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=False)
         assert fused.choice.weights is not None and not hasattr(centred.choice, "weights")
-        best = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0)  # the lower figure
-        assert best.error.total == min(fused.error.total, centred.error.total)
+        best = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0)  # the default
+        f, c = fused.error.total, centred.error.total
+        assert best.error.total == (f if f < ici.FUSED_MARGIN * c else c)
         err = {k: (m.lux[:, 0] - mu).reshape(H, W) for k, m in
                (("fused", fused), ("centred", centred))}
         ratio.append(fused.error.total / (math.sqrt(np.mean(err["fused"] ** 2)) / mu.mean()))
