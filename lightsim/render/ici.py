@@ -31,6 +31,10 @@ The windows are sums over a half-pixel lattice of photon power that every set ke
 summed-area table: O(1) per pixel and rung whatever the photon count, where disk queries
 on the photon map cost in proportion to the photons inside the largest disk.
 
+On the whole wall raster :func:`written_map` also makes the fused directional map of
+:mod:`lightsim.render.directional` (one-sided windows that reach inwards next to an edge,
+LPA-ICI) and writes it where its own, cross-fitted figure is clearly the lower.
+
 ===============  =====  ========  ========================================================
 parameter        unit   default   meaning
 ===============  =====  ========  ========================================================
@@ -43,6 +47,8 @@ parameter        unit   default   meaning
 ``CERTIFY``      –      0.25      the blur estimate's standard error may be at most this
                                   × the squared error the figure reports
 ``MIX_STEPS``    –      40        steps of the counts' weight α in the written map
+``FUSED_MARGIN`` –      0.9       the fused map is written below this × the centred
+                                  map's figure
 ===============  =====  ========  ========================================================
 """
 
