@@ -53,6 +53,8 @@ parameter        unit   default   meaning
 ``q``            lm     –         ΣΦ²/ΣΦ of the wall photons (all sets)
 ``n``            –      –         photons emitted, all sets
 ``a_pix``        m²     dh dv     pixel area (the σ of a window of c pixels uses c a_pix)
+``GUIDE``        –      0.5       pixels fused: the centred map ≥ GUIDE × the lit fraction
+                                  × its maximum (the rest keep the centred value)
 ===============  =====  ========  ========================================================
 """
 
@@ -63,12 +65,14 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from lightsim.render.frame import luminous
 from lightsim.render.ici import IciChoice
 
 #: (dy, dx) of the directional ladders 1 … 8: rows grow downwards, columns to the right.
 DIRECTIONS = np.array([(-1, -1), (-1, 1), (1, -1), (1, 1), (-1, 0), (1, 0), (0, -1), (0, 1)],
                       dtype=np.int64)
 LADDERS = 1 + len(DIRECTIONS)  # the centred ladder first
+GUIDE = 0.5  # pixels fused: centred map ≥ GUIDE × the lit fraction × its maximum
 
 
 def pixel_sat(img: np.ndarray) -> np.ndarray:
@@ -253,9 +257,18 @@ class FusedMap:
     lits: tuple | None
 
 
+def _combine(out: np.ndarray, stack: np.ndarray, which, weights) -> np.ndarray:
+    """Σ weights · stack[which] into ``out`` (in place: no copies of the stack)."""
+    out[:] = 0.0
+    for wi, k in zip(weights, which, strict=True):
+        out += wi * stack[k]
+    return out
+
+
 def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
               areas: np.ndarray, gamma: float, shape: tuple[int, int],
-              lit_fraction: float = 0.1) -> FusedMap:
+              lit_fraction: float = 0.1, guide: IciChoice | None = None,
+              win: np.ndarray | None = None) -> FusedMap:
     """The fused directional map over the whole H × W raster (``shape``), cross-fitted.
 
     With S ≥ 4 sets each half of them (:func:`lightsim.render.ici._halves`) is read at
@@ -281,6 +294,13 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         The centred windows' areas.
     gamma : float
         ICI interval half-width in standard errors.
+    guide : IciChoice, optional
+        The centred map (:func:`lightsim.render.ici.choose`): only pixels at ≥
+        :data:`GUIDE` × ``lit_fraction`` × its luminous maximum are fused; the others, far
+        below what the figure reads, keep the centred value and rung (a headlight's wall
+        is mostly dark: several times less work).
+    win : (S, Q) lx, optional
+        Every set's luminous rung 0, if the caller has it.
     """
     from lightsim.render import ici
 
@@ -294,44 +314,83 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     areas = np.ascontiguousarray(np.broadcast_to(
         np.asarray(areas, np.float64)[:J1].reshape(J1, -1), (J1, Q)))
     a_pix = float(areas[0, 0])
-    rows, cols = np.divmod(np.arange(Q, dtype=np.int64), W)
+    rows_all, cols_all = np.divmod(np.arange(Q, dtype=np.int64), W)
     sats = pixel_sat(Rl[:, 0].reshape(S, H, W))
+    C = np.asarray(rungs[order[0]]).shape[-1]
+    # the fused pixels: all, or those the centred map shows near or above the lit level
+    if guide is not None and Q:
+        g = luminous(np.asarray(guide.lux, np.float64))
+        sel = np.flatnonzero(g >= GUIDE * lit_fraction * float(g.max()))
+    else:
+        sel = np.arange(Q, dtype=np.int64)
+    rows, cols = rows_all[sel], cols_all[sel]
+    Rs = np.ascontiguousarray(Rl[:, :, sel])
+    As = np.ascontiguousarray(areas[:, sel])
+    Qs = len(sel)
     everyone = np.arange(S)
     # (sets read, sets that choose): each half at the other's choice, or all at their own
     plan = ([(h, g) for h, g in zip(ici._halves(S), ici._halves(S)[::-1], strict=True)]
             if S >= 4 else [(everyone, everyone)])
-    vals = np.zeros((S, Q))
     choices = []
     pooled_sat = np.empty_like(sats[0])
-    pooled_c = np.empty((J1, Q))
+    pooled_c = np.empty((J1, Qs))
+    w_all = ici._weights(emitted, order)
+    one = np.zeros(1, np.int64)
+    means = []  # each half's mean fused value (what the lit masks read), (Qs,)
+    lux1 = np.zeros(Qs)
     for read, chooser in plan:
         w = ici._weights({k: emitted[order[k]] for k in chooser}, list(chooser))
         n = float(e[chooser].sum())
         scale = q / n if n > 0 and q > 0 else 0.0
-        pooled_sat[:] = 0.0
-        pooled_c[:] = 0.0
-        for wi, k in zip(w, chooser, strict=True):  # in place: no copies of the stacks
-            pooled_sat += wi * sats[k]
-            pooled_c += wi * Rl[k]
-        jk, wk = choose_fused(pooled_sat, pooled_c, areas, rows, cols, DIRECTIONS, a_pix,
-                              scale, gamma)
-        vals[read] = apply_fused(sats, Rl, np.asarray(read, np.int64), rows, cols,
-                                 DIRECTIONS, jk, wk)
+        jk, wk = choose_fused(_combine(pooled_sat, sats, chooser, w),
+                              _combine(pooled_c, Rs, chooser, w), As, rows, cols,
+                              DIRECTIONS, a_pix, scale, gamma)
+        flat = np.full(len(read), 1.0 / len(read))
+        means.append(apply_fused(_combine(pooled_sat, sats, read, flat)[None],
+                                 _combine(pooled_c, Rs, read, flat)[None], one, rows, cols,
+                                 DIRECTIONS, jk, wk)[0])
+        if C == 1:  # the map itself: linear in the sets, so from their weighted sum
+            lux1 += apply_fused(_combine(pooled_sat, sats, read, w_all[read])[None],
+                                _combine(pooled_c, Rs, read, w_all[read])[None], one, rows,
+                                cols, DIRECTIONS, jk, wk)[0]
         choices.append((read, jk, wk))
-    w_all = ici._weights(emitted, order)
-    C = np.asarray(rungs[order[0]]).shape[-1]
+    # every set's value is needed only where the figure may read it (lit for either
+    # half: a half's mean ≥ the threshold); 0 elsewhere leaves the lit masks as they are
+    vals = np.zeros((S, Q))
+    if Qs:
+        overall = sum(len(r) * m for (r, _), m in zip(plan, means, strict=True)) / S
+        thr = lit_fraction * float(overall.max()) * (1.0 - 1e-9)
+        cand = np.flatnonzero(np.any(np.stack(means) >= thr, axis=0))
+        Rc = np.ascontiguousarray(Rs[:, :, cand])
+        for read, jk, wk in choices:
+            vals[np.ix_(read, sel[cand])] = apply_fused(
+                sats, Rc, np.asarray(read, np.int64), rows[cand], cols[cand], DIRECTIONS,
+                np.ascontiguousarray(jk[cand]), np.ascontiguousarray(wk[cand]))
+    lux = np.zeros((Q, C))
+    if guide is not None:  # the pixels not fused keep the centred map's value
+        lux[:] = np.asarray(guide.lux, np.float64)
     if C == 1:
-        lux = (w_all @ vals)[:, None]
+        lux[sel, 0] = lux1
     else:  # every channel fused with the luminous choice of its half
-        lux = np.zeros((Q, C))
+        lux[sel] = 0.0
         for read, jk, wk in choices:
             part = np.zeros((J1, Q, C))
             for k in read:
                 part += w_all[k] * np.asarray(rungs[order[k]], np.float64)
             pc = np.ascontiguousarray(np.moveaxis(part, -1, 0))  # (C, J+1, Q)
-            lux += apply_fused(pixel_sat(pc[:, 0].reshape(C, H, W)), pc,
-                               np.arange(C, dtype=np.int64), rows, cols, DIRECTIONS, jk,
-                               wk).T
+            lux[sel] += apply_fused(pixel_sat(pc[:, 0].reshape(C, H, W)),
+                                    np.ascontiguousarray(pc[:, :, sel]),
+                                    np.arange(C, dtype=np.int64), rows, cols, DIRECTIONS,
+                                    jk, wk).T
+    jk_all = np.zeros((Q, LADDERS), np.int64)
+    wk_all = np.zeros((Q, LADDERS))
+    wk_all[:, 0] = 1.0
+    if guide is not None:
+        jk_all[:, 0] = guide.rung
+    if choices:
+        jk_all[sel], wk_all[sel] = choices[0][1], choices[0][2]
+    choices = [(None, jk_all, wk_all)]
     _, jk, wk = choices[0]
     choice = FusedChoice(jk[np.arange(Q), np.argmax(wk, axis=1)], lux, jk, wk)
-    return FusedMap(choice, vals, None, ici._lit_masks(rungs, choice, lit_fraction, vals))
+    return FusedMap(choice, vals, None,
+                    ici._lit_masks(rungs, choice, lit_fraction, vals, win))

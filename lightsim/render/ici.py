@@ -349,8 +349,8 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
 
 def chosen_per_set(rungs: dict[int, np.ndarray], rung: np.ndarray) -> np.ndarray:
     """(S, Q, C) every set's value at the chosen rungs (set order)."""
-    return np.stack([np.take_along_axis(np.asarray(rungs[s], np.float64),
-                                        rung[None, :, None], 0)[0] for s in sorted(rungs)])
+    return np.stack([np.take_along_axis(np.asarray(rungs[s]), rung[None, :, None], 0)[0]
+                     .astype(np.float64) for s in sorted(rungs)])
 
 
 CERTIFY = 0.25  # largest standard error of the blur estimate, × the squared error it certifies
@@ -475,16 +475,17 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
 
 
 def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
-               vals: np.ndarray | None = None):
+               vals: np.ndarray | None = None, win: np.ndarray | None = None):
     """(vals (S, Q), counts (S, Q), halves, lit mask of each half) for :func:`_mix_parts`:
     half h is measured over the queries the *other* half calls lit; None with fewer than
     two sets or nothing lit. ``vals``: every set's luminous value of the map (S, Q), if
-    not each set's value at ``choice.rung``."""
+    not each set's value at ``choice.rung``; ``win``: their rung 0 (S, Q), if known."""
     if len(rungs) < 2:
         return None
     if vals is None:
         vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
-    win = luminous(np.stack([np.asarray(rungs[s][0], np.float64) for s in sorted(rungs)]))
+    if win is None:  # every set's luminous pixel count (rung 0), (S, Q)
+        win = luminous(np.stack([np.asarray(rungs[s][0], np.float64) for s in sorted(rungs)]))
     S = vals.shape[0]
     if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
         return None
@@ -604,28 +605,29 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         directional = False
     if directional is not False and shape is None:
         shape = raster_shape(areas)
-    maps = []
+    choice = choose(rungs, emitted, q, areas, gamma)
+    fused = None
     if directional is not False and shape is not None and \
             np.asarray(rungs[next(iter(rungs))]).shape[0] >= 2:
         from lightsim.render.directional import fused_map
 
-        fm = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction)
-        maps.append(_mixed(rungs, emitted, fm.choice, fm.vals, fm.blur, fm.lits,
-                           lit_fraction))
+        win = luminous(np.stack([np.asarray(rungs[s][0], np.float64) for s in sorted(rungs)]))
+        fm = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction, guide=choice,
+                       win=win)
+        fused = _mixed(rungs, emitted, fm.choice, fm.vals, fm.blur, fm.lits, lit_fraction)
         if directional:
-            return maps[0]
-    choice = choose(rungs, emitted, q, areas, gamma)
+            return fused
     blur = None
-    lits = _lit_masks(rungs, choice, lit_fraction)
+    lits = _lit_masks(rungs, choice, lit_fraction, win=None if fused is None else win)
     if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
         read = lit_queries(lits)
         blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
                              queries=read)
     centred = _mixed(rungs, emitted, choice, None, blur, lits, lit_fraction)
-    if maps and maps[0].figure is not None and (
+    if fused is not None and fused.figure is not None and (
             centred.figure is None
-            or maps[0].figure.error.total < FUSED_MARGIN * centred.figure.error.total):
-        return maps[0]
+            or fused.figure.error.total < FUSED_MARGIN * centred.figure.error.total):
+        return fused
     return centred
 
 
