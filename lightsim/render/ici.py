@@ -31,6 +31,10 @@ The windows are sums over a half-pixel lattice of photon power that every set ke
 summed-area table: O(1) per pixel and rung whatever the photon count, where disk queries
 on the photon map cost in proportion to the photons inside the largest disk.
 
+On the whole wall raster :func:`written_map` also makes the fused directional map of
+:mod:`lightsim.render.directional` (one-sided windows that reach inwards next to an edge,
+LPA-ICI) and writes it where its own, cross-fitted figure is clearly the lower.
+
 ===============  =====  ========  ========================================================
 parameter        unit   default   meaning
 ===============  =====  ========  ========================================================
@@ -43,6 +47,8 @@ parameter        unit   default   meaning
 ``CERTIFY``      –      0.25      the blur estimate's standard error may be at most this
                                   × the squared error the figure reports
 ``MIX_STEPS``    –      40        steps of the counts' weight α in the written map
+``FUSED_MARGIN`` –      0.9       the fused map is written below this × the centred
+                                  map's figure
 ===============  =====  ========  ========================================================
 """
 
@@ -343,8 +349,8 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
 
 def chosen_per_set(rungs: dict[int, np.ndarray], rung: np.ndarray) -> np.ndarray:
     """(S, Q, C) every set's value at the chosen rungs (set order)."""
-    return np.stack([np.take_along_axis(np.asarray(rungs[s], np.float64),
-                                        rung[None, :, None], 0)[0] for s in sorted(rungs)])
+    return np.stack([np.take_along_axis(np.asarray(rungs[s]), rung[None, :, None], 0)[0]
+                     .astype(np.float64) for s in sorted(rungs)])
 
 
 CERTIFY = 0.25  # largest standard error of the blur estimate, × the squared error it certifies
@@ -468,14 +474,18 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
                      round(sum(p.lit for p in parts) / k))
 
 
-def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float):
+def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
+               vals: np.ndarray | None = None, win: np.ndarray | None = None):
     """(vals (S, Q), counts (S, Q), halves, lit mask of each half) for :func:`_mix_parts`:
     half h is measured over the queries the *other* half calls lit; None with fewer than
-    two sets or nothing lit."""
+    two sets or nothing lit. ``vals``: every set's luminous value of the map (S, Q), if
+    not each set's value at ``choice.rung``; ``win``: their rung 0 (S, Q), if known."""
     if len(rungs) < 2:
         return None
-    vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
-    win = luminous(np.stack([np.asarray(rungs[s], np.float64)[0] for s in sorted(rungs)]))
+    if vals is None:
+        vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
+    if win is None:  # every set's luminous pixel count (rung 0), (S, Q)
+        win = luminous(np.stack([np.asarray(rungs[s][0], np.float64) for s in sorted(rungs)]))
     S = vals.shape[0]
     if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
         return None
@@ -523,6 +533,13 @@ def estimate_error(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction
 
 
 MIX_STEPS = 40  # the weight of the pixel counts is searched in steps of 1/40
+#: whether :func:`written_map` (``directional=None``) may write the fused directional map
+#: of a whole raster; studies set it False to compare with the centred map
+DIRECTIONAL = True
+#: the fused map replaces the centred one only with a figure below this × the centred's:
+#: the two figures scatter by several per cent, and a choice between near-equal figures
+#: would pick the one that happens to read low (optimism), for no real gain
+FUSED_MARGIN = 0.9
 
 
 @dataclass
@@ -551,7 +568,9 @@ class WrittenMap:
 
 
 def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
-                areas: np.ndarray, gamma: float, lit_fraction: float = 0.1) -> WrittenMap:
+                areas: np.ndarray, gamma: float, lit_fraction: float = 0.1,
+                shape: tuple[int, int] | None = None, directional: bool | None = None
+                ) -> WrittenMap:
     """The ICI map mixed with the pixel counts: the lowest error that can be signed.
 
     A window's blur is measured against the pixel's own count, whose noise σ₀ does not
@@ -568,20 +587,66 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     certified. One number chosen from n pixels' figures adds little optimism; the blur
     part is :func:`held_out_blur`, free of the per-pixel choice's.
 
+    When the queries are the whole wall raster in row order (``shape`` = (H, W), or
+    recognised from ``areas`` by :func:`raster_shape`), a second map is made: the fusion
+    of the centred ladder with eight directional ones (:mod:`lightsim.render.directional`),
+    whose windows next to an edge reach inwards instead of falling back to the pixel,
+    with a figure of its own (cross-fitted, honest like this one). ``directional``: None
+    (default, :data:`DIRECTIONAL`) writes the fused map where its certified figure is
+    below :data:`FUSED_MARGIN` × the centred map's — where the pattern is smooth enough
+    for its wider support (the paraboloid: 0.75–0.8 ×) — and the centred one elsewhere
+    (the headlight at 320 × 128: 0.96–1.0 ×, where the fused map's true error is the
+    higher); True the fused map, False the centred map alone.
+
     ``rungs`` {set: (J+1, Q, C)} already cut to the ladder allowed at these photons
     (:func:`shrink_sides`); the other parameters as in :func:`choose`.
     """
+    if directional is None and not DIRECTIONAL:
+        directional = False
+    if directional is not False and shape is None:
+        shape = raster_shape(areas)
     choice = choose(rungs, emitted, q, areas, gamma)
+    fused = None
+    if directional is not False and shape is not None and \
+            np.asarray(rungs[next(iter(rungs))]).shape[0] >= 2:
+        from lightsim.render.directional import fused_map
+
+        win = luminous(np.stack([np.asarray(rungs[s][0], np.float64) for s in sorted(rungs)]))
+        fm = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction, guide=choice,
+                       win=win)
+        fused = _mixed(rungs, emitted, fm.choice, fm.vals, fm.blur, fm.lits, lit_fraction)
+        if directional:
+            return fused
     blur = None
-    lits = _lit_masks(rungs, choice, lit_fraction)
+    lits = _lit_masks(rungs, choice, lit_fraction, win=None if fused is None else win)
     if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
-        read = (np.flatnonzero(lits[3][0] | lits[3][1]) if lits is not None
-                else np.zeros(0, np.int64))
+        read = lit_queries(lits)
         blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
                              queries=read)
+    centred = _mixed(rungs, emitted, choice, None, blur, lits, lit_fraction)
+    if fused is not None and fused.figure is not None and (
+            centred.figure is None
+            or fused.figure.error.total < FUSED_MARGIN * centred.figure.error.total):
+        return fused
+    return centred
+
+
+def lit_queries(lits) -> np.ndarray:
+    """Indices of the queries either half's figure reads (see :func:`_lit_masks`)."""
+    return (np.flatnonzero(lits[3][0] | lits[3][1]) if lits is not None
+            else np.zeros(0, np.int64))
+
+
+def _mixed(rungs: dict[int, np.ndarray], emitted: dict[int, int], choice: IciChoice,
+           vals: np.ndarray | None, blur: np.ndarray | None, lits, lit_fraction: float
+           ) -> WrittenMap:
+    """The written map of a choice: the counts' weight α with the lowest certified figure
+    (``vals``: every set's luminous map values if not at ``choice.rung``)."""
     order = sorted(rungs)
     w = _weights(emitted, order)
-    counts = np.tensordot(w, np.stack([np.asarray(rungs[s], np.float64)[0] for s in order]), 1)
+    counts = np.zeros_like(choice.lux)
+    for wi, s in zip(w, order, strict=True):
+        counts += wi * np.asarray(rungs[s][0], np.float64)
     mix = None if lits is None else _mix_parts(rungs, choice, lit_fraction, blur, lits)
     fig, alpha = None, 0.0
     if mix is not None:
@@ -590,3 +655,31 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         if ok:
             _, alpha, fig = min(ok, key=lambda t: (t[0], t[1]))
     return WrittenMap(choice, (1.0 - alpha) * choice.lux + alpha * counts, alpha, fig)
+
+
+def raster_shape(areas: np.ndarray) -> tuple[int, int] | None:
+    """(H, W) when window areas (J+1, Q) m² are those of every pixel of an H × W wall in
+    row order (:func:`window_cells` × a quarter pixel, checked exactly), else None.
+
+    The side-2 window is clipped to 9 of its 16 half-pixel cells at the wall's four
+    corners only, which fixes W; the check against :func:`window_cells` then rules out any
+    other query set.
+    """
+    areas = np.asarray(areas, dtype=np.float64)
+    if areas.ndim != 2 or areas.shape[0] < 2 or areas.shape[1] < 4:
+        return None
+    a0 = areas[0]
+    if not (a0[0] > 0 and np.all(a0 == a0[0])):
+        return None
+    corner = np.flatnonzero(np.isclose(areas[1] / a0[0], 2.25, rtol=1e-9, atol=0))
+    if len(corner) != 4:
+        return None
+    W = int(corner[1]) + 1
+    Q = areas.shape[1]
+    if W < 2 or Q % W or Q // W < 2:
+        return None
+    H = Q // W
+    rows, cols = np.divmod(np.arange(Q), W)
+    sides = np.arange(1, areas.shape[0] + 1)
+    cells = window_cells(H, W, rows, cols, sides) * (0.25 * a0[0])
+    return (H, W) if np.allclose(cells, areas, rtol=1e-9, atol=0) else None
