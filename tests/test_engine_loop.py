@@ -12,7 +12,7 @@ from lightsim.engine.local import LocalBackend
 from lightsim.engine.photonset import DeferredPhotonMap, add_to_cells
 from lightsim.engine.ray_backend import RayBackend
 from lightsim.engine.results import FrameResult
-from lightsim.engine.server import ErrorSchedule, Session
+from lightsim.engine.server import EXPONENT_RANGE, ErrorSchedule, Session
 from lightsim.photonmap.density import PhotonMap
 from lightsim.render.frame import ErrorEstimate
 from lightsim.sampling import DIGITS, N_DIMS, PRIMES, digit_permutations, halton_points
@@ -85,15 +85,49 @@ def test_error_schedule_spacing():
     assert plain.due(0)
     plain.estimated(1_000, _est(0.5))
     assert not plain.due(1_999) and plain.due(2_000)  # doubling without a target
-    aimed = ErrorSchedule(target_error=0.1)
+    aimed = ErrorSchedule(target_error=0.1, aim=1.0)
     aimed.estimated(1_000, _est(0.4))  # 16× the photons expected: capped at 2×
-    assert aimed.next_photons == 2_000
-    aimed.estimated(2_000, _est(0.11))  # (0.11/0.1)² = 1.21
-    assert aimed.next_photons == pytest.approx(2_420)
-    aimed.estimated(3_000, _est(0.09))  # below the target: the very next frame
-    assert aimed.due(3_000)
-    aimed.estimated(3_000, _est(None))  # no figure: plain doubling
-    assert aimed.next_photons == 6_000
+    assert aimed.next_photons == 2_000 and not aimed.stop_expected
+    aimed.estimated(2_000, _est(0.19))  # measured law: p = 1.07, clamped to 1 → 1.9×
+    assert aimed.exponent("probes") == EXPONENT_RANGE[1]
+    assert aimed.next_photons == pytest.approx(3_800) and aimed.stop_expected
+    aimed.estimated(4_000, _est(0.11))  # a line through the three points
+    x, y = np.log([1_000, 2_000, 4_000]), np.log([0.4, 0.19, 0.11])
+    p = -np.polyfit(x, y, 1)[0]
+    assert aimed.exponent("probes") == pytest.approx(p)
+    assert aimed.next_photons == pytest.approx(4_000 * 1.1 ** (1 / p))
+    aimed.estimated(5_000, _est(0.09))  # below the target: the very next frame
+    assert aimed.due(5_000)
+    aimed.estimated(5_000, _est(None))  # no figure: plain doubling
+    assert aimed.next_photons == 10_000
+
+
+def test_error_schedule_fits_each_figure_and_clamps_the_law():
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    s.estimated(1_000, _est(0.15), "probes")
+    s.estimated(1_500, _est(0.12), "map")  # another figure: its own law (0.5 at first)
+    assert s.exponent("map") == 0.5 and s.next_photons == pytest.approx(1_500 * 1.44)
+    s.estimated(2_000, _est(0.105), "probes")  # p = 0.51 from this figure's two points
+    assert s.exponent("probes") == pytest.approx(np.log(0.15 / 0.105) / np.log(2))
+    s.estimated(3_000, _est(0.16), "probes")  # the error grew: the slowest law allowed
+    assert s.exponent("probes") == EXPONENT_RANGE[0]
+    assert s.next_photons == pytest.approx(3_000 * 2)  # 1.6^(1/0.35) > growth
+    s.estimated(4_000, _est(0.0))  # a zero figure: look again after the next frame
+    assert s.next_photons == 4_000 and not s.stop_expected
+
+
+def test_error_schedule_estimates_at_the_nearest_frame_to_the_stop():
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    for n in (1_000, 2_000):
+        assert s.due(n)
+    s.estimated(2_000, _est(0.106))  # the law puts the stop at 2 247 photons
+    assert s.stop_expected and s.next_photons == pytest.approx(2_000 * 1.06**2)
+    assert s.due(2_200)  # frames of 200: 2 200 is nearer than 2 400
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    s.due(1_000)
+    s.due(2_000)
+    s.estimated(2_000, _est(0.2))  # the stop at 8 000, beyond growth: plain ×2 rule
+    assert not s.stop_expected and not s.due(3_900) and s.due(4_000)
 
 
 def test_run_estimates_on_schedule_and_the_map_does_not_depend_on_it(point):
