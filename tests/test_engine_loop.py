@@ -233,3 +233,17 @@ def test_final_map_without_probes_is_the_ici_map(point):
             rungs.append(est.rungs)
     assert np.array_equal(maps[0], maps[1])
     assert np.array_equal(rungs[0], rungs[1]) and rungs[1].max() > 0  # windows were used
+
+
+@pytest.mark.parametrize("args", [(1, 3, None), (1, 3, 0, (5, 3)), (2**40 + 7, 15, 12, (5, 3)),
+                                  (0, 0, None, (2, 1)), (5, 2, 3), (9, 1, 7, (60, 40))])
+def test_compiled_digit_permutations_are_numpys(args):
+    """The compiled shuffles draw from the same bit generators in the same order as a
+    Python loop over ``Generator.permutation``: the same scramble, bit for bit."""
+    from lightsim.sampling import _digit_permutations_reference
+
+    got = digit_permutations(*args)
+    np.testing.assert_array_equal(got, _digit_permutations_reference(*args))
+    for d in range(N_DIMS):  # each row a permutation of its base's digits
+        b = int(PRIMES[d])
+        assert np.array_equal(np.sort(got[d, :, :b], axis=1), np.tile(np.arange(b), (53, 1)))
