@@ -194,6 +194,9 @@ class Session:
                  plan: Plan | None = None, checkpoint: dict | None = None) -> None:
         if scene.wall is None:
             raise InputError("the scene has no measurement wall")
+        from lightsim.engine.numba_start import defer_blas_probe
+
+        defer_blas_probe()  # before the first kernel load: numba without scipy.linalg
         self.config = config or RunConfig()
         self.scene = scene
         caster = None
