@@ -185,6 +185,22 @@ def test_bench_pipeline_rows(point):
     assert 0 < r["sample_s"] and 0 < r["trace_s"] and r["insert_s"] >= 0
     assert r["sample_s"] + r["trace_s"] + r["insert_s"] <= r["run_s"]
     assert 0 < r["trace_share"] < 1 and 0 < r["ray_ratio"] < 10
+    # the like-with-like baseline: the bare tracer on the run's own photons
+    assert r["ratio_same_photons"] == pytest.approx(
+        r["simulate_photons_per_s"] / r["tracer_same_photons_per_s"])
+    assert 0 < r["ratio_same_photons"] < 10
+
+
+def test_pipeline_recorder_keeps_the_runs_photons(point):
+    from lightsim.validation.bench.pipeline import _Recorder, _run
+
+    cfg = RunConfig(frame_photons=10_000, interleave=2, seed=2)
+    rec = _Recorder()
+    a = _run(point, cfg, 30_000, rec)
+    pts, keys, w = rec.photons()
+    assert len(pts) == len(keys) == len(w) == a["photons"] == 30_000
+    b = _run(point, cfg, 30_000)  # recording does not change the run
+    assert (a["photons"], a["rays"]) == (b["photons"], b["rays"])
 
 
 def test_session_sums_what_the_clients_shot(point):
