@@ -263,3 +263,20 @@ def test_compiled_digit_permutations_are_numpys(args):
     for d in range(N_DIMS):  # each row a permutation of its base's digits
         b = int(PRIMES[d])
         assert np.array_equal(np.sort(got[d, :, :b], axis=1), np.tile(np.arange(b), (53, 1)))
+
+
+def test_a_large_wall_checks_the_probes_until_the_law_expects_the_stop(point):
+    """Where the written map costs more than the probes' figure (here 576 pixels for 64
+    grid probes) the run estimates at the probes, and measures the written map itself
+    where the error law places the stop; a small wall measures the map every time."""
+    cfg = RunConfig(frame_photons=8_000, interleave=2, seed=7, probe_grid=(8, 8))
+    with Session(point, cfg) as s:
+        assert not s.map_check_is_cheap()
+        seen: list[FrameResult] = []
+        final = s.run(target_error=0.08, photons=2_000_000, callback=seen.append)
+    estimated = [e for e in seen if "render" in e.timings]
+    maps = [e for e in estimated if e.lux is not None]
+    assert maps and estimated[0].lux is None  # the probes first, the map near the stop
+    assert final.error.upper <= 0.08 and final.photons == maps[-1].photons
+    with Session(point, RunConfig(frame_photons=8_000, interleave=2)) as s:
+        assert s.map_check_is_cheap()  # 576 pixels, 2 048 grid probes
