@@ -22,6 +22,7 @@ parameter           unit   default  meaning
 ==================  =====  =======  ================================================
 ``min_frames``      –      3        frames before a target error may stop a run
 ``growth``          –      2        photons between two error estimates grow ≤ this
+``aim``             –      0.98     a target-error stop is aimed at this × the target
 ==================  =====  =======  ================================================
 """
 
