@@ -280,3 +280,15 @@ def test_a_large_wall_checks_the_probes_until_the_law_expects_the_stop(point):
     assert final.error.upper <= 0.08 and final.photons == maps[-1].photons
     with Session(point, RunConfig(frame_photons=8_000, interleave=2)) as s:
         assert s.map_check_is_cheap()  # 576 pixels, 2 048 grid probes
+
+
+def test_error_schedule_scales_the_probes_figure_to_the_written_maps():
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    s.calibrate(_est(0.4), _est(0.2))  # the map's figure is half the probes'
+    assert s.calibrated and s.probe_scale == pytest.approx(0.5)
+    s.estimated(1_000, _est(0.24))  # as a map figure 0.12: (1.2)² photons
+    assert s.stop_expected and s.next_photons == pytest.approx(1_440)
+    s.estimated(1_440, _est(0.16), "map")  # one map point: the probes' law is borrowed
+    assert s.exponent("map") == 0.5
+    s.calibrate(_est(None), _est(0.2))  # no probe figure: the ratio measured stays
+    assert s.probe_scale == pytest.approx(0.5)

@@ -88,8 +88,11 @@ class ErrorSchedule:
     to :data:`EXPONENT_RANGE`; 0.5, the noise's, with one estimate), at the frame nearest
     to that photon count (``due``), at most ``growth`` × N and at least the next frame.
     ``stop_expected`` says the next estimate is placed to stop the run (the loop then
-    measures the written map itself there, see :meth:`Session.run`). Deterministic: it
-    depends on photons and estimates only, never on the clock.
+    measures the written map itself there, see :meth:`Session.run`). The probes' figure
+    can sit well above or below the written map's (on the shipped headlight ~2× above):
+    :meth:`calibrate` measures their ratio once, and the probes' figure is scaled by it
+    before the law places the stop. Deterministic: it depends on photons and estimates
+    only, never on the clock.
 
     ==============  =====  =======  ==================================================
     parameter       unit   default  meaning
@@ -105,6 +108,8 @@ class ErrorSchedule:
     next_photons: float = 0.0
     stop_expected: bool = False
     history: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
+    probe_scale: float = 1.0  # the written map's figure over the probes' (calibrate)
+    calibrated: bool = False
     _step: float = 0.0  # photons of the last frame (the nearest-frame rule of ``due``)
     _last_seen: int = 0
 
@@ -124,8 +129,10 @@ class ErrorSchedule:
         :data:`LAW_POINTS` estimates of figure ``kind`` in log N, log e (one estimate's
         scatter moves it less than a two-point slope), clamped to :data:`EXPONENT_RANGE`."""
         pts = self.history.get(kind, [])[-LAW_POINTS:]
-        if len(pts) < 2:
-            return 0.5
+        if len(pts) < 2:  # the other figure's law, if it has one, else the noise's
+            other = self.history.get("probes" if kind == "map" else "map", [])
+            return self.exponent("probes" if kind == "map" else "map") if (
+                len(other) >= 2) else 0.5
         x = np.log([n for n, _ in pts])
         y = np.log([e for _, e in pts])
         dx = x - x.mean()
@@ -144,12 +151,22 @@ class ErrorSchedule:
             e = est.error.upper
             if math.isfinite(e) and e > 0:
                 self.history.setdefault(kind, []).append((photons, e))
-                ratio = (e / (self.aim * self.target_error)) ** (1.0 / self.exponent(kind))
+                level = e * (self.probe_scale if kind == "probes" else 1.0)
+                ratio = (level / (self.aim * self.target_error)) ** (1.0 / self.exponent(kind))
                 factor = min(self.growth, ratio)
                 self.stop_expected = ratio <= self.growth
             else:  # no usable figure (0 or not finite): look again after the next frame
                 factor = 1.0
         self.next_photons = photons * max(1.0, factor)
+
+    def calibrate(self, probes: FrameResult, written: FrameResult) -> None:
+        """The ratio of the written map's figure to the probes' at the same photons
+        (kept as ``probe_scale``; 1 when either has no usable figure)."""
+        self.calibrated = True
+        a = None if probes.error is None else probes.error.upper
+        b = None if written.error is None else written.error.upper
+        if a and b and math.isfinite(a) and math.isfinite(b) and a > 0:
+            self.probe_scale = b / a
 
 
 @dataclass
@@ -562,6 +579,18 @@ class Session:
                     return final
                 continue
             est = self.estimate_at_probes(timings)
+            if (target_error is not None and not schedule.calibrated
+                    and self.frames >= min_frames):
+                # once: how the written map's figure stands to the probes' (the map is
+                # what the run reports; the probes' figure alone may sit 2× off it)
+                final = self.final_image(probes)
+                schedule.calibrate(est, final)
+                schedule.estimated(done, est)
+                if callback is not None:
+                    callback(final)
+                if self.error_low_enough(final, target_error, min_frames):
+                    return final
+                continue
             schedule.estimated(done, est)
             if callback is not None:
                 callback(est)
