@@ -102,7 +102,45 @@ def digit_permutations(seed: int, set_index: int, pass_index: int | None,
     cell_digits : (a, b)
         Number of leading base-2 and base-3 digits that define an SPT cell; they keep the
         pass-independent scramble.
+
+    Each (dimension, digit) takes ``Generator.permutation(base)`` in turn from the set's
+    generator (leading cell digits, or every digit without a pass) or the pass's; the
+    shuffles run in one compiled loop on the same bit generators (numba's
+    ``Generator.shuffle`` is NumPy's algorithm), so the permutations are NumPy's, bit for
+    bit (:func:`_digit_permutations_reference` is the plain loop).
     """
+    fixed = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, set_index, 0x5EED])
+    per_pass = (fixed if pass_index is None else
+                np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, set_index, 0xA55,
+                                       pass_index]))
+    lead = np.array([cell_digits[0], cell_digits[1], 0, 0, 0], dtype=np.int64)
+    if pass_index is None:
+        lead[:] = MAX_DIGITS
+    return _shuffled_digits(fixed, per_pass, lead)
+
+
+@njit(cache=True)
+def _shuffled_digits(fixed, per_pass, lead: np.ndarray) -> np.ndarray:
+    """The permutations of :func:`digit_permutations`: digit k of dimension d shuffles
+    0 … base−1 with ``fixed`` for k < lead[d], else with ``per_pass``, in (d, k) order."""
+    perms = np.zeros((N_DIMS, MAX_DIGITS, 11), dtype=np.int64)
+    for d in range(N_DIMS):
+        base = PRIMES[d]
+        for k in range(MAX_DIGITS):
+            row = perms[d, k, :base]
+            for j in range(base):
+                row[j] = j
+            if k < lead[d]:
+                fixed.shuffle(row)
+            else:
+                per_pass.shuffle(row)
+    return perms
+
+
+def _digit_permutations_reference(seed: int, set_index: int, pass_index: int | None,
+                                  cell_digits: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """:func:`digit_permutations` as a Python loop over ``Generator.permutation`` (the
+    definition its compiled loop must reproduce bit for bit; tests)."""
     perms = np.zeros((N_DIMS, MAX_DIGITS, 11), dtype=np.int64)
     fixed = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, set_index, 0x5EED])
     per_pass = (None if pass_index is None else

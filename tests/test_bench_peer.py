@@ -61,3 +61,28 @@ def test_peer_bench_tiny_both_maps_follow_the_exact_law(tmp_path):
     inside = sum(v for k, v in b.items() if k not in ("case", "setting", "process_s",
                                                       "startup"))
     assert b["startup"] + inside == pytest.approx(light.seconds)
+
+
+def test_second_score_covers_the_lit_pixels_rim_included():
+    case = peer.CASES["paraboloid"](32)
+    truth = peer.truth_of(case)
+    h, v = case.frame.pixel_centres()
+    r = np.hypot(*np.meshgrid(h, v))
+    rim = case.params["rim_radius_m"]
+    assert np.all(truth.lit[truth.inner]) and truth.lit.sum() > truth.inner.sum()
+    assert not truth.lit[r > 1.05 * rim].any()  # outside the rim only the direct light
+    assert truth.error(truth.exact_px) == 0.0 and truth.error(truth.exact_px, "lit") == 0.0
+    # a map wrong only on the rim: the inner score does not see it, the lit one does
+    lux = truth.exact_px * np.where(truth.lit & ~truth.inner, 1.1, 1.0)
+    assert truth.error(lux) == 0.0 and truth.error(lux, "lit") > 0.02
+
+
+def test_summary_rows_say_where_each_figure_landed():
+    runs = [peer.PeerRun("paraboloid", "mitsuba", "spp 9", 6.0, 9, 0.0195, None, 0.021),
+            peer.PeerRun("paraboloid", "lightsim", "--target-error 0.02", 3.0, 10, 0.011,
+                         0.0185, 0.0172)]
+    res = peer.PeerResult("paraboloid", runs, 6.0, 3.0, 2.0, True, False)
+    row = peer.summary_rows([res], 0.02)[0]
+    assert row["mitsuba_err"] == 0.0195 and row["mitsuba_err_lit"] == 0.021
+    assert row["ls_true_err_lit"] == 0.0172
+    assert row["ls_own_within_10pct"] is True and row["ls_lit_within_10pct"] is False

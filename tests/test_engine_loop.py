@@ -12,7 +12,7 @@ from lightsim.engine.local import LocalBackend
 from lightsim.engine.photonset import DeferredPhotonMap, add_to_cells
 from lightsim.engine.ray_backend import RayBackend
 from lightsim.engine.results import FrameResult
-from lightsim.engine.server import ErrorSchedule, Session
+from lightsim.engine.server import EXPONENT_RANGE, ErrorSchedule, Session
 from lightsim.photonmap.density import PhotonMap
 from lightsim.render.frame import ErrorEstimate
 from lightsim.sampling import DIGITS, N_DIMS, PRIMES, digit_permutations, halton_points
@@ -85,15 +85,49 @@ def test_error_schedule_spacing():
     assert plain.due(0)
     plain.estimated(1_000, _est(0.5))
     assert not plain.due(1_999) and plain.due(2_000)  # doubling without a target
-    aimed = ErrorSchedule(target_error=0.1)
+    aimed = ErrorSchedule(target_error=0.1, aim=1.0)
     aimed.estimated(1_000, _est(0.4))  # 16× the photons expected: capped at 2×
-    assert aimed.next_photons == 2_000
-    aimed.estimated(2_000, _est(0.11))  # (0.11/0.1)² = 1.21
-    assert aimed.next_photons == pytest.approx(2_420)
-    aimed.estimated(3_000, _est(0.09))  # below the target: the very next frame
-    assert aimed.due(3_000)
-    aimed.estimated(3_000, _est(None))  # no figure: plain doubling
-    assert aimed.next_photons == 6_000
+    assert aimed.next_photons == 2_000 and not aimed.stop_expected
+    aimed.estimated(2_000, _est(0.19))  # measured law: p = 1.07, clamped to 1 → 1.9×
+    assert aimed.exponent("probes") == EXPONENT_RANGE[1]
+    assert aimed.next_photons == pytest.approx(3_800) and aimed.stop_expected
+    aimed.estimated(4_000, _est(0.11))  # a line through the three points
+    x, y = np.log([1_000, 2_000, 4_000]), np.log([0.4, 0.19, 0.11])
+    p = -np.polyfit(x, y, 1)[0]
+    assert aimed.exponent("probes") == pytest.approx(p)
+    assert aimed.next_photons == pytest.approx(4_000 * 1.1 ** (1 / p))
+    aimed.estimated(5_000, _est(0.09))  # below the target: the very next frame
+    assert aimed.due(5_000)
+    aimed.estimated(5_000, _est(None))  # no figure: plain doubling
+    assert aimed.next_photons == 10_000
+
+
+def test_error_schedule_fits_each_figure_and_clamps_the_law():
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    s.estimated(1_000, _est(0.15), "probes")
+    s.estimated(1_500, _est(0.12), "map")  # another figure: its own law (0.5 at first)
+    assert s.exponent("map") == 0.5 and s.next_photons == pytest.approx(1_500 * 1.44)
+    s.estimated(2_000, _est(0.105), "probes")  # p = 0.51 from this figure's two points
+    assert s.exponent("probes") == pytest.approx(np.log(0.15 / 0.105) / np.log(2))
+    s.estimated(3_000, _est(0.16), "probes")  # the error grew: the slowest law allowed
+    assert s.exponent("probes") == EXPONENT_RANGE[0]
+    assert s.next_photons == pytest.approx(3_000 * 2)  # 1.6^(1/0.35) > growth
+    s.estimated(4_000, _est(0.0))  # a zero figure: look again after the next frame
+    assert s.next_photons == 4_000 and not s.stop_expected
+
+
+def test_error_schedule_estimates_at_the_nearest_frame_to_the_stop():
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    for n in (1_000, 2_000):
+        assert s.due(n)
+    s.estimated(2_000, _est(0.106))  # the law puts the stop at 2 247 photons
+    assert s.stop_expected and s.next_photons == pytest.approx(2_000 * 1.06**2)
+    assert s.due(2_200)  # frames of 200: 2 200 is nearer than 2 400
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    s.due(1_000)
+    s.due(2_000)
+    s.estimated(2_000, _est(0.2))  # the stop at 8 000, beyond growth: plain ×2 rule
+    assert not s.stop_expected and not s.due(3_900) and s.due(4_000)
 
 
 def test_run_estimates_on_schedule_and_the_map_does_not_depend_on_it(point):
@@ -151,6 +185,22 @@ def test_bench_pipeline_rows(point):
     assert 0 < r["sample_s"] and 0 < r["trace_s"] and r["insert_s"] >= 0
     assert r["sample_s"] + r["trace_s"] + r["insert_s"] <= r["run_s"]
     assert 0 < r["trace_share"] < 1 and 0 < r["ray_ratio"] < 10
+    # the like-with-like baseline: the bare tracer on the run's own photons
+    assert r["ratio_same_photons"] == pytest.approx(
+        r["simulate_photons_per_s"] / r["tracer_same_photons_per_s"])
+    assert 0 < r["ratio_same_photons"] < 10
+
+
+def test_pipeline_recorder_keeps_the_runs_photons(point):
+    from lightsim.validation.bench.pipeline import _Recorder, _run
+
+    cfg = RunConfig(frame_photons=10_000, interleave=2, seed=2)
+    rec = _Recorder()
+    a = _run(point, cfg, 30_000, rec)
+    pts, keys, w = rec.photons()
+    assert len(pts) == len(keys) == len(w) == a["photons"] == 30_000
+    b = _run(point, cfg, 30_000)  # recording does not change the run
+    assert (a["photons"], a["rays"]) == (b["photons"], b["rays"])
 
 
 def test_session_sums_what_the_clients_shot(point):
@@ -199,3 +249,46 @@ def test_final_map_without_probes_is_the_ici_map(point):
             rungs.append(est.rungs)
     assert np.array_equal(maps[0], maps[1])
     assert np.array_equal(rungs[0], rungs[1]) and rungs[1].max() > 0  # windows were used
+
+
+@pytest.mark.parametrize("args", [(1, 3, None), (1, 3, 0, (5, 3)), (2**40 + 7, 15, 12, (5, 3)),
+                                  (0, 0, None, (2, 1)), (5, 2, 3), (9, 1, 7, (60, 40))])
+def test_compiled_digit_permutations_are_numpys(args):
+    """The compiled shuffles draw from the same bit generators in the same order as a
+    Python loop over ``Generator.permutation``: the same scramble, bit for bit."""
+    from lightsim.sampling import _digit_permutations_reference
+
+    got = digit_permutations(*args)
+    np.testing.assert_array_equal(got, _digit_permutations_reference(*args))
+    for d in range(N_DIMS):  # each row a permutation of its base's digits
+        b = int(PRIMES[d])
+        assert np.array_equal(np.sort(got[d, :, :b], axis=1), np.tile(np.arange(b), (53, 1)))
+
+
+def test_a_large_wall_checks_the_probes_until_the_law_expects_the_stop(point):
+    """Where the written map costs more than the probes' figure (here 576 pixels for 64
+    grid probes) the run estimates at the probes, and measures the written map itself
+    where the error law places the stop; a small wall measures the map every time."""
+    cfg = RunConfig(frame_photons=8_000, interleave=2, seed=7, probe_grid=(8, 8))
+    with Session(point, cfg) as s:
+        assert not s.map_check_is_cheap()
+        seen: list[FrameResult] = []
+        final = s.run(target_error=0.08, photons=2_000_000, callback=seen.append)
+    estimated = [e for e in seen if "render" in e.timings]
+    maps = [e for e in estimated if e.lux is not None]
+    assert maps and estimated[0].lux is None  # the probes first, the map near the stop
+    assert final.error.upper <= 0.08 and final.photons == maps[-1].photons
+    with Session(point, RunConfig(frame_photons=8_000, interleave=2)) as s:
+        assert s.map_check_is_cheap()  # 576 pixels, 2 048 grid probes
+
+
+def test_error_schedule_scales_the_probes_figure_to_the_written_maps():
+    s = ErrorSchedule(target_error=0.1, aim=1.0)
+    s.calibrate(_est(0.4), _est(0.2))  # the map's figure is half the probes'
+    assert s.calibrated and s.probe_scale == pytest.approx(0.5)
+    s.estimated(1_000, _est(0.24))  # as a map figure 0.12: (1.2)² photons
+    assert s.stop_expected and s.next_photons == pytest.approx(1_440)
+    s.estimated(1_440, _est(0.16), "map")  # one map point: the probes' law is borrowed
+    assert s.exponent("map") == 0.5
+    s.calibrate(_est(None), _est(0.2))  # no probe figure: the ratio measured stays
+    assert s.probe_scale == pytest.approx(0.5)

@@ -22,6 +22,7 @@ parameter           unit   default  meaning
 ==================  =====  =======  ================================================
 ``min_frames``      –      3        frames before a target error may stop a run
 ``growth``          –      2        photons between two error estimates grow ≤ this
+``aim``             –      0.98     a target-error stop is aimed at this × the target
 ==================  =====  =======  ================================================
 """
 
@@ -30,7 +31,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -65,31 +66,107 @@ from lightsim.tracer import LEDGER
 __all__ = ["Estimate", "FrameResult", "Session", "lux_channel"]
 
 
+#: the error law's exponent p (e ∝ N^-p) fitted between two estimates is clamped to this
+#: range: noise alone gives 0.5, an unresolved blur falls slower, a resolved one faster
+EXPONENT_RANGE = (0.35, 1.0)
+#: estimates the law is fitted to (the last ones of the same figure)
+LAW_POINTS = 3
+#: the stop is judged on the written map at every estimate when the wall has at most
+#: this many pixels per grid probe (the map's figure then costs about the probes')
+MAP_CHECK_PIXELS = 4
+
+
 @dataclass
 class ErrorSchedule:
-    """When the run loop estimates at the probes: the error figure costs about as much as
-    a frame of tracing, so it runs where it can change a decision, not every frame.
+    """When the run loop estimates the error: the figure costs about as much as a frame
+    of tracing, so it runs where it can change a decision, not every frame.
 
     Without a target error the estimates (the error-vs-time log) are spaced by a factor
-    ``growth`` in photons. With one, the next estimate comes where the error is expected
-    to reach it, N (e/target)² (noise falls as 1/√N; a slower blur makes this early, not
-    late), at most ``growth`` × N and at least the next frame. Deterministic: it depends
-    on photons and estimates only, never on the clock.
+    ``growth`` in photons. With one, the next estimate comes where the error law measured
+    so far says the figure (its upper bound, what the stop reads) reaches ``aim`` ×
+    target: e ∝ N^-p, with p fitted to the last estimates of the same figure (clamped
+    to :data:`EXPONENT_RANGE`; 0.5, the noise's, with one estimate), at the frame nearest
+    to that photon count (``due``), at most ``growth`` × N and at least the next frame.
+    ``stop_expected`` says the next estimate is placed to stop the run (the loop then
+    measures the written map itself there, see :meth:`Session.run`). The probes' figure
+    can sit well above or below the written map's (on the shipped headlight ~2× above):
+    :meth:`calibrate` measures their ratio once, and the probes' figure is scaled by it
+    before the law places the stop. Deterministic: it depends on photons and estimates
+    only, never on the clock.
+
+    ==============  =====  =======  ==================================================
+    parameter       unit   default  meaning
+    ==============  =====  =======  ==================================================
+    ``growth``      –      2        photons between two estimates grow ≤ this factor
+    ``aim``         –      0.98     the stop is aimed at this fraction of the target
+    ==============  =====  =======  ==================================================
     """
 
     target_error: float | None = None
     growth: float = 2.0
+    aim: float = 0.98
     next_photons: float = 0.0
+    stop_expected: bool = False
+    history: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
+    probe_scale: float = 1.0  # the written map's figure over the probes' (calibrate)
+    calibrated: bool = False
+    _step: float = 0.0  # photons of the last frame (the nearest-frame rule of ``due``)
+    _last_seen: int = 0
 
     def due(self, photons: int) -> bool:
-        return photons >= self.next_photons
+        """Whether the frame that brought the run to ``photons`` should estimate: the
+        first frame past ``next_photons``, or the one before it when that is nearer (with
+        a target and an estimate placed by the error law)."""
+        if photons > self._last_seen:
+            self._step = float(photons - self._last_seen)
+            self._last_seen = photons
+        if photons >= self.next_photons:
+            return True
+        return self.stop_expected and photons + 0.5 * self._step >= self.next_photons
 
-    def estimated(self, photons: int, est: FrameResult) -> None:
+    def exponent(self, kind: str) -> float:
+        """The error law's exponent p: a least-squares line through the last
+        :data:`LAW_POINTS` estimates of figure ``kind`` in log N, log e (one estimate's
+        scatter moves it less than a two-point slope), clamped to :data:`EXPONENT_RANGE`."""
+        pts = self.history.get(kind, [])[-LAW_POINTS:]
+        if len(pts) < 2:  # the other figure's law, if it has one, else the noise's
+            other = self.history.get("probes" if kind == "map" else "map", [])
+            return self.exponent("probes" if kind == "map" else "map") if (
+                len(other) >= 2) else 0.5
+        x = np.log([n for n, _ in pts])
+        y = np.log([e for _, e in pts])
+        dx = x - x.mean()
+        if not np.any(dx > 0):
+            return 0.5
+        p = -float(np.dot(dx, y - y.mean()) / np.dot(dx, dx))
+        return min(max(p, EXPONENT_RANGE[0]), EXPONENT_RANGE[1])
+
+    def estimated(self, photons: int, est: FrameResult, kind: str = "probes") -> None:
+        """Place the next estimate after an estimate ``est`` of figure ``kind`` (the
+        probes' or the written map's) at ``photons``."""
+        self._last_seen = max(self._last_seen, photons)
         factor = self.growth
+        self.stop_expected = False
         if self.target_error is not None and est.error is not None:
-            ratio = (est.error.upper / self.target_error) ** 2
-            factor = min(self.growth, ratio) if math.isfinite(ratio) else 1.0
+            e = est.error.upper
+            if math.isfinite(e) and e > 0:
+                self.history.setdefault(kind, []).append((photons, e))
+                level = e * (self.probe_scale if kind == "probes" else 1.0)
+                ratio = (level / (self.aim * self.target_error)) ** (1.0 / self.exponent(kind))
+                factor = min(self.growth, ratio)
+                self.stop_expected = ratio <= self.growth
+            else:  # no usable figure (0 or not finite): look again after the next frame
+                factor = 1.0
         self.next_photons = photons * max(1.0, factor)
+
+    def calibrate(self, probes: FrameResult, written: FrameResult) -> None:
+        """The ratio of the written map's figure to the probes' at the same photons
+        (kept as ``probe_scale``; 1 when either has no usable figure)."""
+        self.calibrated = True
+        a = None if probes.error is None else probes.error.upper
+        b = None if written.error is None else written.error.upper
+        if a and b and math.isfinite(a) and math.isfinite(b) and a > 0:
+            self.probe_scale = b / a
 
 
 @dataclass
@@ -135,6 +212,9 @@ class Session:
                  plan: Plan | None = None, checkpoint: dict | None = None) -> None:
         if scene.wall is None:
             raise InputError("the scene has no measurement wall")
+        from lightsim.engine.numba_start import defer_blas_probe
+
+        defer_blas_probe()  # before the first kernel load: numba without scipy.linalg
         self.config = config or RunConfig()
         self.scene = scene
         caster = None
@@ -472,7 +552,10 @@ class Session:
         (:meth:`error_low_enough`), and after it the final image (:meth:`final_image`).
         The estimate runs on :class:`ErrorSchedule`'s photon counts, not every frame;
         frames that only shoot report to ``callback`` with the latest error
-        (:meth:`progress`). The last frame goes straight to the final image.
+        (:meth:`progress`). The last frame goes straight to the final image. With a
+        target, the estimate the error law places at the stop measures the written map
+        itself (on a small wall, :meth:`map_check_is_cheap`, every estimate does), so the
+        run stops on the figure it reports, near the target rather than below it.
         """
         if photons is None and seconds is None and target_error is None:
             photons = self.config.frame_photons
@@ -480,6 +563,7 @@ class Session:
             raise InputError(f"target error must lie in (0, 1), got {target_error}")
         self.start_clock()
         schedule = ErrorSchedule(target_error)
+        cheap_map = self.map_check_is_cheap()
         while not self.budget_spent(photons, seconds, should_stop):
             t0 = time.perf_counter()
             self.shoot(self.frame_photons(photons))
@@ -491,7 +575,30 @@ class Session:
                 if callback is not None:
                     callback(self.progress(timings))
                 continue
+            if target_error is not None and (cheap_map or schedule.stop_expected):
+                # where the law places the stop (or always, when the written map costs
+                # about what the probes' figure does) the written map itself is measured:
+                # its figure is what the run reports, the probes' would miss its level
+                final = self.final_image(probes)
+                schedule.estimated(done, final, "map")
+                if callback is not None:
+                    callback(final)
+                if self.error_low_enough(final, target_error, min_frames):
+                    return final
+                continue
             est = self.estimate_at_probes(timings)
+            if (target_error is not None and not schedule.calibrated
+                    and self.frames >= min_frames):
+                # once: how the written map's figure stands to the probes' (the map is
+                # what the run reports; the probes' figure alone may sit 2× off it)
+                final = self.final_image(probes)
+                schedule.calibrate(est, final)
+                schedule.estimated(done, est)
+                if callback is not None:
+                    callback(final)
+                if self.error_low_enough(final, target_error, min_frames):
+                    return final
+                continue
             schedule.estimated(done, est)
             if callback is not None:
                 callback(est)
@@ -501,8 +608,15 @@ class Session:
                 final = self.final_image(probes)
                 if self.error_low_enough(final, target_error, min_frames):
                     return final
-                schedule.estimated(done, final)
+                schedule.estimated(done, final, "map")
         return self.final_image(probes)
+
+    def map_check_is_cheap(self) -> bool:
+        """Whether the written map's own figure costs about what the probes' does: a
+        wall of at most :data:`MAP_CHECK_PIXELS` × the grid probes (every set's rungs at
+        every pixel instead of at the probes' pixels)."""
+        W, H = self.scene.wall.resolution
+        return W * H <= MAP_CHECK_PIXELS * max(self.grid_count, 1)
 
     def budget_spent(self, photons: int | None, seconds: float | None,
                      should_stop: Callable[[], bool] | None = None) -> bool:

@@ -4,7 +4,9 @@ Both tools render the same analytic scene, each as its own process timed by the 
 clock (interpreter start-up, imports, JIT/numba compilation, embree/LLVM builds, the run
 and its output files), and both images are scored by the same metric against the exact
 answer: the per-pixel relative rms (:func:`lightsim.validation.converge.error_metrics`)
-over the pixels whose centre lies in the inner 80 % of the beam radius.
+over the pixels whose centre lies in the inner 80 % of the beam radius (the issue's
+score; the times to target use it) and, in a second column, over the lit pixels (exact
+E ≥ 10 % of its peak: the region lightsim's own error figure covers, rim included).
 
 * **Mitsuba 3** (optional extra ``peer``: ``pip install ".[peer]"``; the ``llvm_ad_rgb``
   variant needs libLLVM ≥ 19, found at run time or given by ``DRJIT_LIBLLVM_PATH``):
@@ -76,6 +78,9 @@ MAX_DEPTH = {"paraboloid": 3, "covered-paraboloid": 5}
 MAX_MITSUBA_RUNS = 6  # renders per case at most (the spp ladder)
 MAX_LADDER_RUNS = 3   # fixed-budget lightsim runs per case at most
 CAMERA_DISTANCE = 0.1  # m: Mitsuba's camera in front of the wall (clear of all geometry)
+#: the second score's pixels: exact E ≥ this × its peak — the lit region lightsim's own
+#: error figure covers (rim included), next to the issue's inner-80 % score
+LIT_FRACTION = 0.1
 
 
 # =========================================================================== Mitsuba setup
@@ -200,13 +205,16 @@ class Truth:
     """Exact pixel means and the scored pixels of one case."""
 
     exact_px: np.ndarray  # (H, W) lx
-    inner: np.ndarray     # (H, W) bool
+    inner: np.ndarray     # (H, W) bool: the issue's score (inner 80 % of the rim)
+    lit: np.ndarray | None = None  # (H, W) bool: exact ≥ LIT_FRACTION × its peak
 
-    def error(self, lux: np.ndarray) -> float:
-        """Relative rms error of a lux map (H, W) over the inner pixels."""
+    def error(self, lux: np.ndarray, where: str = "inner") -> float:
+        """Relative rms error of a lux map (H, W) over the ``inner`` pixels (the issue's
+        score) or the ``lit`` ones (what lightsim's own figure covers: the rim too)."""
         if lux.shape != self.exact_px.shape:
             raise ValueError(f"map {lux.shape} does not match the exact {self.exact_px.shape}")
-        return error_metrics(lux, self.exact_px, self.inner)["rel_rmse"]
+        mask = self.inner if where == "inner" else self.lit
+        return error_metrics(lux, self.exact_px, mask)["rel_rmse"]
 
 
 def truth_of(case: an.AnalyticScene, inner: float = 0.8) -> Truth:
@@ -217,7 +225,7 @@ def truth_of(case: an.AnalyticScene, inner: float = 0.8) -> Truth:
     h, v = fr.pixel_centres()
     hh, vv = np.meshgrid(h, v)
     rim = float(case.params["rim_radius_m"])
-    return Truth(px, np.hypot(hh, vv) < inner * rim)
+    return Truth(px, np.hypot(hh, vv) < inner * rim, px >= LIT_FRACTION * px.max())
 
 
 # =========================================================================== runs
@@ -232,6 +240,7 @@ class PeerRun:
     paths: int              # light paths (Mitsuba) or photons (lightsim) traced
     true_error: float       # relative rms against the exact answer (inner pixels)
     own_error: float | None = None  # lightsim's own estimate at the stop
+    true_error_lit: float | None = None  # the same over the lit pixels (≥ 10 % of peak)
     phases: dict[str, float] | None = None  # lightsim: summary.json["timings_s"] (s)
     ok: bool = True
     note: str = ""
@@ -281,7 +290,7 @@ def run_mitsuba(case: an.AnalyticScene, truth: Truth, folder: Path, spp: int,
                        ok=False, note=last[:160])
     lux = np.load(spec["out"])
     return PeerRun(case.name, "mitsuba", f"ptracer spp {spp}", dt, spp * W * H,
-                   truth.error(lux), lux=lux)
+                   truth.error(lux), true_error_lit=truth.error(lux, "lit"), lux=lux)
 
 
 def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: float,
@@ -316,7 +325,7 @@ def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: flo
     own = summary.get("rel_error")
     return PeerRun(case.name, "lightsim", setting, dt, int(summary["photons"]),
                    truth.error(lux), None if own is None else float(own),
-                   phases=summary.get("timings_s"), lux=lux)
+                   truth.error(lux, "lit"), phases=summary.get("timings_s"), lux=lux)
 
 
 @dataclass
@@ -402,22 +411,41 @@ def run_case(name: str, *, target: float = 0.02, resolution: int = 64, spp0: int
     return PeerResult(name, runs, t_m, t_l, ratio, reached, near, t_fixed, ratio_fixed)
 
 
-PEER_COLUMNS = ["case", "tool", "setting", "seconds", "paths", "true_error", "own_error",
+PEER_COLUMNS = ["case", "tool", "setting", "seconds", "paths", "true_error",
+                "true_error_lit", "own_error",
                 "ok", "note"]
+
+
+def _near(e: float | None, target: float, ok: bool = True) -> bool | None:
+    """Whether ``e`` lies within ±10 % of ``target`` (None without a figure)."""
+    return None if e is None or not ok else bool(abs(e - target) <= 0.1 * target)
 
 
 def summary_rows(results: Sequence[PeerResult], target: float) -> list[dict[str, Any]]:
     """One row per case: the two times to target, their ratio (Mitsuba / lightsim) and
     the stop check (``ls_*``: lightsim; ``ls_fixed_s``: its first fixed budget with a
-    true error below ``target``; ``ratio_vs_fixed``: Mitsuba's time over that)."""
+    true error below ``target``; ``ratio_vs_fixed``: Mitsuba's time over that). Both
+    tools' true errors at their stops over the scored inner pixels (``*_err``) and over
+    the lit pixels (``*_err_lit``, what lightsim's own figure covers);
+    ``ls_own_within_10pct``: lightsim's own figure at the stop is within ±10 % of the
+    target (the stop lands on it), ``ls_stop_within_10pct`` the same for the true error
+    over the inner pixels, ``ls_lit_within_10pct`` over the lit ones."""
     rows = []
     for res in results:
         lr = next(r for r in res.runs if r.tool == "lightsim")
+        mr = next((r for r in res.runs if r.tool == "mitsuba" and r.ok
+                   and r.seconds == res.mitsuba_seconds), None)
+
         rows.append({"case": res.case, "mitsuba_s": res.mitsuba_seconds,
+                     "mitsuba_err": None if mr is None else mr.true_error,
+                     "mitsuba_err_lit": None if mr is None else mr.true_error_lit,
                      "lightsim_s": lr.seconds, "ls_true_err": lr.true_error,
+                     "ls_true_err_lit": lr.true_error_lit,
                      "ls_own_err": lr.own_error, "ratio": res.ratio, "ratio_goal": 3.0,
                      "ls_true_below": res.lightsim_reached,
+                     "ls_own_within_10pct": _near(lr.own_error, target, lr.ok),
                      "ls_stop_within_10pct": res.stopped_near_target,
+                     "ls_lit_within_10pct": _near(lr.true_error_lit, target, lr.ok),
                      "ls_fixed_s": res.lightsim_fixed_seconds,
                      "ratio_vs_fixed": res.ratio_fixed})
     return rows

@@ -13,9 +13,12 @@ tracer inside the run), ``insert_s`` (the rest of shooting: sorting, stores),
 
 With Selective Photon Tracing the run traces other photons than the bare tracer's plain
 Halton points (SPT refines the caustic cells: more photons take the mirror, so a photon
-costs more rays), so photons/s compare unlike work there. ``ray_ratio`` (rays/s of the
-run over the tracer's) and ``trace_share`` (the run's own tracer time over its time)
-compare like with like.
+costs more rays), so ``ratio`` compares unlike work there. ``ratio_same_photons``
+compares like with like: the bare tracer is also timed on the very photons a run traced
+(points, keys and SPT weights recorded from one untimed run, traced in one call, as
+``bench tracer`` does), and the run's photons/s are divided by that rate. ``ray_ratio``
+(rays/s of the run over the plain tracer's) and ``trace_share`` (the run's own tracer
+time over its time) are the other like-with-like views.
 
 =================  =====  ===========  ===============================================
 parameter          unit   default      meaning
@@ -50,8 +53,36 @@ def _trace_rate(tracer: PhotonTracer, pts: np.ndarray, keys: np.ndarray
     return len(pts) / dt, res.rays / dt
 
 
-def _run(scene, config: RunConfig, photons: int) -> dict[str, Any]:
-    """One timed Session.run (the session's own clock: first shot to final map)."""
+class _Recorder:
+    """Wraps the run's tracers' ``trace_points`` to keep what each frame traced (the run
+    is unchanged: the call goes through)."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
+
+    def wrap(self, tracer: PhotonTracer) -> None:
+        inner = tracer.trace_points
+
+        def trace_points(points, keys, weight=None, **kw):
+            self.calls.append((np.asarray(points), np.asarray(keys),
+                               None if weight is None else np.asarray(weight)))
+            return inner(points, keys, weight, **kw)
+
+        tracer.trace_points = trace_points  # type: ignore[method-assign]
+
+    def photons(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The run's photons in order: points, keys, weights (1 without SPT)."""
+        pts = np.concatenate([c[0] for c in self.calls])
+        keys = np.concatenate([c[1] for c in self.calls])
+        w = np.concatenate([np.ones(len(c[0])) if c[2] is None else c[2]
+                            for c in self.calls])
+        return pts, keys, w
+
+
+def _run(scene, config: RunConfig, photons: int, record: _Recorder | None = None
+         ) -> dict[str, Any]:
+    """One timed Session.run (the session's own clock: first shot to final map);
+    ``record`` keeps the photons its frames traced."""
     render = 0.0
     estimates = 0
 
@@ -62,6 +93,9 @@ def _run(scene, config: RunConfig, photons: int) -> dict[str, Any]:
             render += est.timings["render"] + est.timings.get("assemble", 0.0)
 
     with Session(scene, config) as s:
+        if record is not None:
+            for client in getattr(s.backend, "clients", ()):
+                record.wrap(client.photons.tracer)
         est = s.run(photons=photons, callback=tally, probes=False)  # as `simulate` does
         final = est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0)
         # shooting (sampling, tracing, insertion) of every frame: the rest of the run
@@ -83,14 +117,24 @@ def bench_pipeline(scene, config: RunConfig | None = None, photons: int = 1_000_
     keys = photon_keys(seed, 0, 0, idx)
     tracer.trace_points(pts[:1000], keys[:1000])  # compile / warm up
     _run(scene, config.with_(frame_photons=max(config.n_sets, 20_000)), 40_000)  # warm up
+    # the run's own photons (SPT's refined cells included), for a like-with-like baseline
+    rec = _Recorder()
+    _run(scene, config, photons, rec)
+    same_pts, same_keys, same_w = rec.photons()
     rows: list[dict[str, Any]] = []
     for r in range(repeats):
         trace, trace_rays = _trace_rate(tracer, pts, keys)
+        t0 = time.perf_counter()
+        same = tracer.trace_points(same_pts, same_keys, same_w)
+        same_rate = len(same_pts) / (time.perf_counter() - t0)
+        del same
         run = _run(scene, config, photons)
         rate = run["photons"] / run["seconds"]
         rays = run["rays"] / run["seconds"]
         rows.append({"what": f"pair {r + 1}", "tracer_photons_per_s": trace,
                      "simulate_photons_per_s": rate, "ratio": rate / trace,
+                     "tracer_same_photons_per_s": same_rate,
+                     "ratio_same_photons": rate / same_rate,
                      "ray_ratio": rays / trace_rays,
                      "trace_share": run["trace_s"] / run["seconds"],
                      "frames": run["frames"], "estimates": run["estimates"],
