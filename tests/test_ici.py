@@ -223,6 +223,8 @@ def test_fused_map_figure_is_honest_and_its_edge_error_lower():
         best = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0)  # the default
         f, c = fused.error.total, centred.error.total
         assert best.error.total == (f if f < ici.FUSED_MARGIN * c else c)
+        # the map says which it is, so a caller can ask for that one alone next time
+        assert fused.fused and not centred.fused and best.fused == (f < ici.FUSED_MARGIN * c)
         err = {k: (m.lux[:, 0] - mu).reshape(H, W) for k, m in
                (("fused", fused), ("centred", centred))}
         ratio.append(fused.error.total / (math.sqrt(np.mean(err["fused"] ** 2)) / mu.mean()))

@@ -216,6 +216,11 @@ class Session:
 
         defer_blas_probe()  # before the first kernel load: numba without scipy.linalg
         self.config = config or RunConfig()
+        # the written map's directional fusion: None lets its figure decide (both maps are
+        # made), True/False only that one (a caller that redraws the same scene's map can
+        # keep the first map's choice, :attr:`last_map_fused`, and halve the cost)
+        self.directional_map: bool | None = None
+        self.last_map_fused = False
         self.scene = scene
         caster = None
         if not (workers or address):  # one embree scene for the pilot and the run
@@ -449,7 +454,9 @@ class Session:
         flat = {s: np.asarray(v)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
         rows, cols = np.divmod(np.arange(H * W), W)
         wm = ici.written_map(flat, emitted, ici.power_moment(moments),
-                             self._ici_areas(rows, cols), self.config.ici_gamma)
+                             self._ici_areas(rows, cols), self.config.ici_gamma,
+                             directional=self.directional_map)
+        self.last_map_fused = wm.fused
         return wm.lux.reshape(H, W, C), wm.choice.rung.reshape(H, W), wm.error
 
     def _ici_error(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],

@@ -555,12 +555,15 @@ class WrittenMap:
     alpha : float
         Weight α of the pixel counts (0: the ICI map, 1: the counts).
     figure : ErrorFigure or None
+    fused : bool
+        True for the fusion of the directional ladders, False for the centred one.
     """
 
     choice: IciChoice
     lux: np.ndarray
     alpha: float
     figure: ErrorFigure | None
+    fused: bool = False
 
     @property
     def error(self) -> ErrorEstimate | None:
@@ -615,6 +618,7 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         fm = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction, guide=choice,
                        win=win)
         fused = _mixed(rungs, emitted, fm.choice, fm.vals, fm.blur, fm.lits, lit_fraction)
+        fused.fused = True
         if directional:
             return fused
     blur = None
