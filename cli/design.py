@@ -112,6 +112,8 @@ def _resolution(text: str) -> tuple[int, int]:
 @click.option("--remeasure/--no-remeasure", default=True, show_default=True,
               help="Re-simulate each model round's lamp and keep its shifts (halved up to "
                    "twice) only if J got better.")
+@click.option("--model-smooth", type=float, default=0.0, show_default=True,
+              help="σ (model-wall pixels) of a Gaussian applied to every footprint (0: none).")
 @click.option("--quiet", "-q", is_flag=True)
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
@@ -122,7 +124,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            model_safety: float, ring_offsets: str | None, continue_from: str | None,
            foreground: float, foreground_share: float, shaded_spread: float,
            shaded_drop: float, aim_photons: int,
-           remeasure: bool, quiet: bool) -> None:
+           remeasure: bool, model_smooth: float, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
     from rich.console import Console
@@ -205,7 +207,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          calibrate=ring_offsets is None, note=note,
                          interval_photons=interval_photons, model_safety=model_safety,
                          first_round=first_round, foreground_m=foreground,
-                         aim_photons=aim_photons, remeasure_steps=remeasure)
+                         aim_photons=aim_photons, remeasure_steps=remeasure,
+                         model_smooth_px=model_smooth)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),
             "objective": out.objective, "optimiser": optimiser,

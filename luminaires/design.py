@@ -806,7 +806,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    note: Callable[[str], None] | None = None,
                    foreground_m: float = 0.0, aim_photons: int = 0,
                    aim_resolution: tuple[int, int] = (320, 128),
-                   remeasure_steps: bool = True
+                   remeasure_steps: bool = True, model_smooth_px: float = 0.0
                    ) -> DesignResult:
     """Optimise the facet layout against ``regulation`` (one rule set id or several,
     comma-separated; see the module docstring).
@@ -846,8 +846,9 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
     hi_b = np.array([b[1] for b in bounds(layout)])
     x = np.clip(np.asarray(start_vector(layout) if x0 is None else x0, float), lo_b, hi_b)
     kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, foreground_m=foreground_m)
-    if aim_photons < 0 or foreground_m < 0 or not math.isfinite(foreground_m):
-        raise InputError("--aim-photons and --foreground must be ≥ 0")
+    if (aim_photons < 0 or foreground_m < 0 or not math.isfinite(foreground_m)
+            or not (math.isfinite(model_smooth_px) and 0 <= model_smooth_px <= 20)):
+        raise InputError("--aim-photons and --foreground must be ≥ 0, --model-smooth 0–20")
     with tempfile.TemporaryDirectory(prefix="lightsim-design-") as tmp:
         glb = Path(tmp) / "candidate.glb"
 
@@ -943,7 +944,8 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                         note(f"round {rnd}: aim step {aim_dv:+.3f}° (every facet)")
                 model = measure_footprints(x, layout, regulation, photons=model_photons,
                                            resolution=model_resolution, seed=seed + rnd,
-                                           residual_factor=4, progress=note)
+                                           residual_factor=4, progress=note,
+                                           smooth_px=model_smooth_px)
                 aim_off = None
                 if aim_photons > 0:
                     # after the aim step the check run's cut-off sits at 0.57° D: the

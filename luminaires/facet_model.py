@@ -140,11 +140,14 @@ def movable_facets(facets: Sequence[Any], layout: Any, hole_m: float) -> list[in
 
 def measure_footprints(x: np.ndarray, layout: Any, regulation: str, *, photons: int,
                        resolution: tuple[int, int], seed: int, residual_factor: int = 0,
-                       progress: Callable[[str], None] | None = None) -> FootprintModel:
+                       progress: Callable[[str], None] | None = None,
+                       smooth_px: float = 0.0) -> FootprintModel:
     """Simulate the base lamp and each movable facet alone (same seed); see the module
     docstring. ``x`` and ``layout`` (with its facet shifts) define the reference lamp.
     ``residual_factor`` > 0: also simulate the whole lamp with that many times the photons
-    (:attr:`FootprintModel.residual`)."""
+    (:attr:`FootprintModel.residual`). ``smooth_px`` > 0: each footprint is smoothed
+    with a Gaussian of that σ (pixels; the residual keeps the model exact at zero shift),
+    so that the optimiser cannot move a footprint's photon-noise peaks onto a test point."""
     import tempfile
     import time
     from pathlib import Path
@@ -192,6 +195,10 @@ def measure_footprints(x: np.ndarray, layout: Any, regulation: str, *, photons: 
     px = (math.degrees(math.atan2((h1 - h0) / W, d)), math.degrees(math.atan2((v1 - v0) / H, d)))
     base = maps[0]
     fps = np.stack([m - base for m in maps[1:len(movable) + 1]])
+    if smooth_px > 0:
+        from scipy.ndimage import gaussian_filter
+
+        fps = np.stack([gaussian_filter(f, smooth_px, mode="constant") for f in fps])
     res = maps[-1] - base - fps.sum(axis=0) if residual_factor > 0 else None
     return FootprintModel(fd, base, fps, movable, px, time.perf_counter() - t0, res)
 
