@@ -159,13 +159,14 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     mres = _resolution(model_resolution)
     first_round = 0
     previous: list = []
-    if continue_from is not None:
+    if continue_from is not None:  # its geometry; this command's sliver options
         from lightsim.luminaires.design import read_design
 
         x_prev, layout, rec = read_design(continue_from)
         # the continued lamp takes the foreground options of this command
         layout = replace(layout, shaded_spread_deg=shaded_spread,
-                         shaded_drop_deg=shaded_drop, foreground_share=foreground_share)
+                         shaded_drop_deg=shaded_drop, foreground_share=foreground_share,
+                         sign_share=sign_share)
         layout.check()
         previous = list(rec.get("model") or [])
         first_round = len(previous)
@@ -211,7 +212,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          model_smooth_px=model_smooth)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),
-            "objective": out.objective, "optimiser": optimiser,
+            "objective": out.objective if math.isfinite(out.objective) else None,
+            "optimiser": optimiser,
             "model": previous + out.model,
             "validation_objective": (out.validation_objective
                                      if math.isfinite(out.validation_objective) else None)}
@@ -230,9 +232,15 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
         click.echo(f"{t.name:14s} {v:>10s}  {t.margin:+10.3f}  {t.target}"
                    + ("   SHORT" if t.margin < 0 else ""))
     for m in out.model:
+        if m["round"] == "aim":
+            click.echo(f"final aim step: every facet {m['aim_step_deg']:+.3f}°")
+            continue
+        again = "; ".join(f"× {t['step']:g} re-measured J {t['objective']:.4f}"
+                          for t in m.get("remeasured", []))
         click.echo(f"model round {m['round']}: {m['facets']} facets' footprints measured in "
                    f"{m['footprint_seconds']:.0f} s; J {m['start_objective']:.4f} → "
-                   f"{m['objective']:.4f} in {m['evaluations']} model evaluations")
+                   f"{m['objective']:.4f} in {m['evaluations']} model evaluations"
+                   + (f"; {again}; kept × {m['accepted_step']:g}" if again else ""))
     for rs in (regulation.split(",") if check_photons else []):
         opts = SimulateOptions(out_glb, out_dir=str(Path(check_dir) / rs.strip()),
                                photons=check_photons, regulation=rs.strip(),

@@ -997,7 +997,8 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                 model_info.append({"round": rnd, "start_objective": res.start_objective,
                                    "objective": res.objective,
                                    "remeasured": tried, "accepted_step": accepted,
-                                   "aim_step_deg": aim_dv,
+                                   "aim_step_deg": (aim_dv if math.isfinite(aim_dv)
+                                                    else None),
                                    "evaluations": res.evaluations,
                                    "footprint_seconds": model.seconds,
                                    "facets": len(model.facets)})
