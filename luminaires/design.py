@@ -43,6 +43,8 @@ set and its 95 % interval:
           0.1° from 0.57° D
         + smoothness: hinge(ln(max(lux / smoothed lux) / smooth_max))²  over the lit wall
         + road reach: hinge(ln(reach(1 lx) / reach_target))²
+        + foreground: hinge(ln(min over the road points of I / I(1 lx) / (1+s)))²
+          (``foreground_m`` > 0; :func:`foreground_points`)
 
 with hinge(m) = max(0, −m) and s = ``safety``. lo/hi are the interval bounds, so noise
 counts against the lamp.
@@ -98,6 +100,13 @@ interval_photons  –      12 000 000   photons of the check run whose intervals
 sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet's azimuth
                                       per overhead-sign sliver (× its weight in
                                       ``SIGN_AIMS``), dim light above the cut-off
+foreground_m      m      0 (CLI 5)    1 lx asked on the road at ±w/2, ±w (10 m) and
+                                      ±w/2 (15 m); 0: no foreground term
+aim_photons       –      0 (CLI 4 M)  photons of the whole-lamp aim step (320×128,
+                                      before each model round and twice at the end)
+remeasure_steps   –      True         keep a model round's shifts (× 1, ½, ¼) only if
+                                      the re-simulated lamp's J is below the start's
+model_smooth_px   px     0            Gaussian σ on every footprint
 ================  =====  ===========  =====================================================
 """
 

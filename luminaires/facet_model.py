@@ -34,6 +34,9 @@ photons             –      1 000 000  photons per footprint run
 resolution          px     200×256    footprint map W×H (0.34° × 0.107° pixels)
 shift_bounds_deg    deg    ±1, ±0.5   bounds of Δh, Δv per facet
 regulariser         –      0.01       ρ above
+smooth_px           px     0          Gaussian σ applied to every footprint
+foreground_m        m      0          road foreground term (design's ``foreground_term``)
+aim_offset_deg      deg    None       check-run minus model-finder aim on the reference
 ==================  =====  =========  ===================================================
 """
 
