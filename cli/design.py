@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -93,6 +94,26 @@ def _resolution(text: str) -> tuple[int, int]:
               help="A lamp written by lightsim design: start from its x, layout and facet "
                    "shifts (no calibration) and run --model-rounds more rounds (their seeds "
                    "follow the rounds it has).")
+@click.option("--foreground", type=float, default=5.0, show_default=True,
+              help="m: ask for 1 lx on the road over ±this at 10 m and ±0.8× at 15 m "
+                   "(0: no foreground term).")
+@click.option("--shaded-spread", type=float, default=0.0, show_default=True,
+              help="deg: extra horizontal spread (× cos φ) of the cup's edge facets, which "
+                   "then light the foreground (0: they stay 8° down).")
+@click.option("--foreground-share", type=float, default=0.0, show_default=True,
+              help="Share of a lit second-ring facet per foreground sliver (× its weight; "
+                   "0: none): light at 14–28° L/R, 2.6–3.9° D.")
+@click.option("--shaded-drop", type=float, default=8.0, show_default=True,
+              help="deg under the cut-off for those foreground facets.")
+@click.option("--aim-photons", type=int, default=4_000_000, show_default=True,
+              help="Photons of the aim step (before each model round and twice at the end: "
+                   "every facet moves by the aim correction a 320x128 run's cut-off asks "
+                   "for, so the lamp needs no --aim; 0: no aim step).")
+@click.option("--remeasure/--no-remeasure", default=True, show_default=True,
+              help="Re-simulate each model round's lamp and keep its shifts (halved up to "
+                   "twice) only if J got better.")
+@click.option("--model-smooth", type=float, default=0.0, show_default=True,
+              help="σ (model-wall pixels) of a Gaussian applied to every footprint (0: none).")
 @click.option("--quiet", "-q", is_flag=True)
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
@@ -101,7 +122,9 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            sign_share: float, optimiser: str, model_rounds: int, model_photons: int,
            model_resolution: str, model_evaluations: int, interval_photons: int,
            model_safety: float, ring_offsets: str | None, continue_from: str | None,
-           quiet: bool) -> None:
+           foreground: float, foreground_share: float, shaded_spread: float,
+           shaded_drop: float, aim_photons: int,
+           remeasure: bool, model_smooth: float, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
     from rich.console import Console
@@ -129,15 +152,22 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
             raise InputError(f"--ring-offsets needs {rings} finite numbers")
     layout = Layout(rings=rings, sectors=sectors, focal_length_m=focal_length * 1e-3,
                     aperture_m=opening * 1e-3, bulb=name, traffic=traffic,
-                    sign_share=sign_share, ring_offsets_deg=offsets)
+                    sign_share=sign_share, ring_offsets_deg=offsets,
+                    shaded_spread_deg=shaded_spread, shaded_drop_deg=shaded_drop,
+                    foreground_share=foreground_share)
     layout.check()
     mres = _resolution(model_resolution)
     first_round = 0
     previous: list = []
-    if continue_from is not None:
+    if continue_from is not None:  # its geometry; this command's sliver options
         from lightsim.luminaires.design import read_design
 
         x_prev, layout, rec = read_design(continue_from)
+        # the continued lamp takes the foreground options of this command
+        layout = replace(layout, shaded_spread_deg=shaded_spread,
+                         shaded_drop_deg=shaded_drop, foreground_share=foreground_share,
+                         sign_share=sign_share)
+        layout.check()
         previous = list(rec.get("model") or [])
         first_round = len(previous)
         start = ",".join(repr(float(t)) for t in x_prev)
@@ -177,10 +207,13 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          model_evaluations=model_evaluations,
                          calibrate=ring_offsets is None, note=note,
                          interval_photons=interval_photons, model_safety=model_safety,
-                         first_round=first_round)
+                         first_round=first_round, foreground_m=foreground,
+                         aim_photons=aim_photons, remeasure_steps=remeasure,
+                         model_smooth_px=model_smooth)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),
-            "objective": out.objective, "optimiser": optimiser,
+            "objective": out.objective if math.isfinite(out.objective) else None,
+            "optimiser": optimiser,
             "model": previous + out.model,
             "validation_objective": (out.validation_objective
                                      if math.isfinite(out.validation_objective) else None)}
@@ -199,13 +232,20 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
         click.echo(f"{t.name:14s} {v:>10s}  {t.margin:+10.3f}  {t.target}"
                    + ("   SHORT" if t.margin < 0 else ""))
     for m in out.model:
+        if m["round"] == "aim":
+            click.echo(f"final aim step: every facet {m['aim_step_deg']:+.3f}°")
+            continue
+        again = "; ".join(f"× {t['step']:g} re-measured J {t['objective']:.4f}"
+                          for t in m.get("remeasured", []))
         click.echo(f"model round {m['round']}: {m['facets']} facets' footprints measured in "
                    f"{m['footprint_seconds']:.0f} s; J {m['start_objective']:.4f} → "
-                   f"{m['objective']:.4f} in {m['evaluations']} model evaluations")
+                   f"{m['objective']:.4f} in {m['evaluations']} model evaluations"
+                   + (f"; {again}; kept × {m['accepted_step']:g}" if again else ""))
     for rs in (regulation.split(",") if check_photons else []):
         opts = SimulateOptions(out_glb, out_dir=str(Path(check_dir) / rs.strip()),
                                photons=check_photons, regulation=rs.strip(),
-                               traffic=traffic, aim=True, config={"seed": seed + 2000})
+                               traffic=traffic, aim=aim_photons == 0,
+                               config={"seed": seed + 2000})
         sim = run_simulation(opts, analyses=for_options(opts))
         Console(width=120).print(format_regulation(sim.summary["regulation"]))
     click.echo(f"total {time.perf_counter() - t0:.1f} s")

@@ -43,6 +43,8 @@ set and its 95 % interval:
           0.1° from 0.57° D
         + smoothness: hinge(ln(max(lux / smoothed lux) / smooth_max))²  over the lit wall
         + road reach: hinge(ln(reach(1 lx) / reach_target))²
+        + foreground: hinge(ln(min over the road points of I / I(1 lx) / (1+s)))²
+          (``foreground_m`` > 0; :func:`foreground_points`)
 
 with hinge(m) = max(0, −m) and s = ``safety``. lo/hi are the interval bounds, so noise
 counts against the lamp.
@@ -98,6 +100,13 @@ interval_photons  –      12 000 000   photons of the check run whose intervals
 sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet's azimuth
                                       per overhead-sign sliver (× its weight in
                                       ``SIGN_AIMS``), dim light above the cut-off
+foreground_m      m      0 (CLI 5)    1 lx asked on the road at ±w/2, ±w (10 m) and
+                                      ±w/2 (15 m); 0: no foreground term
+aim_photons       –      0 (CLI 4 M)  photons of the whole-lamp aim step (320×128,
+                                      before each model round and twice at the end)
+remeasure_steps   –      True         keep a model round's shifts (× 1, ½, ¼) only if
+                                      the re-simulated lamp's J is below the start's
+model_smooth_px   px     0            Gaussian σ on every footprint
 ================  =====  ===========  =====================================================
 """
 
@@ -136,6 +145,17 @@ MAX_RADIUS_M: float | None = None  # kNN radius cap in the loop (None: the engin
 CALIBRATION_STEPS = 2
 LEFT_SPREAD = 1.4  # the non-traffic side spreads further: the hot spot sits right of V
 LIT_MIN = 0.6
+FG_LIT_MIN = 0.2
+"""Cup-shaded facets lit at least this much (the ones on the cup's edges, 0.28–0.37 of
+their rays pass) become foreground facets when ``Layout.shaded_spread_deg`` > 0; the
+others (lit < 0.15: only stray light, inverted images) stay ``SHADED_DROP_DEG`` down."""
+RISE_CAP_DEG = 2.0
+"""The traffic-side cut-off rises 15° from the elbow up to this far above v0 (deg): facets
+aimed far to the traffic side for the foreground put their image tops at most here."""
+FOREGROUND_POINTS = ((10.0, 0.5), (10.0, 1.0), (15.0, 0.5))
+"""(distance ahead in m, × ``foreground_m`` to each side) where the objective asks for
+1 lx on the road: ±w/2 and ±w at 10 m, ±w/2 at 15 m (the broad foreground of a real low
+beam; 1 lx at 15 m needs > 5 k cd even on the axis)."""
 DROP_FROM_DEG = -1.5  # the drop ramps in from here (deg, + = traffic side) to 2°: the hot spot
 # near V sinks too (measured: ramping from V left H-V at 2 100 cd, zone III ≤ 625)
 SIGN_AIMS = ((-8.0, 0.5, 0.85), (-5.5, -0.8, 1.0), (-3.5, 2.8, 0.7), (-0.5, 2.0, 2.3),
@@ -146,6 +166,13 @@ SIGN_AIMS = ((-8.0, 0.5, 0.85), (-5.5, -0.8, 1.0), (-3.5, 2.8, 0.7), (-0.5, 2.0,
 R112 asks for 65–625 cd
 above the cut-off (points 7, 8, the sums of points 1–3 and 4–6), a dim glow over zone III
 that a lamp cannot leave to stray light. The last sliver widens the left foreground (25L)."""
+FOREGROUND_AIMS = ((-24.0, -3.5, 1.0), (24.0, -3.5, 1.0), (-14.0, -2.6, 1.0),
+                   (14.0, -2.6, 1.0), (-28.0, -3.9, 1.0), (28.0, -3.9, 1.0),
+                   (-19.0, -3.0, 1.0), (19.0, -3.0, 1.0))
+"""Image medians (deg) and relative widths (× ``Layout.foreground_share``) of the
+foreground slivers cut off the second ring's lit facets: 1 lx on the road ±5 m wide at
+10 m needs ≈ 2.2 k cd at 26.6° L/R, 3.7° D (the facets aimed by the cut-off stay within
+±12°)."""
 SHADED_DROP_DEG = 8.0
 """Facets the cup leaves less lit than ``LIT_MIN`` are aimed ``SHADED_DROP_DEG`` under the
 cut-off: the light that reaches them past the cup's rims and end plates (and, reflected
@@ -181,7 +208,15 @@ class Layout:
     facet_shifts_deg: tuple[tuple[int, float, float], ...] = ()
     """(facet index, Δh, Δv in deg) added to the aims of facets (main facets, then the
     overhead-sign slivers) after the image-based aiming: what the footprint-model
-    optimiser (:mod:`lightsim.luminaires.facet_model`) changes."""
+    optimiser (:mod:`lightsim.luminaires.facet_model`) and the final aim step change."""
+    shaded_spread_deg: float = 0.0
+    """Extra horizontal spread (× cos φ, deg) of the cup-shaded facets lit ≥ ``FG_LIT_MIN``
+    (0: they stay with their ring's spread, ``SHADED_DROP_DEG`` down)."""
+    shaded_drop_deg: float = SHADED_DROP_DEG
+    """How far under v0 (deg) those foreground facets are aimed."""
+    foreground_share: float = 0.0
+    """Share of a lit second-ring facet's azimuth per foreground sliver (× its weight in
+    :data:`FOREGROUND_AIMS`; 0: none)."""
 
     @property
     def n_params(self) -> int:
@@ -191,6 +226,11 @@ class Layout:
         if not (1 <= self.rings <= 8 and 2 <= self.sectors <= 32):
             raise InputError(f"--rings must be 1–8 and --sectors 2–32, got {self.rings}, "
                              f"{self.sectors}")
+        if not (math.isfinite(self.shaded_spread_deg) and 0 <= self.shaded_spread_deg <= 30
+                and math.isfinite(self.shaded_drop_deg) and 0 <= self.shaded_drop_deg <= 20):
+            raise InputError("--shaded-spread must be 0–30° and --shaded-drop 0–20°")
+        if not (math.isfinite(self.foreground_share) and 0 <= self.foreground_share < 0.9):
+            raise InputError(f"--foreground-share must be 0–0.9, got {self.foreground_share}")
         if not (math.isfinite(self.sign_share) and 0 <= self.sign_share
                 and self.sign_share * sum(a[2] for a in SIGN_AIMS) < 0.9 * self.sectors):
             raise InputError(f"--sign-share must be ≥ 0 and small enough for "
@@ -318,7 +358,8 @@ def cutoff_line(h: np.ndarray, v0: float, traffic: str = "right",
     the elbow and a corner of zone III, stays dark)."""
     e = ELBOW_DEG if elbow_deg is None else elbow_deg
     side = h if traffic == "right" else -h
-    return v0 + np.maximum(side - e, 0.0) * math.tan(math.radians(STEP_DEG))
+    return v0 + np.minimum(np.maximum(side - e, 0.0) * math.tan(math.radians(STEP_DEG)),
+                           RISE_CAP_DEG)
 
 
 def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
@@ -350,7 +391,13 @@ def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
         new = []
         for fc, img, (h, drop, up) in zip(facets, images, targets):
             if img.lit_fraction < LIT_MIN:  # (mostly) shaded by the cup: foreground
-                new.append(Facet(fc.phi0_rad, fc.phi1_rad, h, v0 - SHADED_DROP_DEG,
+                hs, vs = h, v0 - SHADED_DROP_DEG
+                if layout.shaded_spread_deg > 0 and img.lit_fraction >= FG_LIT_MIN:
+                    # the cup's edge facets light the foreground beside the car
+                    cphi = math.cos(0.5 * (fc.phi0_rad + fc.phi1_rad))
+                    hs = h + layout.shaded_spread_deg * cphi
+                    vs = v0 - layout.shaded_drop_deg
+                new.append(Facet(fc.phi0_rad, fc.phi1_rad, float(np.clip(hs, -40, 40)), vs,
                                  fc.r0_m, fc.r1_m, fc.focal_m))
                 continue
             hc = float(np.median(img.dh))
@@ -378,32 +425,64 @@ def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
     return facets
 
 
+def _with_shifts(layout: Layout, facets: list[int], shifts_deg: np.ndarray) -> Layout:
+    """``layout`` with shifts (K, 2) deg added to facets ``facets``' stored shifts."""
+    old = {int(k): (dh, dv) for k, dh, dv in layout.facet_shifts_deg}
+    for k, (dh, dv) in zip(facets, np.asarray(shifts_deg, float).reshape(-1, 2)):
+        a, b = old.get(int(k), (0.0, 0.0))
+        old[int(k)] = (a + float(dh), b + float(dv))
+    return replace(layout, facet_shifts_deg=tuple(
+        (k, round(a, 4), round(b, 4)) for k, (a, b) in sorted(old.items())))
+
+
+def _shift_all(layout: Layout, n_facets: int, dv_deg: float) -> Layout:
+    """``layout`` with every one of its ``n_facets`` facets aimed ``dv_deg`` higher (the
+    whole pattern moves as ``--aim`` would move it)."""
+    return _with_shifts(layout, list(range(n_facets)),
+                        np.column_stack([np.zeros(n_facets), np.full(n_facets, dv_deg)]))
+
+
 def _with_sign_slivers(facets: list[Facet], layout: Layout, hole_m: float) -> list[Facet]:
     """Cut ``layout.sign_share`` of a lit vertex-ring facet's azimuth off per
     :data:`SIGN_AIMS` entry and aim that sliver's image centre there (the vertex ring's
-    images are the largest: the sliver makes a broad, dim patch)."""
-    share = float(layout.sign_share)
+    images are the largest: the sliver makes a broad, dim patch); then the same with
+    ``layout.foreground_share`` of the second ring's lit facets per
+    :data:`FOREGROUND_AIMS` entry (the broad foreground beside the car)."""
+    out = _slivers(facets, layout, hole_m, 0, SIGN_AIMS, float(layout.sign_share))
+    if layout.foreground_share > 0 and layout.rings > 1:
+        out = _slivers(out, layout, hole_m, 1, FOREGROUND_AIMS,
+                       float(layout.foreground_share))
+    return out
+
+
+def _slivers(facets: list[Facet], layout: Layout, hole_m: float, ring: int,
+             aims: tuple[tuple[float, float, float], ...], share: float) -> list[Facet]:
+    """Cut ``share`` × weight of a lit facet of ``ring`` off per entry of ``aims``
+    (h, v, weight; deg, deg, –) and aim the sliver so that its image median lies there."""
     if share <= 0:
         return facets
-    if not share * sum(a[2] for a in SIGN_AIMS) < 0.9 * layout.sectors:
-        raise InputError("the overhead-sign share is too large for the vertex ring")
-    images = facet_images(facets[:layout.sectors], layout, hole_m)
-    lit = [k for k, im in enumerate(images) if im.lit_fraction >= LIT_MIN]
+    if not share * sum(a[2] for a in aims) < 0.9 * layout.sectors:
+        raise InputError("the sliver share is too large for the ring")
+    n0 = ring * layout.sectors
+    images = facet_images(facets[n0:n0 + layout.sectors], layout, hole_m)
+    lit = [n0 + k for k, im in enumerate(images) if im.lit_fraction >= LIT_MIN]
     if not lit:
         return facets
     out = list(facets)
     cut: dict[int, float] = {}
-    for i, (th, tv, weight) in enumerate(SIGN_AIMS):
+    for i, (th, tv, weight) in enumerate(aims):
         if layout.traffic == "left":
             th = -th
         k = lit[i % len(lit)]
         fc = out[k]
         width = share * weight * (fc.phi1_rad - fc.phi0_rad) / (1.0 - cut.get(k, 0.0))
         cut[k] = cut.get(k, 0.0) + share * weight
+        if cut[k] >= 0.9:
+            raise InputError("the sliver share is too large for the ring's lit facets")
         p1 = fc.phi1_rad - width
         out[k] = replace(fc, phi1_rad=p1)
         sliver = replace(fc, phi0_rad=p1, h_deg=th, v_deg=tv)
-        for _ in range(3):  # the vertex ring's images change with the aim: iterate
+        for _ in range(3):  # the images change with the aim: iterate
             img = facet_images([sliver], layout, hole_m)[0]
             if not img.dh.size:
                 break
@@ -570,7 +649,8 @@ def smoothness(lux: np.ndarray, frame: Any, sigma_deg: float = 1.0) -> float:
 
 
 def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety: float,
-                    reach_m: float, smooth_max: float) -> list[Term]:
+                    reach_m: float, smooth_max: float, foreground_m: float = 0.0
+                    ) -> list[Term]:
     """All terms of J for one simulated lamp (see the module docstring)."""
     from lightsim.render.road import road_illuminance_from
     from lightsim.wall import sample_wall
@@ -599,7 +679,39 @@ def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety:
     reach = road.reach_m(1.0) or 0.5
     m = math.log(reach / reach_m)
     terms.append(Term("reach 1 lx", m, _hinge(m), reach, f"≥ {reach_m:g} m"))
+    if foreground_m > 0:
+        terms.append(foreground_term(lambda h, v: sample_wall(lux, frame, h, v - dv),
+                                     foreground_m, safety))
     return terms
+
+
+def foreground_points(foreground_m: float, mount_height_m: float = 0.65
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Wall angles (h, v in deg) and the cd for 1 lx on the road at
+    :data:`FOREGROUND_POINTS` (w = ``foreground_m``; lamp ``mount_height_m`` above the
+    road; H positive to the right)."""
+    x: list[float] = []
+    z: list[float] = []
+    for zz, f in FOREGROUND_POINTS:
+        x += [-f * foreground_m, f * foreground_m]
+        z += [zz, zz]
+    xa, za = np.asarray(x), np.asarray(z)
+    r2 = xa * xa + za * za + mount_height_m ** 2
+    need = r2 * np.sqrt(r2) / mount_height_m  # E = I·h / r³
+    return (np.degrees(np.arctan2(xa, za)), np.degrees(np.arctan2(-mount_height_m, za)),
+            need)
+
+
+def foreground_term(intensity_hv: Callable[[np.ndarray, np.ndarray], Any],
+                    foreground_m: float, safety: float) -> Term:
+    """1 lx on the road beside the car: the smallest of intensity / (intensity for 1 lx)
+    over :func:`foreground_points`, with the safety margin."""
+    h, v, need = foreground_points(foreground_m)
+    cd = np.nan_to_num(np.asarray(intensity_hv(h, v), float), nan=0.0)
+    ratio = float(np.min(np.maximum(cd, 1e-3) / need))
+    m = math.log(ratio / (1 + safety))
+    return Term("foreground 1 lx", m, _hinge(m), ratio,
+                f"≥ 1 lx at ±{foreground_m:g} m (10 m), ±{0.5 * foreground_m:g} m (15 m)")
 
 
 # ---------------------------------------------------------------------------------------
@@ -700,7 +812,10 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    model_evaluations: int = 3000, calibrate: bool = True,
                    interval_photons: int = 12_000_000, model_safety: float = 0.05,
                    first_round: int = 0,
-                   note: Callable[[str], None] | None = None
+                   note: Callable[[str], None] | None = None,
+                   foreground_m: float = 0.0, aim_photons: int = 0,
+                   aim_resolution: tuple[int, int] = (320, 128),
+                   remeasure_steps: bool = True, model_smooth_px: float = 0.0
                    ) -> DesignResult:
     """Optimise the facet layout against ``regulation`` (one rule set id or several,
     comma-separated; see the module docstring).
@@ -739,7 +854,10 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
     lo_b = np.array([b[0] for b in bounds(layout)])
     hi_b = np.array([b[1] for b in bounds(layout)])
     x = np.clip(np.asarray(start_vector(layout) if x0 is None else x0, float), lo_b, hi_b)
-    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max)
+    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, foreground_m=foreground_m)
+    if (aim_photons < 0 or foreground_m < 0 or not math.isfinite(foreground_m)
+            or not (math.isfinite(model_smooth_px) and 0 <= model_smooth_px <= 20)):
+        raise InputError("--aim-photons and --foreground must be ≥ 0, --model-smooth 0–20")
     with tempfile.TemporaryDirectory(prefix="lightsim-design-") as tmp:
         glb = Path(tmp) / "candidate.glb"
 
@@ -789,13 +907,64 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
         layout = replace(layout, ring_offsets_deg=tuple(offsets))
         model_info: list[dict[str, Any]] = []
         if optimiser == "model":
-            from .facet_model import NOISE_CD, NOISE_PHOTONS, measure_footprints, optimise_shifts
+            from .facet_model import (
+                NOISE_CD,
+                NOISE_PHOTONS,
+                measure_footprints,
+                model_terms,
+                optimise_shifts,
+            )
 
+            def aim_step(lay: Layout) -> tuple[Layout, float]:
+                """Simulate the lamp as the check run does (``aim_resolution``, unaimed)
+                and lower/raise every facet by the aim correction its cut-off asks for."""
+                write_design(glb, x, lay)
+                reg, _l, _f = simulate_lamp(glb, regulation, photons=aim_photons,
+                                            resolution=aim_resolution, seed=seed + 500,
+                                            traffic=lay.traffic, aim=False)
+                cut = reg["aim"]["cutoff"]
+                dv = (float(np.clip(cut.get("aim_dv_deg") or 0.0, -0.5, 0.5))
+                      if cut.get("found", True) else 0.0)
+                n_all = len(facets_for(x, lay, hole_diameter(lay)))
+                return _shift_all(lay, n_all, dv), dv
+
+            def remeasure(lay: Layout, model: Any, sh: np.ndarray, s_round: int,
+                          aim_off: float | None) -> tuple[float, list[Term]]:
+                """J of the lamp with shifts ``sh`` simulated on the model's wall (the
+                whole lamp, the model's reference photons and seed)."""
+                write_design(glb, x, _with_shifts(lay, model.facets, sh))
+                _r, lux, _f = simulate_lamp(glb, regulation, photons=4 * model_photons,
+                                            resolution=model_resolution, seed=s_round,
+                                            traffic=lay.traffic, aim=False)
+                terms = model_terms(model, sh, regs, lay.traffic, lux=np.nan_to_num(lux),
+                                    **mkw, aim_offset_deg=aim_off)
+                return float(sum(t.penalty for t in terms)), terms
+
+            noise = (NOISE_CD * math.sqrt(NOISE_PHOTONS / interval_photons)
+                     if interval_photons > 0 else 0.0)
+            mkw = dict(safety=model_safety, reach_m=reach_m, smooth_max=smooth_max,
+                       noise_cd=noise, foreground_m=foreground_m)
             best = {"j": math.nan, "x": [float(t) for t in x], "terms": []}
             for rnd in range(first_round, first_round + model_rounds):
+                aim_dv = math.nan
+                if aim_photons > 0:
+                    layout, aim_dv = aim_step(layout)
+                    if note is not None:
+                        note(f"round {rnd}: aim step {aim_dv:+.3f}° (every facet)")
                 model = measure_footprints(x, layout, regulation, photons=model_photons,
                                            resolution=model_resolution, seed=seed + rnd,
-                                           residual_factor=4, progress=note)
+                                           residual_factor=4, progress=note,
+                                           smooth_px=model_smooth_px)
+                aim_off = None
+                if aim_photons > 0:
+                    # after the aim step the check run's cut-off sits at 0.57° D: the
+                    # model's aim term asks to keep it there, in the model finder's terms
+                    from lightsim.render.cutoff import find_cutoff
+
+                    c0 = find_cutoff(model.lux(np.zeros((len(model.facets), 2))),
+                                     model.frame, layout.traffic)
+                    if c0.aim_dv_deg is not None:
+                        aim_off = -float(c0.aim_dv_deg)
 
                 def shown(i: int, j: float, terms: list[Term], rnd: int = rnd) -> None:
                     entry = {"round": rnd, "x": [float(t) for t in x], "objective": j,
@@ -805,24 +974,50 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                     if progress is not None:
                         progress(len(history), entry)
 
-                noise = (NOISE_CD * math.sqrt(NOISE_PHOTONS / interval_photons)
-                         if interval_photons > 0 else 0.0)
                 res = optimise_shifts(model, regs, layout.traffic, safety=model_safety,
                                       reach_m=reach_m, smooth_max=smooth_max,
                                       evaluations=model_evaluations, progress=shown,
-                                      noise_cd=noise)
-                old = {int(k): (dh, dv) for k, dh, dv in layout.facet_shifts_deg}
-                for k, (dh, dv) in zip(model.facets, res.shifts_deg):
-                    a, b = old.get(k, (0.0, 0.0))
-                    old[k] = (a + float(dh), b + float(dv))
-                layout = replace(layout, facet_shifts_deg=tuple(
-                    (k, round(a, 4), round(b, 4)) for k, (a, b) in sorted(old.items())))
-                best = {"j": res.objective, "x": [float(t) for t in x], "terms": res.terms}
+                                      noise_cd=noise, foreground_m=foreground_m,
+                                      aim_offset_deg=aim_off)
+                # trust region: the round's shifts are kept only if the re-simulated lamp
+                # (same seed and photons as the model's reference, so the comparison is
+                # noise-fair) is better than the round's start; else halve them
+                tried = []
+                accepted = 0.0
+                j_acc, terms_acc = res.start_objective, res.terms
+                for t in (1.0, 0.5, 0.25) if remeasure_steps else ():
+                    jr, tr = remeasure(layout, model, t * res.shifts_deg, seed + rnd, aim_off)
+                    tried.append({"step": t, "objective": jr})
+                    if note is not None:
+                        mt = {q.name: q.penalty for q in res.terms}
+                        diff = sorted(tr, key=lambda q: -abs(q.penalty - mt.get(q.name, 0.0)))
+                        note(f"round {rnd}: shifts × {t:g} re-measured J {jr:.4f} (model "
+                             f"{res.objective:.4f} at × 1, start {res.start_objective:.4f}); "
+                             "model vs lamp: " + ", ".join(
+                                 f"{q.name} {mt.get(q.name, 0.0):.3f}/{q.penalty:.3f}"
+                                 for q in diff[:4]))
+                    if jr < res.start_objective:
+                        accepted, j_acc, terms_acc = t, jr, tr
+                        break
+                if not remeasure_steps:
+                    accepted, j_acc = 1.0, res.objective
+                layout = _with_shifts(layout, model.facets, accepted * res.shifts_deg)
+                best = {"j": j_acc, "x": [float(t) for t in x], "terms": terms_acc}
                 model_info.append({"round": rnd, "start_objective": res.start_objective,
                                    "objective": res.objective,
+                                   "remeasured": tried, "accepted_step": accepted,
+                                   "aim_step_deg": (aim_dv if math.isfinite(aim_dv)
+                                                    else None),
                                    "evaluations": res.evaluations,
                                    "footprint_seconds": model.seconds,
                                    "facets": len(model.facets)})
+            for _ in range(2 if aim_photons > 0 else 0):  # the lamp needs no --aim
+                layout, aim_dv = aim_step(layout)
+                if note is not None:
+                    note(f"final aim step {aim_dv:+.3f}° (every facet)")
+                model_info.append({"round": "aim", "aim_step_deg": aim_dv})
+                if abs(aim_dv) < 0.01:
+                    break
         for rnd in range(rounds if optimiser == "simulator" else 0):
             s_round = seed + rnd
             round_best: dict[str, Any] = {"j": math.inf}

@@ -34,6 +34,9 @@ photons             –      1 000 000  photons per footprint run
 resolution          px     200×256    footprint map W×H (0.34° × 0.107° pixels)
 shift_bounds_deg    deg    ±1, ±0.5   bounds of Δh, Δv per facet
 regulariser         –      0.01       ρ above
+smooth_px           px     0          Gaussian σ applied to every footprint
+foreground_m        m      0          road foreground term (design's ``foreground_term``)
+aim_offset_deg      deg    None       check-run minus model-finder aim on the reference
 ==================  =====  =========  ===================================================
 """
 
@@ -125,23 +128,29 @@ def _add_shifted(out: np.ndarray, img: np.ndarray, dr: float, dc: float) -> None
 
 
 def movable_facets(facets: Sequence[Any], layout: Any, hole_m: float) -> list[int]:
-    """Indices of the main (ring × sector) facets the cup leaves lit and of every
-    overhead-sign sliver (the shaded facets are aimed into the foreground and stay put)."""
-    from .design import LIT_MIN, facet_images
+    """Indices of the main (ring × sector) facets the cup leaves lit (with
+    ``layout.shaded_spread_deg`` > 0 also the cup's edge facets, lit ≥ ``FG_LIT_MIN``, which
+    light the foreground) and of every overhead-sign sliver (the other shaded facets carry
+    only stray light and stay put)."""
+    from .design import FG_LIT_MIN, LIT_MIN, facet_images
 
     n = layout.rings * layout.sectors
     images = facet_images(list(facets[:n]), layout, hole_m)
-    return ([k for k, im in enumerate(images) if im.lit_fraction >= LIT_MIN]
+    lit = LIT_MIN if getattr(layout, "shaded_spread_deg", 0.0) <= 0 else FG_LIT_MIN
+    return ([k for k, im in enumerate(images) if im.lit_fraction >= lit]
             + list(range(n, len(facets))))
 
 
 def measure_footprints(x: np.ndarray, layout: Any, regulation: str, *, photons: int,
                        resolution: tuple[int, int], seed: int, residual_factor: int = 0,
-                       progress: Callable[[str], None] | None = None) -> FootprintModel:
+                       progress: Callable[[str], None] | None = None,
+                       smooth_px: float = 0.0) -> FootprintModel:
     """Simulate the base lamp and each movable facet alone (same seed); see the module
     docstring. ``x`` and ``layout`` (with its facet shifts) define the reference lamp.
     ``residual_factor`` > 0: also simulate the whole lamp with that many times the photons
-    (:attr:`FootprintModel.residual`)."""
+    (:attr:`FootprintModel.residual`). ``smooth_px`` > 0: each footprint is smoothed
+    with a Gaussian of that σ (pixels; the residual keeps the model exact at zero shift),
+    so that the optimiser cannot move a footprint's photon-noise peaks onto a test point."""
     import tempfile
     import time
     from pathlib import Path
@@ -189,13 +198,19 @@ def measure_footprints(x: np.ndarray, layout: Any, regulation: str, *, photons: 
     px = (math.degrees(math.atan2((h1 - h0) / W, d)), math.degrees(math.atan2((v1 - v0) / H, d)))
     base = maps[0]
     fps = np.stack([m - base for m in maps[1:len(movable) + 1]])
+    if smooth_px > 0:
+        from scipy.ndimage import gaussian_filter
+
+        fps = np.stack([gaussian_filter(f, smooth_px, mode="constant") for f in fps])
     res = maps[-1] - base - fps.sum(axis=0) if residual_factor > 0 else None
     return FootprintModel(fd, base, fps, movable, px, time.perf_counter() - t0, res)
 
 
 def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequence[str],
                 traffic: str, *, safety: float, reach_m: float, smooth_max: float,
-                regulariser: float = REGULARISER, noise_cd: float = 0.0) -> list[Any]:
+                regulariser: float = REGULARISER, noise_cd: float = 0.0,
+                foreground_m: float = 0.0, aim_offset_deg: float | None = None,
+                lux: np.ndarray | None = None) -> list[Any]:
     """The objective's terms (:func:`lightsim.luminaires.design.objective_terms`) of every
     rule set on the model map, plus the shift regulariser.
 
@@ -209,9 +224,11 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
     from .regulations import load_ruleset
     from .regulations.evaluate import probe_points
 
-    lux = model.lux(shifts_deg)
+    lux = model.lux(shifts_deg) if lux is None else np.asarray(lux, float)
     wf = WallFrame.from_any(model.frame)
     cut = find_cutoff(lux, model.frame, traffic).to_dict()
+    if aim_offset_deg is not None and cut.get("aim_dv_deg") is not None:
+        cut["aim_dv_deg"] = float(cut["aim_dv_deg"]) + aim_offset_deg
     # the lamp is evaluated as it stands (its own cut-off near 0.57° D is a term of J):
     # the model's cut-off finder jumps between pixel rows as the shifts change, and an aim
     # taken from it would make J jump with it
@@ -230,7 +247,7 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
                       for e in (0.0, -AIM_TOLERANCE_DEG, AIM_TOLERANCE_DEG)]
         reg = {"results": per_offset[0], "aim": {"dv_deg": dv0, "cutoff": cut}}
         got = objective_terms(reg, lux, wf, safety=safety, reach_m=reach_m,
-                              smooth_max=smooth_max)
+                              smooth_max=smooth_max, foreground_m=foreground_m)
         worst = {}
         for results in per_offset:
             for t in _rule_terms(results, safety):
@@ -287,6 +304,7 @@ class ShiftResult:
 def optimise_shifts(model: FootprintModel, regulations: Sequence[str], traffic: str, *,
                     safety: float, reach_m: float, smooth_max: float, evaluations: int,
                     start: np.ndarray | None = None, noise_cd: float = 0.0,
+                    foreground_m: float = 0.0, aim_offset_deg: float | None = None,
                     progress: Callable[[int, float, list[Any]], None] | None = None
                     ) -> ShiftResult:
     """Minimise J(s) on the model with :func:`scipy.optimize.minimize` (Powell, bounded
@@ -302,7 +320,8 @@ def optimise_shifts(model: FootprintModel, regulations: Sequence[str], traffic: 
     z0 = np.concatenate([[0.0, 0.0], s0])
     bh, bv = SHIFT_BOUNDS_DEG
     bnds = [(-0.5, 0.5), (-0.3, 0.3)] + [(-bh, bh), (-bv, bv)] * K
-    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, noise_cd=noise_cd)
+    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, noise_cd=noise_cd,
+              foreground_m=foreground_m, aim_offset_deg=aim_offset_deg)
     count = [0]
     best: dict[str, Any] = {"j": math.inf}
 
