@@ -637,9 +637,13 @@ def test_live_session_warm_up_and_quick_first_frame(tmp_path):
         assert statuses[0]["mode"] == "interaction" and statuses[0]["rel_error"] is None
         acc = [p for p in statuses if p["mode"] == "accumulation"]
         assert acc and acc[-1]["photons"] > acc[0]["photons"] > 1600
-        # the figure comes first from the grid probes, then from the pooled (written) map
-        figured = [p for p in acc if p["rel_error"] is not None]
-        assert figured[0]["error_source"] == "grid probes"
+        # the figure comes from the grid probes until the first pooled (written) map, then
+        # from the written map only; whether a grid figure comes first depends on timing
+        # (the scene's error law may put the first pooled map at the first still step)
+        sources = [p["error_source"] for p in acc if p["rel_error"] is not None]
+        assert sources and set(sources) <= {"grid probes", "written map"}
+        first_map = sources.index("written map")
+        assert "grid probes" not in sources[first_map:]
         written = [p for p in acc if p["error_source"] == "written map"]
         assert written and 0 < written[0]["rel_error"] < 1
         assert written[0]["error_photons"] <= written[0]["photons"]
