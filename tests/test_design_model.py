@@ -55,6 +55,17 @@ def test_facet_shifts_move_exactly_the_named_facets():
         facets_for(x, replace(LAYOUT, facet_shifts_deg=((0, float("nan"), 0.0),)), hole)
 
 
+def _simulated(layout) -> np.ndarray:
+    """The lamp of ``layout`` at the start vector, simulated as the model's footprints
+    were (same photons, wall and seed), lx with NaN as 0."""
+    with tempfile.TemporaryDirectory() as tmp:
+        glb = Path(tmp) / "lamp.glb"
+        write_design(glb, start_vector(LAYOUT), layout)
+        _reg, lux, _fr = simulate_lamp(glb, "r112-b-passing", photons=150_000,
+                                       resolution=RES, seed=4, aim=False)
+    return np.nan_to_num(lux)
+
+
 @pytest.fixture(scope="module")
 def model():
     return measure_footprints(start_vector(LAYOUT), LAYOUT, "r112-b-passing",
@@ -64,12 +75,7 @@ def model():
 def test_zero_shift_model_is_the_simulated_lamp(model):
     """Base + Σ footprints at zero shift is the whole lamp's simulated map (same seed)."""
     assert model.facets and model.footprints.shape[0] == len(model.facets)
-    with tempfile.TemporaryDirectory() as tmp:
-        glb = Path(tmp) / "lamp.glb"
-        write_design(glb, start_vector(LAYOUT), LAYOUT)
-        _reg, lux, _fr = simulate_lamp(glb, "r112-b-passing", photons=150_000,
-                                       resolution=RES, seed=4, aim=False)
-    lux = np.nan_to_num(lux)
+    lux = _simulated(LAYOUT)
     pred = model.lux(np.zeros((len(model.facets), 2)))
     # kNN is not additive where two footprints overlap: a few per cent in total
     assert abs(pred.sum() / lux.sum() - 1) < 0.05
@@ -81,12 +87,7 @@ def test_model_predicts_a_shifted_facet_as_the_simulator_sees_it(model):
     shifts = np.zeros((len(model.facets), 2))
     shifts[0] = (1.5, 0.8)
     lay = replace(LAYOUT, facet_shifts_deg=((k, 1.5, 0.8),))
-    with tempfile.TemporaryDirectory() as tmp:
-        glb = Path(tmp) / "lamp.glb"
-        write_design(glb, start_vector(LAYOUT), lay)
-        _reg, lux, _fr = simulate_lamp(glb, "r112-b-passing", photons=150_000,
-                                       resolution=RES, seed=4, aim=False)
-    lux = np.nan_to_num(lux)
+    lux = _simulated(lay)
     moved = model.lux(shifts)
     still = model.lux(np.zeros_like(shifts))
     # the shifted model is closer to the simulated shifted lamp than the unshifted one
