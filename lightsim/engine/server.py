@@ -218,7 +218,8 @@ class Session:
         self.config = config or RunConfig()
         # the written map's directional fusion: None lets its figure decide (both maps are
         # made), True/False only that one (a caller that redraws the same scene's map can
-        # keep the first map's choice, :attr:`last_map_fused`, and halve the cost)
+        # keep the first map's choice, :attr:`last_map_fused`, and halve the cost; reset
+        # by :meth:`update`)
         self.directional_map: bool | None = None
         self.last_map_fused = False
         self.scene = scene
@@ -507,6 +508,7 @@ class Session:
         self.backend.apply(changes)
         self.frames = 0
         self.partial = {}
+        self.directional_map = None  # a new scene: its first map chooses again
         self.log.append({"event": "update", "seconds": self.elapsed})
 
     # -- accounting ----------------------------------------------------------------------

@@ -106,11 +106,10 @@ def _rect(sat, r0, r1, c0, c1):
 
 
 @njit(cache=True)
-def _ladders(sat, R0, C0, H, W, Ec, Ac, r, c, dirs, a_pix, E, A, J):
+def _ladders(sat, H, W, Ec, Ac, r, c, dirs, a_pix, E, A, J):
     """Fill E (K, J+1) and A (K, J+1) with the ladders' values (lx) and areas (m²) at
-    pixel (r, c) of an H × W wall from a pooled SAT (or the patch of it whose first
-    entry is SAT row R0, column C0) and the centred rungs Ec (J+1,), Ac (J+1,); a window
-    leaving the wall has A = 0 (its ladder ends there). Returns nothing."""
+    pixel (r, c) of an H × W wall from a pooled SAT and the centred rungs Ec (J+1,),
+    Ac (J+1,); a window leaving the wall has A = 0 (its ladder ends there). Returns nothing."""
     K = E.shape[0]
     for j in range(J + 1):
         E[0, j] = Ec[j]
@@ -122,20 +121,14 @@ def _ladders(sat, R0, C0, H, W, Ec, Ac, r, c, dirs, a_pix, E, A, J):
         dx = dirs[k - 1, 1]
         for j in range(1, J + 1):
             m = j + 1
-            if dy == 0:
-                r0, r1 = _extent(r, 0, m, H)
-            else:
-                r0, r1 = _extent(r, dy, m, H)
-            if dx == 0:
-                c0, c1 = _extent(c, 0, m, W)
-            else:
-                c0, c1 = _extent(c, dx, m, W)
+            r0, r1 = _extent(r, dy, m, H)
+            c0, c1 = _extent(c, dx, m, W)
             if r0 < 0 or c0 < 0:
                 A[k, j] = 0.0
                 E[k, j] = 0.0
                 continue
             cnt = (r1 - r0) * (c1 - c0)
-            E[k, j] = _rect(sat, r0 - R0, r1 - R0, c0 - C0, c1 - C0) / cnt
+            E[k, j] = _rect(sat, r0, r1, c0, c1) / cnt
             A[k, j] = cnt * a_pix
 
 
@@ -197,7 +190,7 @@ def choose_fused(sat, Ec, Ac, rows, cols, dirs, a_pix, scale, gamma):
             for j in range(J + 1):
                 ec[j] = Ec[j, i]
                 ac[j] = Ac[j, i]
-            _ladders(sat, 0, 0, H, W, ec, ac, rows[i], cols[i], dirs, a_pix, E, A, J)
+            _ladders(sat, H, W, ec, ac, rows[i], cols[i], dirs, a_pix, E, A, J)
             _choose(E, A, J, scale, gamma, jk[i], wk[i])
     return jk, wk
 
@@ -228,8 +221,7 @@ def apply_fused(sats, Ecs, which, rows, cols, dirs, jk, wk):
                     continue
                 r0, r1 = _extent(r, dirs[k - 1, 0], j + 1, H)
                 c0, c1 = _extent(c, dirs[k - 1, 1], j + 1, W)
-                v += w * ((sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0])
-                          / ((r1 - r0) * (c1 - c0)))
+                v += w * _rect(sat, r0, r1, c0, c1) / ((r1 - r0) * (c1 - c0))
             out[t, i] = v
     return out
 
@@ -247,13 +239,12 @@ class FusedChoice(IciChoice):
 @dataclass
 class FusedMap:
     """What :func:`lightsim.render.ici.written_map` needs of the fused map: the choice,
-    every set's luminous values (S, Q), a held-out blur (2, Q) lx² (None: the map's own
-    D̄² − se_D² is unbiased, see :func:`fused_map`) and the lit masks of
-    :func:`lightsim.render.ici._lit_masks`."""
+    every set's luminous values (S, Q) and the lit masks of
+    :func:`lightsim.render.ici._lit_masks` (no held-out blur: the map's own D̄² − se_D²
+    is unbiased, see :func:`fused_map`)."""
 
     choice: FusedChoice
     vals: np.ndarray
-    blur: np.ndarray | None
     lits: tuple | None
 
 
@@ -267,8 +258,7 @@ def _combine(out: np.ndarray, stack: np.ndarray, which, weights) -> np.ndarray:
 
 def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
               areas: np.ndarray, gamma: float, shape: tuple[int, int],
-              lit_fraction: float = 0.1, guide: IciChoice | None = None,
-              win: np.ndarray | None = None) -> FusedMap:
+              lit_fraction: float = 0.1, guide: IciChoice | None = None) -> FusedMap:
     """The fused directional map over the whole H × W raster (``shape``), cross-fitted.
 
     With S ≥ 4 sets each half of them (:func:`lightsim.render.ici._halves`) is read at
@@ -299,8 +289,6 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         :data:`GUIDE` × ``lit_fraction`` × its luminous maximum are fused; the others, far
         below what the figure reads, keep the centred value and rung (a headlight's wall
         is mostly dark: several times less work).
-    win : (S, Q) lx, optional
-        Every set's luminous rung 0, if the caller has it.
     """
     from lightsim.render import ici
 
@@ -389,8 +377,7 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         jk_all[:, 0] = guide.rung
     if choices:
         jk_all[sel], wk_all[sel] = choices[0][1], choices[0][2]
-    choices = [(None, jk_all, wk_all)]
-    _, jk, wk = choices[0]
-    choice = FusedChoice(jk[np.arange(Q), np.argmax(wk, axis=1)], lux, jk, wk)
-    return FusedMap(choice, vals, None,
-                    ici._lit_masks(rungs, choice, lit_fraction, vals, win))
+    choice = FusedChoice(jk_all[np.arange(Q), np.argmax(wk_all, axis=1)], lux, jk_all,
+                         wk_all)
+    # every set's luminous rung 0 is Rl[:, 0]: the lit masks need not convert it again
+    return FusedMap(choice, vals, ici._lit_masks(rungs, choice, lit_fraction, vals, Rl[:, 0]))

@@ -609,20 +609,19 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     if directional is not False and shape is None:
         shape = raster_shape(areas)
     choice = choose(rungs, emitted, q, areas, gamma)
-    fused = None
+    fused = win = None  # win: every set's luminous rung 0, once made
     if directional is not False and shape is not None and \
             np.asarray(rungs[next(iter(rungs))]).shape[0] >= 2:
         from lightsim.render.directional import fused_map
 
-        win = luminous(np.stack([np.asarray(rungs[s][0], np.float64) for s in sorted(rungs)]))
-        fm = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction, guide=choice,
-                       win=win)
-        fused = _mixed(rungs, emitted, fm.choice, fm.vals, fm.blur, fm.lits, lit_fraction)
+        fm = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction, guide=choice)
+        win = None if fm.lits is None else fm.lits[1]
+        fused = _mixed(rungs, emitted, fm.choice, fm.vals, None, fm.lits, lit_fraction)
         fused.fused = True
         if directional:
             return fused
     blur = None
-    lits = _lit_masks(rungs, choice, lit_fraction, win=None if fused is None else win)
+    lits = _lit_masks(rungs, choice, lit_fraction, win=win)
     if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
         read = lit_queries(lits)
         blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),

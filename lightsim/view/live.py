@@ -683,14 +683,12 @@ class LiveSession:
         # with ICI the written map's figure comes from its own rung sums over every pixel:
         # asking for the grid probes' rungs too would build every set's summed-area
         # table a second time for a figure that is then not used
-        # the first map after an edit makes both the centred and the directional map and
-        # keeps the one with the lower figure; later maps of the same scene make only that
-        # one (half the cost: the headlight keeps the centred map, the paraboloid the fused)
-        if getattr(self, "_map_choice_edit", None) != (id(s), self.edit):
-            s.directional_map = None
         est = s.frame(image=True, shoot=False, mode="pooled", camera=camera,
                       probes=False if s.config.uses_ici else True)
-        s.directional_map, self._map_choice_edit = s.last_map_fused, (id(s), self.edit)
+        # the first map after an edit (Session.update resets the choice) makes both the
+        # centred and the directional map and keeps the one with the lower figure; later
+        # maps of the same scene make only that one (half the cost)
+        s.directional_map = s.last_map_fused
         self._pooled_cost = self.stats.last_frame_s = time.perf_counter() - t0
         self.stats.timings = dict(est.timings)
         self.stats.frames += 1

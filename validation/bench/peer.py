@@ -404,7 +404,7 @@ def run_case(name: str, *, target: float = 0.02, resolution: int = 64, spp0: int
                     break
                 n = fr.paths
     t_l = lr.seconds if lr.ok and lr.true_error < target else None
-    near = (abs(lr.true_error - target) <= 0.1 * target) if lr.ok else None
+    near = _near(lr.true_error, target, lr.ok)
     ratio = t_m / lr.seconds if (t_m is not None and lr.ok) else None
     reached = bool(lr.true_error < target) if lr.ok else None
     ratio_fixed = t_m / t_fixed if (t_m is not None and t_fixed is not None) else None
