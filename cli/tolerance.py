@@ -63,9 +63,7 @@ def _centre(text: str | None) -> tuple[float, float, float]:
 @click_option(lookup(RunConfig, "frame_photons"))
 @click_option(lookup(SimulateOptions, "traffic"))
 @click.option("--aim", is_flag=True, help="Aim every sample's cut-off at 0.57° D first.")
-@click.option("--aperture", type=float, default=0.0, show_default=True,
-              help="Detector aperture of the test points in degrees; 0 = the kNN estimate "
-                   "at the points (smooth, so common random numbers cancel the noise).")
+@click_option(lookup(SimulateOptions, "aperture"))  # simulate's estimator, its default
 @click.option("--centre", "centre_mm", metavar="DX,DY,DZ",
               help="Shift the whole box by this much in mm (a misplaced bulb holder).")
 @click_option(lookup(SimulateOptions, "workers"))  # each sample one Ray task
@@ -136,21 +134,52 @@ def _print(study) -> None:
 
     b = study.box
     rate, ci = study.all_pass_rate()
+    how = (f"{study.aperture_deg:g}° apertures" if study.aperture_deg else "kNN at the points")
     table = Table(title=f"{study.regulation}: filament box ±{b.half_m[0] * 1e3:.2f} × "
                   f"±{b.half_m[1] * 1e3:.2f} × ±{b.half_m[2] * 1e3:.2f} mm"
                   + (f", tilt ±{b.tilt_deg:g}°" if study.tilt else "")
-                  + f" ({b.category}); all points pass in {rate:.0%} "
+                  + f" ({b.category}), {how}; all points pass in {rate:.0%} "
                   f"[{ci[0]:.0%}–{ci[1]:.0%}]")
     for col in ("rule", "limit cd", "centre cd", "centre", "pass rate",
-                f"{int(study.confidence * 100)}% interval", "sure pass", "worst cd",
-                "worst at (mm)"):
+                f"{int(study.confidence * 100)}% interval", "sure pass", "sure fail",
+                "worst cd", "worst at (mm)"):
         table.add_column(col)
     for p in study.points:
         lim = " ".join(f"{'≥' if k == 'min' else '≤'} {v:,.0f}" for k, v in p.limit.items())
         o = p.worst_offset
         table.add_row(p.name, lim, f"{p.nominal_cd:,.0f}", p.nominal_verdict,
                       f"{p.pass_rate:.0%}", f"{p.pass_interval[0]:.0%}–{p.pass_interval[1]:.0%}",
-                      f"{p.sure_pass_rate:.0%}", f"{p.worst_cd:,.0f}",
+                      f"{p.sure_pass_rate:.0%}", f"{p.sure_fail_rate:.0%}",
+                      f"{p.worst_cd:,.0f}",
                       f"{o[0] * 1e3:+.2f},{o[1] * 1e3:+.2f},{o[2] * 1e3:+.2f}")
-    Console(width=160).print(table)
+    console = Console(width=160)
+    console.print(table)
+    console.print(_sensitivity_table(study))
     click.echo(f"box source: {b.source}")
+
+
+def _sensitivity_table(study):
+    """Slopes (cd per 0.1 mm, ± standard error) and the single-axis shift to the limit."""
+    from rich.table import Table
+
+    axes = ["dx", "dy", "dz"] + (["tilt_x", "tilt_y"] if study.tilt else [])
+    table = Table(title="sensitivity: least-squares plane over the samples, cd per 0.1 mm"
+                  + (" (tilts: per 0.1°)" if study.tilt else "")
+                  + " ± standard error; reach = shift along that axis alone to the limit")
+    for col in ("rule", "plane at centre cd", "rms cd",
+                *(f"{a} cd/step" for a in axes), *(f"reach {a} mm" for a in axes[:3])):
+        table.add_column(col)
+    for p in study.points:
+        s = p.sensitivity
+        if s is None:
+            continue
+        slope, reach = [], []
+        for a in axes:
+            k = s.axes.index(a) if a in s.axes else None
+            slope.append("–" if k is None else
+                         f"{s.per_step_cd[k]:+,.0f} ± {s.se_cd[k]:,.0f}")
+            if a in axes[:3]:
+                r = None if k is None else s.reach_mm[k]
+                reach.append("–" if r is None else f"{r:+.2f}")
+        table.add_row(p.name, f"{s.centre_cd:,.0f}", f"{s.rms_cd:,.0f}", *slope, *reach)
+    return table

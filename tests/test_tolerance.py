@@ -212,3 +212,45 @@ def test_cli_study_writes_its_files_and_table(tmp_path):
     doc = json.loads((out / "tolerance.json").read_text())
     assert len(doc["samples"]) == 2 and doc["photons"] == 20000
     assert (out / "tolerance.csv").stat().st_size > 0 and (out / "tolerance.png").exists()
+
+
+# -- sensitivity (least-squares plane) and reading a study back ------------------------
+
+
+def test_sensitivity_fit_recovers_a_known_plane():
+    from lightsim.validation.tolerance import fit_sensitivity
+
+    box = TOLERANCE_BOXES["H4"]
+    off = sample_design(box, 40, seed=2)
+    # 10 000 cd at the centre, +500 cd per 0.1 mm of dx, −2 000 per 0.1 mm of dy, none in dz
+    truth = 10_000 + 500 * off[:, 0] / (0.1 * MM) - 2_000 * off[:, 1] / (0.1 * MM)
+    rng = np.random.default_rng(0)
+    noisy = truth + rng.normal(0, 100.0, len(truth))
+    s = fit_sensitivity(off, noisy, {"min": 8_000.0})
+    assert s.axes == ["dx", "dy", "dz"] and s.samples == 41
+    for b, se, want in zip(s.per_step_cd, s.se_cd, (500.0, -2_000.0, 0.0)):
+        assert 0 < se < 60 and abs(b - want) < 4 * se
+    assert s.centre_cd == pytest.approx(10_000, abs=60) and s.rms_cd == pytest.approx(100, rel=0.3)
+    # along dy alone the plane meets 8 000 cd at +0.1 mm; dz's slope is not resolved
+    assert s.reach_mm[1] == pytest.approx(0.1, rel=0.05) and s.reach_mm[2] is None
+    assert s.reach_mm[0] == pytest.approx(-0.4, rel=0.1)
+    # a centre already below the limit has no reach left; a fixed axis is not fitted
+    assert fit_sensitivity(off, noisy, {"min": 12_000.0}).reach_mm[:2] == [0.0, 0.0]
+    flat = off.copy()
+    flat[:, 2] = 0.0
+    assert fit_sensitivity(flat, noisy, {"max": 1e6}).axes == ["dx", "dy"]
+    exact = fit_sensitivity(off[:3], truth[:3], {})  # 3 samples, 4 parameters
+    assert all(np.isnan(exact.se_cd))
+
+
+def test_study_reads_back_from_its_json(nominal_study, tmp_path):
+    from lightsim.validation.tolerance import study_from_dict
+
+    write_study(nominal_study, tmp_path)
+    back = study_from_dict(json.loads((tmp_path / "tolerance.json").read_text()))
+    assert back.box == nominal_study.box and back.aperture_deg is None
+    for a, b in zip(back.points, nominal_study.points):
+        assert a.name == b.name and a.pass_rate == b.pass_rate
+        assert a.sensitivity.per_step_cd == pytest.approx(b.sensitivity.per_step_cd)
+    with pytest.raises(InputError):
+        study_from_dict({"samples": []})

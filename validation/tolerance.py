@@ -27,20 +27,42 @@ workers           –      0           0: samples one after another in this proc
 confidence        –      0.95        level of the pass-probability intervals
 ================  =====  ==========  =========================================================
 
-A sample "passes" a test point when its value meets the limit (``value_pass``); it passes
-"surely" when the whole 95 % interval of the run does (``sure_pass``, the regulation table's
-``pass`` verdict). With common random numbers the point values of different samples share
-their noise, so the *differences* between samples are geometric even when every single
-interval is wide.
+Every sample is evaluated as ``lightsim simulate`` evaluates a run: the same session
+configuration (detector apertures of ``aperture`` degrees at the test points by default, as
+``simulate --aperture``; 0 = the kNN estimate instead), the same per-set values, intervals
+and rule evaluation (:func:`lightsim.luminaires.regulations.check.regulation_check`). The
+nominal sample *is* a plain ``simulate`` run of the same photons and seed: same values,
+intervals and verdicts (tested). A sample "passes" a test point when its value meets the
+limit (``value_pass``); it passes "surely" when the whole 95 % interval does
+(``sure_pass``, the regulation table's ``pass``), and fails surely when the whole interval
+misses the limit (verdict ``fail``). With common random numbers the samples share their
+photons, so the *differences* between samples are mostly geometric even when every single
+interval is wide (less so with apertures: a 0.2 mm shift moves a reflected ray by more than
+a 0.15° aperture, so aperture counts are partly re-drawn). A zone's value is the largest of
+its probes' means, biased upwards by the probes' noise at few photons — the same bias
+``simulate`` has at those photons.
 
-Tolerance boxes (:data:`TOLERANCE_BOXES`) — ASSUMPTIONS. The UN R37 category sheets (H1/1,
-H4/1–4, H7/1–4) define the filament position by the dimension e from the reference plane,
-the lateral offsets of the filament axis and their production tolerances, but the sheets
-were not available from reachable sources while this was written (a search found only the
-corrigendum ECE/TRANS/WP.29/2006/81, which amends sheet H7/2's obscuration note). The
-half-widths below are engineering estimates of the size of those tolerances (a few tenths of
-a millimetre, as in the question "does it still pass with a filament 0.2 mm off?"); replace
-them with the sheet values when at hand — ``--box DX,DY,DZ`` does so without code changes.
+Sensitivity (:func:`fit_sensitivity`): per test point, an ordinary least-squares plane
+``value ≈ c + Σ b_j·offset_j`` through all samples (the nominal included), reported as cd
+per 0.1 mm along X, Y, Z (and per 0.1° of tilt) with standard errors from the residuals,
+and the shift along each axis alone at which the plane reaches the limit (``reach_mm``) —
+the figure to set a production tolerance with. Common random numbers keep the photon noise
+out of the slopes as far as the estimator allows; the residual RMS says how far that is.
+
+Tolerance boxes (:data:`TOLERANCE_BOXES`) — ASSUMPTIONS. The UN R37 category sheets (H1/…,
+H4/…, H7/…) define the filament position by the distance e of the filament from the
+reference plane, the lateral offsets of the filament axis from the reference axis and
+their production tolerances. Looked for on 2026-12-02 (this session's ``search`` tool:
+pages, docs and code corpora; ``find_string`` over public repositories for "Sheet H4/",
+"Sheet H7/", "28.5 + 0.35", "P43t-38"): the corpora hold the full R37 texts (EUR-Lex OJ
+L 297 of 13.11.2010, R37 up to Supplement 34 to the 03 series; E/ECE/324/Rev.1/Add.36/
+Rev.8, 2015) but return only their opening pages, not the H1, H4 or H7 sheets. The only
+sheet figures reached were those of category H17 (sheet H17/2, Supplement 39 to the 03
+series, E/ECE/324/Rev.1/Add.36/Rev.7/Amend.2): e = 28.5 +0.35/−0.15 mm for lamps of normal
+production (+0.20/−0.0 for the standard lamp) — a different category, quoted only to show
+that the assumed axial ±0.35 mm is of the right size. The half-widths below are engineering
+estimates; replace them with the sheet values when at hand — ``--box DX,DY,DZ`` does so
+without code changes.
 """
 
 from __future__ import annotations
@@ -60,14 +82,18 @@ __all__ = [
     "TOLERANCE_BOXES",
     "PointStats",
     "SampleResult",
+    "Sensitivity",
     "ToleranceBox",
     "ToleranceStudy",
     "box_for_scene",
     "clopper_pearson",
     "displace_emitters",
+    "fit_sensitivity",
     "run_sample",
     "run_tolerance",
     "sample_design",
+    "study_from_dict",
+    "summarise",
     "write_study",
 ]
 
@@ -97,7 +123,8 @@ class ToleranceBox:
 
 
 _ASSUMED = ("ASSUMPTION: engineering estimate of the UN R37 category-sheet production "
-            "tolerance; the sheet was not available (see lightsim.validation.tolerance)")
+            "tolerance; the H1/H4/H7 sheets were not reachable (where we looked: "
+            "lightsim.validation.tolerance, docs/tolerance.md)")
 
 #: Assumed boxes by bulb category (see the module docstring).
 TOLERANCE_BOXES: dict[str, ToleranceBox] = {
@@ -292,6 +319,106 @@ def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, fl
     return (lo, hi)
 
 
+#: Offset axes of the design, their unit and the step the sensitivity is quoted per.
+AXES = ("dx", "dy", "dz", "tilt_x", "tilt_y")
+_STEP = np.array([0.1 * MM, 0.1 * MM, 0.1 * MM, 0.1, 0.1])  # 0.1 mm, 0.1 mm, 0.1 mm, 0.1°, 0.1°
+
+
+@dataclass
+class Sensitivity:
+    """Least-squares plane through a test point's values over the samples.
+
+    Attributes
+    ----------
+    axes : list of str
+        The offsets the plane was fitted on (``dx, dy, dz`` and, with tilt, ``tilt_x,
+        tilt_y``); an axis that does not vary over the samples is left out.
+    per_step_cd : list of float
+        Slope per axis, in cd per 0.1 mm (translations) or per 0.1° (tilts).
+    se_cd : list of float
+        Standard error of each slope (same unit; NaN when the samples do not exceed the
+        fitted parameters).
+    centre_cd : float
+        The plane's value at the box centre, in cd.
+    rms_cd : float
+        RMS residual of the samples about the plane, in cd (photon noise, and curvature).
+    reach_mm : list of float or None
+        Per translation axis: the signed shift from the box centre, along that axis alone,
+        at which the plane meets the nearest limit, in mm (0 when the plane's centre value
+        already misses it); None when the slope is not resolved (|slope| < 2 standard
+        errors) or the axis is not a translation.
+    samples : int
+        Samples with a finite value the plane was fitted to.
+    """
+
+    axes: list[str]
+    per_step_cd: list[float]
+    se_cd: list[float]
+    centre_cd: float
+    rms_cd: float
+    reach_mm: list[float | None]
+    samples: int
+
+
+def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, float],
+                    centre_m: np.ndarray | None = None) -> Sensitivity:
+    """Fit ``value ≈ c + Σ b_j·(offset_j − centre_j)`` by ordinary least squares.
+
+    Parameters
+    ----------
+    offsets : ndarray, shape (N, 5)
+        dx, dy, dz (m) and tilt about X, Y (°) of every sample.
+    values : ndarray, shape (N,)
+        The test point's value per sample, in cd (non-finite values are left out).
+    limit : dict
+        ``{"min": cd, "max": cd}`` (either may be missing), for ``reach_mm``.
+    centre_m : ndarray, shape (5,), optional
+        The box centre the intercept refers to (default: the first sample's offset).
+
+    Returns
+    -------
+    Sensitivity
+    """
+    off = np.asarray(offsets, float)
+    val = np.asarray(values, float)
+    ok = np.isfinite(val) & np.all(np.isfinite(off), axis=1)
+    off, val = off[ok], val[ok]
+    c = np.asarray(off[0] if centre_m is None and len(off) else
+                   (np.zeros(5) if centre_m is None else centre_m), float)
+    cols = [j for j in range(5) if len(off) and np.ptp(off[:, j]) > 0]
+    x = np.column_stack([np.ones(len(off))] + [(off[:, j] - c[j]) / _STEP[j] for j in cols])
+    n, p = x.shape
+    if n == 0:
+        return Sensitivity([AXES[j] for j in cols], [math.nan] * len(cols),
+                           [math.nan] * len(cols), math.nan, math.nan,
+                           [None] * len(cols), 0)
+    coef, *_ = np.linalg.lstsq(x, val, rcond=None)
+    resid = val - x @ coef
+    rms = float(np.sqrt(np.mean(resid ** 2)))
+    if n > p:
+        s2 = float(resid @ resid) / (n - p)
+        se = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(x.T @ x)), 0.0))
+    else:
+        se = np.full(p, math.nan)
+    centre = float(coef[0])
+    reach: list[float | None] = []
+    for k, j in enumerate(cols, start=1):
+        b = float(coef[k])
+        if j > 2 or not (math.isfinite(se[k]) and abs(b) >= 2.0 * se[k]) or b == 0.0:
+            reach.append(None)
+            continue
+        if not _meets(centre, limit):
+            reach.append(0.0)
+            continue
+        steps = [(lim - centre) / b for key in ("min", "max")
+                 if (lim := limit.get(key)) is not None]
+        reach.append(float(min(steps, key=abs) * _STEP[j] / MM) if steps else None)
+    return Sensitivity(axes=[AXES[j] for j in cols],
+                       per_step_cd=[float(b) for b in coef[1:]],
+                       se_cd=[float(v) for v in se[1:]], centre_cd=centre, rms_cd=rms,
+                       reach_mm=reach, samples=int(n))
+
+
 @dataclass
 class PointStats:
     """Pass statistics of one test point over the samples (the nominal excluded).
@@ -309,13 +436,17 @@ class PointStats:
     pass_interval : tuple of 2 float
         Clopper–Pearson interval of ``pass_rate`` at the study's confidence.
     sure_pass_rate : float
-        Fraction of samples whose whole 95 % interval meets the limit.
+        Fraction of samples whose whole 95 % interval meets the limit (verdict ``pass``).
     worst_cd : float
         The value of the sample with the smallest relative margin, in cd.
     worst_offset : list of 5 float
         Its offset (m, m, m, °, °).
     worst_margin : float
         Its relative margin (value/min − 1 or 1 − value/max; negative = fails).
+    sure_fail_rate : float
+        Fraction of samples whose whole interval misses the limit (verdict ``fail``).
+    sensitivity : Sensitivity or None
+        The least-squares plane of the value over all samples (:func:`fit_sensitivity`).
     """
 
     name: str
@@ -328,6 +459,8 @@ class PointStats:
     worst_cd: float
     worst_offset: list[float]
     worst_margin: float
+    sure_fail_rate: float = math.nan
+    sensitivity: Sensitivity | None = None
 
 
 def _margin(value: float, limit: dict[str, float]) -> float:
@@ -357,6 +490,7 @@ class ToleranceStudy:
     limits: dict[str, dict[str, float]] = field(default_factory=dict)
     seconds: float = 0.0
     workers: int = 0
+    aperture_deg: float | None = None
 
     @property
     def nominal(self) -> SampleResult:
@@ -375,24 +509,52 @@ class ToleranceStudy:
                 "centre_m": self.centre_m,
                 "tilt": self.tilt, "seed": self.seed, "photons": self.photons,
                 "confidence": self.confidence, "seconds": self.seconds,
-                "workers": self.workers,
+                "workers": self.workers, "aperture_deg": self.aperture_deg,
+                "method": "aperture" if self.aperture_deg else "knn",
                 "units": {"offset": "m (dx, dy, dz), deg (tilt about X, Y)",
-                          "intensity": "cd"},
+                          "intensity": "cd",
+                          "sensitivity": "cd per 0.1 mm (dx, dy, dz), per 0.1 deg (tilts)",
+                          "reach": "mm"},
                 "all_points_pass_rate": rate, "all_points_pass_interval": list(ci),
                 "points": [asdict(p) for p in self.points],
                 "samples": [asdict(s) for s in self.samples]}
 
 
+def study_from_dict(doc: dict[str, Any]) -> ToleranceStudy:
+    """A study back from its ``tolerance.json`` (:meth:`ToleranceStudy.to_dict`): the
+    samples as stored, the per-point statistics recomputed by :func:`summarise`."""
+    try:
+        samples = [SampleResult(**{**s, **{k: [math.nan if v is None else float(v)
+                                                 for v in s[k]]
+                                             for k in ("value_cd", "lo_cd", "hi_cd")}})
+                   for s in doc["samples"]]
+        box = ToleranceBox(**{**doc["box"], "half_m": tuple(doc["box"]["half_m"])})
+        limits = dict(zip(samples[0].names, samples[0].limits))
+        conf = float(doc["confidence"])
+        return ToleranceStudy(
+            scene=doc["scene"], regulation=doc["regulation"], box=box,
+            centre_m=list(doc["centre_m"]), tilt=bool(doc["tilt"]), seed=int(doc["seed"]),
+            photons=doc["photons"], confidence=conf, samples=samples,
+            points=summarise(samples, limits, conf), limits=limits,
+            seconds=float(doc.get("seconds", 0.0)), workers=int(doc.get("workers", 0)),
+            aperture_deg=doc.get("aperture_deg"))
+    except (KeyError, TypeError, IndexError, ValueError) as exc:
+        raise InputError(f"not a tolerance study ({type(exc).__name__}: {exc})") from None
+
+
 def summarise(samples: list[SampleResult], limits: dict[str, dict[str, float]],
               confidence: float) -> list[PointStats]:
-    """Per-point statistics over ``samples[1:]`` (``samples[0]`` is the nominal)."""
+    """Per-point statistics over ``samples[1:]`` (``samples[0]`` is the nominal); the
+    sensitivity plane uses every sample, the nominal included."""
     nom, rest = samples[0], samples[1:]
+    offsets = np.array([s.offset for s in samples], float)
     out = []
     for i, name in enumerate(nom.names):
         lim = limits[name]
         vals = np.array([s.value_cd[i] for s in rest]) if rest else np.zeros(0)
         k = sum(s.value_pass[i] for s in rest)
         sure = sum(s.sure_pass[i] for s in rest)
+        failed = sum(s.verdicts[i] == "fail" for s in rest)
         margins = [_margin(v, lim) for v in vals]
         j = int(np.argmin(margins)) if margins else -1
         n = len(rest)
@@ -404,7 +566,10 @@ def summarise(samples: list[SampleResult], limits: dict[str, dict[str, float]],
             sure_pass_rate=sure / n if n else math.nan,
             worst_cd=float(vals[j]) if n else nom.value_cd[i],
             worst_offset=rest[j].offset if n else nom.offset,
-            worst_margin=float(margins[j]) if n else _margin(nom.value_cd[i], lim)))
+            worst_margin=float(margins[j]) if n else _margin(nom.value_cd[i], lim),
+            sure_fail_rate=failed / n if n else math.nan,
+            sensitivity=fit_sensitivity(offsets, np.array([s.value_cd[i] for s in samples]),
+                                        lim, offsets[0])))
     return out
 
 
@@ -487,7 +652,8 @@ def run_tolerance(opts: Any, *, samples: int = 50, seed: int = 1, tilt: bool = F
                            tilt=tilt, seed=seed, photons=opts.photons,
                            confidence=confidence, samples=results,
                            points=summarise(results, limits, confidence), limits=limits,
-                           seconds=time.perf_counter() - t0, workers=workers)
+                           seconds=time.perf_counter() - t0, workers=workers,
+                           aperture_deg=float(opts.aperture) if opts.aperture else None)
     return study
 
 
@@ -542,13 +708,24 @@ def _plot(study: ToleranceStudy, path: Path) -> None:
     off = np.array([s.offset for s in study.samples])
     for i, p in enumerate(pts):
         vals = np.array([s.value_cd[i] for s in study.samples])
+        lo = np.array([s.lo_cd[i] for s in study.samples])
+        hi = np.array([s.hi_cd[i] for s in study.samples])
         ok = np.array([s.value_pass[i] for s in study.samples])
+        sens = p.sensitivity
         for j, a in enumerate(axes_used):
             ax = axs[i, j]
             x = off[:, a] * scale[a]
-            ax.scatter(x[ok], vals[ok], s=6, c="tab:green")
-            ax.scatter(x[~ok], vals[~ok], s=6, c="tab:red")
-            ax.scatter(x[:1], vals[:1], s=20, marker="x", c="k")
+            # each sample's 95 % interval (what one simulate run of it would quote)
+            ax.vlines(x, lo, hi, colors="0.75", lw=0.5, zorder=1)
+            ax.scatter(x[ok], vals[ok], s=6, c="tab:green", zorder=2)
+            ax.scatter(x[~ok], vals[~ok], s=6, c="tab:red", zorder=2)
+            ax.scatter(x[:1], vals[:1], s=20, marker="x", c="k", zorder=3)
+            if sens is not None and AXES[a] in sens.axes:
+                k = sens.axes.index(AXES[a])
+                b = sens.per_step_cd[k] / (_STEP[a] * scale[a])  # cd per plotted unit
+                xs = np.array([np.min(x), np.max(x)])
+                ax.plot(xs, sens.centre_cd + b * (xs - x[0]), color="tab:blue", lw=0.8,
+                        zorder=2)
             for key, style in (("min", "--"), ("max", ":")):
                 if p.limit.get(key) is not None:
                     ax.axhline(p.limit[key], color="0.4", ls=style, lw=0.8)
@@ -559,7 +736,8 @@ def _plot(study: ToleranceStudy, path: Path) -> None:
                 ax.set_xlabel(labels[a], fontsize=7)
             if i == 0 and j == 0:
                 ax.set_title(f"{Path(study.scene).name} {study.regulation}: "
-                             f"{len(study.samples) - 1} samples (x = nominal; red fails)",
+                             f"{len(study.samples) - 1} samples (x = nominal; red fails; "
+                             "grey: 95 % interval; blue: least-squares slope)",
                              fontsize=7, loc="left")
     fig.tight_layout()
     buf = __import__("io").BytesIO()
