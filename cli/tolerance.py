@@ -165,8 +165,10 @@ def _sensitivity_table(study):
     axes = ["dx", "dy", "dz"] + (["tilt_x", "tilt_y"] if study.tilt else [])
     table = Table(title="sensitivity: least-squares plane over the samples, cd per 0.1 mm"
                   + (" (tilts: per 0.1°)" if study.tilt else "")
-                  + " ± standard error; reach = shift along that axis alone to the limit")
-    for col in ("rule", "plane at centre cd", "rms cd",
+                  + " ± standard error; reach = shift along that axis alone to the limit "
+                  "(in parentheses: outside the box, extrapolated); low R² = not a plane")
+    half_mm = [h * 1e3 for h in study.box.half_m]
+    for col in ("rule", "plane at centre cd", "rms cd", "R²",
                 *(f"{a} cd/step" for a in axes), *(f"reach {a} mm" for a in axes[:3])):
         table.add_column(col)
     for p in study.points:
@@ -179,7 +181,10 @@ def _sensitivity_table(study):
             slope.append("–" if k is None else
                          f"{s.per_step_cd[k]:+,.0f} ± {s.se_cd[k]:,.0f}")
             if a in axes[:3]:
+                j = axes.index(a)
                 r = None if k is None else s.reach_mm[k]
-                reach.append("–" if r is None else f"{r:+.2f}")
-        table.add_row(p.name, f"{s.centre_cd:,.0f}", f"{s.rms_cd:,.0f}", *slope, *reach)
+                inside = r is not None and abs(r) <= half_mm[j] + 1e-9  # r: from the centre
+                reach.append("–" if r is None else f"{r:+.2f}" if inside else f"({r:+.2f})")
+        table.add_row(p.name, f"{s.centre_cd:,.0f}", f"{s.rms_cd:,.0f}", f"{s.r2:.2f}",
+                      *slope, *reach)
     return table

@@ -231,6 +231,7 @@ def test_sensitivity_fit_recovers_a_known_plane():
     for b, se, want in zip(s.per_step_cd, s.se_cd, (500.0, -2_000.0, 0.0)):
         assert 0 < se < 60 and abs(b - want) < 4 * se
     assert s.centre_cd == pytest.approx(10_000, abs=60) and s.rms_cd == pytest.approx(100, rel=0.3)
+    assert 0.99 < s.r2 < 1.0
     # along dy alone the plane meets 8 000 cd at +0.1 mm; dz's slope is not resolved
     assert s.reach_mm[1] == pytest.approx(0.1, rel=0.05) and s.reach_mm[2] is None
     assert s.reach_mm[0] == pytest.approx(-0.4, rel=0.1)

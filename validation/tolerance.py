@@ -342,6 +342,11 @@ class Sensitivity:
         The plane's value at the box centre, in cd.
     rms_cd : float
         RMS residual of the samples about the plane, in cd (photon noise, and curvature).
+    r2 : float
+        Fraction of the samples' variance the plane explains (1 − RSS/TSS; NaN when the
+        values do not vary). A low value says the point is noise-limited or not linear in
+        the offsets (a zone maximum that jumps when filament images cross its edge): read
+        the plot, not the slopes.
     reach_mm : list of float or None
         Per translation axis: the signed shift from the box centre, along that axis alone,
         at which the plane meets the nearest limit, in mm (0 when the plane's centre value
@@ -358,6 +363,7 @@ class Sensitivity:
     rms_cd: float
     reach_mm: list[float | None]
     samples: int
+    r2: float = math.nan
 
 
 def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, float],
@@ -391,10 +397,12 @@ def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, fl
     if n == 0:
         return Sensitivity([AXES[j] for j in cols], [math.nan] * len(cols),
                            [math.nan] * len(cols), math.nan, math.nan,
-                           [None] * len(cols), 0)
+                           [None] * len(cols), 0, math.nan)
     coef, *_ = np.linalg.lstsq(x, val, rcond=None)
     resid = val - x @ coef
     rms = float(np.sqrt(np.mean(resid ** 2)))
+    tss = float(np.sum((val - val.mean()) ** 2))
+    r2 = 1.0 - float(resid @ resid) / tss if tss > 0 else math.nan
     if n > p:
         s2 = float(resid @ resid) / (n - p)
         se = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(x.T @ x)), 0.0))
@@ -416,7 +424,7 @@ def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, fl
     return Sensitivity(axes=[AXES[j] for j in cols],
                        per_step_cd=[float(b) for b in coef[1:]],
                        se_cd=[float(v) for v in se[1:]], centre_cd=centre, rms_cd=rms,
-                       reach_mm=reach, samples=int(n))
+                       reach_mm=reach, samples=int(n), r2=r2)
 
 
 @dataclass
