@@ -240,8 +240,11 @@ def test_sensitivity_fit_recovers_a_known_plane():
     flat = off.copy()
     flat[:, 2] = 0.0
     assert fit_sensitivity(flat, noisy, {"max": 1e6}).axes == ["dx", "dy"]
-    exact = fit_sensitivity(off[:3], truth[:3], {})  # 3 samples, 4 parameters
-    assert all(np.isnan(exact.se_cd))
+    exact = fit_sensitivity(off[:4], truth[:4], {})  # 4 samples, 4 parameters: no error
+    assert exact.per_step_cd == pytest.approx([500.0, -2_000.0, 0.0], abs=1e-6)
+    assert all(np.isnan(exact.se_cd)) and exact.reach_mm == [None] * 3
+    few = fit_sensitivity(off[:3], truth[:3], {})  # 3 samples: the plane is not determined
+    assert all(np.isnan(few.per_step_cd)) and np.isnan(few.centre_cd) and few.samples == 3
 
 
 def test_study_reads_back_from_its_json(nominal_study, tmp_path):
@@ -252,6 +255,7 @@ def test_study_reads_back_from_its_json(nominal_study, tmp_path):
     assert back.box == nominal_study.box and back.aperture_deg is None
     for a, b in zip(back.points, nominal_study.points):
         assert a.name == b.name and a.pass_rate == b.pass_rate
-        assert a.sensitivity.per_step_cd == pytest.approx(b.sensitivity.per_step_cd)
+        assert a.worst_cd == b.worst_cd and a.sure_fail_rate == b.sure_fail_rate
+        assert a.sensitivity.per_step_cd == pytest.approx(b.sensitivity.per_step_cd, nan_ok=True)
     with pytest.raises(InputError):
         study_from_dict({"samples": []})

@@ -46,3 +46,17 @@ def test_filament_1_5_mm_off_is_flagged_as_failing(studies):
     # 3 × 16 lamp: 7 400 cd), a sample moved back within the box can still meet it
     assert mis["50R"].nominal_verdict == "fail" and mis["50R"].pass_rate < 1.0
     assert high.nominal.offset[2] == pytest.approx(1.5 * MM)
+
+
+def test_misplaced_filament_fails_with_simulates_estimator(tmp_path):
+    # the same holder, evaluated as simulate evaluates a run (0.15° detector apertures):
+    # the verdict of every sample, not only its value, says 75R fails
+    opts = SimulateOptions(str(LOWBEAM), out_dir=str(tmp_path), photons=200_000,
+                           resolution=(80, 32), regulation="r149-b-passing",
+                           config={"seed": 5})
+    assert opts.aperture > 0
+    study = run_tolerance(opts, samples=2, seed=1, centre_m=(0.0, 0.0, 1.5 * MM))
+    p = {q.name: q for q in study.points}["75R"]
+    assert p.pass_rate == 0.0 and p.sure_fail_rate == 1.0
+    assert p.nominal_verdict == "fail" and study.all_pass_rate()[0] == 0.0
+    assert p.nominal_cd < 0.5 * p.limit["min"] and p.worst_margin < -0.3

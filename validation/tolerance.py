@@ -337,7 +337,8 @@ class Sensitivity:
         Slope per axis, in cd per 0.1 mm (translations) or per 0.1° (tilts).
     se_cd : list of float
         Standard error of each slope (same unit; NaN when the samples do not exceed the
-        fitted parameters).
+        fitted parameters; slopes too are NaN when there are fewer samples than
+        parameters).
     centre_cd : float
         The plane's value at the box centre, in cd.
     rms_cd : float
@@ -394,10 +395,10 @@ def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, fl
     cols = [j for j in range(5) if len(off) and np.ptp(off[:, j]) > 0]
     x = np.column_stack([np.ones(len(off))] + [(off[:, j] - c[j]) / _STEP[j] for j in cols])
     n, p = x.shape
-    if n == 0:
+    if n < p:  # fewer samples than parameters: the plane is not determined
         return Sensitivity([AXES[j] for j in cols], [math.nan] * len(cols),
                            [math.nan] * len(cols), math.nan, math.nan,
-                           [None] * len(cols), 0, math.nan)
+                           [None] * len(cols), int(n), math.nan)
     coef, *_ = np.linalg.lstsq(x, val, rcond=None)
     resid = val - x @ coef
     rms = float(np.sqrt(np.mean(resid ** 2)))
