@@ -368,7 +368,7 @@ class Sensitivity:
 
 
 def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, float],
-                    centre_m: np.ndarray | None = None) -> Sensitivity:
+                    centre: np.ndarray | None = None) -> Sensitivity:
     """Fit ``value ≈ c + Σ b_j·(offset_j − centre_j)`` by ordinary least squares.
 
     Parameters
@@ -379,8 +379,9 @@ def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, fl
         The test point's value per sample, in cd (non-finite values are left out).
     limit : dict
         ``{"min": cd, "max": cd}`` (either may be missing), for ``reach_mm``.
-    centre_m : ndarray, shape (5,), optional
-        The box centre the intercept refers to (default: the first sample's offset).
+    centre : ndarray, shape (5,), optional
+        The box centre the intercept refers to, in the units of ``offsets`` (default: the
+        first sample's offset).
 
     Returns
     -------
@@ -390,8 +391,8 @@ def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, fl
     val = np.asarray(values, float)
     ok = np.isfinite(val) & np.all(np.isfinite(off), axis=1)
     off, val = off[ok], val[ok]
-    c = np.asarray(off[0] if centre_m is None and len(off) else
-                   (np.zeros(5) if centre_m is None else centre_m), float)
+    c = np.asarray(off[0] if centre is None and len(off) else
+                   (np.zeros(5) if centre is None else centre), float)
     cols = [j for j in range(5) if len(off) and np.ptp(off[:, j]) > 0]
     x = np.column_stack([np.ones(len(off))] + [(off[:, j] - c[j]) / _STEP[j] for j in cols])
     n, p = x.shape
@@ -409,22 +410,22 @@ def fit_sensitivity(offsets: np.ndarray, values: np.ndarray, limit: dict[str, fl
         se = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(x.T @ x)), 0.0))
     else:
         se = np.full(p, math.nan)
-    centre = float(coef[0])
+    at_centre = float(coef[0])
     reach: list[float | None] = []
     for k, j in enumerate(cols, start=1):
         b = float(coef[k])
         if j > 2 or not (math.isfinite(se[k]) and abs(b) >= 2.0 * se[k]) or b == 0.0:
             reach.append(None)
             continue
-        if not _meets(centre, limit):
+        if not _meets(at_centre, limit):
             reach.append(0.0)
             continue
-        steps = [(lim - centre) / b for key in ("min", "max")
+        steps = [(lim - at_centre) / b for key in ("min", "max")
                  if (lim := limit.get(key)) is not None]
         reach.append(float(min(steps, key=abs) * _STEP[j] / MM) if steps else None)
     return Sensitivity(axes=[AXES[j] for j in cols],
                        per_step_cd=[float(b) for b in coef[1:]],
-                       se_cd=[float(v) for v in se[1:]], centre_cd=centre, rms_cd=rms,
+                       se_cd=[float(v) for v in se[1:]], centre_cd=at_centre, rms_cd=rms,
                        reach_mm=reach, samples=int(n), r2=r2)
 
 
