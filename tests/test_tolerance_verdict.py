@@ -48,3 +48,30 @@ def test_centre_sample_verdicts_are_simulates(tmp_path):
         n: r["verdict"] for n, r in plain.items()}
     # the displaced sample is a different geometry with the same photons: it differs
     assert study.samples[1].value_cd != nom.value_cd
+
+
+def test_two_rule_sets_are_simulates_two_tables(tmp_path):
+    # `--regulation a,b` as in the README demo: each set counts its own apertures (appended
+    # after the other's), and every point's centre value is the one in simulate's table
+    two = "r112-b-passing,r149-b-passing"
+    opts = SimulateOptions(str(LOWBEAM), out_dir=str(tmp_path / "plain"), photons=50_000,
+                           resolution=(80, 32), regulation=two, config={"seed": 3})
+    res = run_simulation(opts, analyses=for_options(opts))
+    plain = {}
+    for key, rs in (("regulation", "r112-b-passing"), ("regulation:r149-b-passing",
+                                                        "r149-b-passing")):
+        for r in res.summary[key]["results"]:
+            if r.get("limit") and r["verdict"] != "info":
+                plain[f"{rs}:{r['name']}"] = r
+    study = run_tolerance(SimulateOptions(str(LOWBEAM), out_dir=str(tmp_path / "study"),
+                                          photons=50_000, resolution=(80, 32),
+                                          regulation=two, config={"seed": 3}),
+                          samples=1, seed=1)
+    nom = study.nominal
+    assert set(nom.names) == set(plain)
+    assert any(n.startswith("r112") for n in nom.names)
+    assert any(n.startswith("r149") for n in nom.names)
+    for i, name in enumerate(nom.names):
+        assert nom.value_cd[i] == pytest.approx(plain[name]["value_cd"], rel=1e-12,
+                                                abs=1e-9), name
+        assert nom.verdicts[i] == plain[name]["verdict"], name

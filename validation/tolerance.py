@@ -256,15 +256,24 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
     import time
 
     from lightsim.engine.server import Session
-    from lightsim.luminaires.regulations.check import aperture_config, regulation_check
+    from lightsim.luminaires.regulations.check import (
+        aperture_config,
+        regulation_check,
+        split_rulesets,
+    )
     from lightsim.render.frame import luminous
     from lightsim.simulate import load
 
     t0 = time.perf_counter()
     base = scene if scene is not None else load(opts)
     moved = displace_emitters(base, offset)
-    config = aperture_config(opts.run_config(), opts.regulation, opts.traffic, moved.wall,
-                             opts.aperture, opts.aim, opts.spt_points)
+    rulesets = split_rulesets(opts.regulation)
+    # several rule sets: each appends its apertures to the run's, as simulate's analyses do
+    config, offsets = opts.run_config(), []
+    for rs in rulesets:
+        offsets.append(len(config.apertures))
+        config = aperture_config(config, rs, opts.traffic, moved.wall, opts.aperture,
+                                 opts.aim, opts.spt_points)
     session = Session(moved, config, workers=0, regulation=opts.regulation,
                       farfield=bool(opts.ies or opts.ldt))
     try:
@@ -272,18 +281,22 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
                           target_error=opts.target_error)
         lux = luminous(est.lux)
         failed = None
-        try:
-            reg = regulation_check(session, lux, opts.regulation, opts.traffic, opts.aim)
-        except InputError as exc:
-            if not opts.aim:
-                raise
-            # a lamp whose cut-off cannot be found cannot be aimed: it fails every point
-            # (the values shown are the unaimed ones)
-            failed = f"not aimable: {exc}"
-            reg = regulation_check(session, lux, opts.regulation, opts.traffic, False)
+        rows = []
+        for rs, off in zip(rulesets, offsets):
+            try:
+                reg = regulation_check(session, lux, rs, opts.traffic, opts.aim, offset=off)
+            except InputError as exc:
+                if not opts.aim:
+                    raise
+                # a lamp whose cut-off cannot be found cannot be aimed: it fails every point
+                # (the values shown are the unaimed ones)
+                failed = f"not aimable: {exc}"
+                reg = regulation_check(session, lux, rs, opts.traffic, False, offset=off)
+            prefix = f"{rs}:" if len(rulesets) > 1 else ""
+            rows += [dict(r, name=prefix + str(r["name"])) for r in reg["results"]
+                     if r.get("limit") and r.get("verdict") != "info"]
     finally:
         session.close()
-    rows = [r for r in reg["results"] if r.get("limit") and r.get("verdict") != "info"]
     if failed is not None:
         return SampleResult(
             offset=[float(v) for v in offset], names=[str(r["name"]) for r in rows],
@@ -629,11 +642,13 @@ def run_tolerance(opts: Any, *, samples: int = 50, seed: int = 1, tilt: bool = F
     import time
 
     from lightsim.luminaires.regulations import load_ruleset
+    from lightsim.luminaires.regulations.check import split_rulesets
     from lightsim.simulate import load
 
     if opts.regulation is None:
         raise InputError("a tolerance study needs --regulation RULESET")
-    load_ruleset(opts.regulation)
+    for rs in split_rulesets(opts.regulation):
+        load_ruleset(rs)
     if opts.photons is None and opts.seconds is None and opts.target_error is None:
         raise InputError("a tolerance study needs a photon budget (--photons N)")
     if opts.seconds is not None:
