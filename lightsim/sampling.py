@@ -173,28 +173,84 @@ def _radical_inverse(index: np.int64, d: int, perms: np.ndarray) -> float:
 def _radical_inverse_in(d: int):
     """:func:`_radical_inverse` for dimension ``d`` with its base and digit count as
     compile-time constants: the divisions become multiplications (several times faster),
-    the arithmetic — and so every point — stays bit-identical."""
+    the arithmetic — and so every point — stays bit-identical.
+
+    Once the index has no digits left, every further digit is 0 and its term
+    ``perms[d, k, 0] · f_k`` is a constant of the scramble: ``tail[d, k]``
+    (:func:`_tail_terms`, the same product), added in the same order. Base 2 needs no
+    loop at all: its terms are distinct powers of two, so the sum is exact in any order —
+    the index's 53 low bits reversed, each digit through its permutation (a bit flip
+    where ``perms[0, k, 0]`` is 1), times 2⁻⁵³.
+    """
     base, digits = int(PRIMES[d]), int(DIGITS[d])
     ubase = np.uint64(base)
 
+    if base == 2:
+        @njit(cache=True, inline="always")
+        def radical_inverse_2(index: np.int64, flips: np.uint64) -> float:
+            r = np.uint64(index)
+            r = ((r >> np.uint64(1)) & np.uint64(0x5555555555555555)) | \
+                ((r & np.uint64(0x5555555555555555)) << np.uint64(1))
+            r = ((r >> np.uint64(2)) & np.uint64(0x3333333333333333)) | \
+                ((r & np.uint64(0x3333333333333333)) << np.uint64(2))
+            r = ((r >> np.uint64(4)) & np.uint64(0x0F0F0F0F0F0F0F0F)) | \
+                ((r & np.uint64(0x0F0F0F0F0F0F0F0F)) << np.uint64(4))
+            r = ((r >> np.uint64(8)) & np.uint64(0x00FF00FF00FF00FF)) | \
+                ((r & np.uint64(0x00FF00FF00FF00FF)) << np.uint64(8))
+            r = ((r >> np.uint64(16)) & np.uint64(0x0000FFFF0000FFFF)) | \
+                ((r & np.uint64(0x0000FFFF0000FFFF)) << np.uint64(16))
+            r = (r >> np.uint64(32)) | (r << np.uint64(32))
+            bits = (r >> np.uint64(11)) ^ flips  # digit k at bit 52 − k
+            x = np.float64(bits) * 1.1102230246251565e-16
+            return min(x, 1.0 - 1.1102230246251565e-16)
+
+        return radical_inverse_2
+
     @njit(cache=True, inline="always")
-    def radical_inverse(index: np.int64, perms: np.ndarray) -> float:
+    def radical_inverse(index: np.int64, perms: np.ndarray, tail: np.ndarray) -> float:
         inv = 1.0 / base
         f = inv
         x = 0.0
         i = np.uint64(index)  # indices are ≥ 0: unsigned division by a constant is cheapest
-        for k in range(digits):
+        k = 0
+        while i != np.uint64(0) and k < digits:
             q = i // ubase
             digit = i - q * ubase
             i = q
             x += perms[d, k, digit] * f
             f *= inv
+            k += 1
+        while k < digits:  # the index's digits are spent: only zero digits are left
+            x += tail[d, k]
+            k += 1
         return min(x, 1.0 - 1.1102230246251565e-16)
 
     return radical_inverse
 
 
 _RI0, _RI1, _RI2, _RI3, _RI4 = (_radical_inverse_in(d) for d in range(N_DIMS))
+
+
+@njit(cache=True)
+def _tail_terms(perms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per scramble g ((G, N_DIMS, MAX_DIGITS, 11)): the term of a zero digit,
+    ``tail[g, d, k] = perms[g, d, k, 0] · f_k`` with ``f_k`` the radical inverse's own
+    running factor, and base 2's bit flips (bit 52 − k set where ``perms[g, 0, k, 0]``
+    is 1)."""
+    G = perms.shape[0]
+    tail = np.zeros((G, N_DIMS, MAX_DIGITS))
+    flips = np.zeros(G, np.uint64)
+    for g in range(G):
+        for d in range(N_DIMS):
+            inv = 1.0 / PRIMES[d]
+            f = inv
+            for k in range(DIGITS[d]):
+                tail[g, d, k] = perms[g, d, k, 0] * f
+                f *= inv
+        for k in range(DIGITS[0]):
+            if perms[g, 0, k, 0] == 1:
+                flips[g] |= np.uint64(1) << np.uint64(52 - k)
+    return tail, flips
 
 
 @njit(cache=True, parallel=True)
@@ -204,15 +260,18 @@ def halton_points_grouped(indices: np.ndarray, group: np.ndarray, perms: np.ndar
     ``indices[i]`` under the scramble ``perms[group[i]]`` ((G, N_DIMS, MAX_DIGITS, 11));
     one thread launch per frame instead of one per set, the same points."""
     n = indices.shape[0]
+    tail, flips = _tail_terms(perms)
     out = np.empty((n, N_DIMS), dtype=np.float64)
     for i in prange(n):
         j = indices[i]
-        p = perms[group[i]]
-        out[i, 0] = _RI0(j, p)
-        out[i, 1] = _RI1(j, p)
-        out[i, 2] = _RI2(j, p)
-        out[i, 3] = _RI3(j, p)
-        out[i, 4] = _RI4(j, p)
+        g = group[i]
+        p = perms[g]
+        t = tail[g]
+        out[i, 0] = _RI0(j, flips[g])
+        out[i, 1] = _RI1(j, p, t)
+        out[i, 2] = _RI2(j, p, t)
+        out[i, 3] = _RI3(j, p, t)
+        out[i, 4] = _RI4(j, p, t)
     return out
 
 
