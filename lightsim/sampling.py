@@ -288,6 +288,26 @@ def halton_points(indices: np.ndarray, perms: np.ndarray) -> np.ndarray:
 # Selective Photon Tracing: cells and passes
 # --------------------------------------------------------------------------------------
 
+@njit(cache=True, nogil=True)
+def _pass_indices(n_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A pass's Halton indices, cell by cell (cell c: c + jL for j < n_c[c], L cells),
+    and their weights n_pass / (L · n_c[c]) (float64, the same division as NumPy's)."""
+    L = n_c.shape[0]
+    n_pass = 0
+    for c in range(L):
+        n_pass += n_c[c]
+    indices = np.empty(n_pass, np.int64)
+    weight = np.empty(n_pass)
+    k = 0
+    for c in range(L):
+        w = n_pass / (L * np.float64(n_c[c]))
+        for j in range(n_c[c]):
+            indices[k] = c + j * L
+            weight[k] = w
+            k += 1
+    return indices, weight
+
+
 class SelectiveSampler:
     """Per-set state of Selective Photon Tracing (one instance per interleave set).
 
@@ -349,14 +369,9 @@ class SelectiveSampler:
         else:
             J = max(self.pass_photons - L, 0) // n_ref
             n_c = np.where(self.refined, 1 + J, 1).astype(np.int64)
-        cells = np.repeat(np.arange(L, dtype=np.int64), n_c)
-        starts = np.cumsum(n_c) - n_c
-        j = np.arange(len(cells), dtype=np.int64) - np.repeat(starts, n_c)
-        indices = cells + j * L
+        indices, weight = _pass_indices(n_c)
         perms = digit_permutations(self.seed, self.set_index, self.passes_done,
                                    self.cell_digits)
-        n_pass = len(indices)
-        weight = n_pass / (L * n_c[cells].astype(np.float64))
         p = self.passes_done
         self.passes_done += 1
         return p, indices, perms, weight

@@ -46,3 +46,17 @@ def test_grouped_points_keep_each_groups_scramble():
     for g in range(4):
         np.testing.assert_array_equal(got[group == g], halton_points(idx[group == g], perms[g]))
     assert halton_points_grouped(idx[:0], group[:0], perms).shape == (0, N_DIMS)
+
+
+@pytest.mark.parametrize("L", [1, 7, 864])
+def test_pass_indices_are_the_cells_repeated(L):
+    """SPT's pass layout: cell c at c + jL for j < n_c, weight n_pass / (L n_c)."""
+    from lightsim.sampling import _pass_indices
+
+    n_c = np.random.default_rng(L).integers(1, 40, L).astype(np.int64)
+    cells = np.repeat(np.arange(L, dtype=np.int64), n_c)
+    j = np.arange(len(cells)) - np.repeat(np.cumsum(n_c) - n_c, n_c)
+    idx, w = _pass_indices(n_c)
+    np.testing.assert_array_equal(idx, cells + j * L)
+    np.testing.assert_array_equal(w, len(cells) / (L * n_c[cells].astype(np.float64)))
+    assert len(np.unique(idx)) == len(idx) and np.all(idx % L == cells)
