@@ -94,9 +94,11 @@ def test_wall_kernels_take_empty_input_and_extreme_coordinates():
     # photons 0 (twice coincident: 0 and 5 are two), the 1e-30 one, none of the huge/NaN
     assert win[0].sum() == 0 and win[1].sum() == 3.0
     lat = np.zeros((2, 4 * 4 * 4, 1))
-    ok, pb = add_lattice(lat, wb, h, v, power, index, (-0.5, 0.5, 0.25, 0.25), (4, 4))
+    work = (np.zeros((64, 1)), np.zeros(64, np.bool_), np.empty(64, np.int64))
+    ok, pb = add_lattice(lat, wb, h, v, power, index, (-0.5, 0.5, 0.25, 0.25), (4, 4), *work)
     assert list(pb) == [0, 0, 3] and list(index[ok]) == [0, 2, 5]
     assert lat[1].sum() == 3.0 and lat[0].sum() == 0
+    assert not work[0].any() and not work[1].any()  # the work arrays are left clean
     ok, pb = add_lattice(lat, np.zeros(3, np.int64), h[:0], v[:0], power, index[:0],
-                         (-0.5, 0.5, 0.25, 0.25), (4, 4))
+                         (-0.5, 0.5, 0.25, 0.25), (4, 4), *work)
     assert len(ok) == 0 and list(pb) == [0, 0, 0]

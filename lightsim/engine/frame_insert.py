@@ -136,23 +136,24 @@ def add_windows(windows, bounds, h, v, power, index, geometry, reach):
 
 
 @njit(cache=True, nogil=True)
-def add_lattice(lattice, bounds, h, v, power, index, geometry, shape):
+def add_lattice(lattice, bounds, h, v, power, index, geometry, shape, scratch, touched,
+                cells):
     """Add wall photons to every set's half-pixel lattice (ICI windows).
 
     ``lattice`` (S, 4HW, C) float64; set g's wall photons ``bounds[g]:bounds[g+1]``;
     ``geometry`` = (h0, v1, dh, dv), ``shape`` = (W, H). A photon's cell is
     ``row · 2W + col`` with ``col = ⌊2(h − h0)/dh⌋``, ``row = ⌊2(v1 − v)/dv⌋`` (photons
     off the lattice are left out); each cell's photons are summed from 0 in order and the
-    sum added once, as ``np.unique`` + ``bincount`` do. Returns the positions (in the wall
-    arrays) of the photons on the lattice, in order, and each set's share of them (S + 1
-    bounds).
+    sum added once, as ``np.unique`` + ``bincount`` do. ``scratch`` (4HW, C) float64 zeros,
+    ``touched`` (4HW,) False and ``cells`` (4HW,) int64 are work arrays kept by the caller
+    (left zero / False: only the cells a frame touched are visited, never the whole
+    image). Returns the positions (in the wall arrays) of the photons on the lattice, in
+    order, and each set's share of them (S + 1 bounds).
     """
-    S, n_cells, C = lattice.shape
+    S = lattice.shape[0]
+    C = lattice.shape[2]
     h0, v1, dh, dv = geometry
     W, H = shape
-    scratch = np.zeros((n_cells, C))
-    touched = np.zeros(n_cells, np.bool_)
-    cells = np.empty(n_cells, np.int64)
     ok_index = np.empty(h.shape[0], np.int64)
     ok_bounds = np.zeros(S + 1, np.int64)
     m = 0

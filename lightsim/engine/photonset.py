@@ -204,7 +204,7 @@ class PhotonSets:
     def reset(self) -> None:
         """Discard all photons (interaction mode: the next frame starts afresh)."""
         self.sets: dict[int, SetState] = {s: self._new_set(s) for s in self.set_indices}
-        self._blocks: dict[str, np.ndarray] = {}  # stores stacked over sets (_stacked)
+        self._blocks: dict[str, Any] = {}  # stores stacked over sets (_stacked), work arrays
 
     def _new_set(self, s: int) -> SetState:
         st = SetState(s, self.channels)
@@ -391,10 +391,15 @@ class PhotonSets:
         W, H = self.frame.resolution
         counts = np.diff(wb)
         block = self._stacked(sets, "lattice", (4 * H * W, self.channels), counts > 0)
+        work = self._blocks.get("lattice work")
+        if work is None or work[0].shape != block.shape[1:]:  # kept zero / False
+            work = self._blocks["lattice work"] = (np.zeros(block.shape[1:]),
+                                                   np.zeros(block.shape[1], np.bool_),
+                                                   np.empty(block.shape[1], np.int64))
         dh, dv = self.frame.pixel_size_m
         ok, pb = add_lattice(block, wb, h, v, power, index,
                              (float(self.frame.h_range_m[0]), float(self.frame.v_range_m[1]),
-                              float(dh), float(dv)), (int(W), int(H)))
+                              float(dh), float(dv)), (int(W), int(H)), *work)
         p_ok = power[index[ok]].astype(np.float64)
         for g, st in enumerate(sets):
             if counts[g] == 0:
