@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lightsim.engine.config import RunConfig
-from lightsim.engine.frame_insert import add_lattice, add_windows, sort_by_source, wall_hits
+from lightsim.engine.frame_insert import insert_wall, sort_by_source
 from lightsim.engine.photonset import PhotonSets
 from lightsim.engine.plan import make_plan
 from lightsim.validation.scenes.analytic import isotropic_case, paraboloid_case
@@ -76,29 +76,38 @@ def test_counting_sort_is_the_stable_argsort():
     assert all(len(e) == 0 for e in empty) and empty[2].shape == (0, 3)
 
 
-def test_wall_kernels_take_empty_input_and_extreme_coordinates():
+def _insert(part, pos, bounds, need_hv=True, channels=1):
+    """insert_wall on a 4 × 4 probe grid and a 4 × 4-pixel lattice over [-0.5, 0.5]²."""
+    S = len(bounds) - 1
+    win = np.zeros((S, 16, channels))
+    lat = np.zeros((S, 64, channels))
+    work = (np.zeros((64, channels)), np.zeros(64, np.bool_), np.empty(64, np.int64))
+    win_work = np.zeros((9, 16, channels))
+    power = np.ones((len(pos), channels), np.float32)
+    axes = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
+    out = insert_wall(part, np.array([0]), pos, power, np.asarray(bounds, np.int64), axes,
+                      win, (-0.5, -0.5, 0.25, 0.25, 0.125, 0.125), (-1, 1, -1, 1, 4, 4),
+                      win_work, lat, (-0.5, 0.5, 0.25, 0.25), (4, 4), work, need_hv)
+    assert not win_work.any() and not work[0].any() and not work[1].any()  # left clean
+    return win, lat, out
+
+
+def test_wall_kernel_takes_empty_input_and_extreme_coordinates():
     pos = np.array([[0, 0, 1], [1e30, -1e30, 1], [1e-30, 1e-30, 1], [np.nan, 0, 1],
                     [0.1, 0.1, 1], [0.1, 0.1, 1]], np.float32)  # the last two coincide
     part = np.array([0, 0, 0, 0, 1, 0], np.int32)
-    centre, ha, va = np.array([0, 0, 1.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
-    index, h, v = wall_hits(part, np.array([0]), pos, centre, ha, va)
-    assert list(index) == [0, 1, 2, 3, 5]
+    # set 0: records 0-1, set 1: none, set 2: records 2-5
+    win, lat, (counts, ok, pb, index, h, v) = _insert(part, pos, [0, 2, 2, 6])
+    assert list(counts) == [2, 0, 3] and list(index) == [0, 1, 2, 3, 5]
     np.testing.assert_array_equal(h[[0, 2]], [0.0, np.float64(np.float32(1e-30))])
-    none = wall_hits(part, np.zeros(0, np.int64), pos, centre, ha, va)
-    assert len(none[0]) == len(none[1]) == 0
-    power = np.ones((len(pos), 1), np.float32)
-    wb = np.array([0, 0, len(index)])  # set 0 has no wall photon, set 1 all of them
-    win = np.zeros((2, 4 * 4, 1))
-    add_windows(win, wb, h, v, power, index, (-0.5, -0.5, 0.25, 0.25, 0.125, 0.125),
-                (-1, 1, -1, 1, 4, 4))
-    # photons 0 (twice coincident: 0 and 5 are two), the 1e-30 one, none of the huge/NaN
-    assert win[0].sum() == 0 and win[1].sum() == 3.0
-    lat = np.zeros((2, 4 * 4 * 4, 1))
-    work = (np.zeros((64, 1)), np.zeros(64, np.bool_), np.empty(64, np.int64))
-    ok, pb = add_lattice(lat, wb, h, v, power, index, (-0.5, 0.5, 0.25, 0.25), (4, 4), *work)
-    assert list(pb) == [0, 0, 3] and list(index[ok]) == [0, 2, 5]
-    assert lat[1].sum() == 3.0 and lat[0].sum() == 0
-    assert not work[0].any() and not work[1].any()  # the work arrays are left clean
-    ok, pb = add_lattice(lat, np.zeros(3, np.int64), h[:0], v[:0], power, index[:0],
-                         (-0.5, 0.5, 0.25, 0.25), (4, 4), *work)
-    assert len(ok) == 0 and list(pb) == [0, 0, 0]
+    np.testing.assert_array_equal(v[[0, 2]], h[[0, 2]])
+    # on the wall and inside: 0 (set 0), the 1e-30 one and the coincident one (set 2);
+    # neither the huge nor the NaN one
+    assert list(ok) == [0, 2, 5] and list(pb) == [0, 1, 1, 3]
+    assert win[:, :, 0].sum(axis=1).tolist() == [1.0, 0.0, 2.0]
+    assert lat[:, :, 0].sum(axis=1).tolist() == [1.0, 0.0, 2.0]
+    assert lat[2].max() == 1.0  # (0.1, 0.1) and 1e-30 fall in different cells
+    _, _, (counts, ok, _, index, h, _) = _insert(part, pos, [0, 6], need_hv=False)
+    assert counts[0] == 5 and len(index) == len(h) == 0 and len(ok) == 3
+    empty = _insert(part[:0], pos[:0], [0, 0, 0])
+    assert empty[0].sum() == 0 and len(empty[2][1]) == 0 and list(empty[2][2]) == [0, 0, 0]

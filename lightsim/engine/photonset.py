@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from lightsim.engine.config import RunConfig
-from lightsim.engine.frame_insert import add_lattice, add_windows, sort_by_source, wall_hits
+from lightsim.engine.frame_insert import insert_wall, sort_by_source
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
 from lightsim.sampling import (
@@ -317,39 +317,80 @@ class PhotonSets:
     def _insert_frame(self, rec: PhotonRecords, bounds: np.ndarray,
                       offsets: np.ndarray) -> bool:
         """Insert a whole frame (every owned set's records, set after set) at once where
-        the stores allow it (kNN/ICI stores, no binning): the wall coordinates, the
-        windows and the lattice of all sets in one compiled pass each
-        (:mod:`lightsim.engine.frame_insert`) — the same sums per cell, photons in the
-        same order, so the stores are bit-identical to :meth:`_insert_slice`'s. Returns
-        False (nothing done) where :meth:`_insert_slice` must do it."""
+        the stores allow it (kNN/ICI stores, no binning): the wall coordinates, the probe
+        windows and the ICI lattice of all sets in one compiled pass
+        (:func:`~lightsim.engine.frame_insert.insert_wall`) — the same sums per cell,
+        photons in the same order, so the stores are bit-identical to
+        :meth:`_insert_slice`'s. Returns False (nothing done) where :meth:`_insert_slice`
+        must do it."""
+        from lightsim.render.frame import luminous
+
         sets = [self.sets[s] for s in self.set_indices]
         if any(st.bins is not None or st.photonmap is None for st in sets):
             return False
-        fr = self.frame
-        index, h, v = wall_hits(rec.part, self._wall_part_ids, rec.position,
-                                np.asarray(fr.centre, np.float64),
-                                np.asarray(fr.h_axis, np.float64),
-                                np.asarray(fr.v_axis, np.float64))
-        wb = np.searchsorted(index, bounds)  # each set's wall records: wb[g]:wb[g+1]
+        fr, C = self.frame, self.channels
         for g, st in enumerate(sets):
             a, b = int(bounds[g]), int(bounds[g + 1])
-            if st.apertures is not None:  # detector apertures count every wall photon
-                sl, idx = slice(int(wb[g]), int(wb[g + 1])), index[wb[g]:wb[g + 1]]
-                hit = st.apertures.add(h[sl], v[sl], rec.power[idx])
-                st.aperture_hits = rec.source[idx][hit] - offsets[g]
             if b > a:
                 st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
-        if len(index) == 0:
-            return True
-        self._add_windows_frame(sets, wb, h, v, rec.power, index)
-        self._add_lattice_frame(sets, wb, h, v, rec.power, index)
+        none = np.zeros(len(sets), np.bool_)
+        (h0, h1), (v0, v1) = fr.h_range_m, fr.v_range_m
+        nh, nv = self._grid_shape
+        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
+        dh, dv = fr.pixel_size_m
+        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        reach = (int(np.floor(-reach_h)), int(np.ceil(reach_h)),
+                 int(np.floor(-reach_v)), int(np.ceil(reach_v)), nh, nv)
+        windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
+        W, H = fr.resolution
+        if self.config.uses_ici:
+            lattice = self._stacked(sets, "lattice", (4 * H * W, C), none)
+            work = self._blocks.get("lattice work")
+            if work is None or work[0].shape != lattice.shape[1:]:  # kept zero / False
+                work = self._blocks["lattice work"] = (
+                    np.zeros(lattice.shape[1:]), np.zeros(lattice.shape[1], np.bool_),
+                    np.empty(lattice.shape[1], np.int64))
+        else:
+            lattice = np.zeros((0, 0, C))
+            work = (np.zeros((0, C)), np.zeros(0, np.bool_), np.zeros(0, np.int64))
+        win_work = self._blocks.get("windows work")
+        n_slots = (reach[1] - reach[0] + 1) * (reach[3] - reach[2] + 1)
+        if win_work is None or win_work.shape != (n_slots, nh * nv, C):
+            win_work = self._blocks["windows work"] = np.zeros((n_slots, nh * nv, C))
+        need_hv = any(st.apertures is not None for st in sets)
+        axes = np.array([fr.centre, fr.h_axis, fr.v_axis], np.float64)
+        counts, ok, pb, index, h, v = insert_wall(
+            rec.part, self._wall_part_ids, rec.position, rec.power, bounds, axes, windows,
+            (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh, 0.5 * dv),
+            reach, win_work, lattice, (float(h0), float(v1), float(dh), float(dv)),
+            (int(W), int(H)), work, need_hv)
+        if need_hv:  # detector apertures count every wall photon
+            wb = np.searchsorted(index, bounds)
+            for g, st in enumerate(sets):
+                if st.apertures is not None:
+                    sl, idx = slice(int(wb[g]), int(wb[g + 1])), index[wb[g]:wb[g + 1]]
+                    hit = st.apertures.add(h[sl], v[sl], rec.power[idx])
+                    st.aperture_hits = rec.source[idx][hit] - offsets[g]
+        if self.config.uses_ici:
+            # a set's lattice is created by its first wall photon; ΣΦ, ΣΦ², count of the
+            # photons on it (their standard errors), summed by NumPy as before
+            p_ok = rec.power[ok].astype(np.float64)
+            for g, st in enumerate(sets):
+                if counts[g] == 0:
+                    continue
+                if st.lattice is None:
+                    st.lattice = lattice[g]
+                lum = luminous(p_ok[pb[g]:pb[g + 1]])
+                st.wall_moments += (float(lum.sum()), float((lum * lum).sum()),
+                                    float(pb[g + 1] - pb[g]))
         return True
 
     def _stacked(self, sets: list[SetState], name: str, shape: tuple[int, ...],
                  want: np.ndarray) -> np.ndarray:
         """An (S, *shape) float64 array whose row g is set g's store ``name`` (each set's
         store a view of it, so a compiled pass fills every set's); a set without the
-        store gets its (zero) row where ``want[g]``, and keeps None otherwise."""
+        store gets its (zero) row where ``want[g]``, and keeps None otherwise (its row
+        stays zero until it is given one)."""
         block = self._blocks.get(name)
         if block is None or block.shape != (len(sets), *shape):
             block = self._blocks[name] = np.zeros((len(sets), *shape))
@@ -362,51 +403,6 @@ class PhotonSets:
                 block[g] = cur
                 setattr(st, name, block[g])
         return block
-
-    def _add_windows_frame(self, sets: list[SetState], wb: np.ndarray, h: np.ndarray,
-                           v: np.ndarray, power: np.ndarray, index: np.ndarray) -> None:
-        """:meth:`_add_to_windows` for every set at once (set g's wall photons
-        ``wb[g]:wb[g+1]``, powers ``power[index]``)."""
-        (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
-        nh, nv = self._grid_shape
-        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
-        dh, dv = self.frame.pixel_size_m
-        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
-        reach = (int(np.floor(-reach_h)), int(np.ceil(reach_h)),
-                 int(np.floor(-reach_v)), int(np.ceil(reach_v)), nh, nv)
-        block = self._stacked(sets, "windows", (nh * nv, self.channels),
-                              np.ones(len(sets), np.bool_))
-        add_windows(block, wb, h, v, power, index,
-                    (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh,
-                     0.5 * dv), reach)
-
-    def _add_lattice_frame(self, sets: list[SetState], wb: np.ndarray, h: np.ndarray,
-                           v: np.ndarray, power: np.ndarray, index: np.ndarray) -> None:
-        """:meth:`_add_to_lattice` for every set at once (a set's lattice is created by
-        its first wall photon)."""
-        from lightsim.render.frame import luminous
-
-        if not self.config.uses_ici:
-            return
-        W, H = self.frame.resolution
-        counts = np.diff(wb)
-        block = self._stacked(sets, "lattice", (4 * H * W, self.channels), counts > 0)
-        work = self._blocks.get("lattice work")
-        if work is None or work[0].shape != block.shape[1:]:  # kept zero / False
-            work = self._blocks["lattice work"] = (np.zeros(block.shape[1:]),
-                                                   np.zeros(block.shape[1], np.bool_),
-                                                   np.empty(block.shape[1], np.int64))
-        dh, dv = self.frame.pixel_size_m
-        ok, pb = add_lattice(block, wb, h, v, power, index,
-                             (float(self.frame.h_range_m[0]), float(self.frame.v_range_m[1]),
-                              float(dh), float(dv)), (int(W), int(H)), *work)
-        p_ok = power[index[ok]].astype(np.float64)
-        for g, st in enumerate(sets):
-            if counts[g] == 0:
-                continue
-            lum = luminous(p_ok[pb[g]:pb[g + 1]])
-            st.wall_moments += (float(lum.sum()), float((lum * lum).sum()),
-                                float(pb[g + 1] - pb[g]))
 
     def _insert_slice(self, st: SetState, rec: PhotonRecords, wall: _WallHits, a: int,
                       b: int, first: int) -> None:
