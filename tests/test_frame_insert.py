@@ -81,14 +81,14 @@ def _insert(part, pos, bounds, need_hv=True, channels=1):
     S = len(bounds) - 1
     win = np.zeros((S, 16, channels))
     lat = np.zeros((S, 64, channels))
-    work = (np.zeros((64, channels)), np.zeros(64, np.bool_), np.empty(64, np.int64))
+    work = np.full(64, -1, np.int32)
     win_work = np.zeros((9, 16, channels))
     power = np.ones((len(pos), channels), np.float32)
     axes = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
     out = insert_wall(part, np.array([0]), pos, power, np.asarray(bounds, np.int64), axes,
                       win, (-0.5, -0.5, 0.25, 0.25, 0.125, 0.125), (-1, 1, -1, 1, 4, 4),
                       win_work, lat, (-0.5, 0.5, 0.25, 0.25), (4, 4), work, need_hv)
-    assert not win_work.any() and not work[0].any() and not work[1].any()  # left clean
+    assert not win_work.any() and (work == -1).all()  # the work arrays are left clean
     return win, lat, out
 
 

@@ -79,10 +79,11 @@ def insert_wall(part, wall_ids, position, power, bounds, axes, windows, win_geom
     *Lattice* ``lattice`` (S, 4HW, C), or (0, 0, C) for none: ``lat_geometry`` = (h0, v1,
     dh, dv), ``shape`` = (W, H); a photon's cell is ``row · 2W + col`` with
     ``col = ⌊2(h − h0)/dh⌋``, ``row = ⌊2(v1 − v)/dv⌋`` (photons off it are left out); each
-    cell's photons are summed from 0 and the sum added once, as ``np.unique`` +
-    ``bincount`` do. ``lat_work`` = (scratch (4HW, C) zeros, touched (4HW,) False, cells
-    (4HW,) int64), kept by the caller and left clean: only the cells a frame touches are
-    visited, never the whole image.
+    cell's photons are summed from 0 (in a compact per-set array, in photon order) and
+    the sum added once, as ``np.unique`` + ``bincount`` do. ``lat_work`` = (slot of each
+    cell (4HW,) int32, all −1), kept by the caller and left at −1: only the cells a frame
+    touches are visited, never the whole image, and the sums stay compact (a lattice row
+    of a large wall does not fit in cache).
 
     Returns (wall photons per set (S,), the lattice photons' record indices in order and
     each set's share of them (S + 1 bounds), and with ``need_hv`` the wall photons'
@@ -97,7 +98,7 @@ def insert_wall(part, wall_ids, position, power, bounds, axes, windows, win_geom
     use_lattice = lattice.shape[0] > 0
     lh0, lv1, dh, dv = lat_geometry
     W, H = shape
-    scratch, touched, cells = lat_work
+    slot_of = lat_work
     n = part.shape[0]
     counts = np.zeros(S, np.int64)
     ok_rec = np.empty(n if use_lattice else 0, np.int64)
@@ -108,6 +109,11 @@ def insert_wall(part, wall_ids, position, power, bounds, axes, windows, win_geom
     vs = np.empty(m_hv)
     n_ok = 0
     n_wall = 0
+    most = 0
+    for g in range(S):
+        most = max(most, bounds[g + 1] - bounds[g])
+    acc = np.zeros((most if use_lattice else 0, C))  # a set's per-cell sums, compact
+    cells = np.empty(most if use_lattice else 0, np.int64)
     for g in range(S):
         n_touched = 0
         for k in range(bounds[g], bounds[g + 1]):
@@ -152,12 +158,14 @@ def insert_wall(part, wall_ids, position, power, bounds, axes, windows, win_geom
                 fr = np.floor(2.0 * (lv1 - v) / dv)
                 if fc >= 0 and fc < 2 * W and fr >= 0 and fr < 2 * H:
                     cell = np.int64(fr) * (2 * W) + np.int64(fc)
-                    if not touched[cell]:
-                        touched[cell] = True
-                        cells[n_touched] = cell
+                    t = slot_of[cell]
+                    if t < 0:
+                        t = n_touched
+                        slot_of[cell] = t
+                        cells[t] = cell
                         n_touched += 1
                     for c in range(C):
-                        scratch[cell, c] += np.float64(power[k, c])
+                        acc[t, c] += np.float64(power[k, c])
                     ok_rec[n_ok] = k
                     n_ok += 1
         ok_bounds[g + 1] = n_ok
@@ -171,7 +179,7 @@ def insert_wall(part, wall_ids, position, power, bounds, axes, windows, win_geom
         for t in range(n_touched):
             cell = cells[t]
             for c in range(C):
-                lattice[g, cell, c] += scratch[cell, c]
-                scratch[cell, c] = 0.0
-            touched[cell] = False
+                lattice[g, cell, c] += acc[t, c]
+                acc[t, c] = 0.0
+            slot_of[cell] = -1
     return counts, ok_rec[:n_ok], ok_bounds, index[:n_wall], hs[:n_wall], vs[:n_wall]

@@ -346,13 +346,11 @@ class PhotonSets:
         if self.config.uses_ici:
             lattice = self._stacked(sets, "lattice", (4 * H * W, C), none)
             work = self._blocks.get("lattice work")
-            if work is None or work[0].shape != lattice.shape[1:]:  # kept zero / False
-                work = self._blocks["lattice work"] = (
-                    np.zeros(lattice.shape[1:]), np.zeros(lattice.shape[1], np.bool_),
-                    np.empty(lattice.shape[1], np.int64))
+            if work is None or work.shape[0] != lattice.shape[1]:  # kept at −1
+                work = self._blocks["lattice work"] = np.full(lattice.shape[1], -1, np.int32)
         else:
             lattice = np.zeros((0, 0, C))
-            work = (np.zeros((0, C)), np.zeros(0, np.bool_), np.zeros(0, np.int64))
+            work = np.zeros(0, np.int32)
         win_work = self._blocks.get("windows work")
         n_slots = (reach[1] - reach[0] + 1) * (reach[3] - reach[2] + 1)
         if win_work is None or win_work.shape != (n_slots, nh * nv, C):
