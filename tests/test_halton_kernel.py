@@ -60,3 +60,14 @@ def test_pass_indices_are_the_cells_repeated(L):
     np.testing.assert_array_equal(idx, cells + j * L)
     np.testing.assert_array_equal(w, len(cells) / (L * n_c[cells].astype(np.float64)))
     assert len(np.unique(idx)) == len(idx) and np.all(idx % L == cells)
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**40 + 3, 2**63 - 1])
+def test_own_pcg64_steps_give_numpys_permutations(seed):
+    """The compiled shuffles step PCG64 themselves: NumPy's permutations for every kind of
+    pass (plain, SPT passes with cell digits, all digits fixed)."""
+    from lightsim.sampling import _digit_permutations_reference
+
+    for s, p, cells in [(0, None, (0, 0)), (3, 0, (5, 3)), (1, 17, (5, 3)), (2, 4, (53, 34))]:
+        np.testing.assert_array_equal(digit_permutations(seed, s, p, cells),
+                                      _digit_permutations_reference(seed, s, p, cells))
