@@ -662,10 +662,11 @@ class PhotonTracer:
             if len(pending) > 1:
                 done.append(self._collect_batch(pending.pop(0), group, n_groups))
         done.extend(self._collect_batch(b, group, n_groups) for b in pending)
-        for lo, (rec, led, nrays, ed, ep) in zip(range(0, n, self.batch), done):
-            rec.source += lo
-            caustic_source[rec.source[(rec.flags & F_SPECULAR) != 0]] = True
-            parts.append(rec)
+        for lo, (recs, led, nrays, ed, ep) in zip(range(0, n, self.batch), done):
+            for rec in recs:  # each bounce's records of a chunk: fresh arrays, moved once
+                rec.source += lo
+                caustic_source[rec.source[(rec.flags & F_SPECULAR) != 0]] = True
+            parts.extend(recs)
             ledger += led
             rays += nrays
             if record_escaped:
@@ -787,7 +788,8 @@ class PhotonTracer:
         return lo, hi, ledger, chunks
 
     def _collect_batch(self, batch, group, n_groups):
-        """One batch's records in (bounce, photon) order and its per-group ledger."""
+        """One batch's records in (bounce, photon) order (a list of the chunks' bounces,
+        concatenated once per trace by :meth:`_trace`) and its per-group ledger."""
         lo, hi, ledger, chunks = batch
         chunks = [c.result() if hasattr(c, "result") else c for c in chunks]
         C = self.channels
@@ -799,4 +801,4 @@ class PhotonTracer:
         led = _group_ledger(ledger, group[lo:hi], n_groups)
         ed = np.concatenate([e[0] for e in escs]) if escs else np.zeros((0, 3), np.float32)
         ep = np.concatenate([e[1] for e in escs]) if escs else np.zeros((0, C))
-        return PhotonRecords.concatenate(recs, C), led, rays, ed, ep
+        return recs, led, rays, ed, ep

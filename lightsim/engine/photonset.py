@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from lightsim.engine.config import RunConfig
+from lightsim.engine.frame_insert import insert_wall, sort_by_source
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
 from lightsim.sampling import (
@@ -203,6 +204,7 @@ class PhotonSets:
     def reset(self) -> None:
         """Discard all photons (interaction mode: the next frame starts afresh)."""
         self.sets: dict[int, SetState] = {s: self._new_set(s) for s in self.set_indices}
+        self._blocks: dict[str, Any] = {}  # stores stacked over sets (_stacked), work arrays
 
     def _new_set(self, s: int) -> SetState:
         st = SetState(s, self.channels)
@@ -271,16 +273,15 @@ class PhotonSets:
         t2 = time.perf_counter()
         rec = res.records
         offsets = np.cumsum([0] + [len(o) for o in owners])
-        # One stable sort by photon index for the whole frame: a set's photons are one
-        # index range, so its records become one slice, in the order (photon, bounce)
-        # that keeps maps identical across batching. What every store needs (on the wall?,
-        # h, v) is computed once per frame, not once per set.
-        order = np.argsort(rec.source, kind="stable")
-        rec = PhotonRecords(rec.position[order], rec.normal[order], rec.power[order],
-                            rec.part[order], rec.flags[order], rec.source[order])
+        # One stable sort by photon index for the whole frame (a compiled counting sort):
+        # a set's photons are one index range, so its records become one slice, in the
+        # order (photon, bounce) that keeps maps identical across batching. What every
+        # store needs (on the wall?, h, v) is computed once per frame, not once per set.
+        rec = PhotonRecords(*sort_by_source(rec.position, rec.normal, rec.power, rec.part,
+                                            rec.flags, rec.source, int(offsets[-1])))
         bounds = np.searchsorted(rec.source, offsets)
-        wall = _WallHits(self, rec)
-        frame_level = self._insert_frame(rec, wall, bounds, offsets)
+        frame_level = self._insert_frame(rec, bounds, offsets)
+        wall = None if frame_level else _WallHits(self, rec)
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             lo, hi = offsets[g], offsets[g + 1]
@@ -313,98 +314,93 @@ class PhotonSets:
         the set's photon indices of the frame, from 0)."""
         self._insert_slice(st, rec, _WallHits(self, rec), 0, len(rec), 0)
 
-    def _insert_frame(self, rec: PhotonRecords, wall: _WallHits, bounds: np.ndarray,
+    def _insert_frame(self, rec: PhotonRecords, bounds: np.ndarray,
                       offsets: np.ndarray) -> bool:
         """Insert a whole frame (every owned set's records, set after set) at once where
-        the stores allow it (kNN/ICI stores, no binning): the windows and the lattice are
-        filled by one bincount / one unique over (set, cell) for all sets instead of one
-        per set — the same sums per cell, photons in the same order, so bit-identical
-        stores. Returns False (nothing done) where :meth:`_insert_slice` must do it."""
+        the stores allow it (kNN/ICI stores, no binning): the wall coordinates, the probe
+        windows and the ICI lattice of all sets in one compiled pass
+        (:func:`~lightsim.engine.frame_insert.insert_wall`) — the same sums per cell,
+        photons in the same order, so the stores are bit-identical to
+        :meth:`_insert_slice`'s. Returns False (nothing done) where :meth:`_insert_slice`
+        must do it."""
+        from lightsim.render.frame import luminous
+
         sets = [self.sets[s] for s in self.set_indices]
         if any(st.bins is not None or st.photonmap is None for st in sets):
             return False
-        n = len(sets)
-        wb = np.searchsorted(wall.index, bounds)  # each set's wall records: wb[g]:wb[g+1]
+        fr, C = self.frame, self.channels
         for g, st in enumerate(sets):
             a, b = int(bounds[g]), int(bounds[g + 1])
-            sl, idx = slice(int(wb[g]), int(wb[g + 1])), wall.index[wb[g]:wb[g + 1]]
-            if st.apertures is not None:  # detector apertures count every wall photon
-                hit = st.apertures.add(wall.h[sl], wall.v[sl], rec.power[idx])
-                st.aperture_hits = rec.source[idx][hit] - offsets[g]
             if b > a:
                 st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
-        if len(wall.index) == 0:
-            return True
-        slot = np.repeat(np.arange(n, dtype=np.int64), np.diff(wb))
-        power = rec.power[wall.index].astype(np.float64)
-        self._add_windows_frame(sets, slot, wall.h, wall.v, power)
-        self._add_lattice_frame(sets, slot, wall.h, wall.v, power, np.diff(wb))
+        none = np.zeros(len(sets), np.bool_)
+        (h0, h1), (v0, v1) = fr.h_range_m, fr.v_range_m
+        nh, nv = self._grid_shape
+        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
+        dh, dv = fr.pixel_size_m
+        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
+        reach = (int(np.floor(-reach_h)), int(np.ceil(reach_h)),
+                 int(np.floor(-reach_v)), int(np.ceil(reach_v)), nh, nv)
+        windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
+        W, H = fr.resolution
+        if self.config.uses_ici:
+            lattice = self._stacked(sets, "lattice", (4 * H * W, C), none)
+            work = self._blocks.get("lattice work")
+            if work is None or work.shape[0] != lattice.shape[1]:  # kept at −1
+                work = self._blocks["lattice work"] = np.full(lattice.shape[1], -1, np.int32)
+        else:
+            lattice = np.zeros((0, 0, C))
+            work = np.zeros(0, np.int32)
+        win_work = self._blocks.get("windows work")
+        n_slots = (reach[1] - reach[0] + 1) * (reach[3] - reach[2] + 1)
+        if win_work is None or win_work.shape != (n_slots, nh * nv, C):
+            win_work = self._blocks["windows work"] = np.zeros((n_slots, nh * nv, C))
+        need_hv = any(st.apertures is not None for st in sets)
+        axes = np.array([fr.centre, fr.h_axis, fr.v_axis], np.float64)
+        counts, ok, pb, index, h, v = insert_wall(
+            rec.part, self._wall_part_ids, rec.position, rec.power, bounds, axes, windows,
+            (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh, 0.5 * dv),
+            reach, win_work, lattice, (float(h0), float(v1), float(dh), float(dv)),
+            (int(W), int(H)), work, need_hv)
+        if need_hv:  # detector apertures count every wall photon
+            wb = np.searchsorted(index, bounds)
+            for g, st in enumerate(sets):
+                if st.apertures is not None:
+                    sl, idx = slice(int(wb[g]), int(wb[g + 1])), index[wb[g]:wb[g + 1]]
+                    hit = st.apertures.add(h[sl], v[sl], rec.power[idx])
+                    st.aperture_hits = rec.source[idx][hit] - offsets[g]
+        if self.config.uses_ici:
+            # a set's lattice is created by its first wall photon; ΣΦ, ΣΦ², count of the
+            # photons on it (their standard errors), summed by NumPy as before
+            p_ok = rec.power[ok].astype(np.float64)
+            for g, st in enumerate(sets):
+                if counts[g] == 0:
+                    continue
+                if st.lattice is None:
+                    st.lattice = lattice[g]
+                lum = luminous(p_ok[pb[g]:pb[g + 1]])
+                st.wall_moments += (float(lum.sum()), float((lum * lum).sum()),
+                                    float(pb[g + 1] - pb[g]))
         return True
 
-    def _add_windows_frame(self, sets: list[SetState], slot: np.ndarray, h: np.ndarray,
-                           v: np.ndarray, power: np.ndarray) -> None:
-        """:meth:`_add_to_windows` for every set at once (``slot``: each wall photon's
-        position in ``sets``)."""
-        (h0, h1), (v0, v1) = self.frame.h_range_m, self.frame.v_range_m
-        nh, nv = self._grid_shape
-        G = nh * nv
-        pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
-        dh, dv = self.frame.pixel_size_m
-        uh, uv = (h - h0) / pitch_h - 0.5, (v - v0) / pitch_v - 0.5  # in cell-centre units
-        reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
-        rh, rv = np.round(uh).astype(np.int64), np.round(uv).astype(np.int64)
-        base = slot * G
-        rows = []  # per j: (cj, inside in v), the same for every i
-        for j in range(int(np.floor(-reach_v)), int(np.ceil(reach_v)) + 1):
-            cj = rv + j
-            ov = (uv - cj) * pitch_v
-            rows.append((cj, (cj >= 0) & (cj < nv) & (ov >= -0.5 * dv) & (ov < 0.5 * dv)))
-        for i in range(int(np.floor(-reach_h)), int(np.ceil(reach_h)) + 1):
-            ci = rh + i
-            oh = (uh - ci) * pitch_h  # offset from the window centre (m), half-open
-            in_h = (ci >= 0) & (ci < nh) & (oh >= -0.5 * dh) & (oh < 0.5 * dh)
-            if not in_h.any():
-                continue
-            for cj, in_v in rows:
-                ok = in_h & in_v
-                if not ok.any():
-                    continue
-                flat = base[ok] + cj[ok] * nh + ci[ok]
-                for c in range(self.channels):
-                    add = np.bincount(flat, weights=power[ok, c], minlength=len(sets) * G)
-                    add = add.reshape(len(sets), G)
-                    for g, st in enumerate(sets):
-                        st.windows[:, c] += add[g]
-
-    def _add_lattice_frame(self, sets: list[SetState], slot: np.ndarray, h: np.ndarray,
-                           v: np.ndarray, power: np.ndarray, counts: np.ndarray) -> None:
-        """:meth:`_add_to_lattice` for every set at once (``counts``: wall photons per
-        set; a set's lattice is created by its first wall photon)."""
-        from lightsim.render import ici
-        from lightsim.render.frame import luminous
-
-        if not self.config.uses_ici:
-            return
-        W, H = self.frame.resolution
-        n_cells = 4 * H * W
-        flat, ok = ici.lattice_index(h, v, self.frame)
-        p_ok, s_ok = power[ok], slot[ok]
-        cells, inverse = np.unique(s_ok * n_cells + flat[ok], return_inverse=True)
-        sums = [np.bincount(inverse, weights=p_ok[:, c], minlength=len(cells))
-                for c in range(self.channels)]
-        cb = np.searchsorted(cells, np.arange(len(sets) + 1) * n_cells)
-        pb = np.searchsorted(s_ok, np.arange(len(sets) + 1))
+    def _stacked(self, sets: list[SetState], name: str, shape: tuple[int, ...],
+                 want: np.ndarray) -> np.ndarray:
+        """An (S, *shape) float64 array whose row g is set g's store ``name`` (each set's
+        store a view of it, so a compiled pass fills every set's); a set without the
+        store gets its (zero) row where ``want[g]``, and keeps None otherwise (its row
+        stays zero until it is given one)."""
+        block = self._blocks.get(name)
+        if block is None or block.shape != (len(sets), *shape):
+            block = self._blocks[name] = np.zeros((len(sets), *shape))
         for g, st in enumerate(sets):
-            if counts[g] == 0:
-                continue
-            if st.lattice is None:
-                st.lattice = np.zeros((n_cells, self.channels))
-            local = cells[cb[g]:cb[g + 1]] - g * n_cells
-            for c in range(self.channels):
-                st.lattice[local, c] += sums[c][cb[g]:cb[g + 1]]
-            lum = luminous(p_ok[pb[g]:pb[g + 1]])
-            st.wall_moments += (float(lum.sum()), float((lum * lum).sum()),
-                                float(pb[g + 1] - pb[g]))
+            cur = getattr(st, name)
+            if cur is None:
+                if want[g]:
+                    setattr(st, name, block[g])
+            elif cur.base is not block:
+                block[g] = cur
+                setattr(st, name, block[g])
+        return block
 
     def _insert_slice(self, st: SetState, rec: PhotonRecords, wall: _WallHits, a: int,
                       b: int, first: int) -> None:

@@ -1,0 +1,113 @@
+"""The compiled frame insertion (lightsim.engine.frame_insert) against the per-set NumPy
+path it replaces: bit-identical stores, records in the same order, and the kernels' edge
+cases (nothing to insert, photons off the wall, extreme coordinates)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lightsim.engine.config import RunConfig
+from lightsim.engine.frame_insert import insert_wall, sort_by_source
+from lightsim.engine.photonset import PhotonSets
+from lightsim.engine.plan import make_plan
+from lightsim.validation.scenes.analytic import isotropic_case, paraboloid_case
+
+
+def _sets(scene, config, per_set: bool) -> PhotonSets:
+    """The client's photon sets; ``per_set``: the per-set NumPy insertion (the reference)."""
+    plan = make_plan(scene, config)
+    sets = PhotonSets(scene, config, plan, list(range(config.n_sets)))
+    if per_set:
+        sets._insert_frame = lambda *a, **k: False  # type: ignore[method-assign]
+    return sets
+
+
+def _assert_same_stores(a: PhotonSets, b: PhotonSets) -> None:
+    for s in a.set_indices:
+        x, y = a.sets[s], b.sets[s]
+        for name in ("windows", "lattice", "wall_moments"):
+            u, w = getattr(x, name), getattr(y, name)
+            assert (u is None) == (w is None), name
+            if u is not None:
+                np.testing.assert_array_equal(u, w, err_msg=name)
+        assert x.photonmap._n_pending == y.photonmap._n_pending
+        for p, q in zip(x.photonmap._pending, y.photonmap._pending, strict=True):
+            for u, w in zip(p, q, strict=True):
+                np.testing.assert_array_equal(u, w)
+        np.testing.assert_array_equal(x.ledger, y.ledger)
+        assert (x.emitted, x.caustic, x.records) == (y.emitted, y.caustic, y.records)
+
+
+@pytest.mark.parametrize("case, channels, resolution", [
+    ("paraboloid", 1, (40, 40)), ("paraboloid", 3, (17, 23)), ("isotropic", 1, (5, 7))])
+def test_frame_insertion_is_the_per_set_insertion_bit_for_bit(case, channels, resolution):
+    make = paraboloid_case if case == "paraboloid" else isotropic_case
+    scene = make(resolution=resolution).scene
+    config = RunConfig(frame_photons=8_000, interleave=2, seed=3, channels=channels,
+                       probe_grid=(16, 8) if case == "paraboloid" else (32, 32))
+    fast, ref = _sets(scene, config, False), _sets(scene, config, True)
+    for _ in range(3):  # frames accumulate into stores that already hold photons
+        fast.shoot()
+        ref.shoot()
+        _assert_same_stores(fast, ref)
+    assert any(st.lattice is not None for st in fast.sets.values())
+    st = fast.sets[0]  # the compiled pass filled it (a row of the stacked stores)
+    assert st.lattice.base is fast._blocks["lattice"] and ref.sets[0].lattice.base is None
+    assert any(st.windows.any() for st in fast.sets.values())
+    fast.reset()  # a reset starts from empty stores again
+    ref.reset()
+    fast.shoot(2_000)
+    ref.shoot(2_000)
+    _assert_same_stores(fast, ref)
+
+
+def test_counting_sort_is_the_stable_argsort():
+    rng = np.random.default_rng(1)
+    n = 5_000
+    src = rng.integers(0, 700, n)
+    arrays = (rng.random((n, 3)).astype(np.float32), rng.random((n, 3)).astype(np.float32),
+              rng.random((n, 3)).astype(np.float32), rng.integers(0, 9, n).astype(np.int32),
+              rng.integers(0, 4, n).astype(np.uint8), src)
+    order = np.argsort(src, kind="stable")
+    for got, want in zip(sort_by_source(*arrays, 700), arrays, strict=True):
+        np.testing.assert_array_equal(got, want[order])
+    empty = sort_by_source(*(a[:0] for a in arrays), 0)
+    assert all(len(e) == 0 for e in empty) and empty[2].shape == (0, 3)
+
+
+def _insert(part, pos, bounds, need_hv=True, channels=1):
+    """insert_wall on a 4 × 4 probe grid and a 4 × 4-pixel lattice over [-0.5, 0.5]²."""
+    S = len(bounds) - 1
+    win = np.zeros((S, 16, channels))
+    lat = np.zeros((S, 64, channels))
+    work = np.full(64, -1, np.int32)
+    win_work = np.zeros((9, 16, channels))
+    power = np.ones((len(pos), channels), np.float32)
+    axes = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
+    out = insert_wall(part, np.array([0]), pos, power, np.asarray(bounds, np.int64), axes,
+                      win, (-0.5, -0.5, 0.25, 0.25, 0.125, 0.125), (-1, 1, -1, 1, 4, 4),
+                      win_work, lat, (-0.5, 0.5, 0.25, 0.25), (4, 4), work, need_hv)
+    assert not win_work.any() and (work == -1).all()  # the work arrays are left clean
+    return win, lat, out
+
+
+def test_wall_kernel_takes_empty_input_and_extreme_coordinates():
+    pos = np.array([[0, 0, 1], [1e30, -1e30, 1], [1e-30, 1e-30, 1], [np.nan, 0, 1],
+                    [0.1, 0.1, 1], [0.1, 0.1, 1]], np.float32)  # the last two coincide
+    part = np.array([0, 0, 0, 0, 1, 0], np.int32)
+    # set 0: records 0-1, set 1: none, set 2: records 2-5
+    win, lat, (counts, ok, pb, index, h, v) = _insert(part, pos, [0, 2, 2, 6])
+    assert list(counts) == [2, 0, 3] and list(index) == [0, 1, 2, 3, 5]
+    np.testing.assert_array_equal(h[[0, 2]], [0.0, np.float64(np.float32(1e-30))])
+    np.testing.assert_array_equal(v[[0, 2]], h[[0, 2]])
+    # on the wall and inside: 0 (set 0), the 1e-30 one and the coincident one (set 2);
+    # neither the huge nor the NaN one
+    assert list(ok) == [0, 2, 5] and list(pb) == [0, 1, 1, 3]
+    assert win[:, :, 0].sum(axis=1).tolist() == [1.0, 0.0, 2.0]
+    assert lat[:, :, 0].sum(axis=1).tolist() == [1.0, 0.0, 2.0]
+    assert lat[2].max() == 1.0  # (0.1, 0.1) and 1e-30 fall in different cells
+    _, _, (counts, ok, _, index, h, _) = _insert(part, pos, [0, 6], need_hv=False)
+    assert counts[0] == 5 and len(index) == len(h) == 0 and len(ok) == 3
+    empty = _insert(part[:0], pos[:0], [0, 0, 0])
+    assert empty[0].sum() == 0 and len(empty[2][1]) == 0 and list(empty[2][2]) == [0, 0, 0]

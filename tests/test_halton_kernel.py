@@ -1,0 +1,73 @@
+"""The Halton kernel's shortcuts (zero-digit tail table, base 2 by bit reversal) give the
+digit-by-digit radical inverse bit for bit, at the indices where digit counts change."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lightsim.sampling import (
+    N_DIMS,
+    PRIMES,
+    _radical_inverse,
+    digit_permutations,
+    halton_points,
+    halton_points_grouped,
+)
+
+
+def _edge_indices() -> np.ndarray:
+    """0, 1 and every power of each base (±1) up to 2⁶³: where an index gains a digit."""
+    out = {0, 1, 2**63 - 1}
+    for b in (int(p) for p in PRIMES):
+        q = 1
+        while q < 2**63:
+            out.update(x for x in (q - 1, q, q + 1) if 0 <= x < 2**63)
+            q *= b
+    return np.array(sorted(out), dtype=np.int64)
+
+
+@pytest.mark.parametrize("pass_index", [None, 0, 5])
+def test_tail_table_and_bit_reversal_are_the_digit_loop(pass_index):
+    idx = _edge_indices()
+    perms = digit_permutations(4, 2, pass_index, (5, 3))
+    got = halton_points(idx, perms)
+    want = np.array([[_radical_inverse(int(i), d, perms) for d in range(N_DIMS)]
+                     for i in idx])
+    np.testing.assert_array_equal(got, want)
+    assert got.min() >= 0.0 and got.max() < 1.0
+
+
+def test_grouped_points_keep_each_groups_scramble():
+    perms = np.stack([digit_permutations(1, s, None) for s in range(4)])
+    idx = np.tile(_edge_indices()[:40], 4)
+    group = np.repeat(np.arange(4), 40)
+    got = halton_points_grouped(idx, group, perms)
+    for g in range(4):
+        np.testing.assert_array_equal(got[group == g], halton_points(idx[group == g], perms[g]))
+    assert halton_points_grouped(idx[:0], group[:0], perms).shape == (0, N_DIMS)
+
+
+@pytest.mark.parametrize("L", [1, 7, 864])
+def test_pass_indices_are_the_cells_repeated(L):
+    """SPT's pass layout: cell c at c + jL for j < n_c, weight n_pass / (L n_c)."""
+    from lightsim.sampling import _pass_indices
+
+    n_c = np.random.default_rng(L).integers(1, 40, L).astype(np.int64)
+    cells = np.repeat(np.arange(L, dtype=np.int64), n_c)
+    j = np.arange(len(cells)) - np.repeat(np.cumsum(n_c) - n_c, n_c)
+    idx, w = _pass_indices(n_c)
+    np.testing.assert_array_equal(idx, cells + j * L)
+    np.testing.assert_array_equal(w, len(cells) / (L * n_c[cells].astype(np.float64)))
+    assert len(np.unique(idx)) == len(idx) and np.all(idx % L == cells)
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**40 + 3, 2**63 - 1])
+def test_own_pcg64_steps_give_numpys_permutations(seed):
+    """The compiled shuffles step PCG64 themselves: NumPy's permutations for every kind of
+    pass (plain, SPT passes with cell digits, all digits fixed)."""
+    from lightsim.sampling import _digit_permutations_reference
+
+    for s, p, cells in [(0, None, (0, 0)), (3, 0, (5, 3)), (1, 17, (5, 3)), (2, 4, (53, 34))]:
+        np.testing.assert_array_equal(digit_permutations(seed, s, p, cells),
+                                      _digit_permutations_reference(seed, s, p, cells))
