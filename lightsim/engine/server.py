@@ -232,9 +232,9 @@ class Session:
                  plan: Plan | None = None, checkpoint: dict | None = None) -> None:
         if scene.wall is None:
             raise InputError("the scene has no measurement wall")
-        from lightsim.engine.numba_start import defer_blas_probe
+        from lightsim.engine.numba_start import lazy_target_setup
 
-        defer_blas_probe()  # before the first kernel load: numba without scipy.linalg
+        lazy_target_setup()  # before the first kernel load: cache loads set up no compiler
         self.config = config or RunConfig()
         # the written map's directional fusion: None lets its figure decide (both maps are
         # made), True/False only that one (a caller that redraws the same scene's map can
