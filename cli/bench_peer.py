@@ -65,6 +65,11 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
         row["repeat"] = i // max(len(cases or peer.CASES), 1) + 1
     print_table("peer: time to target (inner = the issue's score; _lit = lit pixels)",
                 summary)
+    print_table("peer: both ratios (Mitsuba / lightsim; inner is the headline, goal ≥ 3)",
+                [{k: row.get(k) for k in ("case", "mitsuba_s", "lightsim_s", "ratio",
+                                          "mitsuba_s_lit", "lightsim_s_lit", "ratio_lit",
+                                          "ls_own_err", "ls_own_within_10pct")}
+                 for row in summary])
     medians = []
     for name in dict.fromkeys(r.case for r in results):
         mine = [r for r in results if r.case == name]
