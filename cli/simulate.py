@@ -144,6 +144,8 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
         s = result.summary
         e = s["energy_lm"]
         err = s.get("error_text") or "–"
+        if s.get("rel_error_upper") is not None:
+            err += f", upper bound {s['rel_error_upper']:.2%}"
         click.echo(f"{s['photons']:,} photons in {s['seconds']:.1f} s, {s['frames']} frames; "
                    f"estimated error {err}; max {s['lux']['max_lx']:.4g} lx")
         absorbed = e["absorbed_diffuse"] + e["absorbed_mirror"] + e["absorbed_volume"]

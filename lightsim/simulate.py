@@ -474,6 +474,9 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         "rel_noise": None if est.error is None else est.error.noise,
         "rel_bias": None if est.error is None else est.error.bias,
         "rel_bias_upper": None if est.error is None else est.error.bias_upper,
+        # the figure's upper bound, √(noise² + rel_bias_upper²): a target-error stop reads
+        # rel_error and allows this up to UPPER_SLACK × the target (engine/server.py)
+        "rel_error_upper": None if est.error is None else est.error.upper,
         "error_text": None if est.error is None else est.error.describe(),
         "estimator": {"name": cfg.estimator, "k": cfg.k, "kernel": cfg.kernel,
                       "interleave": cfg.interleave, "filter": cfg.filter_n,

@@ -567,7 +567,11 @@ class PhotonTracer:
         mats = scene.materials
         self.channels = mats.channels
         prev = getattr(caster, "geometry", None) if caster is not None else None
-        if (prev is not None and self.caster.exact_wall and self.caster is not caster
+        of = getattr(caster, "geometry_of", None)  # the parts ``prev`` was packed from
+        if prev is not None and of is not None and len(of) == len(scene.parts) and all(
+                a is b for a, b in zip(of, scene.parts)):
+            self._geom = prev  # the very same parts (the plan's pilot and the run)
+        elif (prev is not None and self.caster.exact_wall and self.caster is not caster
                 and len(prev.tri_part) == self.caster.n_triangles):
             self._geom = prev.with_wall_of(scene)  # same lamp, the wall moved
         else:
@@ -575,6 +579,8 @@ class PhotonTracer:
         # the packed lamp rides with its embree scene: a tracer reusing this caster
         # (only the wall or materials changed) reuses the lamp's rows too
         self.caster.geometry = self._geom
+        if caster is not None and prev is None:  # the shared caster too, for the next
+            caster.geometry, caster.geometry_of = self._geom, tuple(scene.parts)
         self._geom = self._geom.for_caster(self.caster)  # the bounce intersects the wall
         self._mats = mats.arrays
         self.eps_floor = 0.01 * scene.scale

@@ -86,3 +86,38 @@ def test_summary_rows_say_where_each_figure_landed():
     assert row["mitsuba_err"] == 0.0195 and row["mitsuba_err_lit"] == 0.021
     assert row["ls_true_err_lit"] == 0.0172
     assert row["ls_own_within_10pct"] is True and row["ls_lit_within_10pct"] is False
+
+
+def test_both_tools_are_timed_on_both_scores(monkeypatch):
+    """Mitsuba renders until each score is below the target (its spp from the 1/√spp law
+    of the score not reached yet); lightsim's self-stop counts on a score only where its
+    true error there is below the target; each score gets its own ratio."""
+    spps: list[int] = []
+
+    def mitsuba(case, truth, folder, spp, seed=0, timeout=300.0):
+        spps.append(spp)  # 1/√spp noise: 2 % inner at spp 100, 2 % lit at spp 144
+        return peer.PeerRun(case.name, "mitsuba", f"spp {spp}", spp / 10, spp,
+                            0.2 / math.sqrt(spp), true_error_lit=0.24 / math.sqrt(spp))
+
+    def lightsim(case, truth, folder, target, extra_args=(), timeout=300.0, photons=None):
+        if photons is None:  # the self-stop: inner reached, lit just above the target
+            return peer.PeerRun(case.name, "lightsim", "stop", 2.0, 1000, 0.01, 0.0195,
+                                0.0205)
+        e = 0.0205 * math.sqrt(1000 / photons)
+        return peer.PeerRun(case.name, "lightsim", "fixed", 2.5, photons, e / 2, None, e)
+
+    monkeypatch.setattr(peer, "run_mitsuba", mitsuba)
+    monkeypatch.setattr(peer, "run_lightsim", lightsim)
+    res = peer.run_case("paraboloid", resolution=8, spp0=4)
+    assert spps[0] == 4 and spps[1] == math.ceil(4 * (0.1 / (0.97 * 0.02)) ** 2)
+    m_inner, m_lit = res.mitsuba_seconds, res.mitsuba_seconds_lit
+    assert m_inner == spps[1] / 10 and m_lit == spps[-1] / 10 and m_lit > m_inner
+    assert 0.24 / math.sqrt(spps[-1]) < 0.02 <= 0.24 / math.sqrt(spps[-2])
+    assert res.lightsim_seconds == 2.0 and res.ratio == pytest.approx(m_inner / 2.0)
+    assert res.lightsim_reached_lit is False and res.lightsim_seconds_lit is None
+    assert res.ratio_lit is None  # the self-stop did not reach 2 % on the lit pixels
+    assert res.lightsim_fixed_seconds_lit == 2.5  # a fixed budget did
+    assert res.ratio_fixed_lit == pytest.approx(m_lit / 2.5)
+    row = peer.summary_rows([res], 0.02)[0]
+    assert row["ratio_lit"] is None and row["mitsuba_s_lit"] == m_lit
+    assert row["ls_own_within_10pct"] is True and row["ls_lit_within_10pct"] is True

@@ -1,18 +1,20 @@
-"""numba's first kernel load without its import of scipy.linalg.
+"""numba's cached kernels loaded without setting up its whole CPU target.
 
-Loading a cached kernel makes numba set up its CPU target (``BaseContext.refresh``),
-which imports every lowering module, among them ``numba.np.arraymath``. That module asks
-at import time whether a BLAS exists (``_HAVE_BLAS = _check_blas()``) by importing
-``scipy.linalg.cython_blas`` — about 0.2 s of a whole ``simulate`` process on this
-project's machines, for kernels none of which call BLAS. :func:`defer_blas_probe`
-answers that question from the installed scipy's presence instead
-(``importlib.util.find_spec``), and leaves numba's own ``ensure_blas`` in place for
-everything else: a kernel that does use ``np.dot`` or ``np.linalg`` still imports
-scipy.linalg when numba compiles it, and numba's compiled BLAS wrappers import it when
-first called.
+Loading a cached kernel (``Cache.load_overload``) first calls the CPU target's
+``BaseContext.refresh``, which imports every lowering module (``numba.np.arrayobj``,
+``numba.np.linalg``, ``numba.np.arraymath`` — whose import-time BLAS probe imports
+``scipy.linalg`` — the typed containers, jitclass, …) and installs their registries:
+0.3–0.5 s of a whole ``simulate`` process on this project's machines, spent so that a
+*compiler* could lower code. Loading machine code from the cache needs none of it, only
+numba's runtime (NRT: the allocator the kernels call; without it they crash).
+:func:`lazy_target_setup` makes cache loads initialise the runtime alone. Compiling
+still gets the full set-up: numba's compiler refreshes the target itself
+(``CompilerBase.__init__``) before it types or lowers anything, so a cache miss, a new
+signature or a kernel that uses BLAS compile exactly as before.
 
-It only acts before ``numba.np.arraymath`` is imported (otherwise the probe already ran)
-and only when scipy is installed (otherwise numba's own probe says no BLAS, as before).
+It acts once per process and only on the numba layout it knows (``Cache``'s private
+``_load_overload`` and ``_guard_against_spurious_io_errors``, numba 0.5x–0.6x);
+otherwise it leaves numba alone.
 
 =============  ====================================================================
 parameter      meaning
@@ -23,32 +25,30 @@ parameter      meaning
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 
-
-def defer_blas_probe() -> bool:
-    """Import ``numba.np.arraymath`` with its import-time BLAS probe answered by whether
-    scipy is installed, numba's ``ensure_blas`` restored afterwards. True if it did so
-    (False: arraymath was already imported, scipy is absent, or numba's layout differs)."""
-    if "numba.np.arraymath" in sys.modules or importlib.util.find_spec("scipy") is None:
-        return False
+def lazy_target_setup() -> bool:
+    """Make numba's cache loads initialise only its runtime, not the whole CPU target
+    (see the module docstring). True if it did so now (False: already done, or a numba
+    whose cache layout differs)."""
     try:
-        from numba.np import linalg
+        from numba.core import caching
+        from numba.core.runtime import rtsys
     except ImportError:  # pragma: no cover - another numba layout: leave it alone
         return False
-    real = getattr(linalg, "ensure_blas", None)
-    if real is None:  # pragma: no cover
+    cache = caching.Cache
+    if getattr(cache.load_overload, "lazy_target", False):
         return False
+    if not all(hasattr(cache, a) for a in ("_load_overload",
+                                           "_guard_against_spurious_io_errors")):
+        return False  # pragma: no cover
 
-    def scipy_is_installed() -> None:  # the probe's question: ImportError means no BLAS
-        return None
+    def load_overload(self, sig, target_context):
+        """numba's ``Cache.load_overload`` with the runtime initialised instead of the
+        target refreshed (the compiler refreshes it itself when it runs)."""
+        rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
 
-    linalg.ensure_blas = scipy_is_installed
-    try:
-        from numba.np import arraymath
-    finally:
-        linalg.ensure_blas = real
-    if getattr(arraymath, "ensure_blas", None) is scipy_is_installed:
-        arraymath.ensure_blas = real  # later typing checks are numba's own again
+    load_overload.lazy_target = True
+    cache.load_overload = load_overload
     return True

@@ -24,6 +24,14 @@ parameter           unit   default  meaning
 ``growth``          –      2        photons between two error estimates grow ≤ this
 ``aim``             –      0.98     a target-error stop is aimed at this × the target
 ==================  =====  =======  ================================================
+
+A target error stops the run on the error *figure* itself (``ErrorEstimate.total``, the
+point estimate √(noise² + blur²), what the run reports), not on its upper bound: the
+figure tracks the true error of the lit pixels closely, the bound sits 10–20 % above it
+and stopped runs that far under the target. The bound still guards the stop: it may
+exceed the target by at most :data:`UPPER_SLACK` (a blur the photons cannot resolve yet
+keeps the run going). :func:`stop_level` is the one number both the rule and the
+schedule read.
 """
 
 from __future__ import annotations
@@ -71,9 +79,21 @@ __all__ = ["Estimate", "FrameResult", "Session", "lux_channel"]
 EXPONENT_RANGE = (0.35, 1.0)
 #: estimates the law is fitted to (the last ones of the same figure)
 LAW_POINTS = 3
+#: a target-error stop allows the figure's upper bound (blur + 2 s.e.) this × the target
+UPPER_SLACK = 1.25
 #: the stop is judged on the written map at every estimate when the wall has at most
 #: this many pixels per grid probe (the map's figure then costs about the probes')
 MAP_CHECK_PIXELS = 4
+
+
+def stop_level(error: ErrorEstimate | None) -> float | None:
+    """What a target-error stop compares with the target (a fraction): the error figure
+    (``total``) or its upper bound over :data:`UPPER_SLACK`, whichever is larger; None
+    without a figure. The run stops when this is ≤ the target: the figure at the target,
+    its bound within ``UPPER_SLACK`` × the target."""
+    if error is None:
+        return None
+    return max(error.total, error.upper / UPPER_SLACK)
 
 
 @dataclass
@@ -83,9 +103,10 @@ class ErrorSchedule:
 
     Without a target error the estimates (the error-vs-time log) are spaced by a factor
     ``growth`` in photons. With one, the next estimate comes where the error law measured
-    so far says the figure (its upper bound, what the stop reads) reaches ``aim`` ×
-    target: e ∝ N^-p, with p fitted to the last estimates of the same figure (clamped
-    to :data:`EXPONENT_RANGE`; 0.5, the noise's, with one estimate), at the frame nearest
+    so far says the stop's level (:func:`stop_level`: the figure, its upper bound
+    allowed :data:`UPPER_SLACK` × the target) reaches ``aim`` × target: e ∝ N^-p, with
+    p fitted to the last estimates of the same figure (clamped to
+    :data:`EXPONENT_RANGE`; 0.5, the noise's, with one estimate), at the frame nearest
     to that photon count (``due``), at most ``growth`` × N and at least the next frame.
     ``stop_expected`` says the next estimate is placed to stop the run (the loop then
     measures the written map itself there, see :meth:`Session.run`). The probes' figure
@@ -148,7 +169,7 @@ class ErrorSchedule:
         factor = self.growth
         self.stop_expected = False
         if self.target_error is not None and est.error is not None:
-            e = est.error.upper
+            e = stop_level(est.error)
             if math.isfinite(e) and e > 0:
                 self.history.setdefault(kind, []).append((photons, e))
                 level = e * (self.probe_scale if kind == "probes" else 1.0)
@@ -163,8 +184,7 @@ class ErrorSchedule:
         """The ratio of the written map's figure to the probes' at the same photons
         (kept as ``probe_scale``; 1 when either has no usable figure)."""
         self.calibrated = True
-        a = None if probes.error is None else probes.error.upper
-        b = None if written.error is None else written.error.upper
+        a, b = stop_level(probes.error), stop_level(written.error)
         if a and b and math.isfinite(a) and math.isfinite(b) and a > 0:
             self.probe_scale = b / a
 
@@ -212,9 +232,9 @@ class Session:
                  plan: Plan | None = None, checkpoint: dict | None = None) -> None:
         if scene.wall is None:
             raise InputError("the scene has no measurement wall")
-        from lightsim.engine.numba_start import defer_blas_probe
+        from lightsim.engine.numba_start import lazy_target_setup
 
-        defer_blas_probe()  # before the first kernel load: numba without scipy.linalg
+        lazy_target_setup()  # before the first kernel load: cache loads set up no compiler
         self.config = config or RunConfig()
         # the written map's directional fusion: None lets its figure decide (both maps are
         # made), True/False only that one (a caller that redraws the same scene's map can
@@ -548,10 +568,11 @@ class Session:
 
         Stops at whichever comes first: exactly ``photons`` emitted (total over sets; the
         last frame is partial, except with Selective Photon Tracing, whose passes are whole),
-        ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — with the
-        blur at its upper bound, so an unresolved blur cannot stop a run early (after at
-        least ``min_frames`` frames), first at the probes and then confirmed on the
-        written map itself. With no budget at all, one frame is shot.
+        ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — the
+        figure itself, with its upper bound (blur + 2 s.e.) at most :data:`UPPER_SLACK` ×
+        the target, so an unresolved blur cannot stop a run early (after at least
+        ``min_frames`` frames; :func:`stop_level`), first at the probes and then
+        confirmed on the written map itself. With no budget at all, one frame is shot.
         ``probes=False`` leaves the probe estimates (``FrameResult.probes``) out of the
         final image when the caller does not read them (the error figure of an ICI map
         does not need them).
@@ -672,11 +693,12 @@ class Session:
 
     def error_low_enough(self, est: FrameResult, target_error: float | None,
                          min_frames: int) -> bool:
-        """The stopping rule: the error's upper bound (blur at its upper bound) is at
-        most ``target_error`` after at least ``min_frames`` frames."""
+        """The stopping rule: :func:`stop_level` (the error figure; its upper bound
+        allowed :data:`UPPER_SLACK` × the target) is at most ``target_error`` after at
+        least ``min_frames`` frames."""
         if target_error is None or est.error is None:
             return False
-        return self.frames >= min_frames and est.error.upper <= target_error
+        return self.frames >= min_frames and stop_level(est.error) <= target_error
 
     def final_image(self, probes: bool = True) -> FrameResult:
         """The written map (``config.final``: pooled or interleaved) from every photon,
