@@ -653,14 +653,21 @@ def test_still_batches_revise_the_thread_choice():
     live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
                       regulation=None, warm_up=False)
     live.accumulate_threads, live.batch_rates = 1, {1: 200_000.0, 2: 100_000.0}
+    assert live._batch_threads(still=False) == 1  # a moving scene: the faster so far
     picks = [live._batch_threads(still=True) for _ in range(2 * live_mod.THREAD_TRIAL)]
-    assert picks.count(2) == 2 and picks.count(1) == len(picks) - 2
-    assert live._batch_threads(still=False) == 1
+    # the still scene's first batch and every THREAD_TRIAL-th try the other count
+    assert picks[0] == 2 and picks[live_mod.THREAD_TRIAL - 1] == 2
+    assert picks.count(2) == 3 and picks.count(1) == len(picks) - 3
     for _ in range(6):  # two threads now trace 3 × faster
         live._note_batch_rate(2, 300_000.0)
         live._note_batch_rate(1, 100_000.0)
-    assert live._batch_threads(still=True) == 2  # the 17th still batch: not a trial
     assert max(live.batch_rates, key=live.batch_rates.get) == 2
+    assert live._batch_threads(still=True) == 2  # the 17th still batch: not a trial
+    assert live._batch_threads(still=False) == 2
+    live._reset_clock()  # a change: the next still scene measures afresh
+    assert live._batch_threads(still=True) == 1  # its first batch tries the other count
+    live._note_batch_rate(1, 500_000.0)  # … measured now, not averaged
+    assert live.batch_rates[1] == 500_000.0
     live.threads = 1  # a fixed count is never revised
     assert live._batch_threads(still=True) == 1
     live.stop()

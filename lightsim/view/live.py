@@ -78,7 +78,9 @@ parameter                  unit   default  meaning
                                            memory available at the last change (a still
                                            scene would otherwise fill the machine)
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
-                                           the second tab (rendered while a tab shows it)
+                                           the second tab (rendered while a tab shows it;
+                                           the session has the camera pass — every diffuse
+                                           hit stored — only from the first such tab on)
 ``quick_photons``          –      5 000    photons of an interaction frame after an edit (at
                                            most the frame's photons): the low-quality frame
 ``frame_seconds``          s      0.18     … fewer if the tracer's measured rate does not
@@ -98,7 +100,10 @@ parameter                  unit   default  meaning
                                            accumulation batches at 1 and at all threads
                                            and keeps the faster for each (on an
                                            oversubscribed machine the parallel kernels'
-                                           barriers cost more than the second core gives)
+                                           barriers cost more than the second core gives);
+                                           still batches revise the accumulation's (a
+                                           still scene's first batch and one in 8 at the
+                                           other count; moving average of the rates)
 =========================  =====  =======  ==================================================
 """
 
@@ -413,26 +418,30 @@ class LiveSession:
         numba.set_num_threads(self.frame_threads)
 
     def _batch_threads(self, still: bool) -> int | None:
-        """numba threads of the next accumulation batch: the warm-up's choice, revised
-        by the rates of the still scene's batches (one in ``THREAD_TRIAL`` tries the
-        other count): the warm-up times one 50 000-photon batch at start-up, and the
-        faster count moves with the batch size and the machine's load."""
+        """numba threads of the next accumulation batch: the faster count by the rates
+        measured so far (the warm-up's batch, then the still batches'). A still scene's
+        first batch and one in ``THREAD_TRIAL`` after it run at the other count: the
+        warm-up times one 50 000-photon batch at start-up, and the faster count moves
+        with the batch size and the machine's load."""
         rates = self.batch_rates
-        if self.threads != "auto" or len(rates) < 2 or not still:
+        if self.threads != "auto" or len(rates) < 2:
             return self.accumulate_threads
-        self._still_batches += 1
         best = max(rates, key=rates.get)
-        if self._still_batches % THREAD_TRIAL == 0:
+        if not still:
+            return best
+        self._still_batches += 1
+        if self._still_batches == 1 or self._still_batches % THREAD_TRIAL == 0:
             return next(n for n in rates if n != best)
         return best
 
     def _note_batch_rate(self, threads: int | None, rate: float) -> None:
         """A still batch's photons/s at ``threads`` (moving average, weight
-        ``RATE_WEIGHT`` on the new batch)."""
+        ``RATE_WEIGHT`` on the new batch; a still scene's first two set it)."""
         if threads is None or threads not in self.batch_rates:
             return
         old = self.batch_rates[threads]
-        self.batch_rates[threads] = rate if old <= 0 else \
+        fresh = self._still_batches <= 2  # a still scene's first batches: now's rate
+        self.batch_rates[threads] = rate if (old <= 0 or fresh) else \
             (1.0 - RATE_WEIGHT) * old + RATE_WEIGHT * rate
 
     def _threads_for(self, accumulating: bool, n: int | None = None) -> None:
@@ -510,6 +519,7 @@ class LiveSession:
         self._traced_s = self._traced_at_pooled = 0.0
         self._honest = None
         self._blurs: list[tuple[float, float]] = []  # (blur², its se) of this scene's maps
+        self._still_batches = 0  # batches since the scene became still
         self._figure = (None, None)
         self._memory_said = False
         from lightsim.engine.memory import available_bytes
