@@ -602,10 +602,94 @@ def test_pooled_maps_are_scheduled_from_the_noise_and_blur_of_the_error_law():
     assert live._photons_for(0.02) == pytest.approx(due)
     photons["n"] = int(due) + 1
     assert live._pooled_due()
-    photons["n"] = int(due) - 1  # twice the photons, but the map's share not yet paid
+    photons["n"] = int(due) - 1  # twice the photons and the map's share paid, but the
+    live._traced_s += 9.01 * live._pooled_cost  # crossing comes first: no doubled map
     assert not live._pooled_due()
-    live._traced_s += 4 * live._pooled_cost  # … now it is: the doubling rule
+    # blur 1.8 %: the crossing far beyond twice the photons → the doubling rule, once
+    # the map's share (pooled_share 0.1: 9 × its cost of tracing) is paid
+    live._law = (2_000_000, 0.04, 0.03, 0.018)
+    photons["n"] = 4_000_001
+    assert live._photons_for(0.02) > 2 * photons["n"]
+    live._traced_s = live._traced_at_pooled + 8.9 * live._pooled_cost
+    assert not live._pooled_due()
+    live._traced_s = live._traced_at_pooled + 9.01 * live._pooled_cost
     assert live._pooled_due()
+    live.stop()
+
+
+def test_blur_of_the_prediction_pools_the_maps_by_precision():
+    """The crossing is predicted from every map's blur² of the scene weighted by 1/se²
+    (read back from ``bias`` and ``bias_upper``), not from the last map's alone."""
+    from lightsim.cli.view import build_live
+    from lightsim.render.frame import ErrorEstimate
+    from lightsim.view.live import blur_estimate
+
+    e = ErrorEstimate(0.03, 0.025, 0.012, math.sqrt(0.012**2 + 2 * 3e-5))
+    b2, se = blur_estimate(e)
+    assert b2 == pytest.approx(0.012**2) and se == pytest.approx(3e-5)
+    assert blur_estimate(ErrorEstimate(0.03, 0.03, 0.0, 0.01))[0] == 0.0
+    assert blur_estimate(None) is None
+    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
+                      regulation=None, warm_up=False)
+    live._law = (8_000_000, 0.0225, 0.0175, 0.0143)
+    assert live._blur2() == pytest.approx(0.0143**2)  # no measured se: the last map's
+    live._blurs = [(1.5e-4, 5e-4), (1.7e-5, 1.6e-4), (2.0e-4, 9e-5)]
+    w = [1 / 5e-4**2, 1 / 1.6e-4**2, 1 / 9e-5**2]
+    want = (w[0] * 1.5e-4 + w[1] * 1.7e-5 + w[2] * 2.0e-4) / sum(w)
+    assert live._blur2() == pytest.approx(want)
+    room = (0.93 * 0.02) ** 2 - want
+    assert live._photons_for(0.02) == pytest.approx(8_000_000 * 0.0175**2 / room)
+    live._reset_clock()
+    assert live._blurs == []  # a change: the next scene's maps measure its own blur
+    live.stop()
+
+
+def test_still_batches_revise_the_thread_choice():
+    """Still batches run at the faster measured thread count, one in THREAD_TRIAL at the
+    other; a count that turns out faster takes over; moving scenes keep the warm-up's."""
+    from lightsim.cli.view import build_live
+    from lightsim.view import live as live_mod
+
+    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
+                      regulation=None, warm_up=False)
+    live.accumulate_threads, live.batch_rates = 1, {1: 200_000.0, 2: 100_000.0}
+    assert live._batch_threads(still=False) == 1  # a moving scene: the faster so far
+    picks = [live._batch_threads(still=True) for _ in range(2 * live_mod.THREAD_TRIAL)]
+    # the still scene's first batch and every THREAD_TRIAL-th try the other count
+    assert picks[0] == 2 and picks[live_mod.THREAD_TRIAL - 1] == 2
+    assert picks.count(2) == 3 and picks.count(1) == len(picks) - 3
+    for _ in range(6):  # two threads now trace 3 × faster
+        live._note_batch_rate(2, 300_000.0)
+        live._note_batch_rate(1, 100_000.0)
+    assert max(live.batch_rates, key=live.batch_rates.get) == 2
+    assert live._batch_threads(still=True) == 2  # the 17th still batch: not a trial
+    assert live._batch_threads(still=False) == 2
+    live._reset_clock()  # a change: the next still scene measures afresh
+    assert live._batch_threads(still=True) == 1  # its first batch tries the other count
+    live._note_batch_rate(1, 500_000.0)  # … measured now, not averaged
+    assert live.batch_rates[1] == 500_000.0
+    live.threads = 1  # a fixed count is never revised
+    assert live._batch_threads(still=True) == 1
+    live.stop()
+
+
+def test_camera_pass_only_while_a_tab_shows_the_camera():
+    """The session is planned without the camera pass (wall records only) until a tab
+    shows the camera view; then the next step opens one with it."""
+    from lightsim.cli.view import build_live
+
+    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000,
+                      camera_resolution=(16, 8), regulation=None, warm_up=False)
+    live._open(live.editor.session_scene(live.controls), live.controls)
+    assert not live.session.plan.camera and not live._camera_shown()
+    live._step()
+    assert not live.session.plan.camera
+    live.camera_watchers = 1
+    assert not live._camera_shown()  # this session cannot render it
+    live._step()
+    assert live.session.plan.camera and live._camera_shown()
+    live._step()
+    assert live.session.plan.camera  # kept while watched
     live.stop()
 
 

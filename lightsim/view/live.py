@@ -61,13 +61,16 @@ parameter                  unit   default  meaning
 ``first_cap_seconds``      s      30       ... but after at most this much tracing (or
                                            twice the pooled map's cost; meanwhile the
                                            interleaved image and grid figure go on)
-``pooled_share``           –      0.2      pooled maps at doubled photons take at most this
+``pooled_share``           –      0.1      pooled maps at doubled photons take at most this
                                            share of the time (a predicted crossing of
-                                           5 %, 2 %, 1 %, 0.5 % is not delayed)
+                                           5 %, 2 %, 1 %, 0.5 % is not delayed; none
+                                           when the crossing is due before twice the
+                                           photons now)
 ``probe_share``            –      0.1      the grid-probe error figure (only before the
                                            first pooled map) takes at most this share
 ``regulation_interval``    s      1.0      regulation table refresh once the scene is still
-``regulation_share``       –      0.1      … and at most this share of the time
+``regulation_share``       –      0.05     … and at most this share of the time (its kNN
+                                           trees cost ~0.3–0.8 µs per new photon)
 ``stop_error``             –      0.005    accumulation stops (idles) at this error figure
 ``max_photons``            –      2·10⁸    … or at this many photons
 ``memory_share``           –      0.5      … or when the photon maps (at their insertion
@@ -75,7 +78,9 @@ parameter                  unit   default  meaning
                                            memory available at the last change (a still
                                            scene would otherwise fill the machine)
 ``camera``                 –      none     :class:`~lightsim.render.camera.PinholeCamera` of
-                                           the second tab (rendered while a tab shows it)
+                                           the second tab (rendered while a tab shows it;
+                                           the session has the camera pass — every diffuse
+                                           hit stored — only from the first such tab on)
 ``quick_photons``          –      5 000    photons of an interaction frame after an edit (at
                                            most the frame's photons): the low-quality frame
 ``frame_seconds``          s      0.18     … fewer if the tracer's measured rate does not
@@ -95,7 +100,10 @@ parameter                  unit   default  meaning
                                            accumulation batches at 1 and at all threads
                                            and keeps the faster for each (on an
                                            oversubscribed machine the parallel kernels'
-                                           barriers cost more than the second core gives)
+                                           barriers cost more than the second core gives);
+                                           still batches revise the accumulation's (a
+                                           still scene's first batch and one in 8 at the
+                                           other count; moving average of the rates)
 =========================  =====  =======  ==================================================
 """
 
@@ -144,6 +152,8 @@ ERROR_LEVELS = (0.05, 0.02, 0.01, 0.005)
 LEVEL_AIM = 0.93  # a level's pooled map is aimed this far below it (the law's scatter) …
 FIRST_AIM = 0.9  # … the first after an edit further: e √N moves ~10 % from edit to edit
 LAW_MIN_PHOTONS = 200_000  # maps with fewer photons do not set the error law
+THREAD_TRIAL = 8  # one still batch in this many runs at the other numba thread count
+RATE_WEIGHT = 0.3  # weight of a batch's rate in the moving average per thread count
 
 RegulationHook = Callable[[Any], RegulationTable]
 SaveHook = Callable[[Path, Any, Any, Controls, Scene], list[str]]
@@ -171,8 +181,10 @@ class LiveSession:
     Parameters
     ----------
     editor : SceneEditor
-    make_session : callable (Scene, RunConfig) → Session
-        Builds the engine session (in-process or Ray; injected by the CLI).
+    make_session : callable (Scene, RunConfig, camera: bool) → Session
+        Builds the engine session (in-process or Ray; injected by the CLI); ``camera``:
+        with the camera pass (planned only while a tab shows the camera view: it stores
+        every diffuse hit, not only the wall's, ~10 % more work per photon).
     config : RunConfig
         Base run configuration; k, M and photons per frame come from the controls.
     publish : callable (kind, payload)
@@ -184,16 +196,16 @@ class LiveSession:
         Session folder (edit log, state, saved runs); None: nothing is written.
     """
 
-    def __init__(self, editor: SceneEditor, make_session: Callable[[Scene, RunConfig], Any],
+    def __init__(self, editor: SceneEditor, make_session: Callable[..., Any],
                  config: RunConfig, publish: Publish, *, controls: Controls | None = None,
                  regulation: RegulationHook | None = None, save_run: SaveHook | None = None,
                  folder: Path | None = None, camera: Any = None,
                  batch_seconds: float = 0.05, batch_growth: float = 1.5,
                  batch_max_seconds: float = 0.3, batch_photons: int = 1 << 20,
                  first_pooled_seconds: float = 1.0, first_cap_seconds: float = 30.0,
-                 pooled_share: float = 0.2,
+                 pooled_share: float = 0.1,
                  probe_share: float = 0.1, regulation_interval: float = 1.0,
-                 regulation_share: float = 0.1, stop_error: float = 0.005,
+                 regulation_share: float = 0.05, stop_error: float = 0.005,
                  max_photons: int = 200_000_000, quick_photons: int = 5_000,
                  frame_seconds: float = 0.18, min_photons: int = 3_000,
                  still_seconds: float = 0.75, memory_share: float = 0.5,
@@ -209,6 +221,7 @@ class LiveSession:
         self.folder = Path(folder) if folder is not None else None
         self.camera = camera
         self.camera_watchers = 0  # set by the app: tabs showing the camera view
+        self._camera_pass = False  # whether the current session was planned with the camera
         self.batch_seconds = float(batch_seconds)
         self.batch_growth = max(1.0, float(batch_growth))
         self.batch_max_seconds = max(float(batch_max_seconds), self.batch_seconds)
@@ -235,6 +248,8 @@ class LiveSession:
         self.thread_times: dict[int, float] = {}  # warm-up: threads → frame seconds
         self.accumulate_times: dict[int, float] = {}  # … → seconds of one batch
         self.frame_threads = self.accumulate_threads = None
+        self.batch_rates: dict[int, float] = {}  # threads → photons/s of still batches
+        self._still_batches = 0
         self.warm_batch = 50_000  # photons of the warm-up's timed accumulation batch
         self.first_cap_seconds = float(first_cap_seconds)
         self.frame_seconds = float(frame_seconds)
@@ -321,7 +336,9 @@ class LiveSession:
     # -- the thread --------------------------------------------------------------------
     def _run(self) -> None:
         try:
-            self._open(self.editor.session_scene(self.controls), self.controls)
+            # the warm-up runs the camera path too (its kernels compile before any edit)
+            self._open(self.editor.session_scene(self.controls), self.controls,
+                       camera=self.warm_up or self._camera_wanted())
         except LightsimError as exc:
             self.error = str(exc)
             self._message("error", f"cannot start the session: {exc}")
@@ -362,6 +379,8 @@ class LiveSession:
         if self.regulation_hook is not None:
             self.regulation_hook(s)
         s.update(light_transform=np.eye(4))
+        if self._camera_pass and not self._camera_wanted():  # no tab shows the camera
+            self._open(self.editor.session_scene(self.controls), self.controls, camera=False)
         self._choose_threads()
         self._reset_clock()
         self.stats.log.clear()  # the log is of the user's session
@@ -395,11 +414,41 @@ class LiveSession:
             self.thread_times[n], self.accumulate_times[n] = min(times), min(acc)
         self.frame_threads = min(self.thread_times, key=self.thread_times.get)
         self.accumulate_threads = min(self.accumulate_times, key=self.accumulate_times.get)
+        self.batch_rates = {n: batch / t for n, t in self.accumulate_times.items() if t > 0}
         numba.set_num_threads(self.frame_threads)
 
-    def _threads_for(self, accumulating: bool) -> None:
-        """Switch this thread's numba threads to the warm-up's choice for the work."""
-        n = self.accumulate_threads if accumulating else self.frame_threads
+    def _batch_threads(self, still: bool) -> int | None:
+        """numba threads of the next accumulation batch: the faster count by the rates
+        measured so far (the warm-up's batch, then the still batches'). A still scene's
+        first batch and one in ``THREAD_TRIAL`` after it run at the other count: the
+        warm-up times one 50 000-photon batch at start-up, and the faster count moves
+        with the batch size and the machine's load."""
+        rates = self.batch_rates
+        if self.threads != "auto" or len(rates) < 2:
+            return self.accumulate_threads
+        best = max(rates, key=rates.get)
+        if not still:
+            return best
+        self._still_batches += 1
+        if self._still_batches == 1 or self._still_batches % THREAD_TRIAL == 0:
+            return next(n for n in rates if n != best)
+        return best
+
+    def _note_batch_rate(self, threads: int | None, rate: float) -> None:
+        """A still batch's photons/s at ``threads`` (moving average, weight
+        ``RATE_WEIGHT`` on the new batch; a still scene's first two set it)."""
+        if threads is None or threads not in self.batch_rates:
+            return
+        old = self.batch_rates[threads]
+        fresh = self._still_batches <= 2  # a still scene's first batches: now's rate
+        self.batch_rates[threads] = rate if (old <= 0 or fresh) else \
+            (1.0 - RATE_WEIGHT) * old + RATE_WEIGHT * rate
+
+    def _threads_for(self, accumulating: bool, n: int | None = None) -> None:
+        """Switch this thread's numba threads to ``n`` or the warm-up's choice for the
+        work."""
+        if n is None:
+            n = self.accumulate_threads if accumulating else self.frame_threads
         if n is not None:
             import numba
 
@@ -412,17 +461,30 @@ class LiveSession:
         photons = max(c.frame_photons, self.batch_photons) if batch else c.frame_photons
         return self.base_config.with_(k=c.k, interleave=c.interleave, frame_photons=photons)
 
-    def _open(self, scene: Scene, c: Controls) -> None:
+    def _open(self, scene: Scene, c: Controls, camera: bool | None = None) -> None:
+        """A new engine session for ``scene`` and controls ``c``; ``camera``: with the
+        camera pass (default: while a tab shows the camera view)."""
         config = self._config(c)  # validates (e.g. photons ≥ M²) before the old one closes
-        session = self.make_session(scene, config)
+        camera = self._camera_wanted() if camera is None else bool(camera and self.camera)
+        session = self.make_session(scene, config, camera=camera)
         if session.plan.spt and config.frame_photons != c.frame_photons:
             session.close()  # SPT passes are whole: no partial interaction frames
-            session = self.make_session(scene, self._config(c, batch=False))
+            session = self.make_session(scene, self._config(c, batch=False), camera=camera)
         if self.session is not None:
             self.session.close()
         self.session = session
+        self._camera_pass = camera
         self.controls = c
         self._reset_clock()
+
+    def _camera_wanted(self) -> bool:
+        """Whether a tab shows the camera view (the session then needs the camera pass)."""
+        return self.camera is not None and self.camera_watchers > 0
+
+    def _camera_shown(self) -> bool:
+        """Whether to render the camera view now: a tab shows it and the session has the
+        camera pass (a tab that has just asked gets it from the next session)."""
+        return self._camera_pass and self._camera_wanted()
 
     def _partial(self, photons: int) -> int | None:
         """``photons`` as the argument of ``Session.shoot``/``frame``: None for a whole
@@ -456,6 +518,8 @@ class LiveSession:
         self._batch_s = self.batch_seconds
         self._traced_s = self._traced_at_pooled = 0.0
         self._honest = None
+        self._blurs: list[tuple[float, float]] = []  # (blur², its se) of this scene's maps
+        self._still_batches = 0  # batches since the scene became still
         self._figure = (None, None)
         self._memory_said = False
         from lightsim.engine.memory import available_bytes
@@ -524,6 +588,10 @@ class LiveSession:
     def _step(self) -> None:
         changed = self._apply_pending()
         self._handle_saves()
+        if self._camera_wanted() and not self._camera_pass:
+            # a tab asks for the camera view: a session with the camera pass (the
+            # photons start afresh, as after an edit)
+            self._open(self.editor.session_scene(self.controls), self.controls, camera=True)
         s = self.session
         if not changed and self._converged():
             self._wake.wait(0.25)  # nothing left to gain: wait for an edit
@@ -545,8 +613,7 @@ class LiveSession:
     def _interaction_frame(self, changed: bool) -> None:
         """Only the picture: the probes, error figure and table wait for a still scene."""
         s = self.session
-        camera = self.camera if (self.camera is not None and self.camera_watchers > 0) \
-            else None
+        camera = self.camera if self._camera_shown() else None
         t0 = time.perf_counter()
         est = s.frame(image=True, camera=camera, probes=False,
                       photons=self._frame_photons(quick=self._quick_due),
@@ -579,7 +646,7 @@ class LiveSession:
             self.last_status = self._status()
             self.publish("status", self.last_status)
             return
-        watched = self.camera is not None and self.camera_watchers > 0
+        watched = self._camera_shown()
         now = time.perf_counter()
         camera_due = watched and now - self._last_camera >= max(1.0, 9.0 * self._camera_cost)
         pooled = self._pooled_due()
@@ -628,12 +695,14 @@ class LiveSession:
         s = self.session
         rate = self._rate if self._rate else 1e5
         n = max(s.config.n_sets, rate * self._batch_s)
-        if time.perf_counter() - self._interaction_done >= self.still_seconds:
+        still = time.perf_counter() - self._interaction_done >= self.still_seconds
+        if still:
             n = max(n, self.still_batch_photons)  # a loaded machine: not below full rate
         n = int(min(s.config.frame_photons, n))
         before = self._photons_now()
+        threads = self._batch_threads(still)
         t0 = time.perf_counter()
-        self._threads_for(accumulating=True)
+        self._threads_for(accumulating=True, n=threads)
         try:
             s.shoot(self._partial(n))
         finally:
@@ -642,6 +711,8 @@ class LiveSession:
         done = self._photons_now() - before
         if dt > 0 and done > 0:
             self._rate = done / dt
+            if still:
+                self._note_batch_rate(threads, self._rate)
         self._traced_s += dt
         self._batch_s = min(self.batch_max_seconds, self._batch_s * self.batch_growth)
         self._log({"mode": "accumulation", "quality": "batch", "image": False,
@@ -703,6 +774,9 @@ class LiveSession:
             blur = (_finite(e.bias) or 0.0) if e is not None else 0.0
             self._law = (int(est.photons), self._honest[0],
                          self._honest[0] if noise is None else noise, blur)
+            measured = blur_estimate(e)
+            if measured is not None:
+                self._blurs.append(measured)
             near = self._law_5
             if near is None or abs(math.log(self._honest[0] / ERROR_LEVELS[0])) <= \
                     abs(math.log(near[1] / ERROR_LEVELS[0])):
@@ -712,13 +786,27 @@ class LiveSession:
 
     def _photons_for(self, level: float) -> float | None:
         """Photons at which the written map's figure is expected to reach ``level``
-        (aimed ``LEVEL_AIM`` below it) from the last map's noise (∝ 1/√N) and blur (kept);
-        None where the blur alone is above it."""
+        (aimed ``LEVEL_AIM`` below it) from the last map's noise (∝ 1/√N) and the blur
+        (kept: :meth:`_blur2`); None where the blur alone is above it."""
         if self._law is None:
             return None
-        n, _, noise, blur = self._law
-        room = (LEVEL_AIM * level) ** 2 - blur ** 2
+        n, _, noise, _ = self._law
+        room = (LEVEL_AIM * level) ** 2 - self._blur2()
         return None if room <= 0 else n * noise ** 2 / room
+
+    def _blur2(self) -> float:
+        """The written map's squared blur (relative²) for the prediction: the maps of
+        this scene each measure the same blur (the rungs' windows do not shrink with the
+        photons), so their estimates are pooled by their precision (1/se²): one map's
+        blur² scatters by its se, at 1–4 M photons on the shipped headlight by as much as
+        the blur² itself (blur 0.4–1.8 % from map to map, 1.4–1.5 % at 8–16 M)."""
+        if self._law is None:
+            return 0.0
+        ok = [(b2, se) for b2, se in self._blurs if se > 0]
+        if not ok:
+            return self._law[3] ** 2
+        w = [1.0 / (se * se) for _, se in ok]
+        return sum(wi * b2 for wi, (b2, _) in zip(w, ok, strict=True)) / sum(w)
 
     def _pooled_due(self) -> bool:
         """The next pooled map (M² times an image's work). The first: where the scene's
@@ -726,7 +814,8 @@ class LiveSession:
         below it), after at least the map's own cost of tracing — or, with no law yet,
         after ``first_pooled_seconds`` of tracing. Then where the figure is expected to
         cross the next level (noise ∝ 1/√N beside the blur), otherwise at twice the
-        photons with its cost ≤ ``pooled_share`` of the time."""
+        photons with its cost ≤ ``pooled_share`` of the time — unless the crossing is
+        due before that."""
         if self._honest is None:
             first = max(self.first_pooled_seconds, self._pooled_cost)
             if self._law_5 is None:
@@ -742,6 +831,8 @@ class LiveSession:
             due = self._photons_for(below[0]) if below else None
             if due is not None and photons >= due:
                 return True
+            if due is not None and due <= 2 * photons:
+                return False  # the next level's map comes before a doubled one would
         share = self.pooled_share
         return photons >= 2 * n_last and (self._traced_s - self._traced_at_pooled
                                           >= self._pooled_cost * (1 - share) / share)
@@ -830,6 +921,8 @@ class LiveSession:
                 "still_s": time.perf_counter() - self._changed_at,
                 "frame_s": self.stats.last_frame_s, "frames": self.stats.frames,
                 "numba_threads": _numba_threads(),
+                "batch_threads": self.accumulate_threads if self.threads != "auto" or len(
+                    self.batch_rates) < 2 else max(self.batch_rates, key=self.batch_rates.get),
                 "photons_per_s": self._rate,
                 "timings": self.stats.timings}
 
@@ -905,6 +998,17 @@ class LiveSession:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
         return f"saved {final} ({', '.join(sorted(files))}, {est.photons:,} photons)"
+
+
+def blur_estimate(e) -> tuple[float, float] | None:
+    """(blur², its standard error), relative², of an error figure
+    (:class:`~lightsim.render.frame.ErrorEstimate`): ``bias_upper``² = blur² + 2 se, and a
+    negative blur² estimate reads as 0; None without the figure's parts."""
+    bias = None if e is None else _finite(e.bias)
+    upper = None if e is None else _finite(e.bias_upper)
+    if bias is None or upper is None:
+        return None
+    return bias * bias, max(upper * upper - bias * bias, 0.0) / 2.0
 
 
 def _finite(x: float | None) -> float | None:

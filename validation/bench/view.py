@@ -312,7 +312,8 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
             out["view_threads"] = {"used": live.last_status.get("numba_threads"),
                                    "warm_up_frame_s": dict(live.thread_times),
                                    "warm_up_batch_s": dict(live.accumulate_times),
-                                   "accumulate": live.accumulate_threads}
+                                   "accumulate": live.accumulate_threads,
+                                   "still_batch_rates": dict(live.batch_rates)}
             if screenshots is not None:
                 page.wait_for_timeout(1500)  # let a pooled map arrive if one is due
                 page.screenshot(path=str(screenshots / "view-converged.png"))
