@@ -170,7 +170,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                     shaded_spread_deg=shaded_spread, shaded_drop_deg=shaded_drop,
                     foreground_share=foreground_share, wing_facets=wings,
                     wing_deg=wing_deg, wing_drop_deg=wing_drop)
-    layout.check()
+    if continue_from is None:  # else the continued lamp's layout is checked below
+        layout.check()
     mres = _resolution(model_resolution)
     first_round = 0
     previous: list = []

@@ -459,14 +459,16 @@ def _aim_median(fc: Facet, th: float, tv: float, layout: Layout, hole_m: float) 
 
 def _with_wings(facets: list[Facet], layout: Layout, hole_m: float) -> list[Facet]:
     """Re-aim ``layout.wing_facets`` to the wide foreground: per side of V (the sign of
-    the facet's image-based aim), in index order, image medians evenly over
-    ``wing_deg`` ± :data:`WING_HALF_WIDTH_DEG`, ``wing_drop_deg`` under v0."""
+    the facet's image-based aim), image medians evenly over ``wing_deg`` ±
+    :data:`WING_HALF_WIDTH_DEG`, ``wing_drop_deg`` under v0, outer rings (small, bright
+    images) nearest V, then by index."""
     if not layout.wing_facets:
         return facets
     out = list(facets)
     for sign in (-1.0, 1.0):
-        side = sorted(int(k) for k in layout.wing_facets
-                      if (facets[int(k)].h_deg >= 0) == (sign > 0))
+        side = sorted((int(k) for k in layout.wing_facets
+                       if (facets[int(k)].h_deg >= 0) == (sign > 0)),
+                      key=lambda k: (-(k // layout.sectors), k))
         n = len(side)
         for i, k in enumerate(side):
             th = sign * (layout.wing_deg
