@@ -102,6 +102,9 @@ sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet
                                       ``SIGN_AIMS``), dim light above the cut-off
 foreground_m      m      0 (CLI 5)    1 lx asked on the road at ±w/2, ±w (10 m) and
                                       ±w/2 (15 m); 0: no foreground term
+wing_facets       –      ()           ``Layout``: main facets re-aimed to the wide
+                                      foreground, image medians at ±(``wing_deg`` ±
+                                      2.5°), ``wing_drop_deg`` under v0 (16.5°, 2.5°)
 aim_photons       –      0 (CLI 4 M)  photons of the whole-lamp aim step (320×128,
                                       before each model round and twice at the end)
 remeasure_steps   –      True         keep a model round's shifts (× 1, ½, ¼) only if
