@@ -105,6 +105,14 @@ def _resolution(text: str) -> tuple[int, int]:
                    "0: none): light at 14–28° L/R, 2.6–3.9° D.")
 @click.option("--shaded-drop", type=float, default=8.0, show_default=True,
               help="deg under the cut-off for those foreground facets.")
+@click.option("--wing-facets", default="", show_default=True,
+              help="Comma-separated main facets (indices, ring-major) re-aimed to the wide "
+                   "foreground beside the car (the wings); empty: none.")
+@click.option("--wing", "wing_deg", type=float, default=16.5, show_default=True,
+              help="deg: the wings' image medians lie at ±(this ± 2.5°), on each facet's "
+                   "side of V.")
+@click.option("--wing-drop", type=float, default=2.5, show_default=True,
+              help="deg under the cut-off level v0 of the wings' image medians.")
 @click.option("--aim-photons", type=int, default=4_000_000, show_default=True,
               help="Photons of the aim step (before each model round and twice at the end: "
                    "every facet moves by the aim correction a 320x128 run's cut-off asks "
@@ -123,7 +131,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            model_resolution: str, model_evaluations: int, interval_photons: int,
            model_safety: float, ring_offsets: str | None, continue_from: str | None,
            foreground: float, foreground_share: float, shaded_spread: float,
-           shaded_drop: float, aim_photons: int,
+           shaded_drop: float, wing_facets: str, wing_deg: float, wing_drop: float,
+           aim_photons: int,
            remeasure: bool, model_smooth: float, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
@@ -150,12 +159,19 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                              f"{ring_offsets!r}") from None
         if len(offsets) != rings or not all(map(math.isfinite, offsets)):
             raise InputError(f"--ring-offsets needs {rings} finite numbers")
+    try:
+        wings = tuple(int(t) for t in wing_facets.split(",") if t.strip())
+    except ValueError:
+        raise InputError(f"--wing-facets must be comma-separated facet indices, got "
+                         f"{wing_facets!r}") from None
     layout = Layout(rings=rings, sectors=sectors, focal_length_m=focal_length * 1e-3,
                     aperture_m=opening * 1e-3, bulb=name, traffic=traffic,
                     sign_share=sign_share, ring_offsets_deg=offsets,
                     shaded_spread_deg=shaded_spread, shaded_drop_deg=shaded_drop,
-                    foreground_share=foreground_share)
-    layout.check()
+                    foreground_share=foreground_share, wing_facets=wings,
+                    wing_deg=wing_deg, wing_drop_deg=wing_drop)
+    if continue_from is None:  # else the continued lamp's layout is checked below
+        layout.check()
     mres = _resolution(model_resolution)
     first_round = 0
     previous: list = []
@@ -166,7 +182,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
         # the continued lamp takes the foreground options of this command
         layout = replace(layout, shaded_spread_deg=shaded_spread,
                          shaded_drop_deg=shaded_drop, foreground_share=foreground_share,
-                         sign_share=sign_share)
+                         sign_share=sign_share, wing_facets=wings, wing_deg=wing_deg,
+                         wing_drop_deg=wing_drop)
         layout.check()
         previous = list(rec.get("model") or [])
         first_round = len(previous)

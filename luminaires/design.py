@@ -102,6 +102,9 @@ sign_share        –      0 (CLI 0.03) ``Layout``: share of a vertex-ring facet
                                       ``SIGN_AIMS``), dim light above the cut-off
 foreground_m      m      0 (CLI 5)    1 lx asked on the road at ±w/2, ±w (10 m) and
                                       ±w/2 (15 m); 0: no foreground term
+wing_facets       –      ()           ``Layout``: main facets re-aimed to the wide
+                                      foreground, image medians at ±(``wing_deg`` ±
+                                      2.5°), ``wing_drop_deg`` under v0 (16.5°, 2.5°)
 aim_photons       –      0 (CLI 4 M)  photons of the whole-lamp aim step (320×128,
                                       before each model round and twice at the end)
 remeasure_steps   –      True         keep a model round's shifts (× 1, ½, ¼) only if
@@ -173,6 +176,8 @@ FOREGROUND_AIMS = ((-24.0, -3.5, 1.0), (24.0, -3.5, 1.0), (-14.0, -2.6, 1.0),
 foreground slivers cut off the second ring's lit facets: 1 lx on the road ±5 m wide at
 10 m needs ≈ 2.2 k cd at 26.6° L/R, 3.7° D (the facets aimed by the cut-off stay within
 ±12°)."""
+WING_HALF_WIDTH_DEG = 2.5
+"""The wing facets' image medians spread over ``Layout.wing_deg`` ± this (deg)."""
 SHADED_DROP_DEG = 8.0
 """Facets the cup leaves less lit than ``LIT_MIN`` are aimed ``SHADED_DROP_DEG`` under the
 cut-off: the light that reaches them past the cup's rims and end plates (and, reflected
@@ -217,6 +222,15 @@ class Layout:
     foreground_share: float = 0.0
     """Share of a lit second-ring facet's azimuth per foreground sliver (× its weight in
     :data:`FOREGROUND_AIMS`; 0: none)."""
+    wing_facets: tuple[int, ...] = ()
+    """Main facets (indices) re-aimed to the wide foreground ("wings") beside the car: on
+    their side of V (the sign of their aim), their filament images' medians are spread
+    evenly over ``wing_deg`` ± ``WING_HALF_WIDTH_DEG`` at ``wing_drop_deg`` under v0."""
+    wing_deg: float = 16.5
+    """Centre (deg left/right of V) of the wings' image medians."""
+    wing_drop_deg: float = 2.5
+    """How far under v0 (deg) the wings' image medians lie (3.7° D is 10 m ahead of a
+    lamp 0.65 m high)."""
 
     @property
     def n_params(self) -> int:
@@ -231,6 +245,13 @@ class Layout:
             raise InputError("--shaded-spread must be 0–30° and --shaded-drop 0–20°")
         if not (math.isfinite(self.foreground_share) and 0 <= self.foreground_share < 0.9):
             raise InputError(f"--foreground-share must be 0–0.9, got {self.foreground_share}")
+        n_main = self.rings * self.sectors
+        if not (all(0 <= int(k) < n_main for k in self.wing_facets)
+                and len(set(self.wing_facets)) == len(self.wing_facets)
+                and math.isfinite(self.wing_deg) and 0 <= self.wing_deg <= 28
+                and math.isfinite(self.wing_drop_deg) and 0 <= self.wing_drop_deg <= 10):
+            raise InputError(f"--wing-facets must be distinct main facets (0–{n_main - 1}), "
+                             "--wing 0–28° and --wing-drop 0–10°")
         if not (math.isfinite(self.sign_share) and 0 <= self.sign_share
                 and self.sign_share * sum(a[2] for a in SIGN_AIMS) < 0.9 * self.sectors):
             raise InputError(f"--sign-share must be ≥ 0 and small enough for "
@@ -413,6 +434,7 @@ def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
             new.append(Facet(fc.phi0_rad, fc.phi1_rad, float(np.clip(hk, -40, 40)),
                              float(np.clip(vk, -40, 40)), fc.r0_m, fc.r1_m, fc.focal_m))
         facets = new
+    facets = _with_wings(facets, layout, hole_m)
     facets = _with_sign_slivers(facets, layout, hole_m)
     for k, dh, dv in layout.facet_shifts_deg:
         k = int(k)
@@ -423,6 +445,40 @@ def facets_for(x: np.ndarray, layout: Layout, hole_m: float) -> list[Facet]:
         facets[k] = replace(fc, h_deg=float(np.clip(fc.h_deg + dh, -40, 40)),
                             v_deg=float(np.clip(fc.v_deg + dv, -40, 40)))
     return facets
+
+
+def _aim_median(fc: Facet, th: float, tv: float, layout: Layout, hole_m: float) -> Facet:
+    """``fc`` aimed so that the median of its traced filament images lies at (th, tv) deg
+    (three passes: the images change with the aim)."""
+    fc = replace(fc, h_deg=th, v_deg=tv)
+    for _ in range(3):
+        img = facet_images([fc], layout, hole_m)[0]
+        if not img.dh.size:
+            break
+        fc = replace(fc, h_deg=float(np.clip(th - np.median(img.dh), -40, 40)),
+                     v_deg=float(np.clip(tv - np.median(img.dv), -40, 40)))
+    return fc
+
+
+def _with_wings(facets: list[Facet], layout: Layout, hole_m: float) -> list[Facet]:
+    """Re-aim ``layout.wing_facets`` to the wide foreground: per side of V (the sign of
+    the facet's image-based aim), image medians evenly over ``wing_deg`` ±
+    :data:`WING_HALF_WIDTH_DEG`, ``wing_drop_deg`` under v0, outer rings (small, bright
+    images) nearest V, then by index."""
+    if not layout.wing_facets:
+        return facets
+    out = list(facets)
+    for sign in (-1.0, 1.0):
+        side = sorted((int(k) for k in layout.wing_facets
+                       if (facets[int(k)].h_deg >= 0) == (sign > 0)),
+                      key=lambda k: (-(k // layout.sectors), k))
+        n = len(side)
+        for i, k in enumerate(side):
+            th = sign * (layout.wing_deg
+                         + (WING_HALF_WIDTH_DEG * (2 * i / (n - 1) - 1) if n > 1 else 0.0))
+            out[k] = _aim_median(facets[k], th, layout.cutoff_v_deg - layout.wing_drop_deg,
+                                 layout, hole_m)
+    return out
 
 
 def _with_shifts(layout: Layout, facets: list[int], shifts_deg: np.ndarray) -> Layout:
@@ -481,14 +537,7 @@ def _slivers(facets: list[Facet], layout: Layout, hole_m: float, ring: int,
             raise InputError("the sliver share is too large for the ring's lit facets")
         p1 = fc.phi1_rad - width
         out[k] = replace(fc, phi1_rad=p1)
-        sliver = replace(fc, phi0_rad=p1, h_deg=th, v_deg=tv)
-        for _ in range(3):  # the images change with the aim: iterate
-            img = facet_images([sliver], layout, hole_m)[0]
-            if not img.dh.size:
-                break
-            sliver = replace(sliver, h_deg=float(np.clip(th - np.median(img.dh), -40, 40)),
-                             v_deg=float(np.clip(tv - np.median(img.dv), -40, 40)))
-        out.append(sliver)
+        out.append(_aim_median(replace(fc, phi0_rad=p1), th, tv, layout, hole_m))
     return out
 
 
@@ -581,6 +630,7 @@ def read_design(path: str | os.PathLike) -> tuple[np.ndarray, Layout, dict[str, 
         lay["ring_offsets_deg"] = tuple(float(t) for t in lay.get("ring_offsets_deg", ()))
         lay["facet_shifts_deg"] = tuple((int(k), float(a), float(b))
                                         for k, a, b in lay.get("facet_shifts_deg", ()))
+        lay["wing_facets"] = tuple(int(k) for k in lay.get("wing_facets", ()))
         layout = Layout(**lay)
         x = np.asarray(rec["x"], float)
     except (OSError, ValueError, KeyError, TypeError, struct.error) as e:

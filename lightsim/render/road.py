@@ -76,6 +76,17 @@ class RoadIlluminance:
         rows = np.flatnonzero(lit.any(axis=1))
         return float(self.z_m[rows[-1]]) if rows.size else None
 
+    def extent_m(self, distance_m: float, level_lux: float = 1.0
+                 ) -> tuple[float, float] | None:
+        """Lateral extent (left, right; m, right positive) of the road lit to at least
+        ``level_lux`` lx on the grid row nearest ``distance_m`` ahead: its outermost lit
+        positions (gaps inside are not subtracted); ``None`` if none of that row is lit."""
+        row = int(np.argmin(np.abs(self.z_m - float(distance_m))))
+        lit = np.flatnonzero(np.nan_to_num(self.lux[row], nan=0.0) >= level_lux)
+        if not lit.size:
+            return None
+        return float(self.x_m[lit[0]]), float(self.x_m[lit[-1]])
+
     def reach_text(self, levels: tuple[float, ...] = REACH_LEVELS) -> str:
         """One line, e.g. ``reach 1 lx 61 m, 3 lx 42 m, 10 lx 25 m`` ("–": never
         reached; "≥ 100 m": still lit at the far end of the view)."""
