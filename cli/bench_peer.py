@@ -68,7 +68,8 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
     print_table("peer: both ratios (Mitsuba / lightsim; inner is the headline, goal ≥ 3)",
                 [{k: row.get(k) for k in ("case", "mitsuba_s", "lightsim_s", "ratio",
                                           "mitsuba_s_lit", "lightsim_s_lit", "ratio_lit",
-                                          "ls_own_err", "ls_own_within_10pct")}
+                                          "ls_own_err", "ls_stop_within_10pct",
+                                          "ls_own_err_lit", "ls_lit_within_10pct")}
                  for row in summary])
     medians = []
     for name in dict.fromkeys(r.case for r in results):

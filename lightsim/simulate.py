@@ -477,7 +477,9 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         # the figure's upper bound, √(noise² + rel_bias_upper²): a target-error stop reads
         # rel_error and allows this up to UPPER_SLACK × the target (engine/server.py)
         "rel_error_upper": None if est.error is None else est.error.upper,
-        "error_text": None if est.error is None else est.error.describe(),
+        "error_text": None if est.error is None else est.error.describe()
+        + ("" if cfg.error_region == "lit" else f" over the {cfg.error_region}"),
+        "error_region": cfg.error_region,  # the pixels the figure covers (render/region.py)
         "estimator": {"name": cfg.estimator, "k": cfg.k, "kernel": cfg.kernel,
                       "interleave": cfg.interleave, "filter": cfg.filter_n,
                       "structure": cfg.structure,

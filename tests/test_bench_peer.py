@@ -81,11 +81,17 @@ def test_summary_rows_say_where_each_figure_landed():
     runs = [peer.PeerRun("paraboloid", "mitsuba", "spp 9", 6.0, 9, 0.0195, None, 0.021),
             peer.PeerRun("paraboloid", "lightsim", "--target-error 0.02", 3.0, 10, 0.011,
                          0.0185, 0.0172)]
-    res = peer.PeerResult("paraboloid", runs, 6.0, 3.0, 2.0, True, False)
+    lit_stop = peer.PeerRun("paraboloid", "lightsim", "--target-error 0.02", 4.0, 20, 0.008,
+                            0.0196, 0.0203)
+    res = peer.PeerResult("paraboloid", [*runs, lit_stop], 6.0, 3.0, 2.0, True, False,
+                          stops={"inner": runs[1], "lit": lit_stop})
     row = peer.summary_rows([res], 0.02)[0]
     assert row["mitsuba_err"] == 0.0195 and row["mitsuba_err_lit"] == 0.021
-    assert row["ls_true_err_lit"] == 0.0172
-    assert row["ls_own_within_10pct"] is True and row["ls_lit_within_10pct"] is False
+    assert row["ls_true_err_lit"] == 0.0172  # the inner stop's map on the lit pixels
+    assert row["ls_own_within_10pct"] is True and row["ls_stop_within_10pct"] is False
+    # the lit score reads the lit stop: its figure and its true error there
+    assert row["ls_own_err_lit"] == 0.0196 and row["ls_true_err_lit_stop"] == 0.0203
+    assert row["ls_lit_within_10pct"] is True
 
 
 def test_both_tools_are_timed_on_both_scores(monkeypatch):
@@ -99,9 +105,15 @@ def test_both_tools_are_timed_on_both_scores(monkeypatch):
         return peer.PeerRun(case.name, "mitsuba", f"spp {spp}", spp / 10, spp,
                             0.2 / math.sqrt(spp), true_error_lit=0.24 / math.sqrt(spp))
 
+    stop_args = []
+
     def lightsim(case, truth, folder, target, extra_args=(), timeout=300.0, photons=None):
-        if photons is None:  # the self-stop: inner reached, lit just above the target
-            return peer.PeerRun(case.name, "lightsim", "stop", 2.0, 1000, 0.01, 0.0195,
+        if photons is None:  # the self-stops: inner reached, lit just above the target
+            stop_args.append(tuple(extra_args))
+            if "interior" in extra_args:
+                return peer.PeerRun(case.name, "lightsim", "stop", 2.0, 1000, 0.019, 0.0195,
+                                    0.03)
+            return peer.PeerRun(case.name, "lightsim", "stop", 3.0, 2000, 0.01, 0.0195,
                                 0.0205)
         e = 0.0205 * math.sqrt(1000 / photons)
         return peer.PeerRun(case.name, "lightsim", "fixed", 2.5, photons, e / 2, None, e)
@@ -113,7 +125,10 @@ def test_both_tools_are_timed_on_both_scores(monkeypatch):
     m_inner, m_lit = res.mitsuba_seconds, res.mitsuba_seconds_lit
     assert m_inner == spps[1] / 10 and m_lit == spps[-1] / 10 and m_lit > m_inner
     assert 0.24 / math.sqrt(spps[-1]) < 0.02 <= 0.24 / math.sqrt(spps[-2])
+    # each score's stop reads its own region: the interior for the inner score
+    assert stop_args == [("--error-region", "interior"), ()]
     assert res.lightsim_seconds == 2.0 and res.ratio == pytest.approx(m_inner / 2.0)
+    assert res.stopped_near_target is True  # 1.9 % inner at the interior stop
     assert res.lightsim_reached_lit is False and res.lightsim_seconds_lit is None
     assert res.ratio_lit is None  # the self-stop did not reach 2 % on the lit pixels
     assert res.lightsim_fixed_seconds_lit == 2.5  # a fixed budget did

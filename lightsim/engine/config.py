@@ -36,6 +36,7 @@ from typing import Any
 from lightsim import options
 from lightsim.errors import InputError
 from lightsim.options import option
+from lightsim.render.region import REGIONS
 
 ESTIMATORS = ("knn", "bin", "radius")
 BANDWIDTHS = ("ici", "knn")
@@ -89,6 +90,12 @@ class RunConfig:
         "pooled", "Written lux map: every set at every pixel (full resolution, honest "
         "error) or the paper's interleaved + box-filtered frame (fast, blurred).",
         flag=("--final",), choices=FINALS)
+    error_region: str = option(
+        "lit", "Pixels the error figure (and --target-error's stop) covers: lit = every "
+        "lit pixel (≥ 10 % of the map's maximum), edges included; interior = the lit "
+        "pixels deeper than 0.2 × √(lit area/π) inside the lit region's edge (a round "
+        "beam's inner 80 %; lightsim.render.region).", flag=("--error-region",),
+        choices=REGIONS)
     frame_photons: int = option(200_000, "Photons per frame (all sets).",
                                 flag=("--frame-photons",), low=1)
     structure: str = option(

@@ -68,6 +68,7 @@ from lightsim.render.frame import (
     probe_stats,
 )
 from lightsim.render.interleave import InterleavePattern
+from lightsim.render.region import Restrict, restriction
 from lightsim.scene import Scene
 from lightsim.tracer import LEDGER
 
@@ -330,7 +331,8 @@ class Session:
         probes = frames.collect("probes")
         stats = probe_stats(probes, frames.collect("window")) if probes else None
         if error is None and not self._has_ici_rungs(frames, emitted):
-            error = estimate_error(stats, self.grid_count) if stats is not None else None
+            error = (estimate_error(stats, self.grid_count, restrict=self._grid_region())
+                     if stats is not None else None)
         n = sum(emitted.values())
         return FrameResult(lux, raw, stats, None if error is None else error.total, n,
                            self.elapsed, timings, camera=cam_img, error=error, rungs=rungs,
@@ -476,7 +478,8 @@ class Session:
         rows, cols = np.divmod(np.arange(H * W), W)
         wm = ici.written_map(flat, emitted, ici.power_moment(moments),
                              self._ici_areas(rows, cols), self.config.ici_gamma,
-                             directional=self.directional_map)
+                             directional=self.directional_map,
+                             restrict=self._pixel_region())
         self.last_map_fused = wm.fused
         return wm.lux.reshape(H, W, C), wm.choice.rung.reshape(H, W), wm.error
 
@@ -491,7 +494,26 @@ class Session:
         J1 = self._ici_rungs_now(next(iter(rungs.values())).shape[0], moments)
         rungs = {s: np.asarray(v)[:J1] for s, v in rungs.items()}
         return ici.written_map(rungs, emitted, ici.power_moment(moments),
-                               self._ici_areas(rows, cols), self.config.ici_gamma).error
+                               self._ici_areas(rows, cols), self.config.ici_gamma,
+                               restrict=self._grid_region()).error
+
+    def _pixel_region(self) -> Restrict | None:
+        """The error figure's region (``config.error_region``) over the wall's pixels."""
+        if self.config.error_region == "lit":
+            return None
+        W, H = self.scene.wall.resolution
+        dh, dv = self.scene.wall.pixel_size_m
+        return restriction(self.config.error_region, (H, W), (dv, dh))
+
+    def _grid_region(self) -> Restrict | None:
+        """The error figure's region over the grid probes (:func:`probe_grid`: a regular
+        raster of cell centres over the wall, in row order)."""
+        if self.config.error_region == "lit":
+            return None
+        wall = self.scene.wall
+        nh, nv = self.config.probe_grid
+        cell = (float(np.ptp(wall.v_range_m)) / nv, float(np.ptp(wall.h_range_m)) / nh)
+        return restriction(self.config.error_region, (nv, nh), cell)
 
     def probe(self, points_hv: np.ndarray) -> ProbeStats:
         """Estimates of every set at wall points (h, v in m): mean, standard error, values."""

@@ -36,6 +36,7 @@ parameter              unit   default   meaning
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -174,12 +175,15 @@ def _mean_over_sets(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return values.mean(axis=0), values.std(axis=0, ddof=1) / math.sqrt(values.shape[0])
 
 
-def estimate_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1
+def estimate_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1,
+                   restrict: Callable[[np.ndarray], np.ndarray] | None = None
                    ) -> ErrorEstimate | None:
     """Noise and blur bias over the lit probes of the grid (see module docstring).
 
     Only the first ``grid_count`` probes (the regular grid) count; extra probes (test
-    points) would bias the average. ``None`` when nothing is lit or with one set.
+    points) would bias the average. ``restrict``: the figure's region within the lit
+    probes (:func:`lightsim.render.region.restriction`; None: every lit probe). ``None``
+    when nothing is lit or with one set.
     """
     if stats.n_sets < 2:
         return None
@@ -194,6 +198,8 @@ def estimate_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1
     # lit: by the unbiased window means where there are any, as the blur spreads the
     # estimate beyond a bright edge onto probes the truth leaves dark
     lit = (m if windows is None else windows.mean(axis=0)) >= lit_fraction * m.max()
+    if restrict is not None:
+        lit = restrict(lit)
     if not lit.any():
         return None
     mean_lit = float(np.mean(m[lit]))

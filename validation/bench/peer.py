@@ -21,8 +21,11 @@ self-stopping run counts for a score when its true error there is below the targ
   process and is reported. Knowing the right spp
   in advance favours Mitsuba; lightsim has to find its stopping point itself.
 * **lightsim**: ``lightsim simulate SCENE.glb --target-error T`` (the scene written as
-  glTF) stops by itself; reported are its time, its own error estimate at the stop and
-  the true error of the map it wrote (``wall_lux.exr``). With ``ladder`` it then runs
+  glTF) stops by itself, once per score with its figure over that score's region
+  (:data:`REGION_ARGS`: ``--error-region interior`` — the lit pixels 0.2 × √(A/π) inside
+  the beam's edge, a round beam's inner 80 % — for the inner score, the lit pixels for
+  the lit one); reported are its time, its own error estimate at the stop and the true
+  error of the map it wrote (``wall_lux.exr``). With ``ladder`` it then runs
   fixed ``--photons N`` budgets (N from the 1/√N law) until the true error is below the
   target on each score: what a stop at the true target would cost, next to where it did
   stop.
@@ -88,6 +91,9 @@ CAMERA_DISTANCE = 0.1  # m: Mitsuba's camera in front of the wall (clear of all 
 LIT_FRACTION = 0.1
 #: the two scores every run is timed on: the issue's (headline) and the lit pixels
 SCORES = ("inner", "lit")
+#: lightsim's stop per score: its error figure over the beam's interior (the lit pixels
+#: 0.2 × √(A/π) inside the edge: the inner 80 % of a round beam) or over the lit pixels
+REGION_ARGS = {"inner": ("--error-region", "interior"), "lit": ()}
 
 
 # =========================================================================== Mitsuba setup
@@ -360,6 +366,8 @@ class PeerResult:
     lightsim_reached_lit: bool | None = None
     lightsim_fixed_seconds_lit: float | None = None
     ratio_fixed_lit: float | None = None
+    #: lightsim's self-stopping run of each score (``--error-region`` of REGION_ARGS)
+    stops: dict[str, PeerRun] = field(default_factory=dict)
 
 
 def run_case(name: str, *, target: float = 0.02, resolution: int = 64, spp0: int = 4,
@@ -399,26 +407,34 @@ def run_case(name: str, *, target: float = 0.02, resolution: int = 64, spp0: int
                 # target (3 %), so that Mitsuba's time is that of about the target error
                 err = r.score(next(k for k in SCORES if t_m[k] is None))
                 spp = max(spp + 1, math.ceil(spp * (err / (0.97 * target)) ** 2))
-        lr = run_lightsim(case, truth, work, target, lightsim_args, timeout=max_seconds)
-        runs.append(lr)
-        if progress:
-            progress(f"{name}: lightsim: {lr.seconds:.1f} s, own error {lr.own_error}, "
-                     f"true {lr.true_error:.4f} (lit {lr.score('lit'):.4f}) {lr.note}")
+        # one self-stopping run per score, its figure over that score's region
+        stops: dict[str, PeerRun] = {}
+        for k in SCORES:
+            lr = run_lightsim(case, truth, work, target, [*REGION_ARGS[k], *lightsim_args],
+                              timeout=max_seconds)
+            runs.append(lr)
+            stops[k] = lr
+            if progress:
+                progress(f"{name}: lightsim ({k} stop): {lr.seconds:.1f} s, own error "
+                         f"{lr.own_error}, true {lr.true_error:.4f} "
+                         f"(lit {lr.score('lit'):.4f}) {lr.note}")
         t_fixed: dict[str, float | None] = dict.fromkeys(SCORES)
-        if ladder and lr.ok and lr.paths > 0:
+        if ladder:
             for k in SCORES:
-                t_fixed[k] = _ladder(case, truth, work, target, lightsim_args, max_seconds,
-                                     lr, k, runs, progress)
-    reached = {k: (bool(lr.score(k) < target) if lr.ok else None) for k in SCORES}
-    t_l = {k: lr.seconds if reached[k] else None for k in SCORES}
+                if stops[k].ok and stops[k].paths > 0:
+                    t_fixed[k] = _ladder(case, truth, work, target, lightsim_args,
+                                         max_seconds, stops[k], k, runs, progress)
+    reached = {k: (bool(stops[k].score(k) < target) if stops[k].ok else None)
+               for k in SCORES}
+    t_l = {k: stops[k].seconds if reached[k] else None for k in SCORES}
     ratio = {k: t_m[k] / t_l[k] if (t_m[k] is not None and t_l[k]) else None for k in SCORES}
     ratio_fixed = {k: t_m[k] / t_fixed[k] if (t_m[k] is not None and t_fixed[k]) else None
                    for k in SCORES}
-    near = _near(lr.true_error, target, lr.ok)
+    near = _near(stops["inner"].true_error, target, stops["inner"].ok)
     return PeerResult(name, runs, t_m["inner"], t_l["inner"], ratio["inner"],
                       reached["inner"], near, t_fixed["inner"], ratio_fixed["inner"],
                       t_m["lit"], t_l["lit"], ratio["lit"], reached["lit"], t_fixed["lit"],
-                      ratio_fixed["lit"])
+                      ratio_fixed["lit"], stops)
 
 
 def _ladder(case: an.AnalyticScene, truth: Truth, work: Path, target: float,
@@ -469,7 +485,7 @@ def summary_rows(results: Sequence[PeerResult], target: float) -> list[dict[str,
     over the inner pixels, ``ls_lit_within_10pct`` over the lit ones."""
     rows = []
     for res in results:
-        lr = next(r for r in res.runs if r.tool == "lightsim")
+        lr, ll = res.stops["inner"], res.stops["lit"]
         mr = next((r for r in res.runs if r.tool == "mitsuba" and r.ok
                    and r.seconds == res.mitsuba_seconds), None)
 
@@ -482,7 +498,9 @@ def summary_rows(results: Sequence[PeerResult], target: float) -> list[dict[str,
                      "ls_true_below": res.lightsim_reached,
                      "ls_own_within_10pct": _near(lr.own_error, target, lr.ok),
                      "ls_stop_within_10pct": res.stopped_near_target,
-                     "ls_lit_within_10pct": _near(lr.true_error_lit, target, lr.ok),
+                     "ls_lit_within_10pct": _near(ll.true_error_lit, target, ll.ok),
+                     "ls_own_err_lit": ll.own_error,
+                     "ls_true_err_lit_stop": ll.true_error_lit,
                      "ls_fixed_s": res.lightsim_fixed_seconds,
                      "ratio_vs_fixed": res.ratio_fixed,
                      "mitsuba_s_lit": res.mitsuba_seconds_lit,

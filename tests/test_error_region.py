@@ -1,0 +1,88 @@
+"""The error figure over the beam's interior (``--error-region interior``,
+lightsim.render.region): the distance transform against scipy's, the interior of a round
+beam, the fall-backs, and the figure's honesty against the exact paraboloid."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import distance_transform_edt
+
+from lightsim.engine.config import RunConfig
+from lightsim.engine.server import Session
+from lightsim.errors import InputError
+from lightsim.render.region import _squared_depth, interior, restriction
+
+
+@pytest.mark.parametrize("shape,cell", [((64, 64), (1.0, 1.0)), ((33, 70), (0.3, 1.7)),
+                                        ((7, 1), (1.0, 1.0)), ((1, 9), (2.0, 2.0)),
+                                        ((20, 31), (1.0, 4.0))])
+def test_distance_transform_is_scipys(shape, cell):
+    rng = np.random.default_rng(3)
+    for frac in (0.01, 0.3, 0.95):
+        unlit = rng.random(shape) < frac
+        unlit.flat[rng.integers(unlit.size)] = True  # at least one
+        d2 = _squared_depth(unlit, *cell)
+        ref = distance_transform_edt(~unlit, sampling=cell)
+        np.testing.assert_allclose(np.sqrt(d2), ref, rtol=1e-12, atol=1e-12)
+
+
+def _disc(n: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    c = np.arange(n) + 0.5 - n / 2
+    r = np.hypot(*np.meshgrid(c, c))
+    return (r < radius).ravel(), r.ravel()
+
+
+@pytest.mark.parametrize("scale", [1e-30, 1.0, 1e30])
+def test_interior_of_a_round_beam_is_its_inner_80_percent(scale):
+    lit, r = _disc(64, 25.0)
+    got = interior(lit, (64, 64), (scale, scale))
+    inner = r < 0.8 * 25.0
+    assert got.sum() > 0 and not (got & ~lit).any()
+    # within one pixel ring of r < 0.8 R (2π·20 ≈ 126 pixels in that ring)
+    assert (got ^ inner).sum() <= 0.5 * 2 * np.pi * 20
+    assert r[got].max() <= 0.8 * 25 + 1.0 and r[lit & ~got].min() >= 0.8 * 25 - 1.0
+
+
+def test_interior_fall_backs_and_the_wall_border():
+    for mask in (np.zeros(256, bool), np.ones(256, bool)):  # nothing unlit / nothing lit
+        np.testing.assert_array_equal(interior(mask, (16, 16), (1.0, 1.0)), mask)
+    line = np.zeros((16, 16), bool)
+    line[:, 7:9] = True  # two cells wide: nothing 0.2 R_eq deep → every lit cell
+    np.testing.assert_array_equal(interior(line.ravel(), (16, 16), (1.0, 1.0)), line.ravel())
+    # a beam cut by the wall: the border is no edge, only the dark side is
+    half = np.zeros((20, 40), bool)
+    half[:, :30] = True
+    got = interior(half.ravel(), (20, 40), (1.0, 1.0)).reshape(20, 40)
+    depth = 0.2 * np.sqrt(half.sum() / np.pi)
+    assert got[:, 0].all() and got[0, :20].all()  # the wall's edges stay interior
+    assert not got[:, 30 - int(np.ceil(depth)):].any()
+    with pytest.raises(ValueError, match="lit flags"):
+        interior(np.ones(5, bool), (2, 2), (1.0, 1.0))
+    assert restriction("lit", (2, 2), (1.0, 1.0)) is None
+    with pytest.raises(ValueError, match="error region"):
+        restriction("rim", (2, 2), (1.0, 1.0))
+    with pytest.raises(InputError):
+        RunConfig(error_region="rim")
+
+
+def test_interior_figure_is_honest_on_the_paraboloid():
+    """The written map's figure over the interior against the exact pixel means over the
+    inner 80 % of the beam (the peer bench's score), and the lit figure against the lit
+    pixels, from the same photons: each reads its own region's true error."""
+    from lightsim.validation.bench.peer import CASES, truth_of
+
+    case = CASES["paraboloid"](64)
+    truth = truth_of(case)
+    got = {}
+    for region in ("lit", "interior"):
+        session = Session(case.scene, RunConfig(seed=4, error_region=region))
+        est = session.run(photons=600_000, probes=False)
+        lux = est.lux[..., 0]
+        got[region] = (est.error.total, truth.error(lux, "inner" if region == "interior"
+                                                    else "lit"))
+        session.close()
+    for region, (figure, actual) in got.items():
+        assert 0.75 * actual <= figure <= 1.5 * actual, (region, figure, actual)
+    # the map is the same (chosen on the lit pixels); the interior is its better part
+    assert got["interior"][0] < 0.8 * got["lit"][0]
