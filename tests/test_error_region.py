@@ -11,7 +11,8 @@ from scipy.ndimage import distance_transform_edt
 from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
-from lightsim.render.region import _squared_depth, interior, restriction
+from lightsim.render.edt import squared_distance
+from lightsim.render.region import interior, restriction
 
 
 @pytest.mark.parametrize("shape,cell", [((64, 64), (1.0, 1.0)), ((33, 70), (0.3, 1.7)),
@@ -22,7 +23,7 @@ def test_distance_transform_is_scipys(shape, cell):
     for frac in (0.01, 0.3, 0.95):
         unlit = rng.random(shape) < frac
         unlit.flat[rng.integers(unlit.size)] = True  # at least one
-        d2 = _squared_depth(unlit, *cell)
+        d2 = squared_distance(unlit, *cell)
         ref = distance_transform_edt(~unlit, sampling=cell)
         np.testing.assert_allclose(np.sqrt(d2), ref, rtol=1e-12, atol=1e-12)
 

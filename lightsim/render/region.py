@@ -17,7 +17,8 @@ parameter     unit  default  meaning
 
 The queries are the cells of a raster (the wall's pixels, or the grid probes), in row
 order. A lit cell's depth is its distance to the nearest unlit cell centre (an exact
-Euclidean distance transform, Felzenszwalb & Huttenlocher's two 1-D passes, cells of
+Euclidean distance transform, Felzenszwalb & Huttenlocher's two 1-D passes,
+:mod:`lightsim.render.edt`, cells of
 any aspect) less half a cell: the edge lies between the two centres. The wall's own
 border is not an edge (a beam cut by the wall continues beyond it). Where no cell is that
 deep (a beam a few cells wide) the interior falls back to every lit cell: the figure then
@@ -30,74 +31,12 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from numba import njit
 
 REGIONS = ("lit", "interior")
 INSET = 0.2
-_FAR = 1e300  # squared distance of a cell with no unlit cell in its row/column pass
 
 #: a lit mask (Q,) bool → the mask the figure reads (Q,) bool
 Restrict = Callable[[np.ndarray], np.ndarray]
-
-
-@njit(cache=True, nogil=True)
-def _dt_1d(f: np.ndarray, step: float, out: np.ndarray, v: np.ndarray, z: np.ndarray) -> None:
-    """Squared distance transform of one line: out[q] = min_p ((q − p)·step)² + f[p]
-    (the lower envelope of parabolas; ``v``, ``z`` are work arrays of n and n + 1)."""
-    n = f.shape[0]
-    k = 0
-    v[0] = 0
-    z[0] = -np.inf
-    z[1] = np.inf
-    for q in range(1, n):
-        xq = q * step
-        while True:
-            xp = v[k] * step
-            s = ((f[q] + xq * xq) - (f[v[k]] + xp * xp)) / (2.0 * (xq - xp))
-            if s <= z[k] and k > 0:
-                k -= 1
-                continue
-            break
-        if s <= z[k]:  # k == 0: parabola q lies below parabola v[0] everywhere left of it
-            v[0] = q
-            z[1] = np.inf
-            continue
-        k += 1
-        v[k] = q
-        z[k] = s
-        z[k + 1] = np.inf
-    k = 0
-    for q in range(n):
-        xq = q * step
-        while z[k + 1] < xq:
-            k += 1
-        d = xq - v[k] * step
-        out[q] = d * d + f[v[k]]
-
-
-@njit(cache=True, nogil=True)
-def _squared_depth(unlit: np.ndarray, dv: float, dh: float) -> np.ndarray:
-    """(H, W) squared distance (m²) from every cell centre to the nearest unlit one
-    (rows ``dv`` apart, columns ``dh``); ≥ :data:`_FAR` where there is none."""
-    H, W = unlit.shape
-    g = np.empty((H, W))
-    n = max(H, W)
-    f = np.empty(n)
-    out = np.empty(n)
-    v = np.empty(n, np.int64)
-    z = np.empty(n + 1)
-    for c in range(W):  # down every column
-        for r in range(H):
-            f[r] = 0.0 if unlit[r, c] else _FAR
-        _dt_1d(f[:H], dv, out[:H], v[:H], z[:H + 1])
-        for r in range(H):
-            g[r, c] = out[r]
-    d2 = np.empty((H, W))
-    for r in range(H):  # then along every row
-        _dt_1d(g[r], dh, out[:W], v[:W], z[:W + 1])
-        for c in range(W):
-            d2[r, c] = out[c]
-    return d2
 
 
 def interior(lit: np.ndarray, shape: tuple[int, int], cell: tuple[float, float],
@@ -128,9 +67,11 @@ def interior(lit: np.ndarray, shape: tuple[int, int], cell: tuple[float, float],
     n_lit = int(lit.sum())
     if n_lit == 0 or n_lit == lit.size or not (dv > 0 and dh > 0):
         return lit.copy()
+    from lightsim.render.edt import squared_distance  # numba: only when asked for
+
     # in cell units of the finer side, so that 1e-30 m or 1e30 m pixels square alike
     unit = min(dv, dh)
-    d2 = _squared_depth(~lit.reshape(H, W), dv / unit, dh / unit).reshape(-1)
+    d2 = squared_distance(~lit.reshape(H, W), dv / unit, dh / unit).reshape(-1)
     r_eq = math.sqrt(n_lit * (dv / unit) * (dh / unit) / math.pi)
     depth = np.sqrt(d2) - 0.5 * math.sqrt((dv / unit) * (dh / unit))
     out = lit & (depth >= inset * r_eq)
