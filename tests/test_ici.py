@@ -30,6 +30,24 @@ def test_window_sums_match_brute_force_and_clip_at_the_wall():
     assert np.allclose(sums[0], sub.reshape(H, 2, W, 2, C).sum(axis=(1, 3)).reshape(-1, C))
 
 
+@pytest.mark.parametrize("H,W,C", [(7, 9, 2), (1, 1, 1), (16, 40, 3), (3, 1, 1)])
+def test_raster_window_sums_are_numpys_bit_for_bit(H, W, C):
+    """The compiled pass over every pixel against the summed-area table NumPy builds for
+    any query list (the same geometry with the raster flag off)."""
+    rng = np.random.default_rng(H * W)
+    sub = rng.random((2 * H, 2 * W, C)) * 10.0 ** rng.integers(-30, 30, (2 * H, 2 * W, C))
+    rows, cols = np.divmod(np.arange(H * W), W)
+    sides = np.array([1, 2, 3, 5])
+    geometry = ici.WindowGeometry.of(H, W, rows, cols, sides)
+    assert geometry.raster
+    fast, cells = ici.window_sums(sub, rows, cols, sides, geometry)
+    slow, cells_slow = ici.window_sums(sub, rows, cols, sides,
+                                       ici.WindowGeometry(geometry.bounds, geometry.cells))
+    np.testing.assert_array_equal(fast, slow)
+    np.testing.assert_array_equal(cells, cells_slow)
+    assert not ici.WindowGeometry.of(H, W, rows[::-1], cols[::-1], sides).raster or H * W == 1
+
+
 def test_lattice_index_puts_pixel_centres_on_cell_corners():
     _, frame = make_wall(25.0, (2.0, 1.0), resolution=(4, 2))
     # pixel (row 0, col 0) spans h ∈ [−1, −0.5), v ∈ (0, 0.5]; its centre (−0.75, 0.25)
