@@ -299,7 +299,10 @@ def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     """
     order = sorted(rungs)
     w = _weights(emitted, order)
-    pooled = np.tensordot(w, _stack64(rungs, order), 1)
+    # the weighted sum set by set: no (S, J+1, Q, C) float64 stack (105 MB at 640 × 256)
+    pooled = np.zeros(np.asarray(rungs[order[0]]).shape)
+    for wi, s in zip(w, order, strict=True):
+        pooled += wi * np.asarray(rungs[s], np.float64)
     areas = np.asarray(areas, dtype=np.float64)[:pooled.shape[0]]
     n = sum(emitted[s] for s in order)
     E = luminous(pooled.reshape(-1, pooled.shape[-1])).reshape(pooled.shape[:2])  # (J+1, Q)
