@@ -87,3 +87,24 @@ def test_interior_figure_is_honest_on_the_paraboloid():
         assert 0.75 * actual <= figure <= 1.5 * actual, (region, figure, actual)
     # the map is the same (chosen on the lit pixels); the interior is its better part
     assert got["interior"][0] < 0.8 * got["lit"][0]
+
+
+@pytest.mark.parametrize("estimator", ["knn", "bin"])
+def test_probe_figure_reads_the_interior_too(estimator):
+    """On a wall too large for the map check at every estimate the run's figures come
+    from the grid probes (ICI rungs there, or the kNN/bin probe estimates): the interior
+    is taken on the probe raster, and its figure is below the lit one."""
+    from lightsim.validation.bench.peer import CASES
+
+    case = CASES["paraboloid"](128)  # 128 × 128 pixels > 4 per grid probe
+    figures = {}
+    for region in ("lit", "interior"):
+        session = Session(case.scene, RunConfig(seed=2, error_region=region,
+                                                estimator=estimator))
+        assert not session.map_check_is_cheap()
+        session.shoot(400_000)
+        est = session.estimate_at_probes()
+        figures[region] = est.error.total
+        session.close()
+    assert all(np.isfinite(v) and v > 0 for v in figures.values())
+    assert figures["interior"] < figures["lit"]
