@@ -117,6 +117,9 @@ def _resolution(text: str) -> tuple[int, int]:
               help="Photons of the aim step (before each model round and twice at the end: "
                    "every facet moves by the aim correction a 320x128 run's cut-off asks "
                    "for, so the lamp needs no --aim; 0: no aim step).")
+@click.option("--aim-rounds/--no-aim-rounds", default=True, show_default=True,
+              help="Aim step also before each model round (--no-aim-rounds: only the two "
+                   "final ones; the rounds keep the model finder's own cut-off).")
 @click.option("--remeasure/--no-remeasure", default=True, show_default=True,
               help="Re-simulate each model round's lamp and keep its shifts (halved up to "
                    "twice) only if J got better.")
@@ -132,7 +135,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            model_safety: float, ring_offsets: str | None, continue_from: str | None,
            foreground: float, foreground_share: float, shaded_spread: float,
            shaded_drop: float, wing_facets: str, wing_deg: float, wing_drop: float,
-           aim_photons: int,
+           aim_photons: int, aim_rounds: bool,
            remeasure: bool, model_smooth: float, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
@@ -226,6 +229,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          interval_photons=interval_photons, model_safety=model_safety,
                          first_round=first_round, foreground_m=foreground,
                          aim_photons=aim_photons, remeasure_steps=remeasure,
+                         aim_rounds=aim_rounds,
                          model_smooth_px=model_smooth)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),

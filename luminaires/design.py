@@ -107,6 +107,9 @@ wing_facets       –      ()           ``Layout``: main facets re-aimed to the 
                                       2.5°), ``wing_drop_deg`` under v0 (16.5°, 2.5°)
 aim_photons       –      0 (CLI 4 M)  photons of the whole-lamp aim step (320×128,
                                       before each model round and twice at the end)
+aim_rounds        –      True         also aim before each model round (False: only
+                                      at the end; the rounds' aim term is the model
+                                      finder's own, as before the aim step existed)
 remeasure_steps   –      True         keep a model round's shifts (× 1, ½, ¼) only if
                                       the re-simulated lamp's J is below the start's
 model_smooth_px   px     0            Gaussian σ on every footprint
@@ -865,8 +868,8 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    note: Callable[[str], None] | None = None,
                    foreground_m: float = 0.0, aim_photons: int = 0,
                    aim_resolution: tuple[int, int] = (320, 128),
-                   remeasure_steps: bool = True, model_smooth_px: float = 0.0
-                   ) -> DesignResult:
+                   remeasure_steps: bool = True, model_smooth_px: float = 0.0,
+                   aim_rounds: bool = True) -> DesignResult:
     """Optimise the facet layout against ``regulation`` (one rule set id or several,
     comma-separated; see the module docstring).
 
@@ -997,7 +1000,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
             best = {"j": math.nan, "x": [float(t) for t in x], "terms": []}
             for rnd in range(first_round, first_round + model_rounds):
                 aim_dv = math.nan
-                if aim_photons > 0:
+                if aim_photons > 0 and aim_rounds:
                     layout, aim_dv = aim_step(layout)
                     if note is not None:
                         note(f"round {rnd}: aim step {aim_dv:+.3f}° (every facet)")
@@ -1006,7 +1009,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                                            residual_factor=4, progress=note,
                                            smooth_px=model_smooth_px)
                 aim_off = None
-                if aim_photons > 0:
+                if aim_photons > 0 and aim_rounds:
                     # after the aim step the check run's cut-off sits at 0.57° D: the
                     # model's aim term asks to keep it there, in the model finder's terms
                     from lightsim.render.cutoff import find_cutoff

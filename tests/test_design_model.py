@@ -132,6 +132,21 @@ def test_design_with_the_model_optimiser_writes_the_shifts(tmp_path):
         design_lowbeam("r112-b-passing", layout=LAYOUT, optimiser="annealing")
 
 
+@pytest.mark.parametrize("aim_rounds", [True, False])
+def test_aim_rounds_off_aims_only_at_the_end(aim_rounds):
+    out = design_lowbeam("r112-b-passing", layout=LAYOUT, photons=20_000,
+                         resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
+                         model_photons=30_000, model_resolution=(40, 64),
+                         model_evaluations=20, calibrate=False, aim_photons=40_000,
+                         aim_resolution=(80, 32), aim_rounds=aim_rounds)
+    rounds = [m for m in out.model if m["round"] != "aim"]
+    finals = [m for m in out.model if m["round"] == "aim"]
+    assert len(rounds) == 1 and 1 <= len(finals) <= 2
+    # the round's own aim step happens only with aim_rounds; the final ones always
+    assert (rounds[0]["aim_step_deg"] is not None) == aim_rounds
+    assert all(np.isfinite(m["aim_step_deg"]) for m in finals)
+
+
 def test_design_record_round_trips_through_the_glb(tmp_path):
     from lightsim.luminaires.design import read_design
 
