@@ -58,6 +58,8 @@ def _resolution(text: str) -> tuple[int, int]:
               help="Relative margin asked beyond every limit.")
 @click.option("--reach", type=float, default=25.0, show_default=True,
               help="1 lx road reach asked for, m (lamp 0.65 m high).")
+@click.option("--reach-weight", type=float, default=1.0, show_default=True,
+              help="Weight of the reach term in J (its hinge² × this; 1: as every rule).")
 @click_option(lookup(SimulateOptions, "traffic"))
 @click.option("--out", "check_dir", type=click.Path(file_okay=False), default="design-check",
               show_default=True, help="Folder of the final check run.")
@@ -129,7 +131,8 @@ def _resolution(text: str) -> tuple[int, int]:
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
            resolution: str, validate_factor: int, check_photons: int, seed: int,
-           safety: float, reach: float, traffic: str, check_dir: str, start: str | None,
+           safety: float, reach: float, reach_weight: float, traffic: str, check_dir: str,
+           start: str | None,
            sign_share: float, optimiser: str, model_rounds: int, model_photons: int,
            model_resolution: str, model_evaluations: int, interval_photons: int,
            model_safety: float, ring_offsets: str | None, continue_from: str | None,
@@ -229,7 +232,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          interval_photons=interval_photons, model_safety=model_safety,
                          first_round=first_round, foreground_m=foreground,
                          aim_photons=aim_photons, remeasure_steps=remeasure,
-                         aim_rounds=aim_rounds,
+                         aim_rounds=aim_rounds, reach_weight=reach_weight,
                          model_smooth_px=model_smooth)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),

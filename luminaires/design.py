@@ -702,8 +702,8 @@ def smoothness(lux: np.ndarray, frame: Any, sigma_deg: float = 1.0) -> float:
 
 
 def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety: float,
-                    reach_m: float, smooth_max: float, foreground_m: float = 0.0
-                    ) -> list[Term]:
+                    reach_m: float, smooth_max: float, foreground_m: float = 0.0,
+                    reach_weight: float = 1.0) -> list[Term]:
     """All terms of J for one simulated lamp (see the module docstring)."""
     from lightsim.render.road import road_illuminance_from
     from lightsim.wall import sample_wall
@@ -731,7 +731,7 @@ def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety:
                                  (-15.0, 15.0), (0.0, 100.0), 0.5)
     reach = road.reach_m(1.0) or 0.5
     m = math.log(reach / reach_m)
-    terms.append(Term("reach 1 lx", m, _hinge(m), reach, f"≥ {reach_m:g} m"))
+    terms.append(Term("reach 1 lx", m, reach_weight * _hinge(m), reach, f"≥ {reach_m:g} m"))
     if foreground_m > 0:
         terms.append(foreground_term(lambda h, v: sample_wall(lux, frame, h, v - dv),
                                      foreground_m, safety))
@@ -869,7 +869,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    foreground_m: float = 0.0, aim_photons: int = 0,
                    aim_resolution: tuple[int, int] = (320, 128),
                    remeasure_steps: bool = True, model_smooth_px: float = 0.0,
-                   aim_rounds: bool = True) -> DesignResult:
+                   aim_rounds: bool = True, reach_weight: float = 1.0) -> DesignResult:
     """Optimise the facet layout against ``regulation`` (one rule set id or several,
     comma-separated; see the module docstring).
 
@@ -907,7 +907,10 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
     lo_b = np.array([b[0] for b in bounds(layout)])
     hi_b = np.array([b[1] for b in bounds(layout)])
     x = np.clip(np.asarray(start_vector(layout) if x0 is None else x0, float), lo_b, hi_b)
-    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, foreground_m=foreground_m)
+    if not (math.isfinite(reach_weight) and reach_weight >= 0):
+        raise InputError(f"--reach-weight must be ≥ 0, got {reach_weight}")
+    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, foreground_m=foreground_m,
+              reach_weight=reach_weight)
     if (aim_photons < 0 or foreground_m < 0 or not math.isfinite(foreground_m)
             or not (math.isfinite(model_smooth_px) and 0 <= model_smooth_px <= 20)):
         raise InputError("--aim-photons and --foreground must be ≥ 0, --model-smooth 0–20")
@@ -996,6 +999,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
             noise = (NOISE_CD * math.sqrt(NOISE_PHOTONS / interval_photons)
                      if interval_photons > 0 else 0.0)
             mkw = dict(safety=model_safety, reach_m=reach_m, smooth_max=smooth_max,
+                       reach_weight=reach_weight,
                        noise_cd=noise, foreground_m=foreground_m)
             best = {"j": math.nan, "x": [float(t) for t in x], "terms": []}
             for rnd in range(first_round, first_round + model_rounds):
@@ -1031,7 +1035,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                                       reach_m=reach_m, smooth_max=smooth_max,
                                       evaluations=model_evaluations, progress=shown,
                                       noise_cd=noise, foreground_m=foreground_m,
-                                      aim_offset_deg=aim_off)
+                                      aim_offset_deg=aim_off, reach_weight=reach_weight)
                 # trust region: the round's shifts are kept only if the re-simulated lamp
                 # (same seed and photons as the model's reference, so the comparison is
                 # noise-fair) is better than the round's start; else halve them
