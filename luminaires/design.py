@@ -87,6 +87,7 @@ rounds            –      2            rounds (each with its own photon seed)
 seed              –      1            photon seed of round 0
 safety            –      0.10         relative margin asked beyond every limit
 reach_m           m      25           1 lx road reach asked for (lamp 0.65 m high)
+reach_weight      –      1            weight of the reach term in J
 smooth_max        –      2.0          largest allowed lux / Gaussian-smoothed lux (σ 1°)
 validate_factor   –      4            photons of the fresh-seed validation run ÷ photons
 optimiser         –      simulator    ``"model"`` (CLI default) or ``"simulator"``
