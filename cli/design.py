@@ -58,6 +58,8 @@ def _resolution(text: str) -> tuple[int, int]:
               help="Relative margin asked beyond every limit.")
 @click.option("--reach", type=float, default=25.0, show_default=True,
               help="1 lx road reach asked for, m (lamp 0.65 m high).")
+@click.option("--reach-weight", type=float, default=1.0, show_default=True,
+              help="Weight of the reach term in J (its hinge² × this; 1: as every rule).")
 @click_option(lookup(SimulateOptions, "traffic"))
 @click.option("--out", "check_dir", type=click.Path(file_okay=False), default="design-check",
               show_default=True, help="Folder of the final check run.")
@@ -117,6 +119,9 @@ def _resolution(text: str) -> tuple[int, int]:
               help="Photons of the aim step (before each model round and twice at the end: "
                    "every facet moves by the aim correction a 320x128 run's cut-off asks "
                    "for, so the lamp needs no --aim; 0: no aim step).")
+@click.option("--aim-rounds/--no-aim-rounds", default=True, show_default=True,
+              help="Aim step also before each model round (--no-aim-rounds: only the two "
+                   "final ones; the rounds keep the model finder's own cut-off).")
 @click.option("--remeasure/--no-remeasure", default=True, show_default=True,
               help="Re-simulate each model round's lamp and keep its shifts (halved up to "
                    "twice) only if J got better.")
@@ -126,13 +131,14 @@ def _resolution(text: str) -> tuple[int, int]:
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
            resolution: str, validate_factor: int, check_photons: int, seed: int,
-           safety: float, reach: float, traffic: str, check_dir: str, start: str | None,
+           safety: float, reach: float, reach_weight: float, traffic: str, check_dir: str,
+           start: str | None,
            sign_share: float, optimiser: str, model_rounds: int, model_photons: int,
            model_resolution: str, model_evaluations: int, interval_photons: int,
            model_safety: float, ring_offsets: str | None, continue_from: str | None,
            foreground: float, foreground_share: float, shaded_spread: float,
            shaded_drop: float, wing_facets: str, wing_deg: float, wing_drop: float,
-           aim_photons: int,
+           aim_photons: int, aim_rounds: bool,
            remeasure: bool, model_smooth: float, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
@@ -226,6 +232,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                          interval_photons=interval_photons, model_safety=model_safety,
                          first_round=first_round, foreground_m=foreground,
                          aim_photons=aim_photons, remeasure_steps=remeasure,
+                         aim_rounds=aim_rounds, reach_weight=reach_weight,
                          model_smooth_px=model_smooth)
     info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
             "photons": photons, "resolution": list(res), "evaluations": len(out.history),

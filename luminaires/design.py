@@ -87,6 +87,7 @@ rounds            –      2            rounds (each with its own photon seed)
 seed              –      1            photon seed of round 0
 safety            –      0.10         relative margin asked beyond every limit
 reach_m           m      25           1 lx road reach asked for (lamp 0.65 m high)
+reach_weight      –      1            weight of the reach term in J
 smooth_max        –      2.0          largest allowed lux / Gaussian-smoothed lux (σ 1°)
 validate_factor   –      4            photons of the fresh-seed validation run ÷ photons
 optimiser         –      simulator    ``"model"`` (CLI default) or ``"simulator"``
@@ -107,6 +108,9 @@ wing_facets       –      ()           ``Layout``: main facets re-aimed to the 
                                       2.5°), ``wing_drop_deg`` under v0 (16.5°, 2.5°)
 aim_photons       –      0 (CLI 4 M)  photons of the whole-lamp aim step (320×128,
                                       before each model round and twice at the end)
+aim_rounds        –      True         also aim before each model round (False: only
+                                      at the end; the rounds' aim term is the model
+                                      finder's own, as before the aim step existed)
 remeasure_steps   –      True         keep a model round's shifts (× 1, ½, ¼) only if
                                       the re-simulated lamp's J is below the start's
 model_smooth_px   px     0            Gaussian σ on every footprint
@@ -699,8 +703,8 @@ def smoothness(lux: np.ndarray, frame: Any, sigma_deg: float = 1.0) -> float:
 
 
 def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety: float,
-                    reach_m: float, smooth_max: float, foreground_m: float = 0.0
-                    ) -> list[Term]:
+                    reach_m: float, smooth_max: float, foreground_m: float = 0.0,
+                    reach_weight: float = 1.0) -> list[Term]:
     """All terms of J for one simulated lamp (see the module docstring)."""
     from lightsim.render.road import road_illuminance_from
     from lightsim.wall import sample_wall
@@ -728,7 +732,7 @@ def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety:
                                  (-15.0, 15.0), (0.0, 100.0), 0.5)
     reach = road.reach_m(1.0) or 0.5
     m = math.log(reach / reach_m)
-    terms.append(Term("reach 1 lx", m, _hinge(m), reach, f"≥ {reach_m:g} m"))
+    terms.append(Term("reach 1 lx", m, reach_weight * _hinge(m), reach, f"≥ {reach_m:g} m"))
     if foreground_m > 0:
         terms.append(foreground_term(lambda h, v: sample_wall(lux, frame, h, v - dv),
                                      foreground_m, safety))
@@ -865,8 +869,8 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    note: Callable[[str], None] | None = None,
                    foreground_m: float = 0.0, aim_photons: int = 0,
                    aim_resolution: tuple[int, int] = (320, 128),
-                   remeasure_steps: bool = True, model_smooth_px: float = 0.0
-                   ) -> DesignResult:
+                   remeasure_steps: bool = True, model_smooth_px: float = 0.0,
+                   aim_rounds: bool = True, reach_weight: float = 1.0) -> DesignResult:
     """Optimise the facet layout against ``regulation`` (one rule set id or several,
     comma-separated; see the module docstring).
 
@@ -904,7 +908,10 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
     lo_b = np.array([b[0] for b in bounds(layout)])
     hi_b = np.array([b[1] for b in bounds(layout)])
     x = np.clip(np.asarray(start_vector(layout) if x0 is None else x0, float), lo_b, hi_b)
-    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, foreground_m=foreground_m)
+    if not (math.isfinite(reach_weight) and reach_weight >= 0):
+        raise InputError(f"--reach-weight must be ≥ 0, got {reach_weight}")
+    kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, foreground_m=foreground_m,
+              reach_weight=reach_weight)
     if (aim_photons < 0 or foreground_m < 0 or not math.isfinite(foreground_m)
             or not (math.isfinite(model_smooth_px) and 0 <= model_smooth_px <= 20)):
         raise InputError("--aim-photons and --foreground must be ≥ 0, --model-smooth 0–20")
@@ -993,11 +1000,12 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
             noise = (NOISE_CD * math.sqrt(NOISE_PHOTONS / interval_photons)
                      if interval_photons > 0 else 0.0)
             mkw = dict(safety=model_safety, reach_m=reach_m, smooth_max=smooth_max,
+                       reach_weight=reach_weight,
                        noise_cd=noise, foreground_m=foreground_m)
             best = {"j": math.nan, "x": [float(t) for t in x], "terms": []}
             for rnd in range(first_round, first_round + model_rounds):
                 aim_dv = math.nan
-                if aim_photons > 0:
+                if aim_photons > 0 and aim_rounds:
                     layout, aim_dv = aim_step(layout)
                     if note is not None:
                         note(f"round {rnd}: aim step {aim_dv:+.3f}° (every facet)")
@@ -1006,7 +1014,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                                            residual_factor=4, progress=note,
                                            smooth_px=model_smooth_px)
                 aim_off = None
-                if aim_photons > 0:
+                if aim_photons > 0 and aim_rounds:
                     # after the aim step the check run's cut-off sits at 0.57° D: the
                     # model's aim term asks to keep it there, in the model finder's terms
                     from lightsim.render.cutoff import find_cutoff
@@ -1028,7 +1036,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                                       reach_m=reach_m, smooth_max=smooth_max,
                                       evaluations=model_evaluations, progress=shown,
                                       noise_cd=noise, foreground_m=foreground_m,
-                                      aim_offset_deg=aim_off)
+                                      aim_offset_deg=aim_off, reach_weight=reach_weight)
                 # trust region: the round's shifts are kept only if the re-simulated lamp
                 # (same seed and photons as the model's reference, so the comparison is
                 # noise-fair) is better than the round's start; else halve them

@@ -210,7 +210,7 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
                 traffic: str, *, safety: float, reach_m: float, smooth_max: float,
                 regulariser: float = REGULARISER, noise_cd: float = 0.0,
                 foreground_m: float = 0.0, aim_offset_deg: float | None = None,
-                lux: np.ndarray | None = None) -> list[Any]:
+                lux: np.ndarray | None = None, reach_weight: float = 1.0) -> list[Any]:
     """The objective's terms (:func:`lightsim.luminaires.design.objective_terms`) of every
     rule set on the model map, plus the shift regulariser.
 
@@ -247,7 +247,8 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
                       for e in (0.0, -AIM_TOLERANCE_DEG, AIM_TOLERANCE_DEG)]
         reg = {"results": per_offset[0], "aim": {"dv_deg": dv0, "cutoff": cut}}
         got = objective_terms(reg, lux, wf, safety=safety, reach_m=reach_m,
-                              smooth_max=smooth_max, foreground_m=foreground_m)
+                              smooth_max=smooth_max, foreground_m=foreground_m,
+                              reach_weight=reach_weight)
         worst = {}
         for results in per_offset:
             for t in _rule_terms(results, safety):
@@ -305,8 +306,8 @@ def optimise_shifts(model: FootprintModel, regulations: Sequence[str], traffic: 
                     safety: float, reach_m: float, smooth_max: float, evaluations: int,
                     start: np.ndarray | None = None, noise_cd: float = 0.0,
                     foreground_m: float = 0.0, aim_offset_deg: float | None = None,
-                    progress: Callable[[int, float, list[Any]], None] | None = None
-                    ) -> ShiftResult:
+                    progress: Callable[[int, float, list[Any]], None] | None = None,
+                    reach_weight: float = 1.0) -> ShiftResult:
     """Minimise J(s) on the model with :func:`scipy.optimize.minimize` (Powell, bounded
     |Δh| ≤ 1°, |Δv| ≤ 0.5° per facet); deterministic (the model is).
 
@@ -321,7 +322,8 @@ def optimise_shifts(model: FootprintModel, regulations: Sequence[str], traffic: 
     bh, bv = SHIFT_BOUNDS_DEG
     bnds = [(-0.5, 0.5), (-0.3, 0.3)] + [(-bh, bh), (-bv, bv)] * K
     kw = dict(safety=safety, reach_m=reach_m, smooth_max=smooth_max, noise_cd=noise_cd,
-              foreground_m=foreground_m, aim_offset_deg=aim_offset_deg)
+              foreground_m=foreground_m, aim_offset_deg=aim_offset_deg,
+              reach_weight=reach_weight)
     count = [0]
     best: dict[str, Any] = {"j": math.inf}
 

@@ -109,6 +109,19 @@ def test_model_optimiser_is_deterministic_and_does_not_get_worse(model):
     assert "smoothness" not in names  # noise-set on the model map: checked on the lamp
 
 
+def test_reach_weight_scales_only_the_reach_term(model):
+    z = np.zeros((len(model.facets), 2))
+    kw = dict(safety=0.1, reach_m=500.0, smooth_max=2.0)  # 500 m: the term is short
+    one, three = (model_terms(model, z, ("r112-b-passing",), "right", reach_weight=w, **kw)
+                  for w in (1.0, 3.0))
+    r1, r3 = ({t.name: t.penalty for t in terms} for terms in (one, three))
+    assert r1["reach 1 lx"] > 0 and r3["reach 1 lx"] == pytest.approx(3 * r1["reach 1 lx"])
+    assert {k: v for k, v in r1.items() if k != "reach 1 lx"} == \
+        {k: v for k, v in r3.items() if k != "reach 1 lx"}
+    with pytest.raises(InputError):
+        design_lowbeam("r112-b-passing", layout=LAYOUT, reach_weight=-1.0)
+
+
 def test_design_with_the_model_optimiser_writes_the_shifts(tmp_path):
     out = design_lowbeam("r112-b-passing,r149-b-passing", layout=LAYOUT, photons=20_000,
                          resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
@@ -130,6 +143,21 @@ def test_design_with_the_model_optimiser_writes_the_shifts(tmp_path):
         assert not moved
     with pytest.raises(InputError):
         design_lowbeam("r112-b-passing", layout=LAYOUT, optimiser="annealing")
+
+
+@pytest.mark.parametrize("aim_rounds", [True, False])
+def test_aim_rounds_off_aims_only_at_the_end(aim_rounds):
+    out = design_lowbeam("r112-b-passing", layout=LAYOUT, photons=20_000,
+                         resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
+                         model_photons=30_000, model_resolution=(40, 64),
+                         model_evaluations=20, calibrate=False, aim_photons=40_000,
+                         aim_resolution=(80, 32), aim_rounds=aim_rounds)
+    rounds = [m for m in out.model if m["round"] != "aim"]
+    finals = [m for m in out.model if m["round"] == "aim"]
+    assert len(rounds) == 1 and 1 <= len(finals) <= 2
+    # the round's own aim step happens only with aim_rounds; the final ones always
+    assert (rounds[0]["aim_step_deg"] is not None) == aim_rounds
+    assert all(np.isfinite(m["aim_step_deg"]) for m in finals)
 
 
 def test_design_record_round_trips_through_the_glb(tmp_path):
