@@ -108,3 +108,19 @@ def test_incremental_tree_keeps_tight_leaf_boxes_and_exact_knn() -> None:
     d2, _ = tree.query(q, 16)
     dk, _ = cKDTree(pos).query(q, 16)
     np.testing.assert_allclose(np.sqrt(d2), dk, rtol=1e-6, atol=1e-7)
+
+
+def test_child_peak_rss_is_the_childs_not_the_parents():
+    """A parent holding a large allocation: the peak RSS of a small child it starts is the
+    child's own (Linux hands a forked child its parent's high-water mark)."""
+    import sys
+
+    from lightsim.validation.bench.photonmap import child_peak_rss
+
+    big = np.ones(600 * 2**20 // 8)  # 600 MiB, touched
+    kib, code, _ = child_peak_rss([sys.executable, "-c", "import numpy as np; "
+                                   "a = np.ones(200 * 2**20 // 8)"])
+    assert code == 0 and big[-1] == 1.0
+    assert 200 * 1024 <= kib < 450 * 1024  # its 200 MiB array and an interpreter
+    kib, code, _ = child_peak_rss([sys.executable, "-c", "import sys; sys.exit(3)"])
+    assert code == 3 and kib < 100 * 1024

@@ -416,12 +416,38 @@ def stored_bytes(positions: np.ndarray, normals: np.ndarray | None, powers: np.n
             for label, tree in (("built", built), (f"{batches} insertions", incr))]
 
 
+#: runs argv[1:] with stdout discarded and prints its peak RSS (KiB, wait4's rusage);
+#: exits with its exit code
+_SPAWN_MAXRSS = (
+    "import os, subprocess, sys\n"
+    "p = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL)\n"
+    "_, status, usage = os.wait4(p.pid, 0)\n"
+    "print(usage.ru_maxrss, flush=True)\n"
+    "sys.exit(os.waitstatus_to_exitcode(status))\n")
+
+
+def child_peak_rss(cmd: Sequence[str]) -> tuple[float, int, str]:
+    """(peak RSS in KiB, exit code, stderr) of command ``cmd`` (stdout discarded).
+
+    Run through a small spawner: Linux hands a child the high-water RSS of the memory it
+    was forked (or vfork-ed) from, so a ``simulate`` started by this bench — which holds
+    gigabytes of trees by then — reported the bench's own peak (10 GB for a run whose
+    peak was 1.3 GB); the spawner's child starts from the spawner's few MB."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _SPAWN_MAXRSS, *cmd], capture_output=True,
+                          check=False)
+    out = proc.stdout.decode().split()
+    return (float(out[-1]) if out else float("nan"), proc.returncode,
+            proc.stderr.decode(errors="replace"))
+
+
 def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
                       resolution: tuple[int, int] = (640, 256), frame_photons: int = 1_000_000,
                       extra_args: Sequence[str] = ()) -> dict[str, Any]:
     """Peak RSS (``wait4`` rusage of the child) of ``lightsim simulate SCENE --photons N``
     next to the pre-flight estimate of the same run."""
-    import subprocess
     import sys
     import tempfile
 
@@ -434,14 +460,10 @@ def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
                "--photons", str(int(photons)), "--resolution", f"{W}x{H}", "--quiet",
                "--frame-photons", str(int(frame_photons)), "--out", tmp, *extra_args]
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        _, status, usage = os.wait4(proc.pid, 0)
+        maxrss_kib, returncode, err = child_peak_rss(cmd)
         dt = time.perf_counter() - t0
-        err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-        proc.stderr.close() if proc.stderr else None
-        proc.returncode = os.waitstatus_to_exitcode(status)
         summary = {}
-        if proc.returncode == 0:
+        if returncode == 0:
             import json
 
             with open(os.path.join(tmp, "summary.json")) as fh:
@@ -449,14 +471,14 @@ def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
     cfg = RunConfig()
     est = estimate_run(int(photons), resolution, channels=3, n_sets=cfg.n_sets,
                        frame_photons=frame_photons)
-    rss = usage.ru_maxrss * 1024.0  # Linux: KiB
+    rss = maxrss_kib * 1024.0  # Linux: KiB
     kept = summary.get("energy_lm", {})
     return {"what": f"simulate {os.path.basename(str(scene_path))} {W}x{H}",
             "photons": int(photons), "peak_rss_mb": rss / 2**20,
             "estimate_mb": est.total / 2**20, "estimate_over_rss": est.total / rss,
-            "seconds": dt, "exit_code": proc.returncode,
+            "seconds": dt, "exit_code": returncode,
             "wall_lm": kept.get("wall"), "note": err.strip().splitlines()[-1][:160]
-            if proc.returncode else ""}
+            if returncode else ""}
 
 
 # =========================================================================== the issue's ratios
