@@ -498,18 +498,15 @@ class Session:
                                restrict=self._grid_region()).error
 
     def _pixel_region(self) -> Restrict | None:
-        """The error figure's region (``config.error_region``) over the wall's pixels."""
-        if self.config.error_region == "lit":
-            return None
+        """The error figure's region (``config.error_region``) over the wall's pixels
+        (None for ``lit``)."""
         W, H = self.scene.wall.resolution
         dh, dv = self.scene.wall.pixel_size_m
         return restriction(self.config.error_region, (H, W), (dv, dh))
 
     def _grid_region(self) -> Restrict | None:
         """The error figure's region over the grid probes (:func:`probe_grid`: a regular
-        raster of cell centres over the wall, in row order)."""
-        if self.config.error_region == "lit":
-            return None
+        raster of cell centres over the wall, in row order; None for ``lit``)."""
         wall = self.scene.wall
         nh, nv = self.config.probe_grid
         cell = (float(np.ptp(wall.v_range_m)) / nv, float(np.ptp(wall.h_range_m)) / nh)

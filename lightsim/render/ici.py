@@ -510,14 +510,12 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
 
 
 def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
-               vals: np.ndarray | None = None, win: np.ndarray | None = None,
-               restrict: Restrict | None = None):
+               vals: np.ndarray | None = None, win: np.ndarray | None = None):
     """(vals (S, Q), counts (S, Q), halves, lit mask of each half) for :func:`_mix_parts`:
     half h is measured over the queries the *other* half calls lit; None with fewer than
     two sets or nothing lit. ``vals``: every set's luminous value of the map (S, Q), if
-    not each set's value at ``choice.rung``; ``win``: their rung 0 (S, Q), if known;
-    ``restrict``: the figure's region within each lit mask
-    (:func:`lightsim.render.region.restriction`; None: every lit query)."""
+    not each set's value at ``choice.rung``; ``win``: their rung 0 (S, Q), if known.
+    (A region within the lit queries is applied to these masks by :func:`_in_region`.)"""
     if len(rungs) < 2:
         return None
     if vals is None:
@@ -532,8 +530,7 @@ def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     masks = []
     for h, own in enumerate(halves):
         other = halves[1 - h] if len(halves) == 2 else own
-        lit = (win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr)
-        masks.append(lit if restrict is None else restrict(lit))
+        masks.append((win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr))
     return vals, win, halves, masks
 
 
