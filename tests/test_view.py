@@ -355,15 +355,16 @@ def test_page_end_to_end(tmp_path):
                                      ("#t-aim_v_deg", "40", "outside")):
                 page.fill(sel, text)
                 page.press(sel, "Enter")
+                # every message the page showed is logged: a later status line may
+                # replace the error in the message bar before a poll sees it
                 page.wait_for_function(
-                    "document.getElementById('message').className === 'error' && "
-                    f"document.getElementById('message').textContent.includes('{words}')",
-                    timeout=10_000)
+                    "window.lightsimView.messages.some(m => m.level === 'error' && "
+                    f"m.text.includes('{words}'))", timeout=10_000)
             page.set_input_files("#upload", files=[{"name": "second.glb",
                                                     "mimeType": "model/gltf-binary",
                                                     "buffer": b"this is not a glb file"}])
-            page.wait_for_function("document.getElementById('message').textContent"
-                                   ".includes('not a GLB')", timeout=10_000)
+            page.wait_for_function("window.lightsimView.messages.some(m => "
+                                   "m.text.includes('not a GLB'))", timeout=10_000)
             frames = page.evaluate("window.lightsimView.wallFrames")
             photons = page.evaluate("window.lightsimView.status.photons")
             page.wait_for_function(f"window.lightsimView.wallFrames > {frames} && "
