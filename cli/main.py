@@ -79,6 +79,25 @@ def _one_line(text: str) -> str:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script; maps input errors to one line and exit code 2."""
     try:
+        _run(argv)
+    finally:
+        if argv is None:  # the process ends here: see _skip_final_collection
+            _skip_final_collection()
+
+
+def _skip_final_collection() -> None:
+    """Move every live object out of the cyclic collector's reach before the interpreter
+    exits: its final collections walk every object numba and llvmlite created (measured
+    0.27-0.31 s after any cached kernel ran, against 0.02-0.03 s frozen), on every
+    command. Reference counting still frees them and atexit handlers still run; only the
+    console script does it (an in-process caller's garbage stays collectable)."""
+    import gc
+
+    gc.freeze()
+
+
+def _run(argv: list[str] | None) -> None:
+    try:
         cli.main(args=argv, prog_name="lightsim", standalone_mode=False)
     except LightsimError as exc:
         click.echo(f"lightsim: error: {exc}", err=True)
