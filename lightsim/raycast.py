@@ -22,6 +22,7 @@ parameter      unit   default                   meaning
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -68,8 +69,17 @@ def embree_scene(triangles: np.ndarray, fast: bool = True):
     return scene
 
 
+@functools.lru_cache(maxsize=1)
 def _embree_lib():
-    """The libembree4 embreex's extension modules are linked against (ctypes), or None."""
+    """The libembree4 embreex's extension modules are linked against (ctypes), or None
+    (looked up once)."""
+    try:
+        return _load_embree_lib()
+    except Exception:  # any failure means: use embreex's own path
+        return None
+
+
+def _load_embree_lib():
     import ctypes
     import glob
 
@@ -130,20 +140,12 @@ def _embree_handles(scene, device) -> tuple[int, int] | None:
             ctypes.c_void_p.from_address(id(device) + head).value)
 
 
-_LIB: list = []  # [lib or None], looked up once
-
-
 def _fill_fast(scene, device, tri: np.ndarray) -> bool:
     """Attach ``tri`` to ``scene`` through ctypes (see :func:`embree_scene`); False where
     that cannot be done safely (nothing attached then)."""
     import ctypes
 
-    if not _LIB:
-        try:
-            _LIB.append(_embree_lib())
-        except Exception:  # any failure means: use embreex's own path
-            _LIB.append(None)
-    lib = _LIB[0]
+    lib = _embree_lib()
     handles = None if lib is None else _embree_handles(scene, device)
     if handles is None or not handles[0] or not handles[1]:
         return False
