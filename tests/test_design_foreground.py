@@ -25,6 +25,8 @@ from lightsim.luminaires.design import (
     foreground_points,
     foreground_term,
     hole_diameter,
+    reach_points,
+    reach_ratio,
     start_vector,
 )
 from lightsim.luminaires.facet_model import movable_facets
@@ -51,6 +53,28 @@ def test_foreground_points_ask_for_exactly_one_lux_on_the_road():
     assert t.margin == pytest.approx(math.log(2.0)) and t.penalty == 0
     dark = foreground_term(lambda hh, vv: np.zeros(6), 4.0, 0.1)
     assert dark.margin < -5 and dark.penalty > 25
+
+
+def test_reach_ratio_is_one_exactly_at_the_road_modules_reach():
+    # a beam with a Gaussian hot spot 1.4° down and 2° right: scaled so that its ratio at
+    # 27 m is 1, the road module (its own geometry, 0.5 m grid) finds 1 lx at 27 m and
+    # not farther; scaled 1.1× it reaches ≥ 27 m, 0.9× short of it
+    def beam(h, v):
+        return 3.0e4 * np.exp(-((np.asarray(h) - 2.0) ** 2 + (np.asarray(v) + 1.4) ** 2) / 2)
+
+    q = reach_ratio(beam, 27.0)
+    assert 0.1 < q < 10
+    h, v, need = reach_points(27.0)
+    assert np.all(np.diff(h) > 0) and np.allclose(v, v[0]) and np.all(need > 27.0 ** 3 / 0.65)
+    for f, far_enough in ((1.0 / q * 1.02, True), (1.0 / q * 0.9, False)):
+        road = road_illuminance_from(lambda hh, vv, f=f: f * beam(hh, vv), 0.65,
+                                     (-15.0, 15.0), (0.0, 60.0), 0.25)
+        assert (road.reach_m(1.0) >= 27.0) is far_enough
+        assert reach_ratio(lambda hh, vv, f=f: f * beam(hh, vv), 27.0) == pytest.approx(f * q)
+    # continuous: a 1 % brighter beam has a 1 % larger ratio (the contour would not move)
+    assert reach_ratio(lambda hh, vv: 1.01 * beam(hh, vv), 27.0) == pytest.approx(1.01 * q)
+    assert reach_ratio(lambda hh, vv: np.zeros(np.shape(hh)), 27.0) < 1e-6
+    assert reach_ratio(lambda hh, vv: np.full(np.shape(hh), np.nan), 27.0) < 1e-6
 
 
 def test_cup_edge_facets_spread_sideways_and_become_movable():
