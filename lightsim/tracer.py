@@ -258,13 +258,15 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
     record_all = prm.record_all
     C = pw.shape[1]
     P = packed.shape[1]
-    # the exact wall (outside embree) and the gather of the hit triangles' rows in one
-    # pass before the loop: independent loads the CPU overlaps (a hit is a cache miss on
-    # a large mesh, and Halton-ordered photons hit scattered triangles)
-    has_wall = wall_tri.shape[0] > 0
-    for i in range(m):
-        if has_wall:
+    # the exact wall (outside embree), then the gather of the hit triangles' rows, each
+    # in its own pass before the loop: independent loads the CPU overlaps (a hit is a
+    # cache miss on a large mesh, and Halton-ordered photons hit scattered triangles).
+    # In one pass the gather waited on each ray's wall test: measured 86 → 55 ns per ray
+    # for the two on the analytic paraboloid (one thread)
+    if wall_tri.shape[0] > 0:
+        for i in range(m):
             merge_wall_hit(i, o32, d32, prim, tfar, hu, hv, wall_tri, wall_index)
+    for i in range(m):
         k = prim[i]
         if k >= 0:
             for q in range(P):
