@@ -57,7 +57,8 @@ def _resolution(text: str) -> tuple[int, int]:
 @click.option("--safety", type=float, default=0.10, show_default=True,
               help="Relative margin asked beyond every limit.")
 @click.option("--reach", type=float, default=25.0, show_default=True,
-              help="1 lx road reach asked for, m (lamp 0.65 m high).")
+              help="1 lx road reach asked for, m (lamp 0.65 m high): the intensity along "
+                   "the road line this far ahead is asked for 1 lx.")
 @click.option("--reach-weight", type=float, default=1.0, show_default=True,
               help="Weight of the reach term in J (its hinge² × this; 1: as every rule).")
 @click_option(lookup(SimulateOptions, "traffic"))
