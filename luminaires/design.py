@@ -732,19 +732,29 @@ def objective_terms(reg: dict[str, Any], lux: np.ndarray, frame: Any, *, safety:
     sm = smoothness(lux, frame)
     m = math.log(smooth_max / sm)
     terms.append(Term("smoothness", m, _hinge(m), sm, f"≤ {smooth_max:g}"))
-    road = road_illuminance_from(lambda h, v: sample_wall(lux, frame, h, v - dv), 0.65,
-                                 (-15.0, 15.0), (0.0, 100.0), 0.5)
+    def intensity(h: np.ndarray, v: np.ndarray) -> Any:
+        return sample_wall(lux, frame, h, v - dv)
+
+    road = road_illuminance_from(intensity, 0.65, REACH_LATERAL_M, (0.0, 100.0), 0.5)
     reach = road.reach_m(1.0) or 0.5
     # the margin comes from the intensity along the road line at the asked distance, not
     # from the 1 lx contour: the contour moves in grid steps, so the optimiser saw no
     # gradient (measured: raising --reach or its weight lost rules and not a metre of reach)
-    ratio = reach_ratio(lambda h, v: sample_wall(lux, frame, h, v - dv), reach_m)
-    m = math.log(ratio / (1 + safety))
+    m = math.log(reach_ratio(intensity, reach_m) / (1 + safety))
     terms.append(Term("reach 1 lx", m, reach_weight * _hinge(m), reach, f"≥ {reach_m:g} m"))
     if foreground_m > 0:
-        terms.append(foreground_term(lambda h, v: sample_wall(lux, frame, h, v - dv),
-                                     foreground_m, safety))
+        terms.append(foreground_term(intensity, foreground_m, safety))
     return terms
+
+
+def _road_points(x: np.ndarray, z: np.ndarray, mount_height_m: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Wall angles (h, v in deg) of road points (x lateral, right positive; z ahead; m)
+    seen from a lamp ``mount_height_m`` above the road, and the cd each needs for 1 lx
+    there (E = I·h / r³)."""
+    r2 = x * x + z * z + mount_height_m ** 2
+    need = r2 * np.sqrt(r2) / mount_height_m
+    return np.degrees(np.arctan2(x, z)), np.degrees(np.arctan2(-mount_height_m, z)), need
 
 
 def reach_points(reach_m: float, mount_height_m: float = 0.65,
@@ -754,10 +764,7 @@ def reach_points(reach_m: float, mount_height_m: float = 0.65,
     ``lateral_m`` every ``step_m``; lamp ``mount_height_m`` above the road) and the cd
     each needs for 1 lx there (E = I·h / r³)."""
     x = np.arange(lateral_m[0], lateral_m[1] + 0.5 * step_m, step_m)
-    z = np.full_like(x, float(reach_m))
-    r2 = x * x + z * z + mount_height_m ** 2
-    need = r2 * np.sqrt(r2) / mount_height_m
-    return np.degrees(np.arctan2(x, z)), np.degrees(np.arctan2(-mount_height_m, z)), need
+    return _road_points(x, np.full_like(x, float(reach_m)), mount_height_m)
 
 
 def reach_ratio(intensity_hv: Callable[[np.ndarray, np.ndarray], Any], reach_m: float,
@@ -780,11 +787,7 @@ def foreground_points(foreground_m: float, mount_height_m: float = 0.65
     for zz, f in FOREGROUND_POINTS:
         x += [-f * foreground_m, f * foreground_m]
         z += [zz, zz]
-    xa, za = np.asarray(x), np.asarray(z)
-    r2 = xa * xa + za * za + mount_height_m ** 2
-    need = r2 * np.sqrt(r2) / mount_height_m  # E = I·h / r³
-    return (np.degrees(np.arctan2(xa, za)), np.degrees(np.arctan2(-mount_height_m, za)),
-            need)
+    return _road_points(np.asarray(x), np.asarray(z), mount_height_m)
 
 
 def foreground_term(intensity_hv: Callable[[np.ndarray, np.ndarray], Any],
