@@ -17,13 +17,13 @@ from lightsim.options import click_option, lookup
 from lightsim.simulate import SimulateOptions
 
 
-def _resolution(text: str) -> tuple[int, int]:
+def _resolution(text: str, flag: str = "--resolution") -> tuple[int, int]:
     try:
         w, h = (int(t) for t in text.lower().split("x"))
     except ValueError:
-        raise InputError(f"--resolution must be WxH, got {text!r}") from None
+        raise InputError(f"{flag} must be WxH, got {text!r}") from None
     if not (8 <= w <= 4096 and 8 <= h <= 4096):
-        raise InputError(f"--resolution must be 8–4096 pixels a side, got {text!r}")
+        raise InputError(f"{flag} must be 8–4096 pixels a side, got {text!r}")
     return w, h
 
 
@@ -128,6 +128,17 @@ def _resolution(text: str) -> tuple[int, int]:
                    "twice) only if J got better.")
 @click.option("--model-smooth", type=float, default=0.0, show_default=True,
               help="σ (model-wall pixels) of a Gaussian applied to every footprint (0: none).")
+@click.option("--restarts", type=int, default=1, show_default=True,
+              help="Design this many lamps (seeds SEED, SEED+1, …), check each as the README "
+                   "demo does (--restart-photons at every --restart-seeds) and keep the one "
+                   "that passes best: fewest rows not passing, then the largest smallest "
+                   "margin, then the lowest J (1: one design, no check).")
+@click.option("--restart-photons", type=int, default=32_000_000, show_default=True,
+              help="Photons of each restart check run.")
+@click.option("--restart-resolution", default="320x128", show_default=True,
+              help="Wall pixels WxH of the restart check runs.")
+@click.option("--restart-seeds", default="1,2,3", show_default=True,
+              help="Comma-separated photon seeds of the restart check runs.")
 @click.option("--quiet", "-q", is_flag=True)
 def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            focal_length: float, opening: float, evaluations: int, rounds: int, photons: int,
@@ -140,7 +151,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            foreground: float, foreground_share: float, shaded_spread: float,
            shaded_drop: float, wing_facets: str, wing_deg: float, wing_drop: float,
            aim_photons: int, aim_rounds: bool,
-           remeasure: bool, model_smooth: float, quiet: bool) -> None:
+           remeasure: bool, model_smooth: float, restarts: int, restart_photons: int,
+           restart_resolution: str, restart_seeds: str, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
     (reflector, bulb, shield, lens) and print the objective's terms."""
     from rich.console import Console
@@ -157,6 +169,16 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     if check_photons < 0:
         raise InputError(f"--check-photons must be ≥ 0, got {check_photons}")
     res = _resolution(resolution)
+    if restarts < 1:
+        raise InputError(f"--restarts must be ≥ 1, got {restarts}")
+    if restart_photons < 1:
+        raise InputError(f"--restart-photons must be ≥ 1, got {restart_photons}")
+    check_res = _resolution(restart_resolution, "--restart-resolution")
+    try:
+        check_seeds = [int(t) for t in restart_seeds.split(",")]
+    except ValueError:
+        raise InputError(f"--restart-seeds must be comma-separated integers, got "
+                         f"{restart_seeds!r}") from None
     offsets: tuple[float, ...] = ()
     if ring_offsets is not None:
         try:
@@ -179,7 +201,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                     wing_deg=wing_deg, wing_drop_deg=wing_drop)
     if continue_from is None:  # else the continued lamp's layout is checked below
         layout.check()
-    mres = _resolution(model_resolution)
+    mres = _resolution(model_resolution, "--model-resolution")
     first_round = 0
     previous: list = []
     if continue_from is not None:  # its geometry; this command's sliver options
@@ -223,25 +245,38 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                        f"{e['seconds']:.1f} s  x=({x})  short: "
                        f"{', '.join(e['failing']) or '-'}", err=True)
 
-    out = design_lowbeam(regulation, layout=layout, photons=photons, resolution=res,
-                         evaluations=evaluations, rounds=rounds, seed=seed, safety=safety,
-                         reach_m=reach, validate_factor=validate_factor, x0=x0,
-                         progress=progress, optimiser=optimiser, model_rounds=model_rounds,
-                         model_photons=model_photons, model_resolution=mres,
-                         model_evaluations=model_evaluations,
-                         calibrate=ring_offsets is None, note=note,
-                         interval_photons=interval_photons, model_safety=model_safety,
-                         first_round=first_round, foreground_m=foreground,
-                         aim_photons=aim_photons, remeasure_steps=remeasure,
-                         aim_rounds=aim_rounds, reach_weight=reach_weight,
-                         model_smooth_px=model_smooth)
-    info = {"command": "lightsim design", "regulation": regulation, "seed": seed,
-            "photons": photons, "resolution": list(res), "evaluations": len(out.history),
-            "objective": out.objective if math.isfinite(out.objective) else None,
-            "optimiser": optimiser,
-            "model": previous + out.model,
-            "validation_objective": (out.validation_objective
-                                     if math.isfinite(out.validation_objective) else None)}
+    def run(seed_k: int):
+        return design_lowbeam(regulation, layout=layout, photons=photons, resolution=res,
+                              evaluations=evaluations, rounds=rounds, seed=seed_k,
+                              safety=safety, reach_m=reach, validate_factor=validate_factor,
+                              x0=x0, progress=progress, optimiser=optimiser,
+                              model_rounds=model_rounds, model_photons=model_photons,
+                              model_resolution=mres, model_evaluations=model_evaluations,
+                              calibrate=ring_offsets is None, note=note,
+                              interval_photons=interval_photons, model_safety=model_safety,
+                              first_round=first_round, foreground_m=foreground,
+                              aim_photons=aim_photons, remeasure_steps=remeasure,
+                              aim_rounds=aim_rounds, reach_weight=reach_weight,
+                              model_smooth_px=model_smooth)
+
+    def record(out, seed_k: int) -> dict:
+        return {"command": "lightsim design", "regulation": regulation, "seed": seed_k,
+                "photons": photons, "resolution": list(res),
+                "evaluations": len(out.history),
+                "objective": out.objective if math.isfinite(out.objective) else None,
+                "optimiser": optimiser,
+                "model": previous + out.model,
+                "validation_objective": (out.validation_objective
+                                         if math.isfinite(out.validation_objective)
+                                         else None)}
+
+    if restarts == 1:
+        out = run(seed)
+        info = record(out, seed)
+    else:
+        out, info = _restarts(run, record, restarts, seed, out_glb, regulation, traffic,
+                              restart_photons, check_res, check_seeds, aim_photons == 0,
+                              note)
     size = write_design(out_glb, out.x, out.layout, info)
     what = ("model improvements" if out.model else "evaluations")
     click.echo(f"design: {len(out.history)} {what} in {out.seconds:.1f} s; "
@@ -273,4 +308,56 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                                config={"seed": seed + 2000})
         sim = run_simulation(opts, analyses=for_options(opts))
         Console(width=120).print(format_regulation(sim.summary["regulation"]))
+    if restarts > 1:
+        click.echo(f"{'restart':>7s} {'seed':>5s} {'J':>8s} {'not passing':>11s} "
+                   f"{'min margin':>10s}")
+        for k, r in enumerate(info["restarts"]):
+            m = float(r["check"]["min_margin"])
+            j = math.nan if r["objective"] is None else r["objective"]
+            click.echo(f"{k:7d} {r['seed']:5d} {j:8.4f} "
+                       f"{len(r['check']['not_passing']):11d} "
+                       + f"{m:+10.3f}"
+                       + ("   chosen" if k == info["chosen"] else ""))
     click.echo(f"total {time.perf_counter() - t0:.1f} s")
+
+
+def _restarts(run, record, n: int, seed: int, out_glb: str, regulation: str, traffic: str,
+              photons: int, resolution: tuple[int, int], seeds: list[int], aim: bool,
+              note) -> tuple:
+    """Design ``n`` lamps at seeds ``seed`` … ``seed + n − 1``, check each
+    (:func:`lightsim.luminaires.design_check.check_lamp`) and return the chosen design and
+    its record (with every restart's check)."""
+    import shutil
+    import tempfile
+
+    from lightsim.luminaires.design import write_design
+    from lightsim.luminaires.design_check import check_lamp, choose
+
+    work = Path(tempfile.mkdtemp(prefix=".lightsim-restarts-",
+                                 dir=str(Path(out_glb).resolve().parent)))
+    outs, checks, seeds_k = [], [], []
+    try:
+        for k in range(n):
+            s = seed + k
+            note(f"restart {k + 1}/{n}: design seed {s}")
+            out = run(s)
+            glb = work / f"restart{k}.glb"
+            write_design(glb, out.x, out.layout, record(out, s))
+            note(f"restart {k + 1}/{n}: checking ({photons:,} photons, "
+                 f"{resolution[0]}x{resolution[1]}, seeds {', '.join(map(str, seeds))})")
+            chk = check_lamp(glb, regulation, photons=photons, resolution=resolution,
+                             seeds=seeds, traffic=traffic, aim=aim, note=note)
+            note(f"restart {k + 1}/{n}: {len(chk.not_passing)} of {chk.rows} rows not "
+                 f"passing, smallest margin {chk.min_margin:+.3f}")
+            outs.append(out)
+            checks.append(chk)
+            seeds_k.append(s)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    best = choose(checks, [o.objective for o in outs])
+    info = record(outs[best], seeds_k[best])
+    info["restarts"] = [{"seed": s, "objective": (o.objective if math.isfinite(o.objective)
+                                                  else None), "check": c.to_dict()}
+                        for s, o, c in zip(seeds_k, outs, checks)]
+    info["chosen"] = best
+    return outs[best], info
