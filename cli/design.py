@@ -179,6 +179,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     except ValueError:
         raise InputError(f"--restart-seeds must be comma-separated integers, got "
                          f"{restart_seeds!r}") from None
+    if not check_seeds or min(check_seeds) < 0:
+        raise InputError(f"--restart-seeds must be integers ≥ 0, got {restart_seeds!r}")
     offsets: tuple[float, ...] = ()
     if ring_offsets is not None:
         try:

@@ -104,6 +104,7 @@ def test_restarts_keep_the_best_checked_design_and_leave_nothing_behind(tmp_path
 
 @pytest.mark.parametrize("extra, needle", [(["--restarts", "0"], "--restarts"),
                                            (["--restart-seeds", "1,a"], "--restart-seeds"),
+                                           (["--restart-seeds", "-1"], "--restart-seeds"),
                                            (["--restart-photons", "0"], "--restart-photons"),
                                            (["--restart-resolution", "big"],
                                             "--restart-resolution")])
