@@ -317,8 +317,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
             m = float(r["check"]["min_margin"])
             j = math.nan if r["objective"] is None else r["objective"]
             click.echo(f"{k:7d} {r['seed']:5d} {j:8.4f} "
-                       f"{len(r['check']['not_passing']):11d} "
-                       + f"{m:+10.3f}"
+                       f"{len(r['check']['not_passing']):11d} {m:+10.3f}"
                        + ("   chosen" if k == info["chosen"] else ""))
     click.echo(f"total {time.perf_counter() - t0:.1f} s")
 

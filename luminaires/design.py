@@ -669,15 +669,22 @@ def _hinge(m: float) -> float:
     return max(0.0, -m) ** 2
 
 
+def rule_interval(r: dict[str, Any]) -> tuple[float, float]:
+    """(lo, hi) cd a regulation row is judged by: its 95 % interval, with a zone's upper
+    bound taken at its brightest probe (``max_interval_cd``); NaN without an interval."""
+    lo, hi = (float(t) for t in r.get("interval_cd") or (math.nan, math.nan))
+    if r.get("kind") == "zone" and "max_interval_cd" in r:
+        hi = float(r["max_interval_cd"][1])
+    return lo, hi
+
+
 def _rule_terms(results: list[dict[str, Any]], safety: float) -> list[Term]:
     out = []
     for r in results:
         lim = r.get("limit") or {}
         if not lim or r.get("verdict") == "info":
             continue
-        lo, hi = (float(t) for t in r["interval_cd"])
-        if r.get("kind") == "zone" and "max_interval_cd" in r:
-            hi = float(r["max_interval_cd"][1])
+        lo, hi = rule_interval(r)
         m = math.inf
         txt = []
         if lim.get("min") is not None and lim["min"] > 0:

@@ -56,11 +56,6 @@ class LampCheck:
     rows: int = 0
     seconds: list[float] = field(default_factory=list)
 
-    @property
-    def passes(self) -> bool:
-        """Every row of every run passes."""
-        return not self.not_passing
-
     def to_dict(self) -> dict[str, Any]:
         # JSON has no infinities: an unbounded margin is kept as the text "inf"/"-inf"
         m = self.min_margin
@@ -73,10 +68,10 @@ def rule_margin(row: dict[str, Any]) -> float:
     """Log-margin of one regulation row by its 95 % interval: ln(lo / min) for a minimum,
     ln(max / hi) for a maximum, the smaller of the two; ``inf`` without a limit. A zone is
     judged at its brightest probe (``max_interval_cd``) for a maximum."""
+    from lightsim.luminaires.design import rule_interval
+
     lim = row.get("limit") or {}
-    lo, hi = (float(t) for t in row.get("interval_cd") or (math.nan, math.nan))
-    if row.get("kind") == "zone" and "max_interval_cd" in row and lim.get("max"):
-        hi = float(row["max_interval_cd"][1])
+    lo, hi = rule_interval(row)
     m = math.inf
     if lim.get("min"):
         if not lo > 0:  # NaN or no light: the minimum is not met
