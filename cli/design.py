@@ -120,6 +120,11 @@ def _resolution(text: str, flag: str = "--resolution") -> tuple[int, int]:
               help="Photons of the aim step (before each model round and twice at the end: "
                    "every facet moves by the aim correction a 320x128 run's cut-off asks "
                    "for, so the lamp needs no --aim; 0: no aim step).")
+@click.option("--linearity-photons", type=int, default=4_000_000, show_default=True,
+              help="Photons of every simulated try of the linearity step (after the final "
+                   "aim steps, model optimiser: the facets that make the cut-off at annex "
+                   "9's 1.5°/2.5°/3.5° scans are moved up or down until the scans' "
+                   "inflections lie within 0.12°; 0: no linearity step).")
 @click.option("--aim-rounds/--no-aim-rounds", default=True, show_default=True,
               help="Aim step also before each model round (--no-aim-rounds: only the two "
                    "final ones; the rounds keep the model finder's own cut-off).")
@@ -150,7 +155,7 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
            model_safety: float, ring_offsets: str | None, continue_from: str | None,
            foreground: float, foreground_share: float, shaded_spread: float,
            shaded_drop: float, wing_facets: str, wing_deg: float, wing_drop: float,
-           aim_photons: int, aim_rounds: bool,
+           aim_photons: int, linearity_photons: int, aim_rounds: bool,
            remeasure: bool, model_smooth: float, restarts: int, restart_photons: int,
            restart_resolution: str, restart_seeds: str, quiet: bool) -> None:
     """Design a multi-facet low-beam reflector for BULB aimed at REGULATION; write OUT_GLB
@@ -259,7 +264,8 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
                               first_round=first_round, foreground_m=foreground,
                               aim_photons=aim_photons, remeasure_steps=remeasure,
                               aim_rounds=aim_rounds, reach_weight=reach_weight,
-                              model_smooth_px=model_smooth)
+                              model_smooth_px=model_smooth,
+                              linearity_photons=linearity_photons)
 
     def record(out, seed_k: int) -> dict:
         return {"command": "lightsim design", "regulation": regulation, "seed": seed_k,
@@ -296,6 +302,16 @@ def design(out_glb: str, bulb: str, regulation: str, rings: int, sectors: int,
     for m in out.model:
         if m["round"] == "aim":
             click.echo(f"final aim step: every facet {m['aim_step_deg']:+.3f}°")
+            continue
+        if m["round"] == "linearity":
+            def deg(v):
+                return "-" if v is None else f"{v:.3f}°"
+
+            moved = ", ".join(f"facet {k} {d:+.2f}°"
+                              for k, d in zip(m["candidates"], m["shifts_deg"]))
+            click.echo(f"linearity step: annex-9 scans' spread {deg(m['spread_before_deg'])}"
+                       f" → {deg(m['spread_after_deg'])} ({moved or 'nothing moved'}; "
+                       f"{m['evaluations']} simulated tries in {m['seconds']:.0f} s)")
             continue
         again = "; ".join(f"× {t['step']:g} re-measured J {t['objective']:.4f}"
                           for t in m.get("remeasured", []))

@@ -911,15 +911,19 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                    foreground_m: float = 0.0, aim_photons: int = 0,
                    aim_resolution: tuple[int, int] = (320, 128),
                    remeasure_steps: bool = True, model_smooth_px: float = 0.0,
-                   aim_rounds: bool = True, reach_weight: float = 1.0) -> DesignResult:
+                   aim_rounds: bool = True, reach_weight: float = 1.0,
+                   linearity_photons: int = 0) -> DesignResult:
     """Optimise the facet layout against ``regulation`` (one rule set id or several,
     comma-separated; see the module docstring).
 
     ``optimiser="model"``: after the calibration, ``model_rounds`` rounds of (measure the
     movable facets' footprints with ``model_photons`` photons each, then Powell on the
-    facet shifts against the footprint model, :mod:`lightsim.luminaires.facet_model`);
-    ``"simulator"``: Powell on x with a simulation per evaluation (``rounds`` ×
-    ``evaluations``)."""
+    facet shifts against the footprint model, :mod:`lightsim.luminaires.facet_model`),
+    the final aim steps and (``linearity_photons`` > 0) the linearity step
+    (:mod:`lightsim.luminaires.linearity`: the facets that make the cut-off at annex 9's
+    scans moved up or down, each try simulated with that many photons) with one more aim
+    step after it; ``"simulator"``: Powell on x with a simulation per evaluation
+    (``rounds`` × ``evaluations``)."""
     from scipy.optimize import minimize
 
     from lightsim.luminaires.regulations import load_ruleset
@@ -956,6 +960,8 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
     if (aim_photons < 0 or foreground_m < 0 or not math.isfinite(foreground_m)
             or not (math.isfinite(model_smooth_px) and 0 <= model_smooth_px <= 20)):
         raise InputError("--aim-photons and --foreground must be ≥ 0, --model-smooth 0–20")
+    if linearity_photons < 0:
+        raise InputError(f"--linearity-photons must be ≥ 0, got {linearity_photons}")
     with tempfile.TemporaryDirectory(prefix="lightsim-design-") as tmp:
         glb = Path(tmp) / "candidate.glb"
 
@@ -1117,6 +1123,19 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                 model_info.append({"round": "aim", "aim_step_deg": aim_dv})
                 if abs(aim_dv) < 0.01:
                     break
+            if linearity_photons > 0:
+                from .linearity import linearity_step
+
+                layout, lin = linearity_step(x, layout, regs, photons=linearity_photons,
+                                             resolution=aim_resolution, seed=seed + 600,
+                                             terms_kw=mkw, note=note)
+                model_info.append({"round": "linearity", **lin.to_dict()})
+                if lin.shifts_deg and aim_photons > 0:  # the level at 2.5° may have moved
+                    layout, aim_dv = aim_step(layout)
+                    if note is not None:
+                        note(f"aim step after the linearity step {aim_dv:+.3f}° "
+                             "(every facet)")
+                    model_info.append({"round": "aim", "aim_step_deg": aim_dv})
         for rnd in range(rounds if optimiser == "simulator" else 0):
             s_round = seed + rnd
             round_best: dict[str, Any] = {"j": math.inf}

@@ -66,7 +66,7 @@ run (12 M photons, 320×128, 0.15° apertures, ``--aim``): measured on the desig
 (B8 145 cd ±38 %, III 335 ±30 %, IV 2 860 ±14 %, 25L2 3 045 ±11 %, 50R 21 221 ±3.6 %:
 ≈ 6.2/√I). It scales as √(12 M / photons)."""
 NOISE_PHOTONS = 12_000_000
-_PROBES: dict[tuple[str, str], Any] = {}  # (rule set, traffic) → (RuleSet, Probes)
+_PROBES: dict[tuple[Any, ...], Any] = {}  # (rule set, traffic, wall) → (RuleSet, Probes)
 
 
 @dataclass
@@ -217,16 +217,38 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
     ``noise_cd``: the model's values get the interval I·(1 ± noise_cd/√I) (cd) that a
     verification run is expected to show (photon-count noise of the detector apertures;
     :data:`NOISE_CD`), so a faint point is asked for more margin than a bright one."""
+    from .design import Term
+
+    lux = model.lux(shifts_deg) if lux is None else np.asarray(lux, float)
+    terms = map_terms(lux, model.frame, regulations, traffic, safety=safety,
+                      reach_m=reach_m, smooth_max=smooth_max, noise_cd=noise_cd,
+                      foreground_m=foreground_m, aim_offset_deg=aim_offset_deg,
+                      reach_weight=reach_weight)
+    s = np.asarray(shifts_deg, float)
+    reg_pen = float(regulariser * np.sum(s * s))
+    terms.append(Term("shift size", 0.0, reg_pen, float(np.sqrt(np.mean(s * s))),
+                      "rms shift, deg"))
+    return terms
+
+
+def map_terms(lux: np.ndarray, frame: Any, regulations: Sequence[str], traffic: str, *,
+              safety: float, reach_m: float, smooth_max: float, noise_cd: float = 0.0,
+              foreground_m: float = 0.0, aim_offset_deg: float | None = None,
+              reach_weight: float = 1.0) -> list[Any]:
+    """The objective's terms of every rule set on a wall lux map (lx) as it stands (no
+    shift regulariser): the rules with the interval a ``noise_cd`` check run is expected
+    to show, the cut-off's sharpness, linearity and aim, reach and foreground."""
     from lightsim.render.cutoff import find_cutoff
     from lightsim.wall import WallFrame
 
-    from .design import Term, _rule_terms, objective_terms
+    from .design import _rule_terms, objective_terms
     from .regulations import load_ruleset
     from .regulations.evaluate import probe_points
 
-    lux = model.lux(shifts_deg) if lux is None else np.asarray(lux, float)
-    wf = WallFrame.from_any(model.frame)
-    cut = find_cutoff(lux, model.frame, traffic).to_dict()
+    lux = np.asarray(lux, float)
+    wf = WallFrame.from_any(frame)
+    frame = wf.to_dict()
+    cut = find_cutoff(lux, frame, traffic).to_dict()
     if aim_offset_deg is not None and cut.get("aim_dv_deg") is not None:
         cut["aim_dv_deg"] = float(cut["aim_dv_deg"]) + aim_offset_deg
     # the lamp is evaluated as it stands (its own cut-off near 0.57° D is a term of J):
@@ -235,15 +257,17 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
     dv0 = 0.0
     terms: list[Any] = []
     for i, name in enumerate(regulations):
-        key = (name, traffic)
+        # the probes a wall holds depend on its extent: one entry per wall
+        key = (name, traffic, tuple(frame["resolution"]), tuple(frame["h_range_m"]),
+               tuple(frame["v_range_m"]), float(frame["distance_m"]))
         if key not in _PROBES:
             rs0 = load_ruleset(name)
-            _PROBES[key] = (rs0, probe_points(rs0, traffic, frame=model.frame))
+            _PROBES[key] = (rs0, probe_points(rs0, traffic, frame=frame))
         rs, probes = _PROBES[key]
         # the check run aims the pattern at its cut-off (``--aim``) and its finder can
         # differ from the model's by ~0.1° (pixel sizes, noise): every rule is taken at its
         # worst over the pattern and the pattern moved ±AIM_TOLERANCE_DEG
-        per_offset = [_results(rs, probes, lux, model.frame, traffic, noise_cd, dv0 + e)
+        per_offset = [_results(rs, probes, lux, frame, traffic, noise_cd, dv0 + e)
                       for e in (0.0, -AIM_TOLERANCE_DEG, AIM_TOLERANCE_DEG)]
         reg = {"results": per_offset[0], "aim": {"dv_deg": dv0, "cutoff": cut}}
         got = objective_terms(reg, lux, wf, safety=safety, reach_m=reach_m,
@@ -263,10 +287,6 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
             got = [t for t in got if t.name in {r["name"] for r in results}]
             got = [replace(t, name=f"{t.name} ({rs.id})") for t in got]
         terms += got
-    s = np.asarray(shifts_deg, float)
-    reg_pen = float(regulariser * np.sum(s * s))
-    terms.append(Term("shift size", 0.0, reg_pen, float(np.sqrt(np.mean(s * s))),
-                      "rms shift, deg"))
     return terms
 
 
