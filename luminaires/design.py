@@ -1127,6 +1127,7 @@ def design_lowbeam(regulation: str, *, layout: Layout | None = None,
                 from .linearity import linearity_step
 
                 layout, lin = linearity_step(x, layout, regs, photons=linearity_photons,
+                                             footprint_photons=max(linearity_photons // 8, 1),
                                              resolution=aim_resolution, seed=seed + 600,
                                              terms_kw=mkw, note=note)
                 model_info.append({"round": "linearity", **lin.to_dict()})

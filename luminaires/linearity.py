@@ -129,10 +129,12 @@ class LinearityResult:
     seconds: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (for the design record)."""
+        """JSON-ready dict (for the design record: a GLB's extras take no NaN, so an
+        objective never computed is None)."""
         from dataclasses import asdict
 
-        return asdict(self)
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in asdict(self).items()}
 
 
 def _inflections(lux: np.ndarray, frame: Any, traffic: str) -> tuple[list[float], float | None]:

@@ -160,6 +160,21 @@ def test_aim_rounds_off_aims_only_at_the_end(aim_rounds):
     assert all(np.isfinite(m["aim_step_deg"]) for m in finals)
 
 
+def test_linearity_step_runs_in_the_design_and_its_record_is_written(tmp_path):
+    out = design_lowbeam("r112-b-passing", layout=LAYOUT, photons=20_000,
+                         resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
+                         model_photons=30_000, model_resolution=(40, 64),
+                         model_evaluations=20, calibrate=False, aim_photons=40_000,
+                         aim_resolution=(80, 32), aim_rounds=False,
+                         linearity_photons=40_000)
+    lin = [m for m in out.model if m["round"] == "linearity"]
+    assert len(lin) == 1
+    assert lin[0]["spread_before_deg"] is None or np.isfinite(lin[0]["spread_before_deg"])
+    # the record (NaN-free: a GLB's extras take none) goes into the written lamp
+    write_design(tmp_path / "lin.glb", out.x, out.layout, {"model": out.model})
+    assert (tmp_path / "lin.glb").stat().st_size > 0
+
+
 def test_design_record_round_trips_through_the_glb(tmp_path):
     from lightsim.luminaires.design import read_design
 

@@ -4,6 +4,7 @@ until the three inflections line up."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -116,6 +117,9 @@ def test_linearity_step_leaves_a_level_cutoff_alone(monkeypatch):
     assert res.spread_before_deg < 0.05
     assert layout.facet_shifts_deg == () and res.shifts_deg == []
     assert state["runs"] == 1  # one reference run, no footprints, no tries
+    # the design record goes into the GLB's extras, which take no NaN
+    d = res.to_dict()
+    assert d["objective_end"] is None and json.loads(json.dumps(d, allow_nan=False))
 
 
 def test_linearity_step_keeps_nothing_the_fresh_seed_does_not_confirm(monkeypatch):
