@@ -567,6 +567,10 @@ def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any
     res = find_cutoff(lux, frame.to_dict(), traffic)
     out = {"found": res.found, "message": res.message, "v_cutoff_deg": res.v_cutoff_deg,
            "sharpness_g": res.sharpness_g, "linear": res.linear,
+           # annex 9's scans: where each found its inflection and how far apart they are
+           "spread_deg": res.spread_deg,
+           "scans": [{"h_deg": s.h_deg, "v_inflection_deg": s.v_inflection_deg,
+                      "sharpness_g": s.sharpness_g} for s in res.scans],
            "aim_dv_deg": res.aim_dv_deg}
     if res.found and session is not None and session.config.n_sets > 1:
         # every set scans its own estimate: their spread is the position's interval

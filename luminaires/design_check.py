@@ -41,7 +41,9 @@ class LampCheck:
     Attributes
     ----------
     not_passing : list of (seed, rule set, rule, verdict)
-        Every row of every check run whose verdict is neither "pass" nor "info".
+        Every row of every check run whose verdict is neither "pass" nor "info", and
+        ("annex 9", "linearity") for a run whose cut-off's three scans lie more than 0.2°
+        apart.
     min_margin : float
         Smallest log-margin over all rows and runs (:func:`rule_margin`; > 0: every
         interval clears its limit).
@@ -125,6 +127,13 @@ def check_lamp(glb: str | Path, regulation: str, *, photons: int = 32_000_000,
                         bad += 1
                         out.not_passing.append((int(s), str(table["ruleset"]),
                                                 str(row["name"]), str(row["verdict"])))
+            # annex 9's linearity is a condition of the lamp too (the cut-off's three
+            # scans within 0.2°), though not a row of the rule sets' tables
+            cut = summary.get("cutoff") or {}
+            if cut.get("linear") is False:
+                bad += 1
+                out.not_passing.append((int(s), "annex 9", "linearity",
+                                        f"fail ({float(cut.get('spread_deg') or 0):.3f}°)"))
             if note is not None:
                 note(f"check seed {s}: {bad} rows not passing, {out.seconds[-1]:.0f} s")
     finally:

@@ -71,8 +71,12 @@ def test_check_lamp_reads_what_simulate_reports(tmp_path):
     rows = [(t["ruleset"], q) for k, t in s.items() if k.startswith("regulation")
             for q in t["results"] if q["verdict"] != "info" and q.get("limit")]
     assert chk.rows == len(rows) == 36
-    want = sorted((4, rs, q["name"], q["verdict"]) for rs, q in rows if q["verdict"] != "pass")
-    assert sorted(chk.not_passing) == want and want  # 1 M photons: some are uncertain
+    want = [(4, rs, q["name"], q["verdict"]) for rs, q in rows if q["verdict"] != "pass"]
+    cut = s["cutoff"]  # annex 9's linearity counts as a row the lamp does not pass
+    assert cut["linear"] == (cut["spread_deg"] <= 0.2)
+    if not cut["linear"]:
+        want.append((4, "annex 9", "linearity", f"fail ({cut['spread_deg']:.3f}°)"))
+    assert sorted(chk.not_passing) == sorted(want) and want  # 1 M photons: some uncertain
     assert chk.min_margin == pytest.approx(min(rule_margin(q) for _, q in rows))
     assert len(chk.seconds) == 1 and chk.seconds[0] > 0
 
