@@ -134,10 +134,11 @@ def _resolution(text: str, flag: str = "--resolution") -> tuple[int, int]:
 @click.option("--model-smooth", type=float, default=0.0, show_default=True,
               help="σ (model-wall pixels) of a Gaussian applied to every footprint (0: none).")
 @click.option("--restarts", type=int, default=1, show_default=True,
-              help="Design this many lamps (seeds SEED, SEED+1, …), check each as the README "
-                   "demo does (--restart-photons at every --restart-seeds) and keep the one "
-                   "that passes best: fewest rows not passing, then the largest smallest "
-                   "margin, then the lowest J (1: one design, no check).")
+              help="Design this many lamps (seeds SEED, SEED+1, …), check each with the "
+                   "README demo's run (--restart-photons at every --restart-seeds; every rule "
+                   "and annex 9's linearity) and keep the one that passes best: fewest rows "
+                   "not passing, then the largest smallest margin, then the lowest J (1: one "
+                   "design, no check).")
 @click.option("--restart-photons", type=int, default=32_000_000, show_default=True,
               help="Photons of each restart check run.")
 @click.option("--restart-resolution", default="320x128", show_default=True,
