@@ -332,18 +332,17 @@ def linearity_step(x: np.ndarray, layout: Any, regulations: Sequence[str], *,
         m0 = start.margins
         cur = start
 
-        def best_of(tries: list[dict[int, float]], what: str,
+        def best_of(k: int, steps: Sequence[float], what: str,
                     spread_max: float = math.inf) -> None:
-            """Simulate each try; keep the best if it lowers J_lin (and its spread is at
-            most ``spread_max``)."""
+            """Simulate facet ``k`` moved by each of ``steps`` (deg) from where it stands;
+            keep the best if it lowers J_lin (and its spread is at most ``spread_max``)."""
             nonlocal cur
             best = None
-            for trial in tries:
+            for d in steps:
+                trial = {**cur.shifts, k: cur.shifts.get(k, 0.0) + float(d)}
                 t = measure(trial, seed, m0)
                 result.evaluations += 1
-                k = next(iter(set(trial) - set(cur.shifts) or
-                              {q for q in trial if trial[q] != cur.shifts.get(q)}), None)
-                say(f"{what}: facet {k} {trial.get(k, 0.0):+.3f}°: scans "
+                say(f"{what}: facet {k} {trial[k]:+.3f}°: scans "
                     + ", ".join(f"{q:+.3f}°" for q in t.v) + f", J_lin {t.objective:.4f}"
                     + (f"; lost: {', '.join(f'{n} {d:.3f}' for n, d in t.lost.items())}"
                        if t.lost else ""))
@@ -363,9 +362,8 @@ def linearity_step(x: np.ndarray, layout: Any, regulations: Sequence[str], *,
             # a second scan's facets toward the median can give back what a rule lost to
             # the first (measured: lowering the 3.5° L facet cost zone IV at 0.86D 3.5° L,
             # raising the 1.5° L one gave some of it back)
-            best_of([{**cur.shifts, k: cur.shifts.get(k, 0.0)
-                      + float(np.clip(f * gap, -bound_deg, bound_deg))}
-                     for f in step_fractions], "level")
+            best_of(k, [float(np.clip(f * gap, -bound_deg, bound_deg))
+                        for f in step_fractions], "level")
         # 2. repair the rules the levelling cost: the facets brightest at each rule's
         # decisive probe move a little up or down
         if cur.shifts:
@@ -385,8 +383,7 @@ def linearity_step(x: np.ndarray, layout: Any, regulations: Sequence[str], *,
                     k = int(model.facets[i])
                     if cur.lost.get(name, 0.0) <= repair_min:
                         break
-                    best_of([{**cur.shifts, k: cur.shifts.get(k, 0.0) + float(d)}
-                             for d in repair_steps_deg], f"repair {name}", level)
+                    best_of(k, repair_steps_deg, f"repair {name}", level)
         result.objective_end = cur.objective
         if cur.shifts:
             # a fresh seed: the kept shifts must beat the start on other photons too
