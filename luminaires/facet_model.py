@@ -52,7 +52,8 @@ import numpy as np
 from lightsim.errors import InputError
 
 __all__ = ["AWAY_V_DEG", "NOISE_CD", "NOISE_PHOTONS", "FootprintModel", "ShiftResult",
-           "measure_footprints", "model_terms", "movable_facets", "optimise_shifts"]
+           "map_terms", "measure_footprints", "model_terms", "movable_facets", "optimise_shifts",
+           "ruleset_probes"]
 
 AWAY_V_DEG = -25.0  # the wall spans ±13.5° at 25 m; −25° puts a facet's images below it
 SHIFT_BOUNDS_DEG = (1.0, 0.5)  # measured: with ±3°, ±1.5° (rms 0.8°) the re-measured
@@ -242,8 +243,6 @@ def map_terms(lux: np.ndarray, frame: Any, regulations: Sequence[str], traffic: 
     from lightsim.wall import WallFrame
 
     from .design import _rule_terms, objective_terms
-    from .regulations import load_ruleset
-    from .regulations.evaluate import probe_points
 
     lux = np.asarray(lux, float)
     wf = WallFrame.from_any(frame)
@@ -257,13 +256,7 @@ def map_terms(lux: np.ndarray, frame: Any, regulations: Sequence[str], traffic: 
     dv0 = 0.0
     terms: list[Any] = []
     for i, name in enumerate(regulations):
-        # the probes a wall holds depend on its extent: one entry per wall
-        key = (name, traffic, tuple(frame["resolution"]), tuple(frame["h_range_m"]),
-               tuple(frame["v_range_m"]), float(frame["distance_m"]))
-        if key not in _PROBES:
-            rs0 = load_ruleset(name)
-            _PROBES[key] = (rs0, probe_points(rs0, traffic, frame=frame))
-        rs, probes = _PROBES[key]
+        rs, probes = ruleset_probes(name, traffic, frame)
         # the check run aims the pattern at its cut-off (``--aim``) and its finder can
         # differ from the model's by ~0.1° (pixel sizes, noise): every rule is taken at its
         # worst over the pattern and the pattern moved ±AIM_TOLERANCE_DEG
@@ -288,6 +281,21 @@ def map_terms(lux: np.ndarray, frame: Any, regulations: Sequence[str], traffic: 
             got = [replace(t, name=f"{t.name} ({rs.id})") for t in got]
         terms += got
     return terms
+
+
+def ruleset_probes(name: str, traffic: str, frame: dict[str, Any]) -> tuple[Any, Any]:
+    """(RuleSet, Probes) of rule set ``name`` on the wall ``frame`` (a
+    :meth:`~lightsim.wall.WallFrame.to_dict`), cached: the probes a wall holds depend on
+    its extent, so there is one entry per wall."""
+    from .regulations import load_ruleset
+    from .regulations.evaluate import probe_points
+
+    key = (name, traffic, tuple(frame["resolution"]), tuple(frame["h_range_m"]),
+           tuple(frame["v_range_m"]), float(frame["distance_m"]))
+    if key not in _PROBES:
+        rs = load_ruleset(name)
+        _PROBES[key] = (rs, probe_points(rs, traffic, frame=frame))
+    return _PROBES[key]
 
 
 def _results(rs: Any, probes: Any, lux: np.ndarray, frame: Any, traffic: str,

@@ -209,16 +209,13 @@ def _rule_places(regulations: Sequence[str], lux: np.ndarray, frame: Any, traffi
                  noise_cd: float) -> dict[str, tuple[float, float]]:
     """(h, v) deg of each rule's decisive probe (a point's place, a zone's extreme) on
     ``lux``, named as the design's J names them."""
-    from .facet_model import _results
-    from .regulations import load_ruleset
-    from .regulations.evaluate import probe_points
+    from .facet_model import _results, ruleset_probes
 
+    frame = WallFrame.from_any(frame).to_dict()
     out = {}
     for i, name in enumerate(regulations):
-        rs = load_ruleset(name)
-        res = _results(rs, probe_points(rs, traffic, frame=frame), lux, frame, traffic,
-                       noise_cd, 0.0)
-        for r in res:
+        rs, probes = ruleset_probes(name, traffic, frame)
+        for r in _results(rs, probes, lux, frame, traffic, noise_cd, 0.0):
             if r.get("h_deg") is not None and r.get("v_deg") is not None:
                 out[r["name"] if i == 0 else f"{r['name']} ({rs.id})"] = (
                     float(r["h_deg"]), float(r["v_deg"]))
