@@ -48,6 +48,34 @@ def test_raster_window_sums_are_numpys_bit_for_bit(H, W, C):
     assert not ici.WindowGeometry.of(H, W, rows[::-1], cols[::-1], sides).raster or H * W == 1
 
 
+@pytest.mark.parametrize("H,W,C", [(64, 160, 3), (256, 640, 1), (40, 30, 2)])
+def test_direct_window_sums_at_few_pixels_are_exact_where_the_table_cancels(H, W, C):
+    """A frame's grid probes are summed cell by cell (no pass over the whole lattice):
+    to rounding of the exact sums even across 60 decades, where the summed-area table's
+    corner differences lose every digit of a dark window beside a bright one."""
+    rng = np.random.default_rng(H + W)
+    sub = rng.random((2 * H, 2 * W, C)) * 10.0 ** rng.integers(-30, 30, (2 * H, 2 * W, C))
+    rows = np.r_[rng.integers(0, H, 40), 0, H - 1]  # the wall's edges clip windows
+    cols = np.r_[rng.integers(0, W, 40), W - 1, 0]
+    for sides in (np.array([1, 2, 3, 4]), np.array([1, 2, 3, 5]), np.array([2, 7])):
+        geometry = ici.WindowGeometry.of(H, W, rows, cols, sides)
+        assert geometry.direct and not geometry.raster
+        sums, cells = ici.window_sums(sub, rows, cols, sides, geometry)
+        for q in range(len(rows)):
+            r, c = rows[q], cols[q]
+            for j, m in enumerate(sides):
+                r0, r1 = max(0, 2 * r + 1 - m), min(2 * H, 2 * r + 1 + m)
+                c0, c1 = max(0, 2 * c + 1 - m), min(2 * W, 2 * c + 1 + m)
+                exact = sub[r0:r1, c0:c1].astype(np.longdouble).sum(axis=(0, 1))
+                np.testing.assert_allclose(sums[j, q], exact.astype(float), rtol=1e-13)
+                assert cells[j, q] == (r1 - r0) * (c1 - c0)
+    none = ici.window_sums(sub, rows[:0], cols[:0], sides)
+    assert none[0].shape == (len(sides), 0, C) and none[1].shape == (len(sides), 0)
+    # every pixel is the raster's pass; a query list as long as the wall: the table
+    rows_all, cols_all = np.divmod(np.arange(H * W), W)
+    assert not ici.WindowGeometry.of(H, W, rows_all[::-1], cols_all[::-1], sides).direct
+
+
 def test_lattice_index_puts_pixel_centres_on_cell_corners():
     _, frame = make_wall(25.0, (2.0, 1.0), resolution=(4, 2))
     # pixel (row 0, col 0) spans h ∈ [−1, −0.5), v ∈ (0, 0.5]; its centre (−0.75, 0.25)

@@ -215,8 +215,19 @@ class SetEstimator:
         return self._camera_cache[key]
 
     # -- a frame ----------------------------------------------------------------------------
-    def render(self, st: SetState, request: RenderRequest, n_owned: int = 1) -> SetFrame:
-        """What ``request`` asks of set ``st`` (see :class:`SetFrame`), float32."""
+    def full_rungs(self, st: SetState) -> np.ndarray:
+        """The set's rungs (lx) at every pixel of the wall, (J+1, H, W, C) float32: the
+        written map's part of a set (GIL-free but for small steps, so the sets of a
+        client can be summed on threads: :meth:`Client.render`)."""
+        W, H = self.frame.resolution
+        rows, cols = np.divmod(np.arange(H * W), W)
+        r = self.ici_rungs(st, rows, cols, key="every pixel")
+        return r.reshape((len(r), H, W, self.channels)).astype(np.float32)
+
+    def render(self, st: SetState, request: RenderRequest, n_owned: int = 1,
+               full_rungs: np.ndarray | None = None) -> SetFrame:
+        """What ``request`` asks of set ``st`` (see :class:`SetFrame`), float32
+        (``full_rungs``: :meth:`full_rungs` of this set, when already computed)."""
         s = st.index
         out = SetFrame(s)
         normal = self._normal
@@ -226,10 +237,7 @@ class SetEstimator:
             est = self.estimate(st, pts, np.broadcast_to(normal, pts.shape), "interleaved")
             out.sub_image = est.reshape((*self.coarse(step)[1].sub_shape(s), self.channels))
         if request.full_image and self.config.uses_ici:  # the server picks each rung
-            W, H = self.frame.resolution
-            rows, cols = np.divmod(np.arange(H * W), W)
-            r = self.ici_rungs(st, rows, cols, key="every pixel")
-            out.full_rungs = r.reshape((len(r), H, W, self.channels))
+            out.full_rungs = self.full_rungs(st) if full_rungs is None else full_rungs
             if st.wall_moments is not None:  # the map's rung choice needs ΣΦ² (q)
                 out.moments = st.wall_moments.copy()
         elif request.full_image:
