@@ -300,15 +300,19 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     H, W = shape
     order = sorted(rungs)
     e = np.array([emitted[s] for s in order], dtype=np.float64)
-    Rl = ici._stack64(rungs, order, lum=True)  # (S, J+1, Q)
-    S, J1, Q = Rl.shape
+    # every set's luminous rung 0 at every pixel (the windows' SATs, the lit masks); the
+    # other rungs only at the fused pixels below (no (S, J+1, H·W) stack: 84 MB on the
+    # shipped headlight's wall, of which a tenth is fused)
+    R0 = ici._stack64(rungs, order, lum=True, rung=0)  # (S, Q)
+    S, Q = R0.shape
+    J1 = np.asarray(rungs[order[0]]).shape[0]
     if Q != H * W:
         raise ValueError(f"fused_map: {Q} queries are not a {H} × {W} raster")
     areas = np.ascontiguousarray(np.broadcast_to(
         np.asarray(areas, np.float64)[:J1].reshape(J1, -1), (J1, Q)))
     a_pix = float(areas[0, 0])
     rows_all, cols_all = np.divmod(np.arange(Q, dtype=np.int64), W)
-    sats = pixel_sat(Rl[:, 0].reshape(S, H, W))
+    sats = pixel_sat(R0.reshape(S, H, W))
     C = np.asarray(rungs[order[0]]).shape[-1]
     # the fused pixels: all, or those the centred map shows near or above the lit level
     if guide is not None and Q:
@@ -317,7 +321,7 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     else:
         sel = np.arange(Q, dtype=np.int64)
     rows, cols = rows_all[sel], cols_all[sel]
-    Rs = np.ascontiguousarray(Rl[:, :, sel])
+    Rs = ici._stack64(rungs, order, lum=True, pixels=sel)  # (S, J+1, Qs)
     As = np.ascontiguousarray(areas[:, sel])
     Qs = len(sel)
     everyone = np.arange(S)
@@ -384,5 +388,5 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         jk_all[sel], wk_all[sel] = choices[0][1], choices[0][2]
     choice = FusedChoice(jk_all[np.arange(Q), np.argmax(wk_all, axis=1)], lux, jk_all,
                          wk_all)
-    # every set's luminous rung 0 is Rl[:, 0]: the lit masks need not convert it again
-    return FusedMap(choice, vals, ici._lit_masks(rungs, choice, lit_fraction, vals, Rl[:, 0]))
+    # every set's luminous rung 0 is R0: the lit masks need not convert it again
+    return FusedMap(choice, vals, ici._lit_masks(rungs, choice, lit_fraction, vals, R0))

@@ -308,16 +308,23 @@ def _weights(emitted: dict[int, int], order: list[int]) -> np.ndarray:
     return w / w.sum() if w.sum() > 0 else np.full(len(order), 1.0 / max(len(order), 1))
 
 
-def _stack64(rungs: dict[int, np.ndarray], order: list[int], lum: bool = False
-             ) -> np.ndarray:
+def _stack64(rungs: dict[int, np.ndarray], order: list[int], lum: bool = False,
+             rung: int | None = None, pixels: np.ndarray | None = None) -> np.ndarray:
     """The sets' rungs in ``order`` as one float64 array (S, J+1, Q, C) — or, with
     ``lum``, their luminous values (S, J+1, Q) — filled in place: the same values as
-    ``np.stack`` of float64 copies, without the copies (the wire brings float32)."""
-    first = np.asarray(rungs[order[0]])
+    ``np.stack`` of float64 copies, without the copies (the wire brings float32).
+    ``rung`` keeps that rung only (no J+1 axis), ``pixels`` those queries only: the same
+    values as indexing the whole stack, without making it."""
+    def part(r: np.ndarray) -> np.ndarray:
+        if rung is not None:
+            r = r[rung]
+        return r if pixels is None else r[..., pixels, :]
+
+    first = part(np.asarray(rungs[order[0]]))
     shape = first.shape[:-1] if lum else first.shape
     out = np.empty((len(order), *shape))
     for i, s in enumerate(order):
-        r = np.asarray(rungs[s])
+        r = part(np.asarray(rungs[s]))
         if not lum:
             out[i] = r
         elif r.shape[-1] == 1:
