@@ -195,6 +195,7 @@ def test_bench_pipeline_rows(point):
     assert r["ratio_same_photons"] == pytest.approx(
         r["simulate_photons_per_s"] / r["tracer_same_photons_per_s"])
     assert 0 < r["ratio_same_photons"] < 10
+    assert 0 < r["cpu_ratio_same_photons"] < 10  # CPU-seconds, the same comparison
 
 
 def test_pipeline_recorder_keeps_the_runs_photons(point):

@@ -18,7 +18,10 @@ compares like with like: the bare tracer is also timed on the very photons a run
 (points, keys and SPT weights recorded from one untimed run, traced in one call, as
 ``bench tracer`` does), and the run's photons/s are divided by that rate. ``ray_ratio``
 (rays/s of the run over the plain tracer's) and ``trace_share`` (the run's own tracer
-time over its time) are the other like-with-like views.
+time over its time) are the other like-with-like views; ``cpu_ratio_same_photons`` is
+``ratio_same_photons`` in CPU-seconds (all threads, ``time.process_time``): what the run
+costs the machine beyond tracing, less moved by other jobs than the wall clock (note
+that the session's whole process is counted: its clock starts before set-up).
 
 =================  =====  ===========  ===============================================
 parameter          unit   default      meaning
@@ -96,14 +99,16 @@ def _run(scene, config: RunConfig, photons: int, record: _Recorder | None = None
         if record is not None:
             for client in getattr(s.backend, "clients", ()):
                 record.wrap(client.photons.tracer)
+        c0 = time.process_time()
         est = s.run(photons=photons, callback=tally, probes=False)  # as `simulate` does
+        cpu = time.process_time() - c0
         final = est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0)
         # shooting (sampling, tracing, insertion) of every frame: the rest of the run
         tot = s.shoot_totals
         return {"photons": est.photons, "seconds": est.seconds, "frames": s.frames,
                 "estimates": estimates, "shoot_s": est.seconds - render - final,
                 "estimate_s": render, "final_s": final, "sample_s": tot.sample_s,
-                "trace_s": tot.trace_s, "rays": tot.rays}
+                "trace_s": tot.trace_s, "rays": tot.rays, "cpu_s": cpu}
 
 
 def bench_pipeline(scene, config: RunConfig | None = None, photons: int = 1_000_000,
@@ -124,17 +129,23 @@ def bench_pipeline(scene, config: RunConfig | None = None, photons: int = 1_000_
     rows: list[dict[str, Any]] = []
     for r in range(repeats):
         trace, trace_rays = _trace_rate(tracer, pts, keys)
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         same = tracer.trace_points(same_pts, same_keys, same_w)
         same_rate = len(same_pts) / (time.perf_counter() - t0)
+        same_cpu = time.process_time() - c0
         del same
         run = _run(scene, config, photons)
+        run_cpu = run["cpu_s"]
         rate = run["photons"] / run["seconds"]
         rays = run["rays"] / run["seconds"]
         rows.append({"what": f"pair {r + 1}", "tracer_photons_per_s": trace,
                      "simulate_photons_per_s": rate, "ratio": rate / trace,
                      "tracer_same_photons_per_s": same_rate,
                      "ratio_same_photons": rate / same_rate,
+                     # CPU-seconds per photon, tracer over run (all threads; the process's
+                     # own work, so less moved by other jobs than the wall-clock ratio)
+                     "cpu_ratio_same_photons": (same_cpu / len(same_pts))
+                     / max(run_cpu / run["photons"], 1e-12),
                      "ray_ratio": rays / trace_rays,
                      "trace_share": run["trace_s"] / run["seconds"],
                      "frames": run["frames"], "estimates": run["estimates"],
