@@ -78,6 +78,10 @@ def _one_line(text: str) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script; maps input errors to one line and exit code 2."""
+    if argv is None:  # the console script's process: freed arrays are reused, not faulted
+        from lightsim.engine.memory import keep_freed_memory
+
+        keep_freed_memory()
     try:
         _run(argv)
     finally:

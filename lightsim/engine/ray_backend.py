@@ -94,7 +94,9 @@ def _actor_class():
             import numba
 
             from lightsim.engine.client import Client
+            from lightsim.engine.memory import keep_freed_memory
 
+            keep_freed_memory()  # a worker process of its own: the command's heap policy
             numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
             self.client = Client(scene, config.with_(threads=threads), plan, sets, probes_hv)
 
