@@ -144,10 +144,8 @@ class Client:
             # own: the same numbers in any order); the rest of each set's answer follows
             # here, in set order
             est = self.estimator
-            first = est.full_rungs(sets[self.set_indices[0]])  # fills the window cache
-            with ThreadPoolExecutor(min(threads, len(rungs) - 1)) as pool:
-                rungs = [first, *pool.map(lambda s: est.full_rungs(sets[s]),
-                                          self.set_indices[1:])]
+            with ThreadPoolExecutor(min(threads, len(rungs))) as pool:
+                rungs = list(pool.map(lambda s: est.full_rungs(sets[s]), self.set_indices))
         frames = [self.estimator.render(sets[s], request, len(sets), r)
                   for s, r in zip(self.set_indices, rungs, strict=True)]
         return ClientFrame(frames, time.perf_counter() - t0)

@@ -145,11 +145,11 @@ class SetEstimator:
         return normalise_flux(np.asarray(res.E, dtype=np.float64), st.emitted)
 
     def ici_rungs(self, st: SetState, rows: np.ndarray, cols: np.ndarray,
-                  key: str | None = None) -> np.ndarray:
+                  key: str | None = None, geometry=None) -> np.ndarray:
         """The set's rung estimates (lx) at pixels: (J+1, Q, C) (see
         :mod:`lightsim.render.ici`): rung 0 the pixel, then squares 2, 3, … pixels a side.
         ``key`` names a fixed query set (every pixel, the grid probes): its window bounds
-        are computed once, not once per set and frame."""
+        are computed once, not once per set and frame (or ``geometry``, given)."""
         from lightsim.render import ici
 
         sides = ici.rung_sides(self.frame.pixel_size_m, self.radii["pooled"][1])
@@ -157,8 +157,7 @@ class SetEstimator:
         if st.emitted == 0 or st.lattice is None:
             return np.zeros((len(sides), len(rows), self.channels))
         dh, dv = self.frame.pixel_size_m
-        geometry = None
-        if key is not None:
+        if geometry is None and key is not None:
             cached = self._window_geometry.get(key)
             if cached is None or cached[0] != tuple(sides):
                 cached = (tuple(sides), ici.WindowGeometry.of(H, W, rows, cols, sides))
@@ -219,9 +218,12 @@ class SetEstimator:
         """The set's rungs (lx) at every pixel of the wall, (J+1, H, W, C) float32: the
         written map's part of a set (GIL-free but for small steps, so the sets of a
         client can be summed on threads: :meth:`Client.render`)."""
+        from lightsim.render import ici
+
         W, H = self.frame.resolution
-        rows, cols = np.divmod(np.arange(H * W), W)
-        r = self.ici_rungs(st, rows, cols, key="every pixel")
+        sides = ici.rung_sides(self.frame.pixel_size_m, self.radii["pooled"][1])
+        rows, cols, geometry = ici.raster_queries(H, W, tuple(int(m) for m in sides))
+        r = self.ici_rungs(st, rows, cols, geometry=geometry)
         return r.reshape((len(r), H, W, self.channels)).astype(np.float32)
 
     def render(self, st: SetState, request: RenderRequest, n_owned: int = 1,

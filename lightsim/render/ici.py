@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 from numba import njit
@@ -149,6 +150,19 @@ class WindowGeometry:
         direct = not raster and len(rows) * (2 * m) ** 2 <= 2 * (2 * H) * (2 * W)
         return cls(tuple(_bounds(2 * H, 2 * W, rows, cols, sides)),
                    window_cells(H, W, rows, cols, sides), raster, direct)
+
+
+@lru_cache(maxsize=4)
+def raster_queries(H: int, W: int, sides: tuple[int, ...]
+                   ) -> tuple[np.ndarray, np.ndarray, WindowGeometry]:
+    """(rows, cols, geometry) of every pixel of an H × W wall in row order for the
+    window ``sides``: the written map's queries, made once per wall and ladder rather
+    than once per session and set (read-only arrays)."""
+    rows, cols = np.divmod(np.arange(H * W, dtype=np.int64), W)
+    geometry = WindowGeometry.of(H, W, rows, cols, np.asarray(sides, np.int64))
+    for a in (rows, cols, geometry.cells):
+        a.flags.writeable = False
+    return rows, cols, geometry
 
 
 def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray,
