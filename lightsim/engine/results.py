@@ -84,8 +84,8 @@ class SetFrame:
         half the bytes per frame."""
         for name in _ARRAYS:
             value = getattr(self, name)
-            if value is not None:
-                setattr(self, name, value.astype(np.float32))
+            if value is not None:  # (a float32 array already is one: no copy)
+                setattr(self, name, value.astype(np.float32, copy=False))
         return self
 
     @property
