@@ -4,7 +4,6 @@ cases (nothing to insert, photons off the wall, extreme coordinates)."""
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
 
@@ -82,9 +81,8 @@ def _insert(part, pos, bounds, need_hv=True, channels=1):
     S = len(bounds) - 1
     win = np.zeros((S, 16, channels))
     lat = np.zeros((S, 64, channels))
-    T = numba.config.NUMBA_NUM_THREADS  # a work row per thread
-    work = np.full((T, 64), -1, np.int32)
-    win_work = np.zeros((T, 9, 16, channels))
+    work = np.full(64, -1, np.int32)
+    win_work = np.zeros((9, 16, channels))
     power = np.ones((len(pos), channels), np.float32)
     axes = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
     out = insert_wall(part, np.array([0]), pos, power, np.asarray(bounds, np.int64), axes,

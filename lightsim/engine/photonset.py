@@ -29,7 +29,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import numba
 import numpy as np
 
 from lightsim.engine.config import RunConfig
@@ -344,20 +343,18 @@ class PhotonSets:
                  int(np.floor(-reach_v)), int(np.ceil(reach_v)), nh, nv)
         windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
         W, H = fr.resolution
-        T = numba.config.NUMBA_NUM_THREADS  # the kernel's work arrays: a row per thread
         if self.config.uses_ici:
             lattice = self._stacked(sets, "lattice", (4 * H * W, C), none)
             work = self._blocks.get("lattice work")
-            if work is None or work.shape != (T, lattice.shape[1]):  # kept at −1
-                work = self._blocks["lattice work"] = np.full((T, lattice.shape[1]), -1,
-                                                              np.int32)
+            if work is None or work.shape[0] != lattice.shape[1]:  # kept at −1
+                work = self._blocks["lattice work"] = np.full(lattice.shape[1], -1, np.int32)
         else:
             lattice = np.zeros((0, 0, C))
-            work = np.zeros((T, 0), np.int32)
+            work = np.zeros(0, np.int32)
         win_work = self._blocks.get("windows work")
         n_slots = (reach[1] - reach[0] + 1) * (reach[3] - reach[2] + 1)
-        if win_work is None or win_work.shape != (T, n_slots, nh * nv, C):
-            win_work = self._blocks["windows work"] = np.zeros((T, n_slots, nh * nv, C))
+        if win_work is None or win_work.shape != (n_slots, nh * nv, C):
+            win_work = self._blocks["windows work"] = np.zeros((n_slots, nh * nv, C))
         need_hv = any(st.apertures is not None for st in sets)
         axes = np.array([fr.centre, fr.h_axis, fr.v_axis], np.float64)
         counts, ok, pb, index, h, v = insert_wall(
