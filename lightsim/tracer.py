@@ -229,8 +229,8 @@ def _offset(px, py, pz, nx, ny, nz, sign, eps_floor):
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, d32,
-            esc_d, esc_p, record_escaped, scratch):
+def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_off, caustic,
+            o32, d32, esc_d, esc_p, record_escaped, scratch):
     """One bounce of the first ``m`` rays of a wavefront, fused with its compaction.
 
     Per ray: dispatch to the optics of the surface hit (:mod:`lightsim.materials`; the
@@ -238,7 +238,9 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
     roulette; records go densely into ``rec``, escaped photons into ``esc_d``/``esc_p``
     (if ``record_escaped``), and the surviving rays move to the front of ``wf`` in order,
     with float32 copies of their origins and directions in ``o32``/``d32`` for the next
-    embree cast. ``scratch`` (≥ m, 24) holds the hit triangles' packed rows.
+    embree cast. ``scratch`` (≥ m, 24) holds the hit triangles' packed rows. Photon ``j``
+    (``wf.lid``: its index in the trace) books into ``ledger[j - led_off]`` (the chunk's
+    rows), and its record, if on a specular path, marks ``caustic[j]``.
 
     The named tuples are unpacked once, before the loop, and the loop body handles only
     scalars and array elements: an array or a tuple of arrays handed to a function per
@@ -277,6 +279,7 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
     e = 0
     for i in range(m):
         j = wlid[i]
+        jl = j - led_off
         k = prim[i]
         if k < 0:  # escaped to infinity
             if record_escaped:
@@ -286,7 +289,7 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
                     esc_p[e, c] = pw[i, c]
                 e += 1
             for c in range(C):
-                ledger[j, L_ESC, c] += pw[i, c]
+                ledger[jl, L_ESC, c] += pw[i, c]
                 pw[i, c] = 0.0
             continue
         t = float(tfar[i])
@@ -319,18 +322,21 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
             for c in range(C):
                 rpow[r, c] = pw[i, c]
             rpart[r] = mi
-            rflags[r] = wflags[i]
+            fl = wflags[i]
+            rflags[r] = fl
             rsrc[r] = j
+            if fl & F_SPECULAR:
+                caustic[j] = True
             r += 1
         if kind == WALL:  # the detector: all flux detected, the photon ends
             for c in range(C):
-                ledger[j, L_WALL, c] += pw[i, c]
+                ledger[jl, L_WALL, c] += pw[i, c]
                 pw[i, c] = 0.0
             continue
         if kind == DIFFUSE:
             for c in range(C):
                 rho = value[mi, c]
-                ledger[j, L_ABS_DIFF, c] += (1.0 - rho) * pw[i, c]
+                ledger[jl, L_ABS_DIFF, c] += (1.0 - rho) * pw[i, c]
                 pw[i, c] *= rho
             wx, wy, wz = cosine_direction(ngx, ngy, ngz, uniform(key, ctr + np.uint64(2)),
                                           uniform(key, ctr + np.uint64(3)))
@@ -351,7 +357,7 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
             if kind == MIRROR:
                 for c in range(C):
                     rr_ = value[mi, c]
-                    ledger[j, L_ABS_MIRR, c] += (1.0 - rr_) * pw[i, c]
+                    ledger[jl, L_ABS_MIRR, c] += (1.0 - rr_) * pw[i, c]
                     pw[i, c] *= rr_
                 wx, wy, wz = mirror_direction(dx, dy, dz, nsx, nsy, nsz, ngx, ngy, ngz)
                 side = 1.0
@@ -361,7 +367,7 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
                         s_ = sigma[mi, c]
                         if s_ > 0.0:
                             keep = math.exp(-s_ * t)
-                            ledger[j, L_ABS_VOL, c] += (1.0 - keep) * pw[i, c]
+                            ledger[jl, L_ABS_VOL, c] += (1.0 - keep) * pw[i, c]
                             pw[i, c] *= keep
                 wx, wy, wz, side = dielectric_direction(dx, dy, dz, nsx, nsy, nsz, ngx, ngy,
                                                         ngz, front, ior[mi], key, ctr)
@@ -380,16 +386,16 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
             q = pmax / (rr_threshold * p_ref)
             if uniform(key, ctr + np.uint64(1)) >= q:
                 for c in range(C):
-                    ledger[j, L_RR, c] += pw[i, c]
+                    ledger[jl, L_RR, c] += pw[i, c]
                     pw[i, c] = 0.0
                 continue
             for c in range(C):
                 boost = pw[i, c] / q - pw[i, c]
-                ledger[j, L_RR, c] -= boost
+                ledger[jl, L_RR, c] -= boost
                 pw[i, c] += boost
         if last_bounce:
             for c in range(C):
-                ledger[j, L_MAXD, c] += pw[i, c]
+                ledger[jl, L_MAXD, c] += pw[i, c]
                 pw[i, c] = 0.0
             continue
         # alive: compact to row w
@@ -409,9 +415,10 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, o32, 
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _start(o, d, power, keys, lo, hi):
+def _start(o, d, power, keys, lo, hi, base):
     """The wavefront's own arrays for photons lo..hi in one pass: flux (copied), roulette
-    reference (largest channel), flags, keys, ledger rows, float32 rays for embree."""
+    reference (largest channel), flags, keys, photon indices (base + i), float32 rays for
+    embree."""
     n = hi - lo
     C = power.shape[1]
     pw = np.empty((n, C))
@@ -429,7 +436,7 @@ def _start(o, d, power, keys, lo, hi):
             best = max(best, v)
         p_ref[i] = best
         kk[i] = keys[lo + i]
-        lid[i] = lo + i
+        lid[i] = base + i
         for q in range(3):
             o32[i, q] = o[i, q]
             d32[i, q] = d[i, q]
@@ -449,15 +456,81 @@ def _near_hits(prim, tfar, bound):
 
 
 @njit(cache=True, nogil=True)
-def _group_ledger(ledger, group, n_groups):
-    """Per-photon ledger rows summed per group, in photon order (like ``np.bincount``)."""
-    out = np.zeros((n_groups, ledger.shape[1], ledger.shape[2]))
+def _add_ledger(ledger, group, out):
+    """Per-photon ledger rows added to ``out`` per group, in photon order (like
+    ``np.bincount``); the rows are zeroed as they are read (the buffer is used again)."""
     for i in range(ledger.shape[0]):
         g = group[i]
         for k in range(ledger.shape[1]):
             for c in range(ledger.shape[2]):
                 out[g, k, c] += ledger[i, k, c]
-    return out
+                ledger[i, k, c] = 0.0
+
+
+class _BatchLedger:
+    """A batch's per-group ledger, summed in photon order from its chunks' per-photon
+    rows as the chunks finish, by whichever thread finishes one (chunk k is added once
+    chunks 0..k−1 are): the same sums as one pass over the batch's photons, and no
+    serial pass on the main thread after the batch."""
+
+    def __init__(self, group: np.ndarray, n_groups: int, bounds: list[int], channels: int,
+                 pool: _LedgerPool) -> None:
+        self.group, self.bounds, self.pool = group, bounds, pool
+        self.out = np.zeros((n_groups, len(LEDGER), channels))
+        self.next = 0
+        self.ready: dict[int, np.ndarray] = {}
+        self.lock = threading.Lock()
+        self.adding = threading.Lock()
+
+    def done(self, k: int, rows: np.ndarray) -> None:
+        """Chunk k's rows are final: add every chunk whose turn it is (or leave them to
+        the thread adding now)."""
+        with self.lock:
+            self.ready[k] = rows
+        while self.adding.acquire(blocking=False):
+            try:
+                while True:
+                    with self.lock:
+                        rows = self.ready.pop(self.next, None)
+                    if rows is None:
+                        break
+                    a, b = self.bounds[self.next], self.bounds[self.next + 1]
+                    _add_ledger(rows, self.group[a:b], self.out)
+                    self.pool.put(rows)
+                    self.next += 1
+            finally:
+                self.adding.release()
+            with self.lock:  # a chunk may have come in after the last look
+                if self.next not in self.ready:
+                    return
+
+    def result(self) -> np.ndarray:
+        if self.next != len(self.bounds) - 1:
+            raise RuntimeError("tracer: a chunk's ledger was not summed")
+        return self.out
+
+
+class _LedgerPool:
+    """Zeroed per-photon ledger buffers (rows, len(LEDGER), C) handed to chunks and
+    returned zeroed by :func:`_add_ledger`: no fresh pages per batch."""
+
+    def __init__(self, channels: int) -> None:
+        self.channels = channels
+        self.free: list[np.ndarray] = []
+        self.lock = threading.Lock()
+
+    def get(self, n: int) -> np.ndarray:
+        with self.lock:
+            for i, buf in enumerate(self.free):
+                if len(buf) >= n:
+                    return self.free.pop(i)[:n]
+        return np.zeros((max(n, 1), len(LEDGER), self.channels))[:n]
+
+    def put(self, rows: np.ndarray) -> None:
+        base = rows if rows.base is None else rows.base
+        with self.lock:
+            if len(self.free) < 64:
+                self.free.append(base)
 
 
 # ------------------------------------------------------------------------------------------
@@ -592,6 +665,7 @@ class PhotonTracer:
         self.threads = self.caster.threads
         self.min_chunk = int(min_chunk)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+        self._ledgers = _LedgerPool(self.channels)
         #: seconds per stage ("emit", "start", "cast", "bounce") summed over all chunks
         #: and threads when set to a dict (a profile: :func:`stage_seconds`); None: off
         self.stages: dict[str, float] | None = None
@@ -658,31 +732,34 @@ class PhotonTracer:
         parts: list[PhotonRecords] = []
         ledger = np.zeros((n_groups, len(LEDGER), C))
         esc_d, esc_p = [], []
-        caustic_source = np.zeros(n, dtype=np.bool_)
+        caustic_source = np.zeros(n, dtype=np.bool_)  # marked by the bounce kernel
+        emitted = None
         rays = 0
-        # two batches in flight: the next batch's chunks are queued before this one is
+        # two batches in flight: the next batch's chunks are queued before a batch is
         # collected, so no thread idles at a batch's tail (memory: two batch ledgers)
         pending: list = []
         done = []
         for lo in range(0, n, self.batch):
-            pending.append(self._submit_batch(source, lo, min(n, lo + self.batch), power,
-                                              keys, record_escaped))
+            hi = min(n, lo + self.batch)
+            pending.append(self._submit_batch(source, lo, hi, power, keys, record_escaped,
+                                              group, n_groups, caustic_source, hi == n))
+            if emitted is None:  # while the first chunks are traced
+                emitted = np.zeros((n_groups, C))
+                for c in range(C):
+                    emitted[:, c] = np.bincount(group, weights=power[:, c],
+                                                minlength=n_groups)
             if len(pending) > 1:
-                done.append(self._collect_batch(pending.pop(0), group, n_groups))
-        done.extend(self._collect_batch(b, group, n_groups) for b in pending)
-        for lo, (recs, led, nrays, ed, ep) in zip(range(0, n, self.batch), done):
-            for rec in recs:  # each bounce's records of a chunk: fresh arrays, moved once
-                rec.source += lo
-                caustic_source[rec.source[(rec.flags & F_SPECULAR) != 0]] = True
+                done.append(self._collect_batch(pending.pop(0)))
+        done.extend(self._collect_batch(b) for b in pending)
+        for recs, led, nrays, ed, ep in done:
             parts.extend(recs)
             ledger += led
             rays += nrays
             if record_escaped:
                 esc_d.append(ed)
                 esc_p.append(ep)
-        emitted = np.zeros((n_groups, C))
-        for c in range(C):
-            emitted[:, c] = np.bincount(group, weights=power[:, c], minlength=n_groups)
+        if emitted is None:
+            emitted = np.zeros((n_groups, C))
         return TraceResult(PhotonRecords.concatenate(parts, C), emitted, ledger, rays,
                            caustic_source,
                            np.concatenate(esc_d) if record_escaped and esc_d else None,
@@ -722,11 +799,13 @@ class PhotonTracer:
             prim[close], tfar[close], bu[close], bv[close] = p2, t2 + step, u2, v2
         return Hits(prim, tfar, bu, bv)
 
-    def _trace_chunk(self, source, lo: int, hi: int, power, keys, ledger, record_escaped):
+    def _trace_chunk(self, source, lo: int, hi: int, power, keys, ledger, base, caustic,
+                     record_escaped):
         """Trace photons lo..hi to the end in this thread: emit, then per bounce one embree
         cast and one fused interaction + compaction kernel. ``source(lo, hi)`` returns new
-        arrays of origins and directions (they become the wavefront). Returns per-bounce
-        records, escaped photons and the ray count."""
+        arrays of origins and directions (they become the wavefront); photon lo + i is
+        photon base + i of the trace (its records' source), its ledger row is
+        ``ledger[i]``. Returns per-bounce records, escaped photons and the ray count."""
         n = hi - lo
         C = self.channels
         clock = time.perf_counter if self.stages is not None else None
@@ -738,7 +817,7 @@ class PhotonTracer:
         if clock:
             t1 = clock()
             t_emit = t1 - t0
-        pw, p_ref, flags, kk, lid, o32, d32 = _start(o, d, power, keys, lo, hi)
+        pw, p_ref, flags, kk, lid, o32, d32 = _start(o, d, power, keys, lo, hi, base)
         if clock:
             t_start = clock() - t1
         wf = Wavefront(o, d, pw, p_ref, flags, kk, lid)
@@ -763,8 +842,8 @@ class PhotonTracer:
             esc = ((np.empty((m, 3), np.float32), np.empty((m, C))) if record_escaped
                    else (np.empty((0, 3), np.float32), np.empty((0, C))))
             m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
-                              depth == self.max_depth - 1, rb, ledger, o32, d32, esc[0], esc[1],
-                              record_escaped, scratch)
+                              depth == self.max_depth - 1, rb, ledger, base, caustic, o32,
+                              d32, esc[0], esc[1], record_escaped, scratch)
             if clock:
                 t_bounce += clock() - t1
             recs.append(PhotonRecords(*(a[:r] for a in rb)))
@@ -776,29 +855,44 @@ class PhotonTracer:
                     self.stages[k] = self.stages.get(k, 0.0) + v
         return recs, escs, rays
 
-    def _submit_batch(self, source, lo, hi, power, keys, record_escaped):
+    def _submit_batch(self, source, lo, hi, power, keys, record_escaped, group, n_groups,
+                      caustic, last):
         """Queue one batch's chunks on the threads (or trace them here without a pool);
-        :meth:`_collect_batch` waits for them."""
+        :meth:`_collect_batch` waits for them. Each chunk books into its own per-photon
+        ledger rows, summed per group in photon order as the chunks finish
+        (:class:`_BatchLedger`). The trace's last batch ends in smaller chunks (each a
+        share of what is left), so the threads finish about together."""
         n = hi - lo
-        ledger = np.zeros((n, len(LEDGER), self.channels))  # per photon, summed per group
-        step = max(self.min_chunk, -(-n // (4 * self.threads)))
-        bounds = list(range(0, n, step)) + [n]
+        T = self.threads
+        step = max(self.min_chunk, -(-n // (4 * T)))
+        if last and T > 1:
+            bounds, a = [0], 0
+            while a < n:
+                a = min(n, a + max(self.min_chunk, min(step, -(-(n - a) // (2 * T)))))
+                bounds.append(a)
+        else:
+            bounds = list(range(0, n, step)) + [n]
+        led = _BatchLedger(group[lo:hi], n_groups, bounds, self.channels, self._ledgers)
 
         def work(k: int):
             a, b = bounds[k], bounds[k + 1]
-            return self._trace_chunk(lambda x, y: source(lo + x, lo + y), a, b,
-                                     power[lo:hi], keys[lo:hi], ledger, record_escaped)
+            rows = self._ledgers.get(b - a)
+            out = self._trace_chunk(lambda x, y: source(lo + x, lo + y), a, b,
+                                    power[lo:hi], keys[lo:hi], rows, lo + a, caustic,
+                                    record_escaped)
+            led.done(k, rows)
+            return out
 
         if self._pool is None or len(bounds) <= 2:
             chunks = [work(k) for k in range(len(bounds) - 1)]
         else:
             chunks = [self._pool.submit(work, k) for k in range(len(bounds) - 1)]
-        return lo, hi, ledger, chunks
+        return led, chunks
 
-    def _collect_batch(self, batch, group, n_groups):
+    def _collect_batch(self, batch):
         """One batch's records in (bounce, photon) order (a list of the chunks' bounces,
         concatenated once per trace by :meth:`_trace`) and its per-group ledger."""
-        lo, hi, ledger, chunks = batch
+        led, chunks = batch
         chunks = [c.result() if hasattr(c, "result") else c for c in chunks]
         C = self.channels
         # bounce-major like one wavefront: bounce 0 of every chunk, then bounce 1, …
@@ -806,7 +900,6 @@ class PhotonTracer:
         recs = [c[0][k] for k in range(depth) for c in chunks if k < len(c[0])]
         escs = [c[1][k] for k in range(depth) for c in chunks if k < len(c[1])]
         rays = sum(c[2] for c in chunks)
-        led = _group_ledger(ledger, group[lo:hi], n_groups)
         ed = np.concatenate([e[0] for e in escs]) if escs else np.zeros((0, 3), np.float32)
         ep = np.concatenate([e[1] for e in escs]) if escs else np.zeros((0, C))
-        return recs, led, rays, ed, ep
+        return recs, led.result(), rays, ed, ep
