@@ -415,10 +415,10 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _start(o, d, power, keys, lo, hi, base):
-    """The wavefront's own arrays for photons lo..hi in one pass: flux (copied), roulette
-    reference (largest channel), flags, keys, photon indices (base + i), float32 rays for
-    embree."""
+def _start(o, d, power, weight, keys, lo, hi, base):
+    """The wavefront's own arrays for photons lo..hi in one pass: flux (``power``, times
+    ``weight`` unless that is empty), roulette reference (largest channel), flags, keys,
+    photon indices (base + i), float32 rays for embree."""
     n = hi - lo
     C = power.shape[1]
     pw = np.empty((n, C))
@@ -428,12 +428,13 @@ def _start(o, d, power, keys, lo, hi, base):
     lid = np.empty(n, np.int64)
     o32 = np.empty((n, 3), np.float32)
     d32 = np.empty((n, 3), np.float32)
+    weighted = weight.shape[0] > 0
     for i in range(n):
-        best = power[lo + i, 0]
+        best = -np.inf
         for c in range(C):
-            v = power[lo + i, c]
+            v = power[lo + i, c] * weight[lo + i] if weighted else power[lo + i, c]
             pw[i, c] = v
-            best = max(best, v)
+            best = v if c == 0 else max(best, v)
         p_ref[i] = best
         kk[i] = keys[lo + i]
         lid[i] = base + i
@@ -456,31 +457,50 @@ def _near_hits(prim, tfar, bound):
 
 
 @njit(cache=True, nogil=True)
-def _add_ledger(ledger, group, out):
-    """Per-photon ledger rows added to ``out`` per group, in photon order (like
-    ``np.bincount``); the rows are zeroed as they are read (the buffer is used again)."""
+def _add_ledger(ledger, group, power, weight, lo, out, emitted):
+    """Photons lo.. (their per-photon ledger rows, groups, flux ``power`` × ``weight``
+    unless that is empty) added to ``out`` and ``emitted`` per group in photon order, as
+    ``np.bincount`` sums; the rows are zeroed as they are read (the buffer is used again)."""
+    weighted = weight.shape[0] > 0
     for i in range(ledger.shape[0]):
-        g = group[i]
+        g = group[lo + i]
+        if g < 0 or g >= out.shape[0]:
+            raise ValueError("tracer: a photon's group is outside 0 .. n_groups - 1")
         for k in range(ledger.shape[1]):
             for c in range(ledger.shape[2]):
                 out[g, k, c] += ledger[i, k, c]
                 ledger[i, k, c] = 0.0
+        for c in range(emitted.shape[1]):
+            v = power[lo + i, c] * weight[lo + i] if weighted else power[lo + i, c]
+            emitted[g, c] += v
 
 
-class _BatchLedger:
-    """A batch's per-group ledger, summed in photon order from its chunks' per-photon
-    rows as the chunks finish, by whichever thread finishes one (chunk k is added once
-    chunks 0..k−1 are): the same sums as one pass over the batch's photons, and no
-    serial pass on the main thread after the batch."""
+class _TraceLedger:
+    """A trace's per-group ledgers (one per batch) and emitted flux, summed in photon
+    order from the chunks' per-photon rows as the chunks finish, by whichever thread
+    finishes one (chunk k is added once chunks 0..k−1 are): the same additions in the same
+    order as one pass over the photons after the trace, and no serial pass on the main
+    thread."""
 
-    def __init__(self, group: np.ndarray, n_groups: int, bounds: list[int], channels: int,
+    def __init__(self, group, power, weight, n_groups: int, channels: int,
                  pool: _LedgerPool) -> None:
-        self.group, self.bounds, self.pool = group, bounds, pool
-        self.out = np.zeros((n_groups, len(LEDGER), channels))
+        self.group, self.power, self.weight, self.pool = group, power, weight, pool
+        self.n_groups, self.channels = n_groups, channels
+        self.emitted = np.zeros((n_groups, channels))
+        self.chunks: list[tuple[int, np.ndarray]] = []  # (first photon, batch's ledger)
         self.next = 0
         self.ready: dict[int, np.ndarray] = {}
         self.lock = threading.Lock()
         self.adding = threading.Lock()
+
+    def add_batch(self, bounds: list[int]) -> tuple[int, np.ndarray]:
+        """Chunks lo..hi of the next batch (absolute photon bounds, in photon order): the
+        index of its first chunk and the batch's per-group ledger."""
+        out = np.zeros((self.n_groups, len(LEDGER), self.channels))
+        with self.lock:
+            first = len(self.chunks)
+            self.chunks.extend((a, out) for a in bounds[:-1])
+        return first, out
 
     def done(self, k: int, rows: np.ndarray) -> None:
         """Chunk k's rows are final: add every chunk whose turn it is (or leave them to
@@ -492,10 +512,12 @@ class _BatchLedger:
                 while True:
                     with self.lock:
                         rows = self.ready.pop(self.next, None)
+                        if rows is not None:
+                            lo, out = self.chunks[self.next]
                     if rows is None:
                         break
-                    a, b = self.bounds[self.next], self.bounds[self.next + 1]
-                    _add_ledger(rows, self.group[a:b], self.out)
+                    _add_ledger(rows, self.group, self.power, self.weight, lo, out,
+                                self.emitted)
                     self.pool.put(rows)
                     self.next += 1
             finally:
@@ -504,10 +526,9 @@ class _BatchLedger:
                 if self.next not in self.ready:
                     return
 
-    def result(self) -> np.ndarray:
-        if self.next != len(self.bounds) - 1:
+    def check(self, upto: int) -> None:
+        if self.next < upto:
             raise RuntimeError("tracer: a chunk's ledger was not summed")
-        return self.out
 
 
 class _LedgerPool:
@@ -699,14 +720,17 @@ class PhotonTracer:
             Group (interleave set) of each photon; bookkeeping is returned per group.
         """
         points = np.ascontiguousarray(points, dtype=np.float64)
-        power = np.full((len(points), self.channels), self.emitters.flux_lm)
-        if weight is not None:
-            power *= np.asarray(weight, dtype=np.float64)[:, None]
+        # photon power Φ · weight, made per chunk by the kernels (no (n, C) array here)
+        power = np.broadcast_to(np.full(self.channels, float(self.emitters.flux_lm)),
+                                (len(points), self.channels))
+        weight = (np.zeros(0) if weight is None
+                  else np.ascontiguousarray(weight, dtype=np.float64).reshape(len(points)))
 
         def source(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
             return self.emitters.sample(points[lo:hi])  # photon i from point i only
 
-        return self._trace(source, len(points), power, keys, group, n_groups, record_escaped)
+        return self._trace(source, len(points), power, weight, keys, group, n_groups,
+                           record_escaped)
 
     def trace(self, origins: np.ndarray, directions: np.ndarray, power: np.ndarray,
               keys: np.ndarray, group: np.ndarray | None = None, n_groups: int = 1,
@@ -721,19 +745,22 @@ class PhotonTracer:
             return (np.array(origins[lo:hi], dtype=np.float64),
                     np.array(directions[lo:hi], dtype=np.float64))
 
-        return self._trace(source, len(origins), power, keys, group, n_groups, record_escaped)
+        power = np.asarray(power, dtype=np.float64).reshape(len(origins), self.channels)
+        return self._trace(source, len(origins), power, np.zeros(0), keys, group, n_groups,
+                           record_escaped)
 
-    def _trace(self, source, n: int, power: np.ndarray, keys: np.ndarray,
+    def _trace(self, source, n: int, power: np.ndarray, weight: np.ndarray, keys: np.ndarray,
                group: np.ndarray | None, n_groups: int, record_escaped: bool) -> TraceResult:
+        """Photon i: emitted by ``source``, flux ``power[i]`` × ``weight[i]`` (``weight``
+        empty: ``power[i]``)."""
         C = self.channels
-        power = np.asarray(power, dtype=np.float64).reshape(n, C)
         keys = np.asarray(keys, dtype=np.uint64)
         group = np.zeros(n, np.int64) if group is None else np.asarray(group, np.int64)
         parts: list[PhotonRecords] = []
         ledger = np.zeros((n_groups, len(LEDGER), C))
         esc_d, esc_p = [], []
         caustic_source = np.zeros(n, dtype=np.bool_)  # marked by the bounce kernel
-        emitted = None
+        sums = _TraceLedger(group, power, weight, n_groups, C, self._ledgers)
         rays = 0
         # two batches in flight: the next batch's chunks are queued before a batch is
         # collected, so no thread idles at a batch's tail (memory: two batch ledgers)
@@ -741,13 +768,8 @@ class PhotonTracer:
         done = []
         for lo in range(0, n, self.batch):
             hi = min(n, lo + self.batch)
-            pending.append(self._submit_batch(source, lo, hi, power, keys, record_escaped,
-                                              group, n_groups, caustic_source, hi == n))
-            if emitted is None:  # while the first chunks are traced
-                emitted = np.zeros((n_groups, C))
-                for c in range(C):
-                    emitted[:, c] = np.bincount(group, weights=power[:, c],
-                                                minlength=n_groups)
+            pending.append(self._submit_batch(source, lo, hi, power, weight, keys,
+                                              record_escaped, sums, caustic_source, hi == n))
             if len(pending) > 1:
                 done.append(self._collect_batch(pending.pop(0)))
         done.extend(self._collect_batch(b) for b in pending)
@@ -758,9 +780,8 @@ class PhotonTracer:
             if record_escaped:
                 esc_d.append(ed)
                 esc_p.append(ep)
-        if emitted is None:
-            emitted = np.zeros((n_groups, C))
-        return TraceResult(PhotonRecords.concatenate(parts, C), emitted, ledger, rays,
+        sums.check(len(sums.chunks))
+        return TraceResult(PhotonRecords.concatenate(parts, C), sums.emitted, ledger, rays,
                            caustic_source,
                            np.concatenate(esc_d) if record_escaped and esc_d else None,
                            np.concatenate(esc_p) if record_escaped and esc_p else None)
@@ -799,8 +820,8 @@ class PhotonTracer:
             prim[close], tfar[close], bu[close], bv[close] = p2, t2 + step, u2, v2
         return Hits(prim, tfar, bu, bv)
 
-    def _trace_chunk(self, source, lo: int, hi: int, power, keys, ledger, base, caustic,
-                     record_escaped):
+    def _trace_chunk(self, source, lo: int, hi: int, power, weight, keys, ledger, base,
+                     caustic, record_escaped):
         """Trace photons lo..hi to the end in this thread: emit, then per bounce one embree
         cast and one fused interaction + compaction kernel. ``source(lo, hi)`` returns new
         arrays of origins and directions (they become the wavefront); photon lo + i is
@@ -817,7 +838,7 @@ class PhotonTracer:
         if clock:
             t1 = clock()
             t_emit = t1 - t0
-        pw, p_ref, flags, kk, lid, o32, d32 = _start(o, d, power, keys, lo, hi, base)
+        pw, p_ref, flags, kk, lid, o32, d32 = _start(o, d, power, weight, keys, lo, hi, base)
         if clock:
             t_start = clock() - t1
         wf = Wavefront(o, d, pw, p_ref, flags, kk, lid)
@@ -855,12 +876,12 @@ class PhotonTracer:
                     self.stages[k] = self.stages.get(k, 0.0) + v
         return recs, escs, rays
 
-    def _submit_batch(self, source, lo, hi, power, keys, record_escaped, group, n_groups,
+    def _submit_batch(self, source, lo, hi, power, weight, keys, record_escaped, sums,
                       caustic, last):
         """Queue one batch's chunks on the threads (or trace them here without a pool);
         :meth:`_collect_batch` waits for them. Each chunk books into its own per-photon
         ledger rows, summed per group in photon order as the chunks finish
-        (:class:`_BatchLedger`). The trace's last batch ends in smaller chunks (each a
+        (:class:`_TraceLedger`). The trace's last batch ends in smaller chunks (each a
         share of what is left), so the threads finish about together."""
         n = hi - lo
         T = self.threads
@@ -872,15 +893,16 @@ class PhotonTracer:
                 bounds.append(a)
         else:
             bounds = list(range(0, n, step)) + [n]
-        led = _BatchLedger(group[lo:hi], n_groups, bounds, self.channels, self._ledgers)
+        first, led = sums.add_batch([lo + a for a in bounds])
+        w = weight[lo:hi] if len(weight) else weight
 
         def work(k: int):
             a, b = bounds[k], bounds[k + 1]
             rows = self._ledgers.get(b - a)
             out = self._trace_chunk(lambda x, y: source(lo + x, lo + y), a, b,
-                                    power[lo:hi], keys[lo:hi], rows, lo + a, caustic,
+                                    power[lo:hi], w, keys[lo:hi], rows, lo + a, caustic,
                                     record_escaped)
-            led.done(k, rows)
+            sums.done(first + k, rows)
             return out
 
         if self._pool is None or len(bounds) <= 2:
@@ -891,7 +913,8 @@ class PhotonTracer:
 
     def _collect_batch(self, batch):
         """One batch's records in (bounce, photon) order (a list of the chunks' bounces,
-        concatenated once per trace by :meth:`_trace`) and its per-group ledger."""
+        concatenated once per trace by :meth:`_trace`) and its per-group ledger (final
+        once every earlier chunk of the trace is summed: :meth:`_TraceLedger.check`)."""
         led, chunks = batch
         chunks = [c.result() if hasattr(c, "result") else c for c in chunks]
         C = self.channels
@@ -902,4 +925,4 @@ class PhotonTracer:
         rays = sum(c[2] for c in chunks)
         ed = np.concatenate([e[0] for e in escs]) if escs else np.zeros((0, 3), np.float32)
         ep = np.concatenate([e[1] for e in escs]) if escs else np.zeros((0, C))
-        return recs, led.result(), rays, ed, ep
+        return recs, led, rays, ed, ep
