@@ -491,6 +491,38 @@ def _near_hits(prim, tfar, bound):
 
 
 @njit(cache=True, nogil=True)
+def _false_hits(near, o, d, prim, tfar, eps_floor, tri, fn):
+    """Of the rays ``near`` (:func:`_near_hits`), those whose hit is closer than their
+    origin offset t_min = 4 · 2⁻¹⁸ · (|o|∞ + eps_floor) while they move away from the hit
+    face's plane on their origin's side (false self-hits), and their t_min."""
+    close = np.empty(near.shape[0], np.int64)
+    step = np.empty(near.shape[0])
+    n = 0
+    for q in range(near.shape[0]):
+        i = near[q]
+        k = prim[i]
+        if k < 0:
+            continue
+        t_min = 4 * 3.814697265625e-06 * (max(abs(o[i, 0]), abs(o[i, 1]), abs(o[i, 2]))
+                                          + eps_floor)
+        if not float(tfar[i]) < t_min:
+            continue
+        # the dot products summed as (x₀y₀ + x₂y₂) + x₁y₁, like NumPy's einsum of
+        # 3-vectors that this replaced (bit for bit: an origin on the face's plane gives
+        # a tiny side of either sign, and the sign decides)
+        s0 = o[i, 0] - tri[k, 0, 0]
+        s1 = o[i, 1] - tri[k, 0, 1]
+        s2 = o[i, 2] - tri[k, 0, 2]
+        side = (s0 * fn[k, 0] + s2 * fn[k, 2]) + s1 * fn[k, 1]
+        moving = (d[i, 0] * fn[k, 0] + d[i, 2] * fn[k, 2]) + d[i, 1] * fn[k, 1]
+        if side * moving > 0:
+            close[n] = i
+            step[n] = t_min
+            n += 1
+    return close[:n], step[:n]
+
+
+@njit(cache=True, nogil=True)
 def _add_ledger(ledger, group, power, weight, lo, out, emitted):
     """Photons lo.. (their per-photon ledger rows, groups, flux ``power`` × ``weight``
     unless that is empty) added to ``out`` and ``emitted`` per group in photon order, as
@@ -843,20 +875,11 @@ class PhotonTracer:
         near = _near_hits(prim, tfar, bound)
         if len(near) == 0:
             return Hits(prim, tfar, bu, bv)
-        t_min = np.full(len(o), -1.0)
-        t_min[near] = 4 * 3.814697265625e-06 * (np.abs(o[near]).max(axis=1) + self.eps_floor)
         tri, fn = self._geom.tri_v, self._geom.face_n
         for _ in range(3):
-            close = np.flatnonzero((prim >= 0) & (tfar < t_min))
+            close, step = _false_hits(near, o, d, prim, tfar, self.eps_floor, tri, fn)
             if len(close) == 0:
                 break
-            k = prim[close]
-            side = np.einsum("ij,ij->i", o[close] - tri[k, 0], fn[k])
-            moving = np.einsum("ij,ij->i", d[close], fn[k])
-            close = close[side * moving > 0]
-            if len(close) == 0:
-                break
-            step = t_min[close]
             p2, t2, u2, v2 = self.caster.cast_lamp(
                 np.ascontiguousarray(o[close] + step[:, None] * d[close], dtype=np.float32),
                 np.ascontiguousarray(d32[close]))
