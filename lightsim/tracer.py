@@ -761,6 +761,7 @@ class PhotonTracer:
         self.min_chunk = int(min_chunk)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self._ledgers = _LedgerPool(self.channels)
+        self._local = threading.local()
         #: seconds per stage ("emit", "start", "cast", "bounce") summed over all chunks
         #: and threads when set to a dict (a profile: :func:`stage_seconds`); None: off
         self.stages: dict[str, float] | None = None
@@ -912,7 +913,7 @@ class PhotonTracer:
         escs: list[tuple[np.ndarray, np.ndarray]] = []
         rays = 0
         m = n
-        scratch = np.empty((n, self._geom.packed.shape[1]))  # hit rows, reused per bounce
+        scratch = self._scratch(n)  # hit rows, reused per bounce and chunk
         for depth in range(self.max_depth):
             if m == 0:
                 break
@@ -941,6 +942,15 @@ class PhotonTracer:
                              ("bounce", t_bounce)):
                     self.stages[k] = self.stages.get(k, 0.0) + v
         return recs, escs, rays
+
+    def _scratch(self, n: int) -> np.ndarray:
+        """This thread's (≥ n, 24) buffer for the bounce kernel's hit rows (kept: a new
+        one per chunk would be fresh pages)."""
+        buf = getattr(self._local, "scratch", None)
+        if buf is None or len(buf) < n:
+            buf = np.empty((n, self._geom.packed.shape[1]))
+            self._local.scratch = buf
+        return buf
 
     def _submit_batch(self, source, lo, hi, power, weight, keys, record_escaped, sums,
                       caustic, last):
