@@ -59,7 +59,10 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from lightsim.emitters import EmitterMix
 from lightsim.materials import (
@@ -247,6 +250,32 @@ class TraceParams(NamedTuple):
     record_all: bool
 
 
+_PF = 16  # rays ahead whose hit rows the bounce kernel prefetches
+
+
+@intrinsic
+def _prefetch(typingctx, arr, row, col):
+    """Prefetch the cache line of ``arr[row, col]`` (2-D array) for reading (LLVM's
+    ``llvm.prefetch``; a hint, no effect on results)."""
+    def codegen(context, builder, sig, args):
+        aryty = sig.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = [context.cast(builder, v, t, types.intp) for v, t in zip(args[1:], sig.args[1:])]
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx, wraparound=False)
+        i32 = ir.IntType(32)
+        if getattr(ptr.type, "is_opaque", False):
+            name = "llvm.prefetch.p0"
+        else:
+            ptr = builder.bitcast(ptr, ir.IntType(8).as_pointer())
+            name = "llvm.prefetch.p0i8"
+        fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, name)
+        builder.call(fn, [ptr, i32(0), i32(3), i32(1)])  # read, high locality, data
+        return context.get_dummy_value()
+
+    return types.void(arr, row, col), codegen
+
+
 @njit(cache=True, inline="always")
 def _offset(px, py, pz, nx, ny, nz, sign, eps_floor):
     eps = 3.814697265625e-06 * (max(abs(px), abs(py), abs(pz)) + eps_floor)
@@ -255,7 +284,7 @@ def _offset(px, py, pz, nx, ny, nz, sign, eps_floor):
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_off, caustic,
-            o32, d32, esc_d, esc_p, record_escaped, scratch):
+            o32, d32, esc_d, esc_p, record_escaped):
     """One bounce of the first ``m`` rays of a wavefront, fused with its compaction.
 
     Per ray: dispatch to the optics of the surface hit (:mod:`lightsim.materials`; the
@@ -263,7 +292,7 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
     roulette; records go densely into ``rec``, escaped photons into ``esc_d``/``esc_p``
     (if ``record_escaped``), and the surviving rays move to the front of ``wf`` in order,
     with float32 copies of their origins and directions in ``o32``/``d32`` for the next
-    embree cast. ``scratch`` (≥ m, 24) holds the hit triangles' packed rows. Photon ``j``
+    embree cast. Photon ``j``
     (``wf.lid``: its index in the trace) books into ``ledger[j - led_off]`` (the chunk's
     rows), and its record, if on a specular path, marks ``caustic[j]``.
 
@@ -285,11 +314,10 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
     record_all = prm.record_all
     C = pw.shape[1]
     P = packed.shape[1]
-    # the exact wall (outside embree), then the gather of the hit triangles' rows, each
-    # in its own pass before the loop: independent loads the CPU overlaps (a hit is a
-    # cache miss on a large mesh, and Halton-ordered photons hit scattered triangles).
-    # In one pass the gather waited on each ray's wall test: measured 86 → 55 ns per ray
-    # for the two on the analytic paraboloid (one thread)
+    # the exact wall (outside embree) in its own pass before the loop. The hit triangles'
+    # packed rows (a cache miss each on a large mesh: Halton-ordered photons hit scattered
+    # triangles) are prefetched _PF rays ahead in the loop; a gather pass copying them
+    # into a buffer before the loop (sessions 4–10) cost 25–50 ns per ray more
     if wall_tri.shape[0] > 0:
         nx, ny, nz, h, rad = slab[0], slab[1], slab[2], slab[3], slab[4]
         for i in range(m):
@@ -302,16 +330,18 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
             if gap * gap > 1.001 * (b * b) * (dx * dx + dy * dy + dz * dz):
                 continue
             merge_wall_hit(i, o32, d32, prim, tfar, hu, hv, wall_tri, wall_index)
-    for i in range(m):
-        k = prim[i]
-        if k >= 0:
-            for q in range(P):
-                scratch[i, q] = packed[k, q]
     ctr = np.uint64(depth * 8)
     w = 0
     r = 0
     e = 0
     for i in range(m):
+        if i + _PF < m:  # the hit row of a ray _PF ahead: on its way while this one runs
+            kp = prim[i + _PF]
+            if kp >= 0:
+                _prefetch(packed, kp, 0)
+                _prefetch(packed, kp, 8)
+                _prefetch(packed, kp, 16)
+                _prefetch(packed, kp, P - 1)
         j = wlid[i]
         jl = j - led_off
         k = prim[i]
@@ -338,16 +368,16 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
         b1 = (b1 + 1e-6) / (1.0 + 3e-6)
         b2 = (b2 + 1e-6) / (1.0 + 3e-6)
         b0 = 1.0 - b1 - b2
-        px = b0 * scratch[i, 0] + b1 * scratch[i, 3] + b2 * scratch[i, 6]
-        py = b0 * scratch[i, 1] + b1 * scratch[i, 4] + b2 * scratch[i, 7]
-        pz = b0 * scratch[i, 2] + b1 * scratch[i, 5] + b2 * scratch[i, 8]
-        gx, gy, gz = scratch[i, 9], scratch[i, 10], scratch[i, 11]
+        px = b0 * packed[k, 0] + b1 * packed[k, 3] + b2 * packed[k, 6]
+        py = b0 * packed[k, 1] + b1 * packed[k, 4] + b2 * packed[k, 7]
+        pz = b0 * packed[k, 2] + b1 * packed[k, 5] + b2 * packed[k, 8]
+        gx, gy, gz = packed[k, 9], packed[k, 10], packed[k, 11]
         front = dx * gx + dy * gy + dz * gz < 0.0
         # facing geometric normal: on the side the photon came from
         fs = 1.0 if front else -1.0
         ngx, ngy, ngz = fs * gx, fs * gy, fs * gz
-        mi = int(scratch[i, 21])
-        kind = WALL if scratch[i, 22] != 0.0 else kinds[mi]
+        mi = int(packed[k, 21])
+        kind = WALL if packed[k, 22] != 0.0 else kinds[mi]
         key = wkeys[i]
 
         if kind == WALL or (kind == DIFFUSE and record_all):
@@ -379,9 +409,9 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
         else:
             # interpolated shading normal, oriented like the geometric one
             w0 = 1.0 - bu - bv
-            sx = w0 * scratch[i, 12] + bu * scratch[i, 15] + bv * scratch[i, 18]
-            sy = w0 * scratch[i, 13] + bu * scratch[i, 16] + bv * scratch[i, 19]
-            sz = w0 * scratch[i, 14] + bu * scratch[i, 17] + bv * scratch[i, 20]
+            sx = w0 * packed[k, 12] + bu * packed[k, 15] + bv * packed[k, 18]
+            sy = w0 * packed[k, 13] + bu * packed[k, 16] + bv * packed[k, 19]
+            sz = w0 * packed[k, 14] + bu * packed[k, 17] + bv * packed[k, 20]
             ln = math.sqrt(sx * sx + sy * sy + sz * sz)
             if ln > 1e-12:
                 nsx, nsy, nsz = fs * sx / ln, fs * sy / ln, fs * sz / ln
@@ -764,7 +794,6 @@ class PhotonTracer:
         self.min_chunk = int(min_chunk)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self._ledgers = _LedgerPool(self.channels)
-        self._local = threading.local()
         #: seconds per stage ("emit", "start", "cast", "bounce") summed over all chunks
         #: and threads when set to a dict (a profile: :func:`stage_seconds`); None: off
         self.stages: dict[str, float] | None = None
@@ -916,7 +945,6 @@ class PhotonTracer:
         escs: list[tuple[np.ndarray, np.ndarray]] = []
         rays = 0
         m = n
-        scratch = self._scratch(n)  # hit rows, reused per bounce and chunk
         for depth in range(self.max_depth):
             if m == 0:
                 break
@@ -934,7 +962,7 @@ class PhotonTracer:
                    else (np.empty((0, 3), np.float32), np.empty((0, C))))
             m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
                               depth == self.max_depth - 1, rb, ledger, base, caustic, o32,
-                              d32, esc[0], esc[1], record_escaped, scratch)
+                              d32, esc[0], esc[1], record_escaped)
             if clock:
                 t_bounce += clock() - t1
             recs.append(PhotonRecords(*(a[:r] for a in rb)))
@@ -945,15 +973,6 @@ class PhotonTracer:
                              ("bounce", t_bounce)):
                     self.stages[k] = self.stages.get(k, 0.0) + v
         return recs, escs, rays
-
-    def _scratch(self, n: int) -> np.ndarray:
-        """This thread's (≥ n, 24) buffer for the bounce kernel's hit rows (kept: a new
-        one per chunk would be fresh pages)."""
-        buf = getattr(self._local, "scratch", None)
-        if buf is None or len(buf) < n:
-            buf = np.empty((n, self._geom.packed.shape[1]))
-            self._local.scratch = buf
-        return buf
 
     def _submit_batch(self, source, lo, hi, power, weight, keys, record_escaped, sums,
                       caustic, last):
