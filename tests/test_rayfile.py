@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,9 @@ from lightsim.luminaires.rayfiles import lambertian_square, lambertian_square_lu
 from lightsim.render.frame import luminous
 from lightsim.scene import load_scene
 from lightsim.validation.scenes.analytic import lambert_polygon_lux, pixel_average
+
+# the shipped example, found from the repository rather than the working directory
+HEADLIGHT = str(Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb")
 
 
 def _rays(n=50, seed=3):
@@ -142,7 +146,7 @@ def test_cli_rayfile_replaces_the_filament(tmp_path, capsys):
     code, _, err = run_cli(["luminaire", "rayfile", str(led), "--rays", "10000",
                               "--flux", "500"], capsys)
     assert code in (0, None), err
-    code, _, err = run_cli(["simulate", "luminaires/examples/headlight.glb", "--rayfile",
+    code, _, err = run_cli(["simulate", HEADLIGHT, "--rayfile",
                               str(led), "--rayfile-at", "0,0.0007,0.0285", "--rayfile-axis",
                               "0,1,0", "--photons", "20000", "--resolution", "64x32",
                               "--out", str(tmp_path / "o")], capsys)
@@ -154,7 +158,7 @@ def test_cli_rayfile_replaces_the_filament(tmp_path, capsys):
                for p in s["scene"]["parts"])
     assert not any(p.startswith("filament") for p in s["scene"]["parts"])
     assert s["energy_lm"]["wall"] > 50.0
-    code, _, err = run_cli(["simulate", "luminaires/examples/headlight.glb", "--rayfile",
+    code, _, err = run_cli(["simulate", HEADLIGHT, "--rayfile",
                             str(tmp_path / "nope.tm25ray"), "--out", str(tmp_path / "x")],
                            capsys)
     assert code == 2 and "no such ray file" in err and err.count("\n") == 1
