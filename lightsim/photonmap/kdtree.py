@@ -354,18 +354,18 @@ def _bucket_scatter(pts: np.ndarray, bucket: np.ndarray, n_buckets: int,
 
 @njit(cache=True)
 def _merge_plan(child: np.ndarray, start: np.ndarray, end: np.ndarray, count: np.ndarray,
-                n: int, stack_size: int) -> tuple[np.ndarray, np.ndarray]:
+                src: np.ndarray, stack_size: int) -> np.ndarray:
     """Plan the merge of a routed batch into the leaf-contiguous layout.
 
     Leaves are visited in order (left subtree first: their slot order, empty leaves
     included); each keeps its stored photons in order, followed by room for its
-    ``count[leaf]`` new photons. Updates the leaves' ``start``/``end`` and returns
-    (src: new slot → old slot or −1 for a new photon's room, cursor: each leaf's first
-    room slot). The walk reads the nodes in memory order when they are numbered
-    depth-first (:meth:`_BoxTree._to_dfs_order`).
+    ``count[leaf]`` new photons. Updates the leaves' ``start``/``end``, fills ``src``
+    (new slot → old slot or −1 for a new photon's room; int32 below 2³¹ slots: the merge
+    reads it once per slot) and returns cursor (each leaf's first room slot). The walk
+    reads the nodes in memory order when they are numbered depth-first
+    (:meth:`_BoxTree._to_dfs_order`).
     """
     cursor = np.empty(child.shape[0], np.int64)
-    src = np.empty(n, np.int64)
     stack = np.empty(stack_size, np.int64)
     stack[0] = 0
     sp = 1
@@ -390,7 +390,7 @@ def _merge_plan(child: np.ndarray, start: np.ndarray, end: np.ndarray, count: np
             src[pos] = -1
             pos += 1
         end[nd] = pos
-    return src, cursor
+    return cursor
 
 
 @njit(parallel=True, cache=True)
@@ -1131,7 +1131,8 @@ class KdTree(_BoxTree):
         # one pass over the stored photons: every leaf keeps its photons in slot order,
         # followed by its new ones
         n = n_old + n_new
-        src, cursor = _merge_plan(child, self._start, self._end, count, n, self._depth + 2)
+        src = np.empty(n, np.int32 if n < 2**31 else np.int64)
+        cursor = _merge_plan(child, self._start, self._end, count, src, self._depth + 2)
         out = (np.empty((n, 3), np.float32),
                np.empty((n if self._has_normals else 0, 3), np.float32),
                np.empty((n, self.n_channels), np.float32), np.empty(n, _index_dtype(n)))
