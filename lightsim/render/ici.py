@@ -29,7 +29,9 @@ quasi-random photons it is conservative (their counts scatter less than Poisson)
 The windows are sums over a half-pixel lattice of photon power that every set keeps
 (windows of any whole number of pixels are then centred on the pixel), read from its
 summed-area table: O(1) per pixel and rung whatever the photon count, where disk queries
-on the photon map cost in proportion to the photons inside the largest disk.
+on the photon map cost in proportion to the photons inside the largest disk. A few queries
+(a frame's grid probes) sum their windows' cells directly instead (:func:`_direct_sums`):
+no pass over the whole lattice per frame.
 
 On the whole wall raster :func:`written_map` also makes the fused directional map of
 :mod:`lightsim.render.directional` (one-sided windows that reach inwards next to an edge,
