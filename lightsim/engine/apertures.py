@@ -250,13 +250,15 @@ class ApertureCounter:
         i1 = np.clip(np.floor((self._h1 - h0) / dh).astype(np.int64), 0, nh - 1)
         j0 = np.clip(np.floor((self._v0 - v0) / dv).astype(np.int64), 0, nv - 1)
         j1 = np.clip(np.floor((self._v1 - v0) / dv).astype(np.int64), 0, nv - 1)
-        cells, items = [], []
-        for p in range(P):
-            ii, jj = np.meshgrid(np.arange(i0[p], i1[p] + 1), np.arange(j0[p], j1[p] + 1))
-            cells.append((jj * nh + ii).ravel())
-            items.append(np.full(ii.size, p, np.int64))
-        cell = np.concatenate(cells)
-        item = np.concatenate(items)
+        # every (strip, cell) pair, strip by strip (a strip's cells row by row): one
+        # vectorised pass, not a meshgrid per strip (2 900 apertures: 0.18 s per set)
+        wi, wj = i1 - i0 + 1, j1 - j0 + 1
+        size = wi * wj
+        item = np.repeat(np.arange(P, dtype=np.int64), size)
+        k = np.arange(int(size.sum()), dtype=np.int64) - np.repeat(np.cumsum(size) - size,
+                                                                   size)
+        w_rep = np.repeat(wi, size)
+        cell = (np.repeat(j0, size) + k // w_rep) * nh + np.repeat(i0, size) + k % w_rep
         order = np.argsort(cell, kind="stable")
         start = np.zeros(nh * nv + 1, np.int64)
         np.add.at(start, cell + 1, 1)
