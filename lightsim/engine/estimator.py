@@ -23,7 +23,7 @@ place, :func:`normalise_flux` (the ledger too: :meth:`Session.energy`).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from lightsim.engine.photonset import SetState
 from lightsim.engine.results import RenderRequest, SetFrame
 from lightsim.render.interleave import InterleavePattern
 from lightsim.scene import Scene, WallFrame
+
+if TYPE_CHECKING:
+    from lightsim.render.ici import WindowGeometry
 
 
 def normalise_flux(power: np.ndarray, emitted: int, *area_m2: Any) -> np.ndarray:
@@ -145,11 +148,13 @@ class SetEstimator:
         return normalise_flux(np.asarray(res.E, dtype=np.float64), st.emitted)
 
     def ici_rungs(self, st: SetState, rows: np.ndarray, cols: np.ndarray,
-                  key: str | None = None, geometry=None) -> np.ndarray:
+                  key: str | None = None, geometry: WindowGeometry | None = None
+                  ) -> np.ndarray:
         """The set's rung estimates (lx) at pixels: (J+1, Q, C) (see
         :mod:`lightsim.render.ici`): rung 0 the pixel, then squares 2, 3, … pixels a side.
-        ``key`` names a fixed query set (every pixel, the grid probes): its window bounds
-        are computed once, not once per set and frame (or ``geometry``, given)."""
+        ``key`` names a fixed query set (the grid probes): its window bounds are computed
+        once, not once per set and frame; ``geometry``: those bounds, already made (every
+        pixel: :func:`lightsim.render.ici.raster_queries`)."""
         from lightsim.render import ici
 
         sides = ici.rung_sides(self.frame.pixel_size_m, self.radii["pooled"][1])
