@@ -263,7 +263,8 @@ def _combine(out: np.ndarray, stack: np.ndarray, which, weights) -> np.ndarray:
 
 def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
               areas: np.ndarray, gamma: float, shape: tuple[int, int],
-              lit_fraction: float = 0.1, guide: IciChoice | None = None) -> FusedMap:
+              lit_fraction: float = 0.1, guide: IciChoice | None = None,
+              win: np.ndarray | None = None) -> FusedMap:
     """The fused directional map over the whole H × W raster (``shape``), cross-fitted.
 
     With S ≥ 4 sets each half of them (:func:`lightsim.render.ici._halves`) is read at
@@ -294,6 +295,9 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         :data:`GUIDE` × ``lit_fraction`` × its luminous maximum are fused; the others, far
         below what the figure reads, keep the centred value and rung (a headlight's wall
         is mostly dark: several times less work).
+    win : (S, Q) lx, optional
+        Every set's luminous rung 0 in set order, if the caller has made it
+        (:func:`lightsim.render.ici._stack64` with ``lum=True, rung=0``).
     """
     from lightsim.render import ici
 
@@ -303,7 +307,7 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     # every set's luminous rung 0 at every pixel (the windows' SATs, the lit masks); the
     # other rungs only at the fused pixels below (no (S, J+1, H·W) stack: 84 MB on the
     # shipped headlight's wall, of which a tenth is fused)
-    R0 = ici._stack64(rungs, order, lum=True, rung=0)  # (S, Q)
+    R0 = ici._stack64(rungs, order, lum=True, rung=0) if win is None else win  # (S, Q)
     S, Q = R0.shape
     J1 = np.asarray(rungs[order[0]]).shape[0]
     if Q != H * W:

@@ -59,8 +59,10 @@ parameter        unit   default   meaning
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -555,6 +557,18 @@ def _halves(S: int) -> list[np.ndarray]:
     return [np.arange(0, S, 2), np.arange(1, S, 2)]
 
 
+def _rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``a[idx]`` — as a strided view where ``idx`` is an increasing arithmetic run (the
+    halves): the same values in the same order without copying (S/2, Q) rows, whose
+    fresh pages cost more than the reductions that read them on this VM."""
+    idx = np.asarray(idx)
+    if idx.ndim == 1 and len(idx) >= 1:
+        step = int(idx[1] - idx[0]) if len(idx) > 1 else 1
+        if step > 0 and np.array_equal(idx, np.arange(idx[0], idx[-1] + 1, step)):
+            return a[int(idx[0]):int(idx[-1]) + 1:step]
+    return a[idx]
+
+
 def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
                blur: np.ndarray | None, lits: tuple | None = None,
                tiles: np.ndarray | None = None) -> _MixParts | None:
@@ -577,7 +591,7 @@ def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     S = vals.shape[0]
     parts = []
     for h, (own, lit) in enumerate(zip(halves, masks, strict=True)):
-        p = _half_parts(vals[own][:, lit], win[own][:, lit], S,
+        p = _half_parts(_rows(vals, own)[:, lit], _rows(win, own)[:, lit], S,
                         None if blur is None else np.asarray(blur)[h][lit],
                         None if tiles is None else tiles[lit])
         if p is not None:
@@ -611,7 +625,8 @@ def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: fl
     masks = []
     for h, own in enumerate(halves):
         other = halves[1 - h] if len(halves) == 2 else own
-        masks.append((win[other].mean(axis=0) >= thr) & (vals[other].mean(axis=0) >= thr))
+        masks.append((_rows(win, other).mean(axis=0) >= thr)
+                     & (_rows(vals, other).mean(axis=0) >= thr))
     return vals, win, halves, masks
 
 
@@ -749,24 +764,35 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     if directional is not False and shape is None:
         shape = raster_shape(areas)
     choice = choose(rungs, emitted, q, areas, gamma)
-    fused = win = None  # win: every set's luminous rung 0, once made
+    fused = win = fm = None  # win: every set's luminous rung 0, once made
+    pending = None
     if directional is not False and shape is not None and \
             np.asarray(rungs[next(iter(rungs))]).shape[0] >= 2:
         from lightsim.render.directional import fused_map
 
-        fm = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction, guide=choice)
-        win = None if fm.lits is None else fm.lits[1]
-        fused = _mixed(rungs, emitted, fm.choice, fm.vals, None, fm.lits, lit_fraction)
-        fused.fused = True
+        win = _stack64(rungs, sorted(rungs), lum=True, rung=0)  # (S, Q)
+
+        def fused_branch() -> tuple[Any, WrittenMap]:
+            fmap = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction,
+                             guide=choice, win=win)
+            wm = _mixed(rungs, emitted, fmap.choice, fmap.vals, None, fmap.lits,
+                        lit_fraction)
+            wm.fused = True
+            return fmap, wm
+
         if directional:
+            fm, fused = fused_branch()
             return _in_region(fused, rungs, None, fm.lits, restrict, lit_fraction, shape)
-    blur = None
-    lits = _lit_masks(rungs, choice, lit_fraction, win=win)
-    if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
-        read = lit_queries(lits)
-        blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
-                             queries=read)
-    centred = _mixed(rungs, emitted, choice, None, blur, lits, lit_fraction)
+        # the fused map and the centred map's figure share nothing but the choice and
+        # every set's rung 0: one on a second thread while the other runs here (their
+        # NumPy passes and the fused kernels release the GIL; the same values either way)
+        pending = _branch_pool().submit(fused_branch)
+    try:
+        centred, blur, lits = _centred(rungs, emitted, q, areas, gamma, choice,
+                                       lit_fraction, win)
+    finally:
+        if pending is not None:
+            fm, fused = pending.result()
     if fused is not None and fused.figure is not None and (
             centred.figure is None
             or fused.figure.error.total < FUSED_MARGIN * centred.figure.error.total):
@@ -774,6 +800,31 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     if restrict is not None and shape is None:
         shape = raster_shape(areas)
     return _in_region(centred, rungs, blur, lits, restrict, lit_fraction, shape)
+
+
+_BRANCH_POOL: ThreadPoolExecutor | None = None
+
+
+def _branch_pool() -> ThreadPoolExecutor:
+    """One thread for :func:`written_map`'s second branch (made on first use)."""
+    global _BRANCH_POOL
+    if _BRANCH_POOL is None:
+        _BRANCH_POOL = ThreadPoolExecutor(max_workers=1,
+                                          thread_name_prefix="lightsim-written-map")
+    return _BRANCH_POOL
+
+
+def _centred(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
+             areas: np.ndarray, gamma: float, choice: IciChoice, lit_fraction: float,
+             win: np.ndarray | None) -> tuple[WrittenMap, np.ndarray | None, Any]:
+    """The centred map of ``choice`` with its figure: (map, held-out blur, lit masks)."""
+    blur = None
+    lits = _lit_masks(rungs, choice, lit_fraction, win=win)
+    if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
+        read = lit_queries(lits)
+        blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
+                             queries=read)
+    return _mixed(rungs, emitted, choice, None, blur, lits, lit_fraction), blur, lits
 
 
 def _in_region(wm: WrittenMap, rungs: dict[int, np.ndarray], blur: np.ndarray | None,
