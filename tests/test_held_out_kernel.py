@@ -1,0 +1,87 @@
+"""The held-out blur's compiled pair loop against the NumPy form it replaced, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lightsim.render.ici import _halves, held_out_blur, ici_rungs
+
+
+def _reference(rungs, emitted, q, areas, gamma, groups=None):
+    """:func:`held_out_blur` as it was written in NumPy (one (J+1, Q) pass per pair)."""
+    order = sorted(rungs)
+    S = len(order)
+    areas = np.asarray(areas, dtype=np.float64)[:np.asarray(rungs[order[0]]).shape[0]]
+    R = np.stack([np.asarray(rungs[k], np.float64)[..., 0] for k in order])
+    e = np.array([emitted[k] for k in order], dtype=np.float64)
+    total = R.sum(axis=0) if e.sum() <= 0 else np.tensordot(e, R, 1)
+    n_all = float(e.sum())
+    D = R - R[:, :1]
+    groups = [np.arange(S)] if groups is None else groups
+    out = np.zeros((len(groups), R.shape[2]))
+    cols = np.arange(R.shape[2])
+    for g, members in enumerate(groups):
+        pairs = 0
+        for i, a in enumerate(members):
+            for b in members[i + 1:]:
+                n = n_all - e[a] - e[b]
+                if n <= 0:
+                    continue
+                E = (total - e[a] * R[a] - e[b] * R[b]) / n
+                j = ici_rungs(E, n, q, areas, gamma)
+                out[g] += D[a, j, cols] * D[b, j, cols]
+                pairs += 1
+        out[g] /= max(pairs, 1)
+    return out
+
+
+def _case(S, J1, Q, seed, scale=1.0):
+    rng = np.random.default_rng(seed)
+    smooth = scale * np.linspace(1.0, 3.0, Q)
+    step = np.where(np.arange(Q) < Q // 2, 0.2, 1.0)
+    rungs = {}
+    for s in range(S):
+        base = smooth * step
+        noise = rng.normal(0.0, 0.3, (J1, Q)) / np.sqrt(np.arange(1, J1 + 1))[:, None]
+        r = np.maximum(base[None, :] * (1 + noise), 0.0)
+        r[:, ::7] = 0.0  # dark queries: empty small rungs
+        rungs[s] = r[..., None].astype(np.float32)
+    emitted = {s: int(rng.integers(1000, 5000)) for s in range(S)}
+    areas = np.array([(j + 1) ** 2 for j in range(J1)], np.float64) * 1e-6
+    return rungs, emitted, areas
+
+
+@pytest.mark.parametrize("S, J1, Q, seed, scale", [
+    (16, 8, 500, 1, 1.0), (4, 4, 37, 2, 1.0), (8, 2, 1, 3, 1.0), (5, 6, 64, 4, 1e-30),
+    (6, 5, 64, 5, 1e30), (16, 8, 0, 6, 1.0)])
+def test_same_numbers_as_numpy(S, J1, Q, seed, scale):
+    rungs, emitted, areas = _case(S, J1, Q, seed, scale)
+    q = 0.37 * scale
+    for groups in (None, _halves(S)):
+        got = held_out_blur(rungs, emitted, q, areas, 2.0, groups)
+        want = _reference(rungs, emitted, q, areas, 2.0, groups)
+        assert got.shape == want.shape
+        assert np.array_equal(got, want, equal_nan=True)
+
+
+def test_per_query_areas_no_power_and_empty_sets():
+    rungs, emitted, areas = _case(8, 5, 90, 7)
+    per_query = areas[:, None] * np.linspace(0.5, 2.0, 90)[None, :]
+    for q in (0.0, 0.2):
+        got = held_out_blur(rungs, emitted, q, per_query, 1.5, _halves(8))
+        assert np.array_equal(got, _reference(rungs, emitted, q, per_query, 1.5, _halves(8)))
+    # sets that emitted nothing: pairs whose other sets hold no photons are skipped
+    none = {s: 0 for s in emitted}
+    none[0] = 10
+    got = held_out_blur(rungs, none, 0.2, areas, 2.0)
+    assert np.array_equal(got, _reference(rungs, none, 0.2, areas, 2.0))
+
+
+def test_subset_of_queries_matches_the_whole():
+    rungs, emitted, areas = _case(16, 8, 300, 8)
+    read = np.arange(3, 300, 5)
+    full = held_out_blur(rungs, emitted, 0.4, areas, 2.0, _halves(16))
+    part = held_out_blur(rungs, emitted, 0.4, areas, 2.0, _halves(16), queries=read)
+    assert np.array_equal(part[:, read], full[:, read])
+    assert not part[:, np.setdiff1d(np.arange(300), read)].any()
