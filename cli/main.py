@@ -79,9 +79,11 @@ def _one_line(text: str) -> str:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script; maps input errors to one line and exit code 2."""
     if argv is None:  # the console script's process: freed arrays are reused, not faulted
+        from lightsim.engine.blas import single_blas_thread
         from lightsim.engine.memory import keep_freed_memory
 
         keep_freed_memory()
+        single_blas_thread()  # the cores are the run's threads', not BLAS's spinning ones
     try:
         _run(argv)
     finally:

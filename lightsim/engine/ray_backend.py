@@ -93,10 +93,12 @@ def _actor_class():
                      probes_hv: np.ndarray, threads: int) -> None:
             import numba
 
+            from lightsim.engine.blas import single_blas_thread
             from lightsim.engine.client import Client
             from lightsim.engine.memory import keep_freed_memory
 
             keep_freed_memory()  # a worker process of its own: the command's heap policy
+            single_blas_thread()  # ... and its BLAS policy
             numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
             self.client = Client(scene, config.with_(threads=threads), plan, sets, probes_hv)
 

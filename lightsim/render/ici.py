@@ -65,7 +65,7 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from lightsim.render.frame import ErrorEstimate, luminous
 from lightsim.render.region import Restrict
@@ -432,7 +432,6 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
         return full
     R = _stack64(rungs, order, lum=True)  # (S, J+1, Q) lx
     e = np.array([emitted[k] for k in order], dtype=np.float64)
-    total = R.sum(axis=0) if e.sum() <= 0 else np.tensordot(e, R, 1)  # Σ n_s E_s
     n_all = float(e.sum())
     groups = [np.arange(S)] if groups is None else groups
     out = np.zeros((len(groups), R.shape[2]))
@@ -442,8 +441,7 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
     for g, m in enumerate(groups):
         members[g, :len(m)] = m
     A = np.broadcast_to(areas if areas.ndim == 2 else areas[:, None], R.shape[1:])
-    _held_out_pairs(R, np.ascontiguousarray(total), e, n_all, float(q), A, float(gamma),
-                    members, out)
+    _held_out_pairs(R, e, n_all, float(q), A, float(gamma), members, out)
     return out
 
 
@@ -463,21 +461,32 @@ def _nan_min(a: float, b: float) -> float:
     return a if a <= b else b
 
 
-@njit(cache=True, parallel=True, nogil=True)
-def _held_out_pairs(R: np.ndarray, total: np.ndarray, e: np.ndarray, n_all: float, q: float,
+@njit(cache=True, nogil=True)
+def _held_out_pairs(R: np.ndarray, e: np.ndarray, n_all: float, q: float,
                     areas: np.ndarray, gamma: float, members: np.ndarray,
                     out: np.ndarray) -> None:
-    """:func:`held_out_blur`'s pairs, query by query (queries in parallel): for every
-    pair (a, b) of a group, the ICI rung j of the other sets' pooled ladder
+    """:func:`held_out_blur`'s pairs, query by query: the emitted-weighted total
+    Σ_s e_s R_s (summed in set order: the same on any machine, where a BLAS
+    ``tensordot`` sums in an order that depends on its thread count), then for every
+    pair (a, b) of a group the ICI rung j of the other sets' pooled ladder
     (``(total − e_a R_a − e_b R_b) / n``, :func:`ici_rungs`' intervals) and the product
     of the pair's blurs (R_a,j − R_a,0)(R_b,j − R_b,0), summed over the pairs in their
-    order and divided by their number. The same operations in the same order as the
-    NumPy form (no contraction into fused multiply-adds), so the same numbers bit for
-    bit; no (J+1, Q) temporaries per pair (its largest cost: 56 pairs on 16 sets)."""
-    J1, Q = total.shape
+    order and divided by their number: the NumPy form's operations in its order (no
+    contraction into fused multiply-adds); no (J+1, Q) temporaries per pair (its largest
+    cost: 56 pairs on 16 sets).
+    Serial: it runs beside the fused map's branch (:func:`written_map`), whose kernels
+    have the other core; over both cores it was no faster there."""
+    S, J1, Q = R.shape
     G, M = members.shape
-    for c in prange(Q):
-        E = np.empty(J1)
+    E = np.empty(J1)
+    total = np.empty(J1)
+    weighted = n_all > 0
+    for c in range(Q):
+        for j in range(J1):
+            acc = 0.0
+            for s in range(S):
+                acc += e[s] * R[s, j, c] if weighted else R[s, j, c]
+            total[j] = acc
         for g in range(G):
             acc = 0.0
             pairs = 0
@@ -493,7 +502,7 @@ def _held_out_pairs(R: np.ndarray, total: np.ndarray, e: np.ndarray, n_all: floa
                     if n <= 0:
                         continue
                     for j in range(J1):
-                        E[j] = (total[j, c] - e[a] * R[a, j, c] - e[b] * R[b, j, c]) / n
+                        E[j] = (total[j] - e[a] * R[a, j, c] - e[b] * R[b, j, c]) / n
                     # ici_rungs at this query (q > 0 here: the caller's n > 0)
                     last = E[J1 - 1]
                     rung = 0
