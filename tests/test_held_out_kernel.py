@@ -95,3 +95,31 @@ def test_subset_of_queries_matches_the_whole():
     part = held_out_blur(rungs, emitted, 0.4, areas, 2.0, _halves(16), queries=read)
     assert np.array_equal(part[:, read], full[:, read])
     assert not part[:, np.setdiff1d(np.arange(300), read)].any()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("C", [1, 3])
+def test_pooling_and_chosen_values_match_numpy(dtype, C):
+    from lightsim.render.ici import add_scaled, chosen_per_set
+
+    rng = np.random.default_rng(11)
+    rungs = {s: (rng.random((5, 333, C)) * 10.0 ** rng.integers(-30, 30)).astype(dtype)
+             for s in range(7)}
+    w = rng.random(7)
+    want = np.zeros((5, 333, C))
+    got = np.zeros((5, 333, C))
+    for wi, s in zip(w, sorted(rungs), strict=True):
+        want += wi * np.asarray(rungs[s], np.float64)
+        assert add_scaled(got, rungs[s], wi) is got
+    assert np.array_equal(got, want)
+    # a strided target falls back to NumPy, with the same result
+    strided = np.zeros((5, 666, C))[:, ::2]
+    for wi, s in zip(w, sorted(rungs), strict=True):
+        add_scaled(strided, rungs[s], wi)
+    assert np.array_equal(strided, want)
+    rung = rng.integers(0, 5, 333)
+    ref = np.stack([np.take_along_axis(rungs[s], rung[None, :, None], 0)[0].astype(np.float64)
+                    for s in sorted(rungs)])
+    assert np.array_equal(chosen_per_set(rungs, rung), ref)
+    empty = {s: r[:, :0] for s, r in rungs.items()}
+    assert chosen_per_set(empty, rung[:0]).shape == (7, 0, C)

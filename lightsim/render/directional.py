@@ -66,7 +66,7 @@ import numpy as np
 from numba import njit, prange
 
 from lightsim.render.frame import luminous
-from lightsim.render.ici import IciChoice
+from lightsim.render.ici import IciChoice, add_scaled
 
 #: (dy, dx) of the directional ladders 1 … 8: rows grow downwards, columns to the right.
 DIRECTIONS = np.array([(-1, -1), (-1, 1), (1, -1), (1, 1), (-1, 0), (1, 0), (0, -1), (0, 1)],
@@ -257,7 +257,7 @@ def _combine(out: np.ndarray, stack: np.ndarray, which, weights) -> np.ndarray:
     """Σ weights · stack[which] into ``out`` (in place: no copies of the stack)."""
     out[:] = 0.0
     for wi, k in zip(weights, which, strict=True):
-        out += wi * stack[k]
+        add_scaled(out, stack[k], wi)
     return out
 
 

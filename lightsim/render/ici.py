@@ -373,7 +373,7 @@ def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     # the weighted sum set by set: no (S, J+1, Q, C) float64 stack (105 MB at 640 × 256)
     pooled = np.zeros(np.asarray(rungs[order[0]]).shape)
     for wi, s in zip(w, order, strict=True):
-        pooled += wi * np.asarray(rungs[s], np.float64)
+        add_scaled(pooled, rungs[s], wi)
     areas = np.asarray(areas, dtype=np.float64)[:pooled.shape[0]]
     n = sum(emitted[s] for s in order)
     E = luminous(pooled.reshape(-1, pooled.shape[-1])).reshape(pooled.shape[:2])  # (J+1, Q)
@@ -528,9 +528,44 @@ def _held_out_pairs(R: np.ndarray, e: np.ndarray, n_all: float, q: float,
 
 
 def chosen_per_set(rungs: dict[int, np.ndarray], rung: np.ndarray) -> np.ndarray:
-    """(S, Q, C) every set's value at the chosen rungs (set order)."""
-    return np.stack([np.take_along_axis(np.asarray(rungs[s]), rung[None, :, None], 0)[0]
-                     .astype(np.float64) for s in sorted(rungs)])
+    """(S, Q, C) every set's value at the chosen rungs (set order), float64."""
+    order = sorted(rungs)
+    first = np.asarray(rungs[order[0]])
+    out = np.empty((len(order), *first.shape[1:]))
+    rung = np.ascontiguousarray(rung, dtype=np.int64)
+    for i, s in enumerate(order):
+        _take_rung(np.asarray(rungs[s]), rung, out[i])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _take_rung(r: np.ndarray, rung: np.ndarray, out: np.ndarray) -> None:
+    """out[q, k] = r[rung[q], q, k] as float64 (``take_along_axis`` and ``astype`` in one
+    pass)."""
+    for q in range(rung.shape[0]):
+        j = rung[q]
+        for k in range(out.shape[1]):
+            out[q, k] = np.float64(r[j, q, k])
+
+
+def add_scaled(acc: np.ndarray, x: np.ndarray, w: float) -> np.ndarray:
+    """``acc += w · float64(x)`` in place, in one pass (NumPy's ``acc += w * x`` makes a
+    float64 copy of x and the product first: two temporaries as large as the rungs): the
+    same product and sum per element, so the same numbers. Returns ``acc``."""
+    x = np.asarray(x)
+    if x.shape != acc.shape:
+        x = np.broadcast_to(x, acc.shape)
+    if not (acc.flags.c_contiguous and x.flags.c_contiguous):
+        acc += w * np.asarray(x, np.float64)
+        return acc
+    _add_scaled(acc.reshape(-1), x.reshape(-1), float(w))
+    return acc
+
+
+@njit(cache=True, nogil=True)
+def _add_scaled(acc: np.ndarray, x: np.ndarray, w: float) -> None:
+    for i in range(acc.shape[0]):
+        acc[i] += w * np.float64(x[i])
 
 
 CERTIFY = 0.25  # largest standard error of the blur estimate, × the squared error it certifies
@@ -950,7 +985,7 @@ def _mixed(rungs: dict[int, np.ndarray], emitted: dict[int, int], choice: IciCho
     w = _weights(emitted, order)
     counts = np.zeros_like(choice.lux)
     for wi, s in zip(w, order, strict=True):
-        counts += wi * np.asarray(rungs[s][0], np.float64)
+        add_scaled(counts, np.asarray(rungs[s])[0], wi)
     mix = None if lits is None else _mix_parts(rungs, choice, lit_fraction, blur, lits)
     fig, alpha = None, 0.0
     if mix is not None:
