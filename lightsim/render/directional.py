@@ -76,12 +76,33 @@ GUIDE = 0.5  # pixels fused: centred map ≥ GUIDE × the lit fraction × its ma
 
 
 def pixel_sat(img: np.ndarray) -> np.ndarray:
-    """(…, H+1, W+1) summed-area table of (…, H, W) pixel values, zero first row/column."""
+    """(…, H+1, W+1) summed-area table of (…, H, W) pixel values, zero first row/column:
+    NumPy's two ``cumsum`` passes (down the columns, then along the rows), for a stack
+    of images one compiled pass per image on the cores (the same additions in the same
+    order, so the same table)."""
     img = np.asarray(img, dtype=np.float64)
     sat = np.zeros((*img.shape[:-2], img.shape[-2] + 1, img.shape[-1] + 1))
+    if img.ndim == 3 and img.flags.c_contiguous and img.size:
+        _sat_stack(img, sat)
+        return sat
     np.cumsum(img, axis=-2, out=sat[..., 1:, 1:])
     np.cumsum(sat[..., 1:, 1:], axis=-1, out=sat[..., 1:, 1:])
     return sat
+
+
+@njit(cache=True, parallel=True)
+def _sat_stack(img: np.ndarray, sat: np.ndarray) -> None:
+    """:func:`pixel_sat` of every image of (S, H, W) into the zeroed (S, H+1, W+1)."""
+    S, H, W = img.shape
+    for s in prange(S):
+        for c in range(W):  # cumsum down the columns: the first row as it is
+            sat[s, 1, c + 1] = img[s, 0, c]
+        for r in range(1, H):
+            for c in range(W):
+                sat[s, r + 1, c + 1] = sat[s, r, c + 1] + img[s, r, c]
+        for r in range(H):  # then along each row, in place
+            for c in range(1, W):
+                sat[s, r + 1, c + 1] = sat[s, r + 1, c] + sat[s, r + 1, c + 1]
 
 
 @njit(cache=True, inline="always")

@@ -1,4 +1,4 @@
-"""The held-out blur's compiled pair loop against the NumPy form it replaced."""
+"""The written map's compiled passes against the NumPy forms they replaced."""
 
 from __future__ import annotations
 
@@ -123,3 +123,19 @@ def test_pooling_and_chosen_values_match_numpy(dtype, C):
     assert np.array_equal(chosen_per_set(rungs, rung), ref)
     empty = {s: r[:, :0] for s, r in rungs.items()}
     assert chosen_per_set(empty, rung[:0]).shape == (7, 0, C)
+
+
+@pytest.mark.parametrize("shape", [(16, 64, 160), (3, 1, 1), (2, 5, 1), (1, 1, 7), (4, 33, 17),
+                                   (2, 0, 4)])
+def test_pixel_sat_matches_numpys_two_cumsums(shape):
+    from lightsim.render.directional import pixel_sat
+
+    rng = np.random.default_rng(5)
+    img = rng.random(shape) * 10.0 ** rng.integers(-30, 30, shape)
+    img[..., ::5] = -0.0  # signed zeros as NumPy leaves them
+    want = np.zeros((*shape[:-2], shape[-2] + 1, shape[-1] + 1))
+    np.cumsum(img, axis=-2, out=want[..., 1:, 1:])
+    np.cumsum(want[..., 1:, 1:], axis=-1, out=want[..., 1:, 1:])
+    got = pixel_sat(img)
+    assert got.tobytes() == want.tobytes()
+    assert pixel_sat(img[0]).tobytes() == want[0].tobytes()  # one image: NumPy's path
