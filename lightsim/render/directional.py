@@ -255,11 +255,13 @@ def apply_fused(sats, Ecs, which, rows, cols, dirs, jk, wk):
 @dataclass
 class FusedChoice(IciChoice):
     """:class:`~lightsim.render.ici.IciChoice` of the fused map: ``rung`` is the rung of
-    the ladder with the largest weight; ``ladder_rungs`` (Q, K) and ``weights`` (Q, K)
-    the whole choice (ladder 0 the centred one, then :data:`DIRECTIONS`)."""
+    the ladder with the largest weight (the centred rung where a pixel is not fused);
+    ``ladder_rungs`` (P, K) and ``weights`` (P, K) the whole choice at the fused pixels
+    ``pixels`` (P,) (ladder 0 the centred one, then :data:`DIRECTIONS`)."""
 
     ladder_rungs: np.ndarray | None = None
     weights: np.ndarray | None = None
+    pixels: np.ndarray | None = None
 
 
 @dataclass
@@ -404,14 +406,14 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
                                     np.ascontiguousarray(pc[:, :, sel]),
                                     np.arange(C, dtype=np.int64), rows, cols, DIRECTIONS,
                                     jk, wk).T
-    jk_all = np.zeros((Q, LADDERS), np.int64)
-    wk_all = np.zeros((Q, LADDERS))
-    wk_all[:, 0] = 1.0
-    if guide is not None:
-        jk_all[:, 0] = guide.rung
+    # the pixels not fused keep the centred rung (their one ladder, weight 1); the fused
+    # ones the rung of their heaviest ladder (no (Q, K) arrays for the whole wall)
+    rung = (np.array(guide.rung, dtype=np.int64) if guide is not None
+            else np.zeros(Q, np.int64))
+    jk0 = wk0 = None
     if choices:
-        jk_all[sel], wk_all[sel] = choices[0][1], choices[0][2]
-    choice = FusedChoice(jk_all[np.arange(Q), np.argmax(wk_all, axis=1)], lux, jk_all,
-                         wk_all)
+        jk0, wk0 = choices[0][1], choices[0][2]
+        rung[sel] = jk0[np.arange(len(sel)), np.argmax(wk0, axis=1)]
+    choice = FusedChoice(rung, lux, jk0, wk0, sel if choices else None)
     # every set's luminous rung 0 is R0: the lit masks need not convert it again
     return FusedMap(choice, vals, ici._lit_masks(rungs, choice, lit_fraction, vals, R0))
