@@ -139,3 +139,19 @@ def test_pixel_sat_matches_numpys_two_cumsums(shape):
     got = pixel_sat(img)
     assert got.tobytes() == want.tobytes()
     assert pixel_sat(img[0]).tobytes() == want[0].tobytes()  # one image: NumPy's path
+
+
+def _on_branch_thread(x):
+    from lightsim.render import ici
+
+    return ici._branch_pool().submit(lambda: x + 1).result(timeout=30)
+
+
+def test_the_branch_thread_in_a_forked_child_after_the_parent_used_it():
+    import multiprocessing as mp
+
+    from lightsim.render import ici
+
+    assert ici._branch_pool().submit(lambda: 1).result(timeout=30) == 1  # parent's thread
+    with mp.get_context("fork").Pool(1) as pool:  # the child makes its own thread
+        assert pool.apply_async(_on_branch_thread, (41,)).get(timeout=60) == 42

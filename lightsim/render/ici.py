@@ -59,6 +59,7 @@ parameter        unit   default   meaning
 from __future__ import annotations
 
 import math
+import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import lru_cache
@@ -920,12 +921,21 @@ _BRANCH_POOL: ThreadPoolExecutor | None = None
 
 
 def _branch_pool() -> ThreadPoolExecutor:
-    """One thread for :func:`written_map`'s second branch (made on first use)."""
+    """One thread for :func:`written_map`'s second branch (made on first use; a forked
+    child makes its own: the parent's thread does not exist there)."""
     global _BRANCH_POOL
     if _BRANCH_POOL is None:
         _BRANCH_POOL = ThreadPoolExecutor(max_workers=1,
                                           thread_name_prefix="lightsim-written-map")
     return _BRANCH_POOL
+
+
+def _forget_branch_pool() -> None:
+    global _BRANCH_POOL
+    _BRANCH_POOL = None
+
+
+os.register_at_fork(after_in_child=_forget_branch_pool)
 
 
 def _centred(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
