@@ -22,14 +22,17 @@ Insertion (this session's layout)
 Nodes are numbered depth-first (children adjacent, every subtree one block of ids), after
 a build and after every insertion. An insertion routes the batch (sorted by top voxel) to
 its leaves, then rewrites the photon arrays in one pass: a walk over the leaves in slot
-order — which in depth-first numbering reads the node arrays in sequence — plans where
-every stored photon goes (its leaf's new range, followed by room for the leaf's new
-photons), and each array (positions, normals, powers, insertion indices) is gathered once,
-in parallel. A leaf is split only when it holds more than ``INSERT_SLACK · leaf_size``
-photons, and then down to ``leaf_size``, so re-splitting is amortised; such leaves query
-as fast as built ones (measured on 1 M ring photons). The full leaves are split in a
-compact copy of their photons and written back to the same slots (split in place, the
-ping-pong scratch would be first touched at every scattered range).
+order — which in depth-first numbering reads the node arrays in sequence — gives each
+leaf its shift (the new photons of the leaves before it), and each array (positions,
+normals, powers, insertion indices) is copied once, one block of stored photons per leaf
+that receives photons, with the batch (put in slot order first) between the blocks; two
+arrays per thread. A leaf is split only when it holds more than ``INSERT_SLACK ·
+leaf_size`` photons, and then down to ``leaf_size``, so re-splitting is amortised; such
+leaves query as fast as built ones (measured on 1 M ring photons). The full leaves are
+split in a compact copy of their photons and written back to the same slots (split in
+place, the ping-pong scratch would be first touched at every scattered range). The
+splits only insert the new subtrees' ids into the depth-first sequence, so the nodes are
+renumbered in place.
 
 Layout and queries
 ------------------
