@@ -261,8 +261,9 @@ def _link_children(frontier: np.ndarray, mid: np.ndarray, axis: np.ndarray,
     children, ids ``first``, ``first + 1``, … in frontier order, and return the next
     frontier (left, right of each) and its depth.
 
-    One call per level instead of a dozen numpy operations (their overhead was about
-    a tenth of an insertion: its splits run ≈ 6 levels on ≈ 1 650 small leaves).
+    One call per level instead of a dozen numpy operations: an insertion splits its
+    ≈ 1 650 full leaves in ≈ 6 levels, and those operations took ≈ 12 of the ≈ 390 ms of
+    25 insertions of 1 M photons.
     """
     m = 0
     for j in range(frontier.shape[0]):
