@@ -313,17 +313,43 @@ def _route(pts: np.ndarray, first: np.ndarray, child: np.ndarray, dim: np.ndarra
     (x < split → left child).
 
     Branch-free descent (the side is added to the left child's index): the comparison is
-    a coin flip for the branch predictor on spatial data.
+    a coin flip for the branch predictor on spatial data. Four points descend together:
+    one descent is a chain of dependent loads (child → axis → coordinate → plane), and
+    four independent chains overlap their latencies (2.2× faster than one at a time on
+    an insertion's 40 000-photon batches; the last block repeats its last point).
     """
     n = pts.shape[0]
     leaf = np.empty(n, np.int64)
-    for i in prange(n):
-        nd = first[i]
-        c = child[nd]
-        while c >= 0:
-            nd = c + np.int64(pts[i, dim[nd]] >= split[nd])
-            c = child[nd]
-        leaf[i] = nd
+    for b in prange((n + 3) >> 2):
+        i0 = 4 * b
+        i1 = min(i0 + 1, n - 1)
+        i2 = min(i0 + 2, n - 1)
+        i3 = min(i0 + 3, n - 1)
+        n0 = first[i0]
+        n1 = first[i1]
+        n2 = first[i2]
+        n3 = first[i3]
+        c0 = child[n0]
+        c1 = child[n1]
+        c2 = child[n2]
+        c3 = child[n3]
+        while c0 >= 0 or c1 >= 0 or c2 >= 0 or c3 >= 0:
+            if c0 >= 0:
+                n0 = c0 + np.int64(pts[i0, dim[n0]] >= split[n0])
+                c0 = child[n0]
+            if c1 >= 0:
+                n1 = c1 + np.int64(pts[i1, dim[n1]] >= split[n1])
+                c1 = child[n1]
+            if c2 >= 0:
+                n2 = c2 + np.int64(pts[i2, dim[n2]] >= split[n2])
+                c2 = child[n2]
+            if c3 >= 0:
+                n3 = c3 + np.int64(pts[i3, dim[n3]] >= split[n3])
+                c3 = child[n3]
+        leaf[i3] = n3
+        leaf[i2] = n2
+        leaf[i1] = n1
+        leaf[i0] = n0
     return leaf
 
 
