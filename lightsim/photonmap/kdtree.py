@@ -474,7 +474,8 @@ def _batch_in_slot_order(leaf_of: np.ndarray, shift: np.ndarray, order: np.ndarr
     """The batch (positions ``b_pts`` sorted by voxel; normals and powers in the caller's
     order, picked by ``order``) in the order its photons take in the merged slots: by
     leaf in slot order (a leaf's first new photon is number ``shift[leaf]``), then in
-    batch order within a leaf. Insertion indices are ``n_old + order[i]``.
+    batch order within a leaf. Insertion indices are ``n_old + order[i]``, of the type of
+    ``perm_dtype`` (an empty array: numba takes a dtype from an array argument).
 
     The merge then writes each leaf's new photons right after its moved old ones, in
     sequence, instead of scattering the batch over the whole slot array afterwards.
