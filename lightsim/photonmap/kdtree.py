@@ -731,27 +731,30 @@ def _renumber_in_place(new: np.ndarray, m_old: int, box: np.ndarray, child: np.n
         t = new[nd]
         c = child[nd]
         child[t] = new[c] if c >= 0 else -1
-        if t == nd:
-            continue
-        for a in range(6):
-            box[t, a] = box[nd, a]
-        start[t] = start[nd]
-        end[t] = end[nd]
-        dim[t] = dim[nd]
-        split[t] = split[nd]
-        depth[t] = depth[nd]
+        if t != nd:
+            _move_node(t, nd, box, start, end, dim, split, depth,
+                       box, start, end, dim, split, depth)
     for j in range(k):
         t = new[m_old + j]
         c = t_child[j]
         child[t] = new[c] if c >= 0 else -1
-        for a in range(6):
-            box[t, a] = t_box[j, a]
-        start[t] = t_start[j]
-        end[t] = t_end[j]
-        dim[t] = t_dim[j]
-        split[t] = t_split[j]
-        depth[t] = t_depth[j]
+        _move_node(t, j, box, start, end, dim, split, depth,
+                   t_box, t_start, t_end, t_dim, t_split, t_depth)
     return True
+
+
+@njit(cache=True, inline="always")
+def _move_node(t, i, box, start, end, dim, split, depth,
+               s_box, s_start, s_end, s_dim, s_split, s_depth) -> None:
+    """Node fields (all but the child link) of row ``i`` of the ``s_`` arrays to id
+    ``t``."""
+    for a in range(6):
+        box[t, a] = s_box[i, a]
+    start[t] = s_start[i]
+    end[t] = s_end[i]
+    dim[t] = s_dim[i]
+    split[t] = s_split[i]
+    depth[t] = s_depth[i]
 
 
 @njit(cache=True)
