@@ -37,7 +37,7 @@ def _child(env_extra: dict[str, str]) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_one_blas_thread_and_the_same_dot_products():
+def test_one_blas_thread_and_the_same_held_out_blur():
     got = _child({})
     assert got["on"] is True
     assert got["after"] and all(n == 1 for n in got["after"])
