@@ -90,7 +90,7 @@ def pixel_sat(img: np.ndarray) -> np.ndarray:
     return sat
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _sat_stack(img: np.ndarray, sat: np.ndarray) -> None:
     """:func:`pixel_sat` of every image of (S, H, W) into the zeroed (S, H+1, W+1)."""
     S, H, W = img.shape
@@ -188,7 +188,7 @@ def _choose(E, A, J, scale, gamma, jk, wk):
         wk[k] /= tot
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def choose_fused(sat, Ec, Ac, rows, cols, dirs, a_pix, scale, gamma):
     """The fused choice at every query: (jk (Q, K) int64, wk (Q, K) float64).
 
@@ -216,7 +216,7 @@ def choose_fused(sat, Ec, Ac, rows, cols, dirs, a_pix, scale, gamma):
     return jk, wk
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def apply_fused(sats, Ecs, which, rows, cols, dirs, jk, wk):
     """(len(which), Q) the fused values of the images ``which`` of sats (S, H+1, W+1) and
     centred rungs Ecs (S, J+1, Q) at the choice (jk, wk) of :func:`choose_fused`."""

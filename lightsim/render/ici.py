@@ -900,7 +900,8 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
             return _in_region(fused, rungs, None, fm.lits, restrict, lit_fraction, shape)
         # the fused map and the centred map's figure share nothing but the choice and
         # every set's rung 0: one on a second thread while the other runs here (their
-        # NumPy passes and the fused kernels release the GIL; the same values either way)
+        # NumPy passes and compiled kernels run without the GIL; the same values either
+        # way)
         pending = _branch_pool().submit(fused_branch)
     try:
         centred, blur, lits = _centred(rungs, emitted, q, areas, gamma, choice,
