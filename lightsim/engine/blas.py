@@ -1,15 +1,15 @@
 """One BLAS thread: the run's cores belong to its own threads (tracer chunks, numba).
 
-lightsim's BLAS calls are small — a (S,) × (S, J+1, Q) ``tensordot`` in the written
-map's held-out blur, 3 × 3 transforms, Rec. 709 weights — and run next to its own
-threads. OpenBLAS splits even these over every core and its threads then busy-wait for
-the next call, so each call leaves a core spinning while the written map's second branch
-(or the tracer) wants it: on the 2-core VM the held-out blur took 53 ms of wall time and
+lightsim's BLAS calls are small — 3 × 3 transforms, Rec. 709 weights, the odd
+``tensordot`` — and run next to its own threads. OpenBLAS splits even these over every
+core and its threads then busy-wait for the next call, so each call leaves a core
+spinning while the written map's second branch (or the tracer) wants it: on the 2-core
+VM the held-out blur (then a ``tensordot`` and NumPy passes) took 53 ms of wall time and
 105 ms of CPU, and the written map 142 ms / 269 ms; with one BLAS thread 53 / 53 and
-121 / 204 ms. One BLAS thread gives the same numbers here (each output element of a
-``tensordot``/``gemv`` is the same dot product however the outputs are split: the
-shipped headlight, the paraboloid and the covered paraboloid write bit-identical maps
-and figures either way).
+121 / 204 ms. A BLAS product may round differently on one thread than on two (OpenBLAS's
+``tensordot`` does), so nothing that feeds the error figure relies on BLAS's summation
+order: the held-out blur sums Σ n_s E_s itself, in set order
+(:func:`lightsim.render.ici.held_out_blur`).
 
 :func:`single_blas_thread` is the ``lightsim`` command's and the Ray clients' policy
 (like :func:`~lightsim.engine.memory.keep_freed_memory`), not the library's: a program
