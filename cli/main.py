@@ -80,9 +80,10 @@ def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script; maps input errors to one line and exit code 2."""
     if argv is None:  # the console script's process: freed arrays are reused, not faulted
         from lightsim.engine.blas import single_blas_thread
-        from lightsim.engine.memory import keep_freed_memory
+        from lightsim.engine.memory import keep_freed_memory, small_pages
 
         keep_freed_memory()
+        small_pages()  # fresh huge pages are slow faults on the VMs (engine/memory.py)
         single_blas_thread()  # the cores are the run's threads', not BLAS's spinning ones
     try:
         _run(argv)

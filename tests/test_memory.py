@@ -114,3 +114,43 @@ print(min(faults[1:]))
         pytest.skip("the C library is not glibc: no mallopt")
     assert int(out["off"]) > 500  # 48 MB refaulted: ~12 000 4 KiB pages (fewer if huge)
     assert int(out["on"]) < 50
+
+
+def test_small_pages_turns_numpy_huge_pages_off_in_a_process_of_its_own():
+    """The page policy of the command: after :func:`small_pages` NumPy's switch reads
+    off and a fresh 64 MB array is faulted in normal 4 KiB pages (one fault per page: no
+    2 MiB page; unless the kernel gives huge pages to every process, THP ``always``); a
+    ``NUMPY_MADVISE_HUGEPAGE`` set by the user is kept. Run in child processes."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    thp = Path("/sys/kernel/mm/transparent_hugepage/enabled")
+    always = thp.exists() and "[always]" in thp.read_text()
+
+    code = """
+import resource
+import numpy as np
+from lightsim.engine.memory import small_pages
+try:
+    from numpy._core.multiarray import _set_madvise_hugepage as switch
+except ImportError:
+    from numpy.core.multiarray import _set_madvise_hugepage as switch
+on = small_pages()
+state = switch(False); switch(state)  # the switch returns its previous state
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+a = np.empty(8_000_000)  # 64 MB, fresh
+a[:] = 1.0
+print(on, state, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    on, state, faults = subprocess.run([sys.executable, "-c", code], capture_output=True,
+                                       text=True, check=True, env=env).stdout.split()
+    assert (on, state) == ("True", "False")
+    if not always:
+        assert int(faults) >= 0.9 * 64_000_000 / 4096  # every 4 KiB page faulted once
+    env["NUMPY_MADVISE_HUGEPAGE"] = "1"  # the user's choice stays
+    on, state, _ = subprocess.run([sys.executable, "-c", code], capture_output=True,
+                                  text=True, check=True, env=env).stdout.split()
+    assert (on, state) == ("False", "True")

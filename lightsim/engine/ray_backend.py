@@ -95,9 +95,10 @@ def _actor_class():
 
             from lightsim.engine.blas import single_blas_thread
             from lightsim.engine.client import Client
-            from lightsim.engine.memory import keep_freed_memory
+            from lightsim.engine.memory import keep_freed_memory, small_pages
 
-            keep_freed_memory()  # a worker process of its own: the command's heap policy
+            keep_freed_memory()  # a worker process of its own: the command's heap policy,
+            small_pages()  # its page policy
             single_blas_thread()  # ... and its BLAS policy
             numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
             self.client = Client(scene, config.with_(threads=threads), plan, sets, probes_hv)
