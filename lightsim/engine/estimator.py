@@ -142,7 +142,7 @@ class SetEstimator:
             radius, floor = r_min, 0.0
         else:
             radius, floor = r_max, r_min
-        res = st.photonmap.ready().estimate(
+        res = st.photonmap.estimate(
             points.astype(np.float32), normals.astype(np.float32), k=set_k(self.config),
             max_radius=radius, min_radius=floor, kernel=self.config.kernel)
         return normalise_flux(np.asarray(res.E, dtype=np.float64), st.emitted)

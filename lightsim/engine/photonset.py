@@ -69,7 +69,18 @@ class DeferredPhotonMap:
     (one build instead of many insertions). With the box kernel the kNN estimates are
     bit-identical to inserting batch by batch (the k nearest and their sum do not depend
     on the tree's shape).
+
+    An estimate at a few points (:meth:`estimate`: the cut-off scans, test points) on a
+    map not built yet reads a map of the photons near them only
+    (:mod:`lightsim.photonmap.near`), unless those are more than :attr:`LOCAL_SHARE` of
+    the photons: then the whole map is built, and kept for later queries. Estimates
+    repeated as photons arrive (a probe every frame) switch to the built map once their
+    selection passes have read :attr:`LOCAL_SCANS` times the photons stored (a pass costs
+    a few ns per photon, a build about a hundred).
     """
+
+    LOCAL_SHARE = 0.5
+    LOCAL_SCANS = 8
 
     def __init__(self, structure: str, channels: int) -> None:
         from lightsim.photonmap.density import PhotonMap
@@ -77,6 +88,7 @@ class DeferredPhotonMap:
         self.map = PhotonMap(structure=structure, channels=channels)
         self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._n_pending = 0
+        self._scanned = 0  # photons read by near-photon selections (class doc)
 
     def __len__(self) -> int:
         return len(self.map) + self._n_pending
@@ -91,6 +103,56 @@ class DeferredPhotonMap:
             batches, self._pending, self._n_pending = self._pending, [], 0
             self.map.add(*(np.concatenate(parts) for parts in zip(*batches, strict=True)))
         return self.map
+
+    def estimate(self, points: np.ndarray, normals: np.ndarray | None, *, k: int = 64,
+                 max_radius: float = np.inf, min_radius: float = 0.0, kernel: str = "box"):
+        """:meth:`PhotonMap.estimate <lightsim.photonmap.density.PhotonMap.estimate>`
+        over every photon added so far. On a map not built yet, with a finite
+        ``max_radius``, from the photons within reach of ``points`` and with the whole
+        map's density floor: the same photons, so the same estimates (bit for bit with
+        the box kernel, as batching; to rounding with the others, whose sums follow the
+        order a tree finds the photons in)."""
+        near = self._near_map(points, max_radius)
+        if near is None:
+            return self.ready().estimate(points, normals, k=k, max_radius=max_radius,
+                                         min_radius=min_radius, kernel=kernel)
+        sub, bounds = near
+        from lightsim.photonmap.common import r_floor
+
+        # the floor the whole map would use (it reads the photons' bounding box)
+        floor = min(max(float(min_radius), r_floor(bounds[:3], bounds[3:])), float(max_radius))
+        # no photon near: an empty map (it stores no normals to filter by) answers 0
+        return sub.estimate(points, normals if len(sub) else None, k=k,
+                            max_radius=max_radius, min_radius=floor, kernel=kernel)
+
+    def _near_map(self, points: np.ndarray, max_radius: float):
+        """(map of the photons near ``points``, bounds of all photons), or None where the
+        whole map serves (built already, an unbounded radius, or most photons near)."""
+        if len(self.map) or not self._n_pending or len(points) == 0:
+            return None
+        r = float(max_radius)
+        if not (0.0 < r < np.inf) or not np.all(np.isfinite(points)):
+            return None
+        if self._scanned + self._n_pending > self.LOCAL_SCANS * self._n_pending:
+            return None
+        self._scanned += self._n_pending
+        from lightsim.photonmap.density import PhotonMap
+        from lightsim.photonmap.near import NearGrid
+
+        grid = NearGrid(points, r)
+        bounds = np.array([np.inf] * 3 + [-np.inf] * 3)
+        picks = [grid.select(b[0], bounds) for b in self._pending]
+        n = sum(len(p) for p in picks)
+        if n > self.LOCAL_SHARE * self._n_pending:
+            return None
+        sub = PhotonMap(structure=self.map.structure, channels=self.map.n_channels)
+        if n:
+            batches = list(zip(self._pending, picks, strict=True))
+            sub.add(np.concatenate([b[0][p] for b, p in batches]),
+                    None if batches[0][0][1] is None
+                    else np.concatenate([b[1][p] for b, p in batches]),
+                    np.concatenate([b[2][p] for b, p in batches]))
+        return sub, bounds
 
 
 @dataclass
