@@ -111,3 +111,22 @@ def test_deferred_map_without_photons_near_the_points():
     want = ref.estimate(q, np.float32([[0, 0, 1]]), k=8, max_radius=0.1, min_radius=0.0)
     np.testing.assert_array_equal(res.E, want.E)
     np.testing.assert_array_equal(res.r, want.r)
+
+
+def test_probes_every_frame_switch_to_the_built_map():
+    """A probe after every frame would select from all photons each time; once those
+    selections have read LOCAL_SCANS times the stored photons the whole map is built
+    (and then grows by insertion), so repeated probes cost no more than a few builds."""
+    rng = np.random.default_rng(5)
+    q = _scans()
+    qn = np.tile(np.float32([0, 0, 1]), (len(q), 1))
+    deferred = DeferredPhotonMap("middle", 1)
+    built_at = None
+    for frame in range(40):
+        deferred.add(*_beam(rng, 5_000))
+        deferred.estimate(q, qn, k=16, max_radius=0.03)
+        if built_at is None and len(deferred.map):
+            built_at = frame
+    assert built_at is not None and built_at < 40
+    assert deferred._scanned <= DeferredPhotonMap.LOCAL_SCANS * 5_000 * (built_at + 1)
+    assert len(deferred.map) == 40 * 5_000
