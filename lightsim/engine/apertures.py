@@ -192,7 +192,7 @@ class ApertureLayout:
                 "raster_deg": None if self.raster is None else list(self.raster)}
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _bin_photons(hd, vd, power, cell_start, cell_items, g_h0, g_v0, g_dh, g_dv, g_nh, g_nv,
                  ap_h0, ap_h1, ap_v0, n_bins, offset, step, counts):
     """Add photon powers to the strip bins they fall in (serial: no write races)."""

@@ -25,6 +25,7 @@ store               unit         kept when
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,6 +43,7 @@ from lightsim.sampling import (
     photon_keys,
 )
 from lightsim.scene import Scene
+from lightsim.threads import helper_thread
 from lightsim.tracer import LEDGER, PhotonRecords, PhotonTracer
 
 
@@ -58,6 +60,11 @@ def add_to_cells(store: np.ndarray, flat: np.ndarray, power: np.ndarray) -> None
     cells, inverse = np.unique(flat, return_inverse=True)
     for c in range(store.shape[1]):
         store[cells, c] += np.bincount(inverse, weights=power[:, c], minlength=len(cells))
+
+
+#: a frame with at least this many records is inserted on two threads (two halves of the
+#: sets): below it the hand-over costs more than the second core gives back
+SPLIT_RECORDS = 20_000
 
 
 class DeferredPhotonMap:
@@ -403,34 +410,66 @@ class PhotonSets:
         reach_h, reach_v = 0.5 * dh / pitch_h, 0.5 * dv / pitch_v
         reach = (int(np.floor(-reach_h)), int(np.ceil(reach_h)),
                  int(np.floor(-reach_v)), int(np.ceil(reach_v)), nh, nv)
-        windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
-        W, H = fr.resolution
-        if self.config.uses_ici:
-            lattice = self._stacked(sets, "lattice", (4 * H * W, C), none)
-            work = self._blocks.get("lattice work")
-            if work is None or work.shape[0] != lattice.shape[1]:  # kept at −1
-                work = self._blocks["lattice work"] = np.full(lattice.shape[1], -1, np.int32)
-        else:
-            lattice = np.zeros((0, 0, C))
-            work = np.zeros(0, np.int32)
-        win_work = self._blocks.get("windows work")
         n_slots = (reach[1] - reach[0] + 1) * (reach[3] - reach[2] + 1)
-        if win_work is None or win_work.shape != (n_slots, nh * nv, C):
-            win_work = self._blocks["windows work"] = np.zeros((n_slots, nh * nv, C))
         need_hv = any(st.apertures is not None for st in sets)
         axes = np.array([fr.centre, fr.h_axis, fr.v_axis], np.float64)
-        counts, ok, pb, index, h, v = insert_wall(
-            rec.part, self._wall_part_ids, rec.position, rec.power, bounds, axes, windows,
-            (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh, 0.5 * dv),
-            reach, win_work, lattice, (float(h0), float(v1), float(dh), float(dv)),
-            (int(W), int(H)), work, need_hv)
-        if need_hv:  # detector apertures count every wall photon
-            wb = np.searchsorted(index, bounds)
-            for g, st in enumerate(sets):
-                if st.apertures is not None:
-                    sl, idx = slice(int(wb[g]), int(wb[g + 1])), index[wb[g]:wb[g + 1]]
-                    hit = st.apertures.add(h[sl], v[sl], rec.power[idx])
-                    st.aperture_hits = rec.source[idx][hit] - offsets[g]
+        win_geometry = (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh,
+                        0.5 * dv)
+        lat_geometry = (float(h0), float(v1), float(dh), float(dv))
+
+        def insert(g0: int, g1: int, name: str) -> tuple:
+            """Sets g0..g1-1 into their stores (the rows of those sets only, with work
+            arrays of their own): :func:`insert_wall`'s outputs, then the apertures."""
+            win_work = self._blocks.get(f"windows work {name}")
+            if win_work is None or win_work.shape != (n_slots, nh * nv, C):
+                win_work = self._blocks[f"windows work {name}"] = np.zeros(
+                    (n_slots, nh * nv, C))
+            work = np.zeros(0, np.int32)
+            if self.config.uses_ici:
+                work = self._blocks.get(f"lattice work {name}")
+                if work is None or work.shape[0] != lattice.shape[1]:  # kept at −1
+                    work = self._blocks[f"lattice work {name}"] = np.full(
+                        lattice.shape[1], -1, np.int32)
+            out = insert_wall(
+                rec.part, self._wall_part_ids, rec.position, rec.power, bounds[g0:g1 + 1],
+                axes, windows[g0:g1], win_geometry, reach, win_work,
+                lattice[g0:g1] if len(lattice) else lattice, lat_geometry, (int(W), int(H)),
+                work, need_hv)
+            if need_hv:  # detector apertures count every wall photon
+                index, h, v = out[3:]
+                wb = np.searchsorted(index, bounds[g0:g1 + 1])
+                for g in range(g0, g1):
+                    st = sets[g]
+                    if st.apertures is not None:
+                        sl = slice(int(wb[g - g0]), int(wb[g - g0 + 1]))
+                        idx = index[sl]
+                        hit = st.apertures.add(h[sl], v[sl], rec.power[idx])
+                        st.aperture_hits = rec.source[idx][hit] - offsets[g]
+            return out[:3]
+
+        windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
+        W, H = fr.resolution
+        lattice = (self._stacked(sets, "lattice", (4 * H * W, C), none)
+                   if self.config.uses_ici else np.zeros((0, 0, C)))
+        # the sets in two halves of about equal records, the second on the helper thread
+        # (the kernels and the apertures' passes run without the GIL; each set's stores
+        # get the same sums either way)
+        split = len(sets)
+        if len(sets) > 1 and len(rec) >= SPLIT_RECORDS and (
+                self.config.threads or os.cpu_count() or 1) > 1:
+            split = int(np.clip(np.searchsorted(bounds, 0.5 * bounds[-1]), 1, len(sets) - 1))
+        pending = (helper_thread().submit(insert, split, len(sets), "b")
+                   if split < len(sets) else None)
+        try:
+            halves = [insert(0, split, "a")]
+        finally:
+            if pending is not None:
+                halves.append(pending.result())
+        counts = np.concatenate([c for c, _, _ in halves])
+        ok = np.concatenate([o for _, o, _ in halves])
+        pb = halves[0][2]
+        for _, _, b in halves[1:]:
+            pb = np.concatenate([pb, b[1:] + pb[-1]])
         if self.config.uses_ici:
             # a set's lattice is created by its first wall photon; ΣΦ, ΣΦ², count of the
             # photons on it (their standard errors), summed by NumPy as before

@@ -59,7 +59,6 @@ parameter        unit   default   meaning
 from __future__ import annotations
 
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import lru_cache
@@ -70,6 +69,7 @@ from numba import njit
 
 from lightsim.render.frame import ErrorEstimate, luminous
 from lightsim.render.region import Restrict
+from lightsim.threads import helper_thread
 
 MAX_RUNGS = 8  # window sides 1 … 8 pixels at most
 
@@ -918,25 +918,9 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     return _in_region(centred, rungs, blur, lits, restrict, lit_fraction, shape)
 
 
-_BRANCH_POOL: ThreadPoolExecutor | None = None
-
-
 def _branch_pool() -> ThreadPoolExecutor:
-    """One thread for :func:`written_map`'s second branch (made on first use; a forked
-    child makes its own: the parent's thread does not exist there)."""
-    global _BRANCH_POOL
-    if _BRANCH_POOL is None:
-        _BRANCH_POOL = ThreadPoolExecutor(max_workers=1,
-                                          thread_name_prefix="lightsim-written-map")
-    return _BRANCH_POOL
-
-
-def _forget_branch_pool() -> None:
-    global _BRANCH_POOL
-    _BRANCH_POOL = None
-
-
-os.register_at_fork(after_in_child=_forget_branch_pool)
+    """The thread for :func:`written_map`'s second branch (:mod:`lightsim.threads`)."""
+    return helper_thread()
 
 
 def _centred(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
