@@ -113,34 +113,37 @@ def test_wall_kernel_takes_empty_input_and_extreme_coordinates():
     assert empty[0].sum() == 0 and len(empty[2][1]) == 0 and list(empty[2][2]) == [0, 0, 0]
 
 
-def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit():
-    """A frame of ≥ SPLIT_RECORDS records is inserted in two halves of the sets, the
-    second on the helper thread: every store (windows, lattice, moments, the detector
-    apertures' counts and their SPT triggers) as the per-set path and as one thread."""
+def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit(monkeypatch):
+    """A frame of ≥ SPLIT_RECORDS records (after the first) is inserted in two halves of
+    the sets, the second on the helper thread: every store (windows, lattice, moments, the
+    detector apertures' counts and their SPT triggers) as the per-set path and as one
+    thread."""
+    import lightsim.engine.photonset as photonset
     from lightsim.engine.photonset import SPLIT_RECORDS
 
+    handed = []
+    helper = photonset.helper_thread
+
+    class Counting:
+        def submit(self, fn, *args):
+            handed.append(args)
+            return helper().submit(fn, *args)
+
+    monkeypatch.setattr(photonset, "helper_thread", Counting)
     scene = paraboloid_case(resolution=(48, 40)).scene
     config = RunConfig(frame_photons=4 * SPLIT_RECORDS, interleave=4, seed=5,
                        probe_grid=(16, 8), apertures=((0.0, 0.0), (3.0, -2.0), (-6.0, 4.0)),
                        aperture_targets=(0, 1))
     two, one = _sets(scene, config, False), _sets(scene, config.with_(threads=1), False)
     ref = _sets(scene, config, True)
-    split = []
-    inner = two._insert_frame
-
-    def spy(rec, bounds, offsets):
-        split.append(len(rec))
-        return inner(rec, bounds, offsets)
-
-    two._insert_frame = spy  # type: ignore[method-assign]
-    for _ in range(2):
+    for frame in range(3):
         for sets in (two, one, ref):
             sets.shoot()
+        assert len(handed) == frame  # the first frame on one thread, then two halves
         for other in (one, ref):
             _assert_same_stores(two, other)
             for s in two.set_indices:
                 x, y = two.sets[s], other.sets[s]
                 np.testing.assert_array_equal(x.apertures.counts, y.apertures.counts)
                 np.testing.assert_array_equal(x.aperture_hits, y.aperture_hits)
-    assert min(split) >= SPLIT_RECORDS  # the frames took the two-thread path
     assert any(st.apertures.counts.any() for st in two.sets.values())

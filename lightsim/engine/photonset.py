@@ -274,6 +274,7 @@ class PhotonSets:
         """Discard all photons (interaction mode: the next frame starts afresh)."""
         self.sets: dict[int, SetState] = {s: self._new_set(s) for s in self.set_indices}
         self._blocks: dict[str, Any] = {}  # stores stacked over sets (_stacked), work arrays
+        self._frames_inserted = 0  # frames inserted by _insert_frame
 
     def _new_set(self, s: int) -> SetState:
         st = SetState(s, self.channels)
@@ -454,8 +455,10 @@ class PhotonSets:
         # the sets in two halves of about equal records, the second on the helper thread
         # (the kernels and the apertures' passes run without the GIL; each set's stores
         # get the same sums either way)
+        # (not the first frame: it touches the stores' memory for the first time, page
+        # faults that two threads would only queue for, and loads the kernels)
         split = len(sets)
-        if len(sets) > 1 and len(rec) >= SPLIT_RECORDS and (
+        if len(sets) > 1 and len(rec) >= SPLIT_RECORDS and self._frames_inserted and (
                 self.config.threads or os.cpu_count() or 1) > 1:
             split = int(np.clip(np.searchsorted(bounds, 0.5 * bounds[-1]), 1, len(sets) - 1))
         pending = (helper_thread().submit(insert, split, len(sets), "b")
@@ -470,6 +473,7 @@ class PhotonSets:
         pb = halves[0][2]
         for _, _, b in halves[1:]:
             pb = np.concatenate([pb, b[1:] + pb[-1]])
+        self._frames_inserted += 1
         if self.config.uses_ici:
             # a set's lattice is created by its first wall photon; ΣΦ, ΣΦ², count of the
             # photons on it (their standard errors), summed by NumPy as before
