@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lightsim.render.ici import _halves, held_out_blur, ici_rungs
+from lightsim.threads import helper_thread
 
 
 def _reference(rungs, emitted, q, areas, gamma, groups=None, blas=False):
@@ -142,16 +143,12 @@ def test_pixel_sat_matches_numpys_two_cumsums(shape):
 
 
 def _on_branch_thread(x):
-    from lightsim.render import ici
-
-    return ici._branch_pool().submit(lambda: x + 1).result(timeout=30)
+    return helper_thread().submit(lambda: x + 1).result(timeout=30)
 
 
 def test_the_branch_thread_in_a_forked_child_after_the_parent_used_it():
     import multiprocessing as mp
 
-    from lightsim.render import ici
-
-    assert ici._branch_pool().submit(lambda: 1).result(timeout=30) == 1  # parent's thread
+    assert helper_thread().submit(lambda: 1).result(timeout=30) == 1  # parent's thread
     with mp.get_context("fork").Pool(1) as pool:  # the child makes its own thread
         assert pool.apply_async(_on_branch_thread, (41,)).get(timeout=60) == 42

@@ -417,6 +417,10 @@ class PhotonSets:
         win_geometry = (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh,
                         0.5 * dv)
         lat_geometry = (float(h0), float(v1), float(dh), float(dv))
+        windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
+        W, H = fr.resolution
+        lattice = (self._stacked(sets, "lattice", (4 * H * W, C), none)
+                   if self.config.uses_ici else np.zeros((0, 0, C)))
 
         def insert(g0: int, g1: int, name: str) -> tuple:
             """Sets g0..g1-1 into their stores (the rows of those sets only, with work
@@ -448,15 +452,11 @@ class PhotonSets:
                         st.aperture_hits = rec.source[idx][hit] - offsets[g]
             return out[:3]
 
-        windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
-        W, H = fr.resolution
-        lattice = (self._stacked(sets, "lattice", (4 * H * W, C), none)
-                   if self.config.uses_ici else np.zeros((0, 0, C)))
-        # the sets in two halves of about equal records, the second on the helper thread
-        # (the kernels and the apertures' passes run without the GIL; each set's stores
-        # get the same sums either way)
-        # (not the first frame: it touches the stores' memory for the first time, page
-        # faults that two threads would only queue for, and loads the kernels)
+        # the sets in two halves of about equal records, the second on the helper thread:
+        # the kernels and the apertures' passes run without the GIL, and each set's stores
+        # get the same sums either way. Not the first frame: it touches the stores' memory
+        # for the first time (page faults that two threads would only queue for) and
+        # loads the kernels
         split = len(sets)
         if len(sets) > 1 and len(rec) >= SPLIT_RECORDS and self._frames_inserted and (
                 self.config.threads or os.cpu_count() or 1) > 1:
@@ -470,9 +470,9 @@ class PhotonSets:
                 halves.append(pending.result())
         counts = np.concatenate([c for c, _, _ in halves])
         ok = np.concatenate([o for _, o, _ in halves])
-        pb = halves[0][2]
-        for _, _, b in halves[1:]:
-            pb = np.concatenate([pb, b[1:] + pb[-1]])
+        pb = halves[0][2]  # each set's share of ok: the second half's bounds follow on
+        if len(halves) == 2:
+            pb = np.concatenate([pb, halves[1][2][1:] + pb[-1]])
         self._frames_inserted += 1
         if self.config.uses_ici:
             # a set's lattice is created by its first wall photon; ΣΦ, ΣΦ², count of the

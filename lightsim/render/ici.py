@@ -59,7 +59,6 @@ parameter        unit   default   meaning
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
@@ -902,7 +901,7 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         # every set's rung 0: one on a second thread while the other runs here (their
         # NumPy passes and compiled kernels run without the GIL; the same values either
         # way)
-        pending = _branch_pool().submit(fused_branch)
+        pending = helper_thread().submit(fused_branch)
     try:
         centred, blur, lits = _centred(rungs, emitted, q, areas, gamma, choice,
                                        lit_fraction, win)
@@ -916,11 +915,6 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     if restrict is not None and shape is None:
         shape = raster_shape(areas)
     return _in_region(centred, rungs, blur, lits, restrict, lit_fraction, shape)
-
-
-def _branch_pool() -> ThreadPoolExecutor:
-    """The thread for :func:`written_map`'s second branch (:mod:`lightsim.threads`)."""
-    return helper_thread()
 
 
 def _centred(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
