@@ -39,8 +39,19 @@ def _cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "lightsim.cli.main", "simulate", *args]
 
 
+@pytest.fixture(scope="module")
+def reference(lamp, tmp_path_factory):
+    """The uninterrupted run both signals' resumed runs must reach (made once)."""
+    ref = tmp_path_factory.mktemp("ref") / "ref"
+    res = subprocess.run(_cmd(str(lamp), *ARGS, "--out", str(ref), "--quiet"),
+                         capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    assert res.returncode == 0, res.stderr[-2000:]
+    return ref
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_interrupt_then_resume_matches_uninterrupted(lamp, tmp_path, sig):
+def test_interrupt_then_resume_matches_uninterrupted(lamp, reference, tmp_path, sig):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     out = tmp_path / "run"
     proc = subprocess.Popen(_cmd(str(lamp), *ARGS, "--out", str(out)), stdout=subprocess.PIPE,
@@ -66,10 +77,7 @@ def test_interrupt_then_resume_matches_uninterrupted(lamp, tmp_path, sig):
     assert res.returncode == 0, res.stderr[-2000:]
     assert not (out / "checkpoint.json").exists()
 
-    ref = tmp_path / "ref"
-    res = subprocess.run(_cmd(str(lamp), *ARGS, "--out", str(ref), "--quiet"),
-                         capture_output=True, text=True, env=env, timeout=300)
-    assert res.returncode == 0, res.stderr[-2000:]
+    ref = reference
     a = read_exr(out / "wall_lux.exr")[0]["Y"]
     b = read_exr(ref / "wall_lux.exr")[0]["Y"]
     assert a.max() > 0 and np.array_equal(a, b)
