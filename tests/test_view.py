@@ -229,10 +229,10 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
             live.submit({"aim_v_deg": float("nan")})
         done: list[dict] = []
         t0 = time.monotonic()
-        while live.stats.edits_applied < 1 and time.monotonic() - t0 < 60:
+        while live.stats.edits_applied < 1 and time.monotonic() - t0 < 180:
             time.sleep(0.05)
         live.request_save(done.append)
-        while not done and time.monotonic() - t0 < 90:
+        while not done and time.monotonic() - t0 < 240:
             time.sleep(0.05)
         # a second scene (here the saved one) replaces the first; the session goes on
         edit, frames = live.edit, live.stats.frames
@@ -242,7 +242,7 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
             live.replace_scene(load_scene(saved / "scene.glb", resolution=(48, 24),
                                           part_materials={"filament": "ignore"}))
         while (live.edit == edit or live.stats.frames <= frames + 1
-               or "regulation" not in published) and time.monotonic() - t0 < 120:
+               or "regulation" not in published) and time.monotonic() - t0 < 300:
             time.sleep(0.05)  # (the table comes once the new scene has been still)
         assert live.edit == edit + 1 and live.controls.aim_v_deg == 0.0
     finally:
@@ -331,7 +331,7 @@ def test_page_end_to_end(tmp_path):
             page.uncheck("#points")
             page.wait_for_function("window.lightsimView.regulation !== null "
                                    "&& window.lightsimView.status.photons >= 40000",
-                                   timeout=45_000)
+                                   timeout=90_000)
             before = _centroid(page)
             table_before = page.inner_text("#reg tbody")
             edit0 = page.evaluate("window.lightsimView.status.edit")
@@ -341,7 +341,7 @@ def test_page_end_to_end(tmp_path):
             page.wait_for_function(
                 f"window.lightsimView.lastHeader.edit > {edit0} && "
                 "window.lightsimView.status.photons >= 40000 && "
-                f"window.lightsimView.regulation.edit > {edit0}", timeout=45_000)
+                f"window.lightsimView.regulation.edit > {edit0}", timeout=90_000)
             after = _centroid(page)
             r = page.evaluate("window.lightsimView.plotRect")
             expected = r["w"] * 25 * math.tan(math.radians(5)) / 30.0  # wall 30 m wide
@@ -359,23 +359,23 @@ def test_page_end_to_end(tmp_path):
                 # replace the error in the message bar before a poll sees it
                 page.wait_for_function(
                     "window.lightsimView.messages.some(m => m.level === 'error' && "
-                    f"m.text.includes('{words}'))", timeout=10_000)
+                    f"m.text.includes('{words}'))", timeout=20_000)
             page.set_input_files("#upload", files=[{"name": "second.glb",
                                                     "mimeType": "model/gltf-binary",
                                                     "buffer": b"this is not a glb file"}])
             page.wait_for_function("window.lightsimView.messages.some(m => "
-                                   "m.text.includes('not a GLB'))", timeout=10_000)
+                                   "m.text.includes('not a GLB'))", timeout=20_000)
             frames = page.evaluate("window.lightsimView.wallFrames")
             photons = page.evaluate("window.lightsimView.status.photons")
             page.wait_for_function(f"window.lightsimView.wallFrames > {frames} && "
                                    f"window.lightsimView.status.photons > {photons}",
-                                   timeout=20_000)
+                                   timeout=40_000)
             assert page.input_value("#t-k") == "64"  # snapped back to the session's value
 
             # a second tab watches the same session; a dropped connection resumes
             other = browser.new_page()
             other.goto(server.url)
-            other.wait_for_function("window.lightsimView.wallFrames >= 1", timeout=20_000)
+            other.wait_for_function("window.lightsimView.wallFrames >= 1", timeout=40_000)
             assert other.evaluate("window.lightsimView.status.edit") == \
                 page.evaluate("window.lightsimView.status.edit")
             frames = page.evaluate("window.lightsimView.wallFrames")
@@ -383,10 +383,10 @@ def test_page_end_to_end(tmp_path):
             page.wait_for_function(f"window.lightsimView.reconnects >= 1 && "
                                    f"window.lightsimView.connected && "
                                    f"window.lightsimView.wallFrames > {frames}",
-                                   timeout=20_000)
+                                   timeout=40_000)
             # the camera view as the second tab
             page.click("#tab-camera")
-            page.wait_for_function("window.lightsimView.cameraFrames >= 1", timeout=30_000)
+            page.wait_for_function("window.lightsimView.cameraFrames >= 1", timeout=60_000)
             assert page.is_visible("#camera") and not page.is_visible("#wall")
             assert not errors, errors
             browser.close()
@@ -472,7 +472,7 @@ def test_live_session_on_ray_workers(tmp_path):
         while live.edit < 1 and time.monotonic() - t0 < 260:
             time.sleep(0.1)
         t1 = time.monotonic()
-        while live.stats.frames < 4 and time.monotonic() - t1 < 60:
+        while live.stats.frames < 4 and time.monotonic() - t1 < 120:
             time.sleep(0.1)
         live.stop()
         print(json.dumps({{"edit": live.edit, "frames": live.stats.frames,
