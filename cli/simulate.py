@@ -137,6 +137,9 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
                    f"checkpoint.json — continue with: lightsim simulate --resume "
                    f"{result.out_dir}", err=True)
         raise SystemExit(130)
+    mem_note = (result.summary.get("memory_stop") or {}).get("message")
+    if mem_note:  # a time or error budget stopped short of the memory
+        click.echo(f"lightsim: warning: {mem_note}", err=True)
     ff_note = result.summary.get("farfield", {}).get("warning")
     if ff_note:  # flux a written Type A file leaves out
         click.echo(f"lightsim: warning: {ff_note}", err=True)

@@ -470,6 +470,10 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         "seed": cfg.seed,
         "frames": session.frames,
         "seconds": float(est.seconds),
+        # set when a time or error budget would have outgrown the memory (engine/server.py)
+        "memory_stop": (None if session.memory_stop is None
+                        else {**session.memory_stop.to_json(),
+                              "message": session.memory_stop.message()}),
         "rel_error": est.rel_error,
         "rel_noise": None if est.error is None else est.error.noise,
         "rel_bias": None if est.error is None else est.error.bias,

@@ -154,3 +154,78 @@ print(on, state, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
     on, state, _ = subprocess.run([sys.executable, "-c", code], capture_output=True,
                                   text=True, check=True, env=env).stdout.split()
     assert (on, state) == ("False", "True")
+
+
+# -- open-ended runs: stop before the photon maps outgrow the memory -------------------
+
+def _limit_for(budget_bytes: float, resolution, cfg: RunConfig, channels: int) -> int:
+    """The LIGHTSIM_MEMORY_LIMIT whose photon budget is ``budget_bytes``."""
+    fixed = memory.photon_budget(resolution, cfg, channels, available=10**15)
+    fixed = 10**15 / memory.HEADROOM - fixed  # images, one frame, the process
+    return int(memory.HEADROOM * (budget_bytes + fixed)) + 1
+
+
+def test_a_run_stops_before_its_kept_photons_pass_the_memory(monkeypatch):
+    from lightsim.engine.server import Session
+    from lightsim.validation.bench.peer import CASES
+
+    scene = CASES["paraboloid"](16).scene
+    cfg = RunConfig(frame_photons=20_000, spt=False)
+    with Session(scene, cfg) as s:  # the records one frame keeps, and the default memory
+        s.run(photons=cfg.frame_photons)
+        per_frame = s.kept_photons()
+        assert s.memory_stop is None  # this machine's memory holds a frame easily
+    C = scene.channels or 1
+    per = memory.stored_photon_bytes(C, cfg.n_sets)
+    assert per == pytest.approx(memory.estimate_run(1000, (8, 8), C, cfg.n_sets)
+                                .photon_bytes / 1000)
+    budget = 3.5 * per_frame * per
+    monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT",
+                       str(_limit_for(budget, scene.wall.resolution, cfg, C)))
+    with Session(scene, cfg) as s:
+        assert s.photon_budget() == pytest.approx(budget, rel=1e-6)
+        est = s.run(photons=50 * cfg.frame_photons)  # bounded even if nothing stopped it
+        stop = s.memory_stop
+        assert stop is not None and est.photons == stop.photons < 50 * cfg.frame_photons
+        assert stop.kept == s.kept_photons() and stop.kept_bytes <= budget
+        assert (stop.kept + s.frame_records) * per > budget  # another frame would pass it
+        assert s.frames == 3 and est.lux is not None and est.lux.max() > 0
+        assert "before its budget" in stop.message() and "\n" not in stop.message()
+    # the bin estimator keeps no photons: nothing to check
+    with Session(scene, RunConfig(frame_photons=20_000, estimator="bin", spt=False)) as s:
+        assert s.photon_budget() is None
+        s.run(photons=5 * cfg.frame_photons)
+        assert s.memory_stop is None and s.frames == 5
+
+
+def test_simulate_with_a_time_budget_stops_for_memory_and_says_so(tmp_path, monkeypatch,
+                                                                    capsys):
+    """`--time` cannot be checked before the run: it stops short of the memory with
+    one warning, writes its outputs, and summary.json records the stop."""
+    import json
+
+    from lightsim.cli.main import main
+    from lightsim.simulate import SimulateOptions, load
+    from lightsim.validation.bench.peer import CASES, write_scene_glb
+
+    glb = write_scene_glb(CASES["paraboloid"](16), tmp_path / "p.glb")
+    argv = ["--resolution", "16x16", "--frame-photons", "20000"]
+    opts = SimulateOptions(scene_path=str(glb), resolution=(16, 16),
+                           config={"frame_photons": 20_000})
+    cfg, scene = opts.run_config(), load(opts)
+    C = scene.channels or 3
+    per = memory.stored_photon_bytes(C, cfg.n_sets)
+    # a budget for about 2.5 frames of every photon kept (the pre-flight allows a frame)
+    budget = 2.5 * cfg.frame_photons * per
+    monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT",
+                       str(_limit_for(budget, scene.wall.resolution, cfg, C)))
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", str(glb), *argv, "--time", "120", "--out", str(out)])
+    assert exc.value.code in (0, None)
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "warning" in ln]
+    assert len(err) == 1 and "stopped at" in err[0] and "memory" in err[0], err
+    summary = json.loads((out / "summary.json").read_text())
+    stop = summary["memory_stop"]
+    assert stop["kept_bytes"] <= budget and summary["photons"] == stop["photons"]
+    assert summary["seconds"] < 120 and (out / "wall_lux.exr").exists()

@@ -320,7 +320,11 @@ def sweep(target: Target, spec: EstimatorSpec, budgets: Sequence[float], seed: i
             final = est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0)
             seconds = est.seconds - charged_elsewhere
             charged_elsewhere += final
+            if session.memory_stop is not None and progress:
+                progress(f"{spec.label:12s} {session.memory_stop.message()}")
             if points and est.photons == points[-1].photons:
+                if session.memory_stop is not None:
+                    break  # no budget after it adds photons
                 continue  # the previous frame already overshot this budget
             lux = luminous(est.lux)
             m = error_metrics(lux, truth, lit, var)

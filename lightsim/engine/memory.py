@@ -5,7 +5,10 @@ accumulated by insertion, paper section 5.4), per-set images (bins or the ICI la
 the probe windows) and, per frame, the tracer's wavefront. The estimate adds these up
 from the run's settings before any work, and :func:`check_fits` turns a run that cannot
 fit into the available memory into one clear :class:`~lightsim.errors.InputError` (exit
-code 2) instead of a swap storm or the kernel's OOM killer an hour later.
+code 2) instead of a swap storm or the kernel's OOM killer an hour later. A time or error
+budget cannot be checked before the run: :meth:`~lightsim.engine.server.Session.run`
+measures the photons its maps keep against :func:`photon_budget` before every frame and
+stops short of it, with a :class:`~lightsim.engine.results.MemoryStop` saying so.
 
 What one stored photon costs (``kdtree``, C power channels, with normals)
 ------------------------------------------------------------------------
@@ -161,11 +164,8 @@ def estimate_run(photons: int, resolution: tuple[int, int], channels: int = 1,
     W, H = resolution
     px = float(W) * float(H)
     kept = int(photons) if photon_map else 0
-    # every set has its own map and a batch is merged into one map at a time: the
-    # insertion peak is that of one set's share
-    peak = bytes_per_photon(channels, peak=True) - bytes_per_photon(channels)
     return MemoryEstimate(
-        int(photons), kept * (bytes_per_photon(channels) + peak / max(n_sets, 1)),
+        int(photons), kept * stored_photon_bytes(channels, n_sets),
         px * channels * PIXEL_BYTES * n_sets + px * FINAL_PIXEL_BYTES,
         min(int(photons), int(frame_photons)) * WAVEFRONT_BYTES, BASE_BYTES)
 
@@ -227,6 +227,51 @@ def available_bytes() -> int | None:
     return int(psutil.virtual_memory().available)
 
 
+def usable_bytes(available: int | None = None) -> int | None:
+    """The memory a run may use: ``available`` (default :func:`available_bytes`) capped
+    by ``LIGHTSIM_MEMORY_LIMIT`` (bytes; e.g. a container's limit that /proc/meminfo
+    does not show); None when nothing tells."""
+    avail = available if available is not None else available_bytes()
+    limit = os.environ.get("LIGHTSIM_MEMORY_LIMIT")
+    if limit:
+        try:
+            cap = int(float(limit))
+        except ValueError:
+            raise InputError(f"LIGHTSIM_MEMORY_LIMIT must be a number of bytes, got "
+                             f"'{limit}'") from None
+        avail = cap if avail is None else min(avail, cap)
+    return avail
+
+
+def stored_photon_bytes(channels: int = 1, n_sets: int = 16) -> float:
+    """Bytes one kept photon adds to a run's peak: every set has its own map and a
+    batch is merged into one map at a time, so of the insertion peak only one set's
+    share counts."""
+    peak = bytes_per_photon(channels, peak=True) - bytes_per_photon(channels)
+    return bytes_per_photon(channels) + peak / max(n_sets, 1)
+
+
+def photon_budget(resolution: tuple[int, int], config: Any, channels: int = 1,
+                  available: int | None = None) -> float | None:
+    """Bytes the photon maps of a run may take in all (:func:`estimate_run`'s model):
+    the usable memory over the headroom, less the images, one frame's wavefront and the
+    process. None when the memory is not known or the run keeps no photons (``bin``).
+
+    A run measured against it (:meth:`~lightsim.engine.server.Session.run`) stops before
+    its kept photons would pass it: a time or error budget cannot be checked before it
+    starts, and would otherwise run on into the kernel's OOM killer.
+    """
+    if config.estimator == "bin":
+        return None
+    avail = usable_bytes(available)
+    if avail is None:
+        return None
+    fixed = estimate_run(0, resolution, channels, config.n_sets, config.frame_photons)
+    fixed_bytes = (fixed.image_bytes + int(config.frame_photons) * WAVEFRONT_BYTES
+                   + fixed.base_bytes)
+    return max(0.0, avail / HEADROOM - fixed_bytes)
+
+
 def check_fits(photons: int | None, resolution: tuple[int, int], config: Any,
                channels: int = 1, available: int | None = None) -> MemoryEstimate | None:
     """Raise :class:`InputError` (one line) when the run cannot fit in memory.
@@ -238,15 +283,7 @@ def check_fits(photons: int | None, resolution: tuple[int, int], config: Any,
     n = int(photons) if photons is not None else int(config.frame_photons)
     est = estimate_run(n, resolution, channels, config.n_sets, config.frame_photons,
                        photon_map=config.estimator != "bin")
-    avail = available if available is not None else available_bytes()
-    limit = os.environ.get("LIGHTSIM_MEMORY_LIMIT")
-    if limit:
-        try:
-            cap = int(float(limit))
-        except ValueError:
-            raise InputError(f"LIGHTSIM_MEMORY_LIMIT must be a number of bytes, got "
-                             f"'{limit}'") from None
-        avail = cap if avail is None else min(avail, cap)
+    avail = usable_bytes(available)
     if avail is not None and est.total > avail:
         raise InputError(f"this run would not fit in memory: it needs {est.describe()}, "
                          f"but only {avail / 1e9:.1f} GB is available; shoot fewer "

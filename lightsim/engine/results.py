@@ -115,6 +115,29 @@ class ShootResult:
     trace_s: float = 0.0   # of ``seconds``: the tracer (emission, rays, shading)
 
 
+@dataclass(frozen=True)
+class MemoryStop:
+    """A run that stopped before its budget because more photons would not fit in
+    memory (:func:`lightsim.engine.memory.photon_budget`)."""
+
+    photons: int          # photons emitted when the run stopped
+    kept: int             # photon records the maps keep
+    kept_bytes: float     # what they take (B, :func:`~lightsim.engine.memory.stored_photon_bytes`)
+    budget_bytes: float   # what the photon maps may take (B)
+
+    def message(self) -> str:
+        gb = 1e9
+        return (f"the run stopped at {self.photons:,} photons, before its budget: the "
+                f"photon maps keep {self.kept:,} photons ({self.kept_bytes / gb:.2f} GB) "
+                f"and another frame would pass the {self.budget_bytes / gb:.2f} GB they may "
+                "take in this machine's memory (LIGHTSIM_MEMORY_LIMIT caps it); the outputs "
+                "are for these photons")
+
+    def to_json(self) -> dict[str, float | int]:
+        return {"photons": self.photons, "kept": self.kept, "kept_bytes": self.kept_bytes,
+                "budget_bytes": self.budget_bytes}
+
+
 @dataclass
 class SetFrames:
     """Every set's frame of one render, keyed by set index (the server's view)."""

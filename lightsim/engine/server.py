@@ -52,6 +52,7 @@ from lightsim.engine.plan import Plan, make_plan
 from lightsim.engine.results import (
     Estimate,
     FrameResult,
+    MemoryStop,
     RenderRequest,
     SetFrames,
     ShootResult,
@@ -275,6 +276,11 @@ class Session:
                                         self.probes_hv, caster=caster)
         self.log: list[dict[str, Any]] = []
         self.shoot_totals = ShootTotals()
+        # the memory check of open-ended runs (:meth:`memory_full`): only where the photon
+        # maps live on this machine (a cluster's nodes have memories of their own)
+        self.memory_checked = address is None
+        self.memory_stop: MemoryStop | None = None  # set when a run stopped for memory
+        self.frame_records = 0  # photon records of the largest frame so far
         self.frames = 0
         self.partial: dict[int, int] = {}  # frame index → photons of a partial frame
         self._t0: float | None = None
@@ -299,8 +305,11 @@ class Session:
         stores (``photons`` over all sets makes the frame partial)."""
         if photons is not None:
             self.partial[self.frames] = int(photons)
+        records = 0
         for r in self.backend.shoot(photons):  # where the shooting time went (bench pipeline)
             self.shoot_totals.add(r)
+            records += int(r.records)
+        self.frame_records = max(self.frame_records, records)
         self.frames += 1
 
     def request(self, image: bool, mode: str = "interleaved", camera=None,
@@ -546,6 +555,7 @@ class Session:
         self.scene, _ = apply_changes(self.scene, changes)  # validates before sending
         self.backend.apply(changes)
         self.frames = 0
+        self.frame_records = 0
         self.partial = {}
         self.directional_map = None  # a new scene: its first map chooses again
         self.log.append({"event": "update", "seconds": self.elapsed})
@@ -592,6 +602,9 @@ class Session:
         the target, so an unresolved blur cannot stop a run early (after at least
         ``min_frames`` frames; :func:`stop_level`), first at the probes and then
         confirmed on the written map itself. With no budget at all, one frame is shot.
+        Before every frame after the first the kept photons are measured against the
+        memory (:meth:`memory_full`): a run that would outgrow it stops there with its
+        final image, and :attr:`memory_stop` says so (None otherwise).
         ``probes=False`` leaves the probe estimates (``FrameResult.probes``) out of the
         final image when the caller does not read them (the error figure of an ICI map
         does not need them).
@@ -613,7 +626,11 @@ class Session:
         self.start_clock()
         schedule = ErrorSchedule(target_error)
         cheap_map = self.map_check_is_cheap()
+        self.memory_stop = None
+        budget = self.photon_budget()
         while not self.budget_spent(photons, seconds, should_stop):
+            if budget is not None and self.memory_full(budget):
+                break  # the final image of the photons kept so far, and memory_stop says so
             t0 = time.perf_counter()
             self.shoot(self.frame_photons(photons))
             timings = {"shoot": time.perf_counter() - t0}
@@ -659,6 +676,44 @@ class Session:
                     return final
                 schedule.estimated(done, final, "map")
         return self.final_image(probes)
+
+    def kept_photons(self) -> int:
+        """Photon records the sets' maps keep (0 for the ``bin`` estimator's bins)."""
+        if self.config.estimator == "bin":
+            return 0
+        return sum(int(st.get("records", 0)) for st in self.backend.stats().values())
+
+    def photon_budget(self) -> float | None:
+        """Bytes the photon maps may take in all (:func:`~lightsim.engine.memory.
+        photon_budget`: this machine's available memory, capped by
+        ``LIGHTSIM_MEMORY_LIMIT``, plus what the kept photons hold already); None where
+        it is not checked (a cluster, the ``bin`` estimator, memory not known)."""
+        from lightsim.engine.memory import available_bytes, photon_budget, stored_photon_bytes
+
+        if not self.memory_checked or self.config.estimator == "bin":
+            return None
+        avail = available_bytes()
+        if avail is not None:
+            per = stored_photon_bytes(self.plan.channels or 1, self.config.n_sets)
+            avail += int(self.kept_photons() * per)
+        return photon_budget(self.scene.wall.resolution, self.config,
+                             self.plan.channels or 1, available=avail)
+
+    def memory_full(self, budget: float) -> bool:
+        """Whether another frame's photons (as many as the largest frame so far) would take
+        the kept photons past ``budget`` bytes; sets :attr:`memory_stop` when so. The
+        first frame always runs (``simulate`` checked one frame before it started)."""
+        from lightsim.engine.memory import stored_photon_bytes
+
+        if self.frames == 0:
+            return False
+        per = stored_photon_bytes(self.plan.channels or 1, self.config.n_sets)
+        kept = self.kept_photons()
+        if (kept + self.frame_records) * per <= budget:
+            return False
+        self.memory_stop = MemoryStop(sum(self.emitted_per_set().values()), kept, kept * per,
+                                      budget)
+        return True
 
     def map_check_is_cheap(self) -> bool:
         """Whether the written map's own figure costs about what the probes' does: a
