@@ -176,9 +176,9 @@ def test_a_run_stops_before_its_kept_photons_pass_the_memory(monkeypatch):
         per_frame = s.kept_photons()
         assert s.memory_stop is None  # this machine's memory holds a frame easily
     C = scene.channels or 1
-    per = memory.stored_photon_bytes(C, cfg.n_sets)
-    assert per == pytest.approx(memory.estimate_run(1000, (8, 8), C, cfg.n_sets)
-                                .photon_bytes / 1000)
+    per = memory.kept_photon_bytes(C, cfg.n_sets)
+    assert per == pytest.approx(memory.KEPT_PEAK_FACTOR * memory.estimate_run(
+        1000, (8, 8), C, cfg.n_sets).photon_bytes / 1000)
     budget = 3.5 * per_frame * per
     monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT",
                        str(_limit_for(budget, scene.wall.resolution, cfg, C)))
@@ -214,9 +214,9 @@ def test_simulate_with_a_time_budget_stops_for_memory_and_says_so(tmp_path, monk
                            config={"frame_photons": 20_000})
     cfg, scene = opts.run_config(), load(opts)
     C = scene.channels or 3
-    per = memory.stored_photon_bytes(C, cfg.n_sets)
-    # a budget for about 2.5 frames of every photon kept (the pre-flight allows a frame)
-    budget = 2.5 * cfg.frame_photons * per
+    # a budget for about 2.5 frames of every photon kept at the peak (the pre-flight
+    # allows a frame at the model's cost)
+    budget = 2.5 * cfg.frame_photons * memory.kept_photon_bytes(C, cfg.n_sets)
     monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT",
                        str(_limit_for(budget, scene.wall.resolution, cfg, C)))
     out = tmp_path / "out"

@@ -7,8 +7,9 @@ from the run's settings before any work, and :func:`check_fits` turns a run that
 fit into the available memory into one clear :class:`~lightsim.errors.InputError` (exit
 code 2) instead of a swap storm or the kernel's OOM killer an hour later. A time or error
 budget cannot be checked before the run: :meth:`~lightsim.engine.server.Session.run`
-measures the photons its maps keep against :func:`photon_budget` before every frame and
-stops short of it, with a :class:`~lightsim.engine.results.MemoryStop` saying so.
+measures the photons its maps keep (:func:`kept_photon_bytes` each) against
+:func:`photon_budget` before every frame and stops short of it, with a
+:class:`~lightsim.engine.results.MemoryStop` saying so.
 
 What one stored photon costs (``kdtree``, C power channels, with normals)
 ------------------------------------------------------------------------
@@ -49,6 +50,9 @@ name                       unit   default   meaning
 ``WAVEFRONT_BYTES``        B      200       per photon of one frame in flight (rays,
                                             hits, records, sample points)
 ``HEADROOM``               —      1.15      margin on the total
+``KEPT_PEAK_FACTOR``       —      2         a kept photon's peak over the model, for
+                                            the stop of open-ended runs
+                                            (:func:`kept_photon_bytes`)
 ``KEEP_BELOW``             B      32 MiB    blocks up to this size come from the heap
                                             and are reused after being freed
                                             (:func:`keep_freed_memory`)
@@ -102,6 +106,7 @@ PIXEL_BYTES = 16
 FINAL_PIXEL_BYTES = 600
 WAVEFRONT_BYTES = 200
 HEADROOM = 1.15
+KEPT_PEAK_FACTOR = 2.0
 
 
 def bytes_per_photon(channels: int = 1, normals: bool = True, peak: bool = False) -> float:
@@ -249,6 +254,17 @@ def stored_photon_bytes(channels: int = 1, n_sets: int = 16) -> float:
     share counts."""
     peak = bytes_per_photon(channels, peak=True) - bytes_per_photon(channels)
     return bytes_per_photon(channels) + peak / max(n_sets, 1)
+
+
+def kept_photon_bytes(channels: int = 1, n_sets: int = 16) -> float:
+    """Bytes a kept photon may take at a run's peak, for the stop of open-ended runs:
+    :data:`KEPT_PEAK_FACTOR` × :func:`stored_photon_bytes`. The model counts the built
+    maps; a run also holds batches waiting for their map (and their concatenated copy
+    while it is built), the frame's records and the final image's work arrays. Measured
+    on the paraboloid (peak RSS growth per kept photon over 0.7–2.9 M kept): ``knn``
+    M = 4 62–82 B (model 70), ``radius`` 94–107 B (model 70), ``knn`` M = 1 142–261 B
+    (model 104; 183 at 2.9 M), the default run 94 B (model 70)."""
+    return KEPT_PEAK_FACTOR * stored_photon_bytes(channels, n_sets)
 
 
 def photon_budget(resolution: tuple[int, int], config: Any, channels: int = 1,

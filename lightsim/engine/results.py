@@ -122,13 +122,13 @@ class MemoryStop:
 
     photons: int          # photons emitted when the run stopped
     kept: int             # photon records the maps keep
-    kept_bytes: float     # what they take (B, :func:`~lightsim.engine.memory.stored_photon_bytes`)
+    kept_bytes: float     # what they may take at the peak (B, memory.kept_photon_bytes)
     budget_bytes: float   # what the photon maps may take (B)
 
     def message(self) -> str:
         gb = 1e9
         return (f"the run stopped at {self.photons:,} photons, before its budget: the "
-                f"photon maps keep {self.kept:,} photons ({self.kept_bytes / gb:.2f} GB) "
+                f"photon maps keep {self.kept:,} photons (up to {self.kept_bytes / gb:.2f} GB) "
                 f"and another frame would pass the {self.budget_bytes / gb:.2f} GB they may "
                 "take in this machine's memory (LIGHTSIM_MEMORY_LIMIT caps it); the outputs "
                 "are for these photons")

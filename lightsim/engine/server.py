@@ -686,7 +686,8 @@ class Session:
     def photon_budget(self) -> float | None:
         """Bytes the photon maps may take in all (:func:`~lightsim.engine.memory.
         photon_budget`: this machine's available memory, capped by
-        ``LIGHTSIM_MEMORY_LIMIT``, plus what the kept photons hold already); None where
+        ``LIGHTSIM_MEMORY_LIMIT``, plus what the kept photons hold already, by the
+        model); None where
         it is not checked (a cluster, the ``bin`` estimator, memory not known)."""
         from lightsim.engine.memory import available_bytes, photon_budget, stored_photon_bytes
 
@@ -703,11 +704,11 @@ class Session:
         """Whether another frame's photons (as many as the largest frame so far) would take
         the kept photons past ``budget`` bytes; sets :attr:`memory_stop` when so. The
         first frame always runs (``simulate`` checked one frame before it started)."""
-        from lightsim.engine.memory import stored_photon_bytes
+        from lightsim.engine.memory import kept_photon_bytes
 
         if self.frames == 0:
             return False
-        per = stored_photon_bytes(self.plan.channels or 1, self.config.n_sets)
+        per = kept_photon_bytes(self.plan.channels or 1, self.config.n_sets)
         kept = self.kept_photons()
         if (kept + self.frame_records) * per <= budget:
             return False
