@@ -691,7 +691,7 @@ class Session:
         it is not checked (a cluster, the ``bin`` estimator, memory not known)."""
         from lightsim.engine.memory import available_bytes, photon_budget, stored_photon_bytes
 
-        if not self.memory_checked or self.config.estimator == "bin":
+        if not self.memory_checked:
             return None
         avail = available_bytes()
         if avail is not None:
