@@ -320,12 +320,12 @@ def sweep(target: Target, spec: EstimatorSpec, budgets: Sequence[float], seed: i
             final = est.timings.get("render", 0.0) + est.timings.get("assemble", 0.0)
             seconds = est.seconds - charged_elsewhere
             charged_elsewhere += final
-            if session.memory_stop is not None and progress:
-                progress(f"{spec.label:12s} {session.memory_stop.message()}")
             if points and est.photons == points[-1].photons:
                 if session.memory_stop is not None:
-                    break  # no budget after it adds photons
+                    break  # stopped for memory: no later budget adds photons
                 continue  # the previous frame already overshot this budget
+            if session.memory_stop is not None and progress:
+                progress(f"{spec.label:12s} {session.memory_stop.message()}")
             lux = luminous(est.lux)
             m = error_metrics(lux, truth, lit, var)
             e = est.error
