@@ -286,6 +286,9 @@ class Session:
         self._t0: float | None = None
         self._elapsed_before = 0.0
         self.last: FrameResult | None = None
+        # the whole raster's ICI window areas, keyed by what they depend on (the wall's
+        # pixels and the ladder's sides): made once, not once per written map
+        self._raster_areas: tuple[tuple, np.ndarray, tuple[int, int] | None] | None = None
         if checkpoint is not None:
             self._restore(checkpoint)
 
@@ -465,6 +468,23 @@ class Session:
         sides = ici.rung_sides((dh, dv), effective_radii(self.config, frame, "pooled")[1])
         return ici.window_cells(H, W, rows, cols, sides) * (0.25 * dh * dv)
 
+    def raster_areas(self) -> tuple[np.ndarray, tuple[int, int] | None]:
+        """(J+1, H·W) m²: :meth:`_ici_areas` at every pixel of the wall in row order
+        (read-only), and the (H, W) :func:`ici.raster_shape` recognises in them (None on
+        walls too small for it); made once per wall pixel grid and ladder."""
+        from lightsim.render import ici
+
+        frame = self.scene.wall
+        W, H = frame.resolution
+        key = (W, H, tuple(frame.pixel_size_m),
+               effective_radii(self.config, frame, "pooled")[1])
+        if self._raster_areas is None or self._raster_areas[0] != key:
+            rows, cols = np.divmod(np.arange(H * W), W)
+            areas = self._ici_areas(rows, cols)
+            areas.flags.writeable = False
+            self._raster_areas = (key, areas, ici.raster_shape(areas))
+        return self._raster_areas[1], self._raster_areas[2]
+
     def _ici_rungs_now(self, n_rungs: int, moments: dict[int, np.ndarray]) -> int:
         """How many rungs the ladder has at the photons so far (:func:`ici.shrink_sides`)."""
         from lightsim.render import ici
@@ -484,9 +504,9 @@ class Session:
         J1, H, W, C = first.shape
         J1 = self._ici_rungs_now(J1, moments)
         flat = {s: np.asarray(v)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
-        rows, cols = np.divmod(np.arange(H * W), W)
+        areas, shape = self.raster_areas()  # shape: recognised once, not per map
         wm = ici.written_map(flat, emitted, ici.power_moment(moments),
-                             self._ici_areas(rows, cols), self.config.ici_gamma,
+                             areas, self.config.ici_gamma, shape=shape,
                              directional=self.directional_map,
                              restrict=self._pixel_region())
         self.last_map_fused = wm.fused
