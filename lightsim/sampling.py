@@ -253,7 +253,8 @@ def _radical_inverse_in(d: int):
     (:func:`_tail_terms`, the same product), added in the same order. Base 2 needs no
     loop at all: its terms are distinct powers of two, so the sum is exact in any order —
     the index's 53 low bits reversed, each digit through its permutation (a bit flip
-    where ``perms[0, k, 0]`` is 1), times 2⁻⁵³.
+    where ``perms[0, k, 0]`` is 1), times 2⁻⁵³. The other bases take four points at a
+    time (:func:`halton_points_grouped`), each with its own scramble.
     """
     base, digits = int(PRIMES[d]), int(DIGITS[d])
     ubase = np.uint64(base)
@@ -280,25 +281,39 @@ def _radical_inverse_in(d: int):
         return radical_inverse_2
 
     @njit(cache=True, inline="always")
-    def radical_inverse(index: np.int64, perms: np.ndarray, tail: np.ndarray) -> float:
+    def radical_inverse4(j0: np.int64, j1: np.int64, j2: np.int64, j3: np.int64,
+                         p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, p3: np.ndarray,
+                         t0: np.ndarray, t1: np.ndarray, t2: np.ndarray, t3: np.ndarray
+                         ) -> tuple[float, float, float, float]:
+        # four points in step (their scrambles p, tail tables t): four independent
+        # chains of additions instead of one, which the core overlaps (~20 % faster).
+        # Once a point's index is spent its digits are 0, whose term perms[d, k, 0] · f
+        # is the tail's own product: each point gets the sums it gets alone.
         inv = 1.0 / base
         f = inv
-        x = 0.0
-        i = np.uint64(index)  # indices are ≥ 0: unsigned division by a constant is cheapest
+        x0 = x1 = x2 = x3 = 0.0
+        i0, i1 = np.uint64(j0), np.uint64(j1)  # indices are ≥ 0: unsigned division
+        i2, i3 = np.uint64(j2), np.uint64(j3)  # by a constant is cheapest
         k = 0
-        while i != np.uint64(0) and k < digits:
-            q = i // ubase
-            digit = i - q * ubase
-            i = q
-            x += perms[d, k, digit] * f
+        while (i0 | i1 | i2 | i3) != np.uint64(0) and k < digits:
+            q0, q1, q2, q3 = i0 // ubase, i1 // ubase, i2 // ubase, i3 // ubase
+            x0 += p0[d, k, i0 - q0 * ubase] * f
+            x1 += p1[d, k, i1 - q1 * ubase] * f
+            x2 += p2[d, k, i2 - q2 * ubase] * f
+            x3 += p3[d, k, i3 - q3 * ubase] * f
+            i0, i1, i2, i3 = q0, q1, q2, q3
             f *= inv
             k += 1
-        while k < digits:  # the index's digits are spent: only zero digits are left
-            x += tail[d, k]
+        while k < digits:  # the indices' digits are spent: only zero digits are left
+            x0 += t0[d, k]
+            x1 += t1[d, k]
+            x2 += t2[d, k]
+            x3 += t3[d, k]
             k += 1
-        return min(x, 1.0 - 1.1102230246251565e-16)
+        top = 1.0 - 1.1102230246251565e-16
+        return min(x0, top), min(x1, top), min(x2, top), min(x3, top)
 
-    return radical_inverse
+    return radical_inverse4
 
 
 _RI0, _RI1, _RI2, _RI3, _RI4 = (_radical_inverse_in(d) for d in range(N_DIMS))
@@ -331,20 +346,30 @@ def halton_points_grouped(indices: np.ndarray, group: np.ndarray, perms: np.ndar
                           ) -> np.ndarray:
     """:func:`halton_points` of several sets in one parallel pass: point i is index
     ``indices[i]`` under the scramble ``perms[group[i]]`` ((G, N_DIMS, MAX_DIGITS, 11));
-    one thread launch per frame instead of one per set, the same points."""
+    one thread launch per frame instead of one per set, the same points. Four points at
+    a time (the last ones repeated where ``n`` is not a multiple of 4)."""
     n = indices.shape[0]
     tail, flips = _tail_terms(perms)
     out = np.empty((n, N_DIMS), dtype=np.float64)
-    for i in prange(n):
-        j = indices[i]
-        g = group[i]
-        p = perms[g]
-        t = tail[g]
-        out[i, 0] = _RI0(j, flips[g])
-        out[i, 1] = _RI1(j, p, t)
-        out[i, 2] = _RI2(j, p, t)
-        out[i, 3] = _RI3(j, p, t)
-        out[i, 4] = _RI4(j, p, t)
+    for b in prange((n + 3) // 4):
+        a0 = 4 * b
+        a1, a2, a3 = min(a0 + 1, n - 1), min(a0 + 2, n - 1), min(a0 + 3, n - 1)
+        j0, j1, j2, j3 = indices[a0], indices[a1], indices[a2], indices[a3]
+        g0, g1, g2, g3 = group[a0], group[a1], group[a2], group[a3]
+        p0, p1, p2, p3 = perms[g0], perms[g1], perms[g2], perms[g3]
+        t0, t1, t2, t3 = tail[g0], tail[g1], tail[g2], tail[g3]
+        out[a0, 0] = _RI0(j0, flips[g0])
+        out[a1, 0] = _RI0(j1, flips[g1])
+        out[a2, 0] = _RI0(j2, flips[g2])
+        out[a3, 0] = _RI0(j3, flips[g3])
+        y0, y1, y2, y3 = _RI1(j0, j1, j2, j3, p0, p1, p2, p3, t0, t1, t2, t3)
+        out[a0, 1], out[a1, 1], out[a2, 1], out[a3, 1] = y0, y1, y2, y3
+        y0, y1, y2, y3 = _RI2(j0, j1, j2, j3, p0, p1, p2, p3, t0, t1, t2, t3)
+        out[a0, 2], out[a1, 2], out[a2, 2], out[a3, 2] = y0, y1, y2, y3
+        y0, y1, y2, y3 = _RI3(j0, j1, j2, j3, p0, p1, p2, p3, t0, t1, t2, t3)
+        out[a0, 3], out[a1, 3], out[a2, 3], out[a3, 3] = y0, y1, y2, y3
+        y0, y1, y2, y3 = _RI4(j0, j1, j2, j3, p0, p1, p2, p3, t0, t1, t2, t3)
+        out[a0, 4], out[a1, 4], out[a2, 4], out[a3, 4] = y0, y1, y2, y3
     return out
 
 

@@ -48,6 +48,24 @@ def test_grouped_points_keep_each_groups_scramble():
     assert halton_points_grouped(idx[:0], group[:0], perms).shape == (0, N_DIMS)
 
 
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 4 * 37 + 3])
+def test_points_four_at_a_time_each_keep_their_own_scramble(n):
+    """The kernel takes four points at once: groups that change inside a four, indices
+    of very different digit counts side by side and a count that is not a multiple of
+    4 each give the digit loop's point under the point's own scramble."""
+    rng = np.random.default_rng(n)
+    perms = np.stack([digit_permutations(9, s, None if s % 2 else s, (5, 3))
+                      for s in range(5)])
+    edges = _edge_indices()
+    idx = np.where(rng.random(n) < 0.5, rng.choice(edges, n),
+                   rng.integers(0, 2**40, n)).astype(np.int64)
+    group = rng.integers(0, 5, n)
+    got = halton_points_grouped(idx, group, perms)
+    want = np.array([[_radical_inverse(int(i), d, perms[g]) for d in range(N_DIMS)]
+                     for i, g in zip(idx, group, strict=True)])
+    np.testing.assert_array_equal(got, want)
+
+
 @pytest.mark.parametrize("L", [1, 7, 864])
 def test_pass_indices_are_the_cells_repeated(L):
     """SPT's pass layout: cell c at c + jL for j < n_c, weight n_pass / (L n_c)."""
