@@ -126,7 +126,8 @@ def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit(mon
 
     class Counting:
         def submit(self, fn, *args):
-            handed.append(args)
+            if args[-1:] == ("b",):  # the second half of a frame's sets (not the lattice's
+                handed.append(args)  # zeros, written ahead: PhotonSets._prefault_lattice)
             return helper().submit(fn, *args)
 
     monkeypatch.setattr(photonset, "helper_thread", Counting)
@@ -147,3 +148,53 @@ def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit(mon
                 np.testing.assert_array_equal(x.apertures.counts, y.apertures.counts)
                 np.testing.assert_array_equal(x.aperture_hits, y.aperture_hits)
     assert any(st.apertures.counts.any() for st in two.sets.values())
+
+
+@pytest.mark.parametrize("reach", [0.0, 0.05, 0.2499, 0.5, 0.5000001, 0.7, 1.0, 1.3, 2.5])
+def test_window_offsets_keep_every_window_that_can_hold_a_photon(reach):
+    """No probe window outside :func:`window_offsets` holds a photon (the window test of
+    ``insert_wall``, on photons at and next to the half-way points between centres),
+    and the range is never wider than ⌈reach⌉."""
+    from lightsim.engine.photonset import window_offsets
+
+    lo, hi = window_offsets(reach)
+    assert lo == -hi and 0 <= hi <= int(np.ceil(reach))
+    pitch = 0.37
+    half = reach * pitch
+    k = np.arange(-40, 41)
+    u = np.concatenate([k + 0.5, np.nextafter(k + 0.5, -np.inf), np.nextafter(k + 0.5, np.inf),
+                        np.random.default_rng(3).uniform(-40, 40, 2000), k.astype(float)])
+    r = np.rint(u)
+    for i in range(-int(np.ceil(reach)) - 1, int(np.ceil(reach)) + 2):
+        off = (u - (r + i)) * pitch
+        held = (off >= -half) & (off < half)
+        if lo <= i <= hi:
+            continue
+        assert not held.any(), (i, u[held][:3])
+
+
+def test_lattice_pages_are_written_ahead_of_the_first_frame(monkeypatch):
+    """The ICI lattice block exists (zeros, written on the helper thread) before the first
+    frame and is the block the frames sum into; not for the ``bin`` estimator, nor for a
+    block above PREFAULT_MAX_BYTES (made by the first frame, as before)."""
+    import lightsim.engine.photonset as photonset
+
+    scene = paraboloid_case(resolution=(40, 24)).scene
+    config = RunConfig(frame_photons=8_000, interleave=2, seed=3)
+    sets = _sets(scene, config, False)
+    block = sets._blocks["lattice"]
+    assert block.shape == (4, 4 * 40 * 24, 1)
+    sets._lattice_ready.result()
+    assert not block.any()
+    sets.shoot()
+    assert sets._lattice_ready is None and sets._blocks["lattice"] is block
+    assert any(st.lattice is not None and st.lattice.base is block
+               for st in sets.sets.values())
+    sets.reset()  # a reset writes a fresh block ahead again
+    assert sets._blocks["lattice"] is not block and sets._lattice_ready is not None
+    assert _sets(scene, config.with_(estimator="bin"), False)._lattice_ready is None
+    monkeypatch.setattr(photonset, "PREFAULT_MAX_BYTES", block.nbytes - 1)
+    late = _sets(scene, config, False)
+    assert late._lattice_ready is None and "lattice" not in late._blocks
+    late.shoot()
+    assert late._blocks["lattice"].shape == block.shape
