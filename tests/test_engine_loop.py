@@ -195,6 +195,11 @@ def test_bench_pipeline_rows(point):
     assert r["ratio_same_photons"] == pytest.approx(
         r["simulate_photons_per_s"] / r["tracer_same_photons_per_s"])
     assert 0 < r["ratio_same_photons"] < 10
+    # without the final map the run is shorter, so its rate is higher
+    assert r["frames_ratio_same_photons"] == pytest.approx(
+        r["simulate_photons_per_s"] * r["run_s"] / (r["run_s"] - r["final_s"])
+        / r["tracer_same_photons_per_s"], rel=1e-9)
+    assert r["frames_ratio_same_photons"] > r["ratio_same_photons"]
     assert 0 < r["cpu_ratio_same_photons"] < 10  # CPU-seconds, the same comparison
 
 
