@@ -193,6 +193,10 @@ def test_lattice_pages_are_written_ahead_of_the_first_frame(monkeypatch):
     sets.reset()  # a reset writes a fresh block ahead again
     assert sets._blocks["lattice"] is not block and sets._lattice_ready is not None
     assert _sets(scene, config.with_(estimator="bin"), False)._lattice_ready is None
+    # frames too small to reach every page (the live view's): the first frame makes it
+    pages = 8 * 4 * 40 * 24 / 4096
+    assert _sets(scene, config.with_(frame_photons=int(4 * pages) - 4), False
+                 )._lattice_ready is None
     monkeypatch.setattr(photonset, "PREFAULT_MAX_BYTES", block.nbytes - 1)
     late = _sets(scene, config, False)
     assert late._lattice_ready is None and "lattice" not in late._blocks

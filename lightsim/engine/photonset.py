@@ -304,15 +304,20 @@ class PhotonSets:
         pages (84 MB on the shipped headlight's wall) were first touched in random order
         by the first frames' photons: their insertion took 0.4–0.55 µs per record against
         0.1 µs once the pages were in, ~0.1 s of a 1 M-photon run. Writing them in order
-        takes ~40 ms of one core, beside the tracer. Not for the ``bin`` estimator (no
-        lattice), nor above :data:`PREFAULT_MAX_BYTES`, where a short run touches a
-        small part of a large wall's lattice (reading untouched zeros costs no memory).
+        takes ~40 ms of one core, beside the tracer. Only where a frame's photons could
+        reach every page (a set's photons per frame at least its lattice's 4 KiB pages:
+        the default 200 k-photon frames, not the live view's 20 k, whose first frame
+        would wait for the writing and would touch a few pages only); not for the
+        ``bin`` estimator (no lattice), nor above :data:`PREFAULT_MAX_BYTES` (reading
+        untouched zeros costs no memory).
         """
         if not self.config.uses_ici or self.config.estimator == "bin":
             return None
         W, H = self.frame.resolution
         shape = (len(self.set_indices), 4 * H * W, self.channels)
-        if 8 * int(np.prod(shape)) > PREFAULT_MAX_BYTES:
+        set_bytes = 8 * 4 * H * W * self.channels
+        if (8 * int(np.prod(shape)) > PREFAULT_MAX_BYTES
+                or self.config.photons_per_set < set_bytes / 4096):
             return None
         block = self._blocks["lattice"] = np.empty(shape)
         return helper_thread().submit(block.fill, 0.0)
