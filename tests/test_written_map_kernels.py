@@ -152,3 +152,25 @@ def test_the_branch_thread_in_a_forked_child_after_the_parent_used_it():
     assert helper_thread().submit(lambda: 1).result(timeout=30) == 1  # parent's thread
     with mp.get_context("fork").Pool(1) as pool:  # the child makes its own thread
         assert pool.apply_async(_on_branch_thread, (41,)).get(timeout=60) == 42
+
+
+@pytest.mark.parametrize("H, W, C, emitted", [(1, 1, 1, 1), (5, 7, 3, 123_457),
+                                              (16, 40, 1, 2**40 + 3)])
+def test_raster_lux_is_the_normalised_window_sums_cast(H, W, C, emitted):
+    """A set's part of the written map in one pass (:func:`raster_lux`): the window sums
+    of every pixel, normalised by normalise_flux and cast to float32, bit for bit (sums
+    over clipped windows, empty cells, a tiny and a huge photon count)."""
+    from lightsim.engine.estimator import normalise_flux
+    from lightsim.render.ici import raster_lux, raster_queries, window_sums
+
+    rng = np.random.default_rng(H * W * C)
+    sub = rng.random((2 * H, 2 * W, C)) * (rng.random((2 * H, 2 * W, 1)) < 0.3)
+    sides = np.arange(1, 6)
+    rows, cols, geometry = raster_queries(H, W, tuple(int(m) for m in sides))
+    sums, cells = window_sums(sub, rows, cols, sides, geometry)
+    area = 0.25 * 0.047 * 0.031
+    want = normalise_flux(sums, emitted, np.maximum(cells, 1.0)[..., None], area)
+    got = raster_lux(sub, sides, emitted, area)
+    assert got.dtype == np.float32 and got.shape == (5, H * W, C)
+    np.testing.assert_array_equal(got, want.astype(np.float32))
+    np.testing.assert_array_equal(raster_lux(sub, sides, emitted, area, np.float64), want)

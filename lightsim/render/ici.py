@@ -214,14 +214,21 @@ def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.n
 
 
 @njit(cache=True, nogil=True)
-def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray) -> None:
+def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray, emitted: float = 0.0,
+                 area: float = 1.0) -> None:
     """:func:`window_sums` at every pixel of the raster, in row order, into ``out``
     (J, H·W, C): the summed-area table as NumPy's two ``cumsum`` passes make it (down the
     columns, then along the rows: the same additions in the same order) and the four
     corners of each window as its fancy indexing reads them, so the sums are NumPy's bit
     for bit; no (H, W) temporaries per corner and side (the written map's largest cost
     on a 640 × 256 wall). Serial: 4× NumPy's time on that wall, where ``prange`` (thread
-    start-up per call, 16 calls per map) was slower than NumPy."""
+    start-up per call, 16 calls per map) was slower than NumPy.
+
+    ``emitted`` > 0: each sum is written normalised instead, ``sum / ((emitted ·
+    max(cells, 1)) · area)`` — :func:`~lightsim.engine.estimator.normalise_flux` of the
+    sums with the window's half-pixel cells, in its order — and in ``out``'s dtype
+    (float32 for the wire: the same rounding as ``astype``), with no (J, H·W, C) float64
+    sums and quotient in between (:func:`raster_lux`)."""
     H2, W2, C = sub.shape
     H, W = H2 // 2, W2 // 2
     sat = np.zeros((H2 + 1, W2 + 1, C))
@@ -242,9 +249,26 @@ def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray) -> None:
             for c in range(W):
                 c0, c1 = max(2 * c + 1 - m, 0), min(2 * c + 1 + m, W2)
                 q = r * W + c
+                den = 1.0
+                if emitted > 0:
+                    den = (emitted * max(np.float64((r1 - r0) * (c1 - c0)), 1.0)) * area
                 for k in range(C):
-                    out[j, q, k] = (sat[r1, c1, k] - sat[r0, c1, k] - sat[r1, c0, k]
-                                    + sat[r0, c0, k])
+                    v = (sat[r1, c1, k] - sat[r0, c1, k] - sat[r1, c0, k] + sat[r0, c0, k])
+                    out[j, q, k] = v / den if emitted > 0 else v
+
+
+def raster_lux(sub: np.ndarray, sides: np.ndarray, emitted: int, area: float,
+               dtype: type = np.float32) -> np.ndarray:
+    """(J, H·W, C) lx in ``dtype``: the windows' sums at every pixel of the raster
+    (:func:`window_sums`) normalised by :func:`~lightsim.engine.estimator.normalise_flux`
+    (``emitted`` photons, > 0; window areas ``cells · area``, ``area`` m² a half-pixel
+    cell) and cast — the same numbers, in one pass and one array (a set's part of the
+    written map)."""
+    H2, W2, C = sub.shape
+    out = np.empty((len(sides), (H2 // 2) * (W2 // 2), C), dtype)
+    _raster_sums(np.ascontiguousarray(sub, dtype=np.float64), np.asarray(sides, np.int64),
+                 out, float(emitted), float(area))
+    return out
 
 
 @njit(cache=True, nogil=True)
