@@ -249,12 +249,12 @@ def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray, emitted: f
             for c in range(W):
                 c0, c1 = max(2 * c + 1 - m, 0), min(2 * c + 1 + m, W2)
                 q = r * W + c
-                den = 1.0
+                den = 1.0  # x / 1.0 is x: the raw sums where not normalised
                 if emitted > 0:
                     den = (emitted * max(np.float64((r1 - r0) * (c1 - c0)), 1.0)) * area
                 for k in range(C):
-                    v = (sat[r1, c1, k] - sat[r0, c1, k] - sat[r1, c0, k] + sat[r0, c0, k])
-                    out[j, q, k] = v / den if emitted > 0 else v
+                    out[j, q, k] = (sat[r1, c1, k] - sat[r0, c1, k] - sat[r1, c0, k]
+                                    + sat[r0, c0, k]) / den
 
 
 def raster_lux(sub: np.ndarray, sides: np.ndarray, emitted: int, area: float,
