@@ -314,12 +314,12 @@ class PhotonSets:
         if not self.config.uses_ici or self.config.estimator == "bin":
             return None
         W, H = self.frame.resolution
-        shape = (len(self.set_indices), 4 * H * W, self.channels)
-        set_bytes = 8 * 4 * H * W * self.channels
-        if (8 * int(np.prod(shape)) > PREFAULT_MAX_BYTES
+        set_bytes = 8 * 4 * H * W * self.channels  # one set's lattice, float64
+        if (set_bytes * len(self.set_indices) > PREFAULT_MAX_BYTES
                 or self.config.photons_per_set < set_bytes / 4096):
             return None
-        block = self._blocks["lattice"] = np.empty(shape)
+        block = np.empty((len(self.set_indices), 4 * H * W, self.channels))
+        self._blocks["lattice"] = block
         return helper_thread().submit(block.fill, 0.0)
 
     def _new_set(self, s: int) -> SetState:

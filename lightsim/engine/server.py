@@ -707,8 +707,8 @@ class Session:
         """Bytes the photon maps may take in all (:func:`~lightsim.engine.memory.
         photon_budget`: this machine's available memory, capped by
         ``LIGHTSIM_MEMORY_LIMIT``, plus what the kept photons hold already, by the
-        model); None where
-        it is not checked (a cluster, the ``bin`` estimator, memory not known)."""
+        model); None where it is not checked (a cluster, the ``bin`` estimator, memory not
+        known)."""
         from lightsim.engine.memory import available_bytes, photon_budget, stored_photon_bytes
 
         if not self.memory_checked:
