@@ -79,6 +79,11 @@ def _one_line(text: str) -> str:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script; maps input errors to one line and exit code 2."""
     if argv is None:  # the console script's process: freed arrays are reused, not faulted
+        from lightsim.io import plot_worker
+
+        # the plots' helper starts first: it imports matplotlib while this process
+        # imports the engine (lightsim/io/plot_worker.py)
+        plot_worker.prestart(sys.argv[1:])
         from lightsim.engine.blas import single_blas_thread
         from lightsim.engine.memory import keep_freed_memory, small_pages
 

@@ -124,12 +124,18 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
             for line in session.plan.explain():
                 click.echo(f"  {line}")
 
+    from lightsim.io import plot_worker
+
+    # the plots' helper process starts now: matplotlib is imported and warmed up while
+    # the scene loads and the run goes on (lightsim/io/plot_worker.py)
+    plots = plot_worker.start(any(n in opts.outputs for n in plot_worker.PLOT_OUTPUTS))
     try:
         with _Progress(quiet, opts.photons, opts.seconds, opts.target_error) as prog:
             result = run_simulation(opts, progress=prog, should_stop=lambda: stop["signal"]
                                     is not None, on_plan=on_plan, resume=resume,
-                                    analyses=analyses)
+                                    analyses=analyses, plots=plots)
     finally:
+        plots.close()
         for s, h in old.items():
             signal.signal(s, h)
     if result.interrupted:

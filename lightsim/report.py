@@ -101,26 +101,34 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
                       results: list[dict[str, Any]] | None = None,
                       mount_height_m: float = 0.65,
                       summary: dict[str, Any] | None = None, *,
-                      which: tuple[str, ...] = ("isolux", "road")) -> list[Path]:
+                      which: tuple[str, ...] = ("isolux", "road"),
+                      plots: Any = None) -> list[Path]:
     """Write ``isolux.png`` (screen, H/V degrees) and ``road.png`` (bird's-eye view), or
-    those of them named in ``which``.
+    those of them named in ``which``; drawn by ``plots`` (:mod:`lightsim.io.plot_worker`:
+    a helper process, or here by default).
 
     With the run's ``summary`` the iso-lux levels start at the map's noise floor, and
     ``summary["isolux"]`` (floor, levels) and ``summary["road"]`` (reach per level) are
     filled in — whether or not the plots are drawn.
     """
-    from lightsim.io.plots import isolux_plot, road_view_data, road_view_plot
+    from lightsim.io.plot_worker import InProcess
+    from lightsim.io.plots import road_view_data
 
+    plots = plots if plots is not None else InProcess()
     fd = _frame_dict(frame)
     floor = noise_floor_from_summary(summary, fd) if summary is not None else None
     area_px = estimate_area_px_from_summary(summary, fd) if summary is not None else None
-    paths = []
+    iso = rd = None
     if "isolux" in which:
-        paths.append(isolux_plot(Path(out) / "isolux.png", lux, fd, results=results,
-                                 title="iso-lux on the screen", noise_floor_lx=floor,
-                                 estimate_area_px=area_px))
+        iso = plots.draw("isolux", Path(out) / "isolux.png", lux, fd, results=results,
+                         title="iso-lux on the screen", noise_floor_lx=floor,
+                         estimate_area_px=area_px)
     if "road" in which:
-        road = road_view_plot(Path(out) / "road.png", lux, fd, mount_height_m=mount_height_m)
+        rd = plots.draw("road", Path(out) / "road.png", lux, fd,
+                        mount_height_m=mount_height_m)
+    paths = [] if iso is None else [iso.result()]
+    if rd is not None:
+        road = rd.result()
         paths.append(Path(out) / "road.png")
     else:
         road = road_view_data(lux, fd, mount_height_m=mount_height_m)

@@ -293,14 +293,17 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
                    should_stop: Callable[[], bool] | None = None,
                    on_plan: Callable[[Any], None] | None = None,
                    resume: dict[str, Any] | None = None,
-                   analyses: Sequence[Analysis] | None = None) -> SimulationResult:
+                   analyses: Sequence[Analysis] | None = None,
+                   plots: Any = None) -> SimulationResult:
     """Run a simulation to its budget and write the outputs (see the module docstring).
 
     ``should_stop`` is polled between frames; when it returns True the run writes
     ``checkpoint.json`` instead of final outputs and returns with ``interrupted``.
     ``analyses`` (:class:`~lightsim.analysis.Analysis`) prepare the run and report on it:
     what ``opts.regulation``/``ies``/``ldt`` ask for, built by
-    :func:`lightsim.luminaires.analyses.for_options`.
+    :func:`lightsim.luminaires.analyses.for_options`. ``plots`` draws the plots
+    (:func:`lightsim.io.plot_worker.start`: a helper process started before the run;
+    default: here, after the map).
     """
     from lightsim.errors import LightsimError
 
@@ -311,7 +314,7 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
                             "lightsim.luminaires.analyses.for_options)")
     created = not Path(opts.out_dir).exists()
     try:
-        return _run(opts, progress, should_stop, on_plan, resume, analyses)
+        return _run(opts, progress, should_stop, on_plan, resume, analyses, plots)
     except LightsimError:
         if created:  # bad input leaves nothing behind, not even the folder
             with contextlib.suppress(OSError):
@@ -320,7 +323,7 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
 
 
 def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
-         analyses: Sequence[Analysis]) -> SimulationResult:
+         analyses: Sequence[Analysis], plots: Any = None) -> SimulationResult:
     from lightsim.engine.server import Session
 
     clock = {"t0": time.perf_counter()}
@@ -356,7 +359,7 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
             write_checkpoint(out, opts, session)
             return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
         clock["run"] = time.perf_counter()
-        result = write_outputs(out, opts, session, est, analyses, clock=clock)
+        result = write_outputs(out, opts, session, est, analyses, clock=clock, plots=plots)
         ckpt = out / CHECKPOINT
         if ckpt.exists():
             ckpt.unlink()
@@ -419,11 +422,12 @@ def _lux_stats(lux: np.ndarray, frame) -> dict[str, Any]:
 
 
 def write_outputs(out: Path, opts: SimulateOptions, session, est,
-                  analyses: Sequence[Analysis] = (), clock: dict[str, float] | None = None
-                  ) -> SimulationResult:
+                  analyses: Sequence[Analysis] = (), clock: dict[str, float] | None = None,
+                  plots: Any = None) -> SimulationResult:
     """Write wall_lux.exr, wall_lux.png, error_vs_time.png, the engineering outputs and
     summary.json as one set (staged inside ``out``, summary.json published last); only
-    the files ``opts.outputs`` names, and summary.json always."""
+    the files ``opts.outputs`` names, and summary.json always. ``plots``: where the plots
+    are drawn (:mod:`lightsim.io.plot_worker`; default here, one after the other)."""
     from lightsim.io.atomic import OutputSet
     from lightsim.io.summary import read_json
 
@@ -433,17 +437,26 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est,
             listed = read_json(out / "summary.json").get("outputs")
             if isinstance(listed, list):
                 previous |= {str(n) for n in listed if "/" not in str(n)}
+    from lightsim.io.plot_worker import InProcess
+
+    plots = plots if plots is not None else InProcess()
     with OutputSet(out, "summary.json", previous) as staged:
-        result = _write_set(staged.dir, opts, session, est, analyses, clock)
+        try:
+            result = _write_set(staged.dir, opts, session, est, analyses, clock, plots)
+        except BaseException:
+            plots.abandon()  # no plot may land in the set being given up
+            raise
         staged.commit()
     result.out_dir = out
     return result
 
 
 def _write_set(out: Path, opts: SimulateOptions, session, est,
-               analyses: Sequence[Analysis], clock: dict[str, float] | None = None
-               ) -> SimulationResult:
-    """Write every output file into ``out`` (the staging folder), summary.json last."""
+               analyses: Sequence[Analysis], clock: dict[str, float] | None,
+               plots: Any) -> SimulationResult:
+    """Write every output file into ``out`` (the staging folder), summary.json last; the
+    plots are handed to ``plots`` first, so a helper process draws them while the map,
+    the cut-off and the analyses are written here."""
     from lightsim.io.exr import wall_metadata, write_exr
     from lightsim.io.summary import write_json
     from lightsim.render.frame import luminous
@@ -508,18 +521,19 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         for i, ch in enumerate("RGB"):
             channels[ch] = rgb[..., i].astype(np.float32)
     wanted = set(opts.outputs)
+    drawn = []  # matplotlib is imported only where a plot is asked
+    if "png" in wanted:
+        drawn.append(plots.draw("lux_png", out / "wall_lux.png", lux, wall,
+                                log=opts.log_scale,
+                                title=f"{Path(opts.scene_path).name}: {photons:,} photons"))
+    if "error_vs_time" in wanted:
+        drawn.append(plots.draw("error_vs_time", out / "error_vs_time.png",
+                                summary["error_vs_time"]))
     if "exr" in wanted:
         write_exr(out / "wall_lux.exr", channels, meta)
-    if "png" in wanted:
-        from lightsim.io.png import write_lux_png  # matplotlib: only when a plot is asked
-
-        write_lux_png(out / "wall_lux.png", lux, wall, log=opts.log_scale,
-                      title=f"{Path(opts.scene_path).name}: {photons:,} photons")
-    if "error_vs_time" in wanted:
-        from lightsim.io.errorplot import error_vs_time_plot
-
-        error_vs_time_plot(out / "error_vs_time.png", summary["error_vs_time"])
-    _engineering_outputs(out, opts, session, lux, summary, analyses)
+    _engineering_outputs(out, opts, session, lux, summary, analyses, plots)
+    for p in drawn:
+        p.result()
     summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
                                  and not p.name.startswith(".")] + ["summary.json"])
     summary["timings_s"] = _timings(session, est, clock)
@@ -546,7 +560,8 @@ def _timings(session, est, clock: dict[str, float] | None) -> dict[str, float] |
 
 
 def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndarray,
-                         summary: dict[str, Any], analyses: Sequence[Analysis]) -> None:
+                         summary: dict[str, Any], analyses: Sequence[Analysis],
+                         plots: Any = None) -> None:
     """Cut-off, the analyses (regulation table, far-field files), isolux and road plots."""
     from lightsim import report
 
@@ -562,7 +577,8 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
             marks = (marks or []) + [m for m in result.marks if (
                 m["name"], m.get("h_deg"), m.get("v_deg")) not in seen]
     report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary,
-                             which=tuple(n for n in ("isolux", "road") if n in opts.outputs))
+                             which=tuple(n for n in ("isolux", "road") if n in opts.outputs),
+                             plots=plots)
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:

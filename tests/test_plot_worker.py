@@ -1,0 +1,190 @@
+"""The plots' helper process (lightsim/io/plot_worker.py): the same files, byte for byte, as
+drawing them in-process; errors raised where the caller asks; a helper that dies or is
+given up costs no plot; ``lightsim simulate`` starts and stops it."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import run_cli, write_point_lamp
+
+from lightsim.errors import InputError
+from lightsim.io import plot_worker
+from lightsim.io.plot_worker import InProcess, PlotProcess
+from lightsim.wall import WallFrame
+
+
+def _beam(H: int = 48, W: int = 96) -> tuple[np.ndarray, dict]:
+    """A low-beam-like map (lx): a smooth spot cut off above a kinked line."""
+    frame = WallFrame(np.array([0.0, 0.0, 25.0]), np.array([-1.0, 0.0, 0.0]),
+                      np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, -1.0]), (-12.0, 12.0),
+                      (-4.0, 2.0), 25.0, (W, H)).to_dict()
+    y, x = np.mgrid[0:H, 0:W]
+    lux = 40.0 * np.exp(-(((x - 0.55 * W) / (0.2 * W)) ** 2 + ((y - 0.5 * H) / (0.3 * H)) ** 2))
+    lux[y < 0.35 * H + 0.1 * np.clip(x - 0.5 * W, 0, None)] *= 0.02
+    return lux, frame
+
+
+def _draw_all(plots, out, lux, frame):
+    """The four plots of a run, as the outputs hand them over."""
+    marks = [{"name": "75R", "h_deg": 1.15, "v_deg": -0.57, "verdict": "pass"}]
+    return [
+        plots.draw("lux_png", out / "wall_lux.png", lux, frame, log=False, title="beam"),
+        plots.draw("error_vs_time", out / "error_vs_time.png",
+                   [{"photons": 1000 * k, "seconds": 0.1 * k, "rel_error": 0.2 / k ** 0.5}
+                    for k in range(1, 6)]),
+        plots.draw("isolux", out / "isolux.png", lux, frame, results=marks,
+                   title="iso-lux on the screen", noise_floor_lx=0.05,
+                   estimate_area_px=4.0),
+        plots.draw("road", out / "road.png", lux, frame, mount_height_m=0.65),
+    ]
+
+
+@pytest.fixture()
+def helper():
+    h = PlotProcess()
+    assert h.alive
+    yield h
+    h.close()
+
+
+def test_same_files_byte_for_byte(helper, tmp_path):
+    lux, frame = _beam()
+    here, there = tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    local = [p.result() for p in _draw_all(InProcess(), here, lux, frame)]
+    pend = _draw_all(helper, there, lux, frame)
+    remote = [p.result() for p in pend]
+    assert all(p.remote for p in pend)  # the helper drew every one
+    for name in ("wall_lux.png", "error_vs_time.png", "isolux.png", "road.png"):
+        assert (here / name).read_bytes() == (there / name).read_bytes(), name
+    # the road illuminance comes back with the plot (the summary's reach reads it)
+    a, b = local[3], remote[3]
+    assert np.array_equal(a.lux, b.lux, equal_nan=True) and a.reach_m(1.0) == b.reach_m(1.0)
+
+
+def test_error_is_raised_by_result(helper, tmp_path):
+    lux, frame = _beam()
+    p = helper.draw("isolux", tmp_path / "isolux.png", lux, frame, levels=[-1.0])
+    with pytest.raises(InputError, match="iso-lux levels must be positive"):
+        p.result()
+    assert p.remote
+    # the helper goes on after a failed plot
+    q = helper.draw("road", tmp_path / "road.png", lux, frame)
+    assert q.result() is not None and q.remote and (tmp_path / "road.png").is_file()
+
+
+def test_dead_helper_costs_no_plot(helper, tmp_path):
+    lux, frame = _beam()
+    helper._proc.kill()
+    helper._proc.wait()
+    p = helper.draw("lux_png", tmp_path / "a.png", lux, frame)  # sent, or drawn at once
+    assert p.result() is None and not p.remote
+    assert (tmp_path / "a.png").is_file()
+    assert not helper.alive
+
+
+def test_abandoned_helper_leaves_its_plots_to_the_caller(helper, tmp_path):
+    lux, frame = _beam()
+    pend = [helper.draw("isolux", tmp_path / f"{k}.png", lux, frame) for k in range(3)]
+    helper.abandon()  # e.g. the output set is given up, or a plot took too long
+    assert helper._proc.poll() is not None
+    for k, p in enumerate(pend):
+        p.result()
+        assert (tmp_path / f"{k}.png").is_file()
+
+
+def test_no_answer_in_time_draws_here(helper, tmp_path):
+    lux, frame = _beam()
+    p = helper.draw("road", tmp_path / "road.png", lux, frame)
+    p._done.clear()  # as if no answer came: the first wait times out
+    helper._pending.clear()
+    assert p.result(timeout=0.01) is not None and not p.remote
+    assert helper._proc.poll() is not None  # the helper was stopped
+
+
+def test_unknown_plot_and_start_policy(monkeypatch, helper):
+    with pytest.raises(ValueError, match="unknown plot"):
+        helper.draw("pie_chart")
+    assert isinstance(plot_worker.start(wanted=False), InProcess)
+    monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "0")
+    assert isinstance(plot_worker.start(), InProcess)
+    monkeypatch.setattr(plot_worker.os, "sched_getaffinity", lambda _pid: {0}, raising=False)
+    monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "1")
+    assert isinstance(plot_worker.start(), InProcess)  # one core: nothing to overlap
+
+
+def test_simulate_draws_with_the_helper(monkeypatch, tmp_path, capsys):
+    """The command's plots come from the helper (started with the command, stopped at its
+    end) and are the files an in-process run writes."""
+    lamp = write_point_lamp(tmp_path / "point.glb")
+    args = ["--photons", "40000", "--wall-distance", "2", "--wall-size", "4x4",
+            "--resolution", "24x24", "--frame-photons", "20000", "--quiet"]
+    started = []
+    real = plot_worker.start
+
+    def spy(wanted=True):
+        h = real(wanted)
+        started.append(h)
+        return h
+
+    monkeypatch.setattr(plot_worker, "start", spy)
+    monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "1")
+    code, _, err = run_cli(["simulate", str(lamp), *args, "--out", str(tmp_path / "a")],
+                           capsys)
+    assert code == 0, err
+    assert len(started) == 1 and isinstance(started[0], PlotProcess)
+    assert started[0]._proc.poll() is not None  # stopped with the command
+    monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "0")
+    code, _, err = run_cli(["simulate", str(lamp), *args, "--out", str(tmp_path / "b")],
+                           capsys)
+    assert code == 0, err
+    assert isinstance(started[1], InProcess)
+    for name in ("wall_lux.png", "isolux.png", "road.png"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+    s = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert "error_vs_time.png" in s["outputs"] and s["road"] == json.loads(
+        (tmp_path / "b" / "summary.json").read_text())["road"]
+    # a run that asks for no plot starts no helper
+    code, _, err = run_cli(["simulate", str(lamp), *args, "--out", str(tmp_path / "c"),
+                            "--outputs", "exr,json"], capsys)
+    assert code == 0, err
+    assert isinstance(started[2], InProcess)
+
+
+def test_plot_outputs_are_the_option_s_plots():
+    from lightsim.options import lookup
+    from lightsim.simulate import SimulateOptions
+
+    choices = lookup(SimulateOptions, "outputs").choices
+    assert set(plot_worker.PLOT_OUTPUTS) == set(choices) - {"exr", "json"}
+
+
+@pytest.mark.parametrize(("argv", "started"), [
+    (["simulate", "lamp.glb"], True),
+    (["simulate", "lamp.glb", "--outputs", "exr,isolux"], True),
+    (["simulate", "lamp.glb", "--outputs=all"], True),
+    (["simulate", "lamp.glb", "--outputs", "exr,json"], False),
+    (["simulate", "lamp.glb", "--outputs=json"], False),
+    (["report", "out"], False),
+    ([], False),
+])
+def test_prestart_reads_the_command_line(monkeypatch, argv, started):
+    monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "1")
+    monkeypatch.setattr(plot_worker, "_early", None)
+    plot_worker.prestart(argv)
+    early = plot_worker._early
+    try:
+        assert (early is not None) == started
+        if started:  # start() hands the very helper over; not wanted, it is stopped
+            assert plot_worker.start(wanted=True) is early and plot_worker._early is None
+    finally:
+        if early is not None:
+            early.close()
+    plot_worker.prestart(["simulate", "lamp.glb"])
+    early = plot_worker._early
+    assert isinstance(plot_worker.start(wanted=False), InProcess)
+    assert early._proc.poll() is not None
