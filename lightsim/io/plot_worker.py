@@ -2,34 +2,45 @@
 
 ``lightsim simulate``'s default outputs include four PNG plots (``wall_lux.png``,
 ``error_vs_time.png``, ``isolux.png``, ``road.png``). Drawn in the run's own process after
-the map they took 1.7–2.2 s of the shipped headlight's 4.4 s command (matplotlib's import
+the map they took 1.9–2.6 s of the shipped headlight's ~4.3 s command (matplotlib's import
 0.4–0.6 s, its fonts and first contour ~0.4 s, then ~0.9 s of drawing), on one core: the
 drawing is Python holding the GIL, so a thread would not overlap it with anything.
 
-:class:`PlotProcess` starts ``python -m lightsim.io.plot_worker`` when the command starts
-(:func:`prestart`, before the command's own imports);
-the child lowers its priority (nice :data:`NICE`: it takes a core only where the run
-leaves one idle, e.g. while the scene loads) and imports and warms matplotlib up. The
-run's outputs hand it the plots by name (:data:`JOBS`, the same functions with the same
-arguments, pickled over a pipe) and write the OpenEXR map, the cut-off and the regulation
-analyses in the meantime. The files are the ones the functions write in-process, byte for
-byte (tested); where the child cannot start, dies or does not answer in time, the plot is
-drawn in-process instead, so a run never loses a plot to the helper.
+:class:`PlotProcess` starts a helper, ``python -m lightsim.io.plot_worker``, when the
+command starts (:func:`prestart`, before the command's own imports). The helper lowers its
+priority (nice :data:`NICE`: it takes a core only where the run leaves one idle, e.g. while
+the scene loads), imports matplotlib, draws a small warm-up plot and then asks for work.
+The run's outputs hand over the plots by name (:data:`JOBS`, the same functions with the
+same arguments) and write the OpenEXR map, the cut-off and the regulation analyses in the
+meantime. The files are the ones the functions write in-process, byte for byte (tested).
+
+The helper *pulls* its plots, one at a time, so a plot is drawn by exactly one process:
+
+* a plot the helper has not taken when the caller asks for it (:meth:`Pending.result`) is
+  drawn by the caller — on the shipped headlight the helper draws ``wall_lux.png``,
+  ``error_vs_time.png`` and ``road.png`` while the run draws ``isolux.png`` (which waits
+  for the regulation analyses); on a loaded machine, where the low-priority helper is
+  still starting, the run draws its plots itself as before;
+* a plot the helper took but has not answered within :data:`PATIENCE_S`, or a helper that
+  died or sent something unreadable, ends the helper (killed, so no file lands later) and
+  the caller draws that plot and every other one left.
 
 :class:`InProcess` is the same interface drawing at once (library callers, a one-core
 machine, ``LIGHTSIM_PLOT_PROCESS=0``).
 
-=====================  =====  =======  ==================================================
-parameter              unit   default  meaning
-=====================  =====  =======  ==================================================
-``NICE``               –      10       the child's niceness increment (POSIX)
-``TIMEOUT_S``          s      120      longest wait for one plot before it is drawn here
-``LIGHTSIM_PLOT_PROCESS``  –  1        environment: 0 draws every plot in-process
-=====================  =====  =======  ==================================================
+=========================  =====  =======  ==============================================
+parameter                  unit   default  meaning
+=========================  =====  =======  ==============================================
+``NICE``                   –      10       the helper's niceness increment (POSIX)
+``PATIENCE_S``             s      5        longest wait for a plot the helper took (one
+                                           takes 0.15–0.6 s on the shipped headlight)
+``LIGHTSIM_PLOT_PROCESS``  –      1        environment: 0 draws every plot in-process
+=========================  =====  =======  ==============================================
 """
 
 from __future__ import annotations
 
+import collections
 import importlib
 import os
 import pickle
@@ -38,11 +49,13 @@ import struct
 import subprocess
 import sys
 import threading
+from pathlib import Path
 from typing import Any, BinaryIO
 
 NICE = 10
-TIMEOUT_S = 120.0
-#: the plots a helper may draw: name → "module:function"
+PATIENCE_S = 5.0
+#: the plots a helper may draw: name → "module:function" (the first argument is the path
+#: of the file written)
 JOBS = {
     "lux_png": "lightsim.io.png:write_lux_png",
     "error_vs_time": "lightsim.io.errorplot:error_vs_time_plot",
@@ -52,6 +65,7 @@ JOBS = {
 #: the ``simulate --outputs`` names that are plots
 PLOT_OUTPUTS = ("png", "error_vs_time", "isolux", "road")
 _HEADER = struct.Struct("<Q")
+_READY = "ready"  # the helper's request for its next plot
 
 
 def _job(name: str):
@@ -61,44 +75,58 @@ def _job(name: str):
 
 class Pending:
     """One plot: :meth:`result` gives what its function returned, or raises what it
-    raised. A plot the helper could not draw (it died, or did not answer within
-    ``timeout``) is drawn by :meth:`result`, in the calling thread."""
+    raised; a plot the helper has not taken (or could not finish) is drawn there, in the
+    calling thread."""
 
     def __init__(self, name: str, args: tuple, kwargs: dict[str, Any],
                  owner: PlotProcess | None = None) -> None:
         self.name, self.args, self.kwargs = name, args, kwargs
         self._owner = owner
+        self._lock = threading.Lock()
         self._done = threading.Event()
         self._ok = False
         self._value: Any = None
-        self._here = False  # to be drawn in this process
         self.remote = False  # drawn by the helper process
 
-    def _set(self, ok: bool, value: Any) -> None:
-        self._ok, self._value, self.remote = ok, value, True
-        self._done.set()
-
-    def _fall_back(self) -> None:
-        self._here = True
-        self._done.set()
+    def _set(self, ok: bool, value: Any, remote: bool) -> bool:
+        """Record the outcome once (the first one wins); False if it was already set."""
+        with self._lock:
+            if self._done.is_set():
+                return False
+            self._ok, self._value, self.remote = ok, value, remote
+            self._done.set()
+            return True
 
     def _run_here(self) -> None:
         try:
-            self._ok, self._value = True, _job(self.name)(*self.args, **self.kwargs)
+            outcome = (True, _job(self.name)(*self.args, **self.kwargs))
         except Exception as exc:  # re-raised by result()
-            self._ok, self._value = False, exc
-        self._here = False
-        self.remote = False
-        self._done.set()
+            outcome = (False, exc)
+        self._set(*outcome, remote=False)
 
-    def result(self, timeout: float = TIMEOUT_S) -> Any:
-        if not self._done.wait(timeout) and self._owner is not None:
-            self._owner.abandon()  # no answer: stop the helper, draw it here
-        if self._here or not self._done.is_set():
-            self._run_here()
+    def result(self, patience: float = PATIENCE_S) -> Any:
+        if not self._done.is_set():
+            owner = self._owner
+            if owner is None or owner._claim(self):
+                if not self._done.is_set():
+                    self._run_here()  # not taken by the helper: drawn here
+            elif not self._wait(patience):
+                owner.abandon()  # taken but not answered: the helper ends, drawn here
+                self._run_here()
         if not self._ok:
             raise self._value
         return self._value
+
+    def _wait(self, patience: float) -> bool:
+        """Wait for the helper's answer; False after ``patience`` s or as soon as the
+        helper is gone (its plots are then left to their callers)."""
+        step = 0.05
+        waited = 0.0
+        while not self._done.wait(step):
+            waited += step
+            if self._owner is None or waited >= patience:
+                return self._done.is_set()
+        return True
 
 
 class InProcess:
@@ -119,56 +147,77 @@ class InProcess:
 
 
 class PlotProcess:
-    """A helper process drawing the plots (see the module docstring); falls back to
-    drawing in this process wherever it cannot."""
+    """A helper process drawing plots (see the module docstring); every plot it does not
+    draw is drawn in this process."""
 
     def __init__(self) -> None:
-        self._pending: dict[int, Pending] = {}
         self._lock = threading.Lock()
+        self._queue: collections.deque[tuple[int, Pending]] = collections.deque()
+        self._taken: dict[int, Pending] = {}  # sent to the helper, not answered
+        self._idle = False  # the helper asked for a plot and got none
         self._next = 0
         self._out: queue.Queue[bytes | None] = queue.Queue()
         self.alive = False
-        # the child imports this very lightsim, wherever it was imported from
-        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+        self._proc: subprocess.Popen | None = None
+        package = Path(__file__).resolve().parents[1]  # this lightsim
+        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+                   MKL_NUM_THREADS="1")
         try:
+            # -P: no current folder on the helper's path; the package is checked there
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "lightsim.io.plot_worker"], stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env)
-        except OSError:
-            self._proc = None
+                [sys.executable, "-P", "-c", _BOOT, str(package.parent), str(package),
+                 str(os.getpid())],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                env=env)
+        except Exception:  # no helper: every plot is drawn here
             return
         self.alive = True
-        self._reader = threading.Thread(target=self._read, daemon=True,
-                                        name="lightsim-plots-in")
-        self._writer = threading.Thread(target=self._write, daemon=True,
-                                        name="lightsim-plots-out")
-        self._reader.start()
-        self._writer.start()
+        threading.Thread(target=self._read, daemon=True, name="lightsim-plots-in").start()
+        threading.Thread(target=self._write, daemon=True, name="lightsim-plots-out").start()
 
     def draw(self, name: str, *args: Any, **kwargs: Any) -> Pending:
+        """Queue a plot for the helper (its path made absolute: the helper's folder is
+        not the caller's to change)."""
         if name not in JOBS:
             raise ValueError(f"unknown plot {name!r}")
+        if args:
+            args = (os.path.abspath(args[0]), *args[1:])
         p = Pending(name, args, kwargs, self)
         with self._lock:
-            alive = self.alive
-            if alive:
-                key = self._next
+            if not self.alive:
+                p._owner = None
+            else:
+                self._queue.append((self._next, p))
                 self._next += 1
-                self._pending[key] = p
-        if not alive:
-            p._run_here()
-            return p
-        try:
-            msg = pickle.dumps((key, name, args, kwargs), protocol=pickle.HIGHEST_PROTOCOL)
-        except Exception:  # what cannot be sent is drawn here
-            with self._lock:
-                self._pending.pop(key, None)
-            p._run_here()
-            return p
-        self._out.put(msg)  # written by the writer thread: the caller goes on at once
+                if self._idle:
+                    self._send_next()
         return p
+
+    def _send_next(self) -> None:
+        """Hand the helper its next plot (the lock held): pickled here, written by the
+        writer thread; one that cannot be pickled is left to the caller."""
+        while self._queue:
+            key, p = self._queue.popleft()
+            try:
+                msg = pickle.dumps((key, p.name, p.args, p.kwargs),
+                                   protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception:
+                p._owner = None  # drawn by the caller
+                continue
+            self._taken[key] = p
+            self._idle = False
+            self._out.put(msg)
+            return
+        self._idle = True
+
+    def _claim(self, p: Pending) -> bool:
+        """Take ``p`` back if the helper has not taken it; True when the caller draws it."""
+        with self._lock:
+            for i, (_, q) in enumerate(self._queue):
+                if q is p:
+                    del self._queue[i]
+                    return True
+            return not any(q is p for q in self._taken.values())
 
     def _write(self) -> None:
         stdin = self._proc.stdin
@@ -181,11 +230,11 @@ class PlotProcess:
                 stdin.write(msg)
                 stdin.flush()
             except (OSError, ValueError):
-                self._failed()
+                self.abandon()
                 return
         try:
-            stdin.close()  # EOF: the child exits
-        except OSError:
+            stdin.close()  # EOF: the helper exits
+        except (OSError, ValueError):
             pass
 
     def _read(self) -> None:
@@ -193,38 +242,40 @@ class PlotProcess:
         while True:
             try:
                 msg = _read_message(stdout)
-                key, ok, value = pickle.loads(msg) if msg is not None else (None, 0, 0)
-            except Exception:  # a broken reply ends the helper
-                msg = None
-            if msg is None:
-                self._failed()
+                reply = pickle.loads(msg) if msg is not None else None
+            except Exception:
+                reply = None
+            if reply is None:  # gone, or a reply this process cannot read
+                self.abandon()
                 return
             with self._lock:
-                p = self._pending.pop(key, None)
-            if p is not None:
-                p._set(bool(ok), value)
-
-    def _failed(self) -> None:
-        """The helper is gone: every plot it had not answered is left to be drawn here."""
-        with self._lock:
-            self.alive = False
-            left = list(self._pending.values())
-            self._pending.clear()
-        for p in left:
-            p._fall_back()
+                if reply != _READY:
+                    key, ok, value = reply
+                    p = self._taken.pop(key, None)
+                    if p is not None:
+                        p._set(bool(ok), value, remote=True)
+                self._send_next()
 
     def abandon(self) -> None:
-        """Kill the helper at once (an output set being given up must not receive a file
-        afterwards); its unanswered plots are left to be drawn here."""
+        """End the helper at once (killed: an output set being given up must not receive
+        a file afterwards); every plot it has not answered is drawn by its caller."""
+        with self._lock:
+            self.alive = False
+            left = [p for _, p in self._queue] + list(self._taken.values())
+            self._queue.clear()
+            self._taken.clear()
+            for p in left:
+                p._owner = None
         if self._proc is not None and self._proc.poll() is None:
-            self._proc.kill()
+            try:
+                self._proc.kill()
+            except OSError:
+                pass
             self._proc.wait()
-        self._failed()
 
     def close(self) -> None:
-        """Stop the helper. Every plot of a finished run has been answered by then (the
-        outputs wait for them), so nothing is cut short; an idle or warming helper is
-        simply killed."""
+        """Kill the helper. A finished run's outputs have their plots by then (they wait
+        for them), so nothing is cut short; an idle or warming helper just ends."""
         if self._proc is None:
             return
         self._out.put(None)
@@ -242,12 +293,15 @@ class PlotProcess:
         self.close()
 
 
-def _can_help() -> bool:
+def _cores() -> int:
     try:
-        cores = len(os.sched_getaffinity(0))
+        return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
-    return cores >= 2 and os.environ.get("LIGHTSIM_PLOT_PROCESS", "1") != "0"
+        return os.cpu_count() or 1
+
+
+def _can_help() -> bool:
+    return _cores() >= 2 and os.environ.get("LIGHTSIM_PLOT_PROCESS", "1") != "0"
 
 
 _early: PlotProcess | None = None  # started by prestart, taken by start
@@ -281,11 +335,12 @@ def start(wanted: bool = True) -> PlotProcess | InProcess:
     :func:`prestart` started, if any."""
     global _early
     early, _early = _early, None
+    if early is not None and (not wanted or not _can_help() or not early.alive):
+        early.close()
+        early = None
     if not wanted or not _can_help():
-        if early is not None:
-            early.close()
         return InProcess()
-    helper = early if early is not None and early.alive else PlotProcess()
+    helper = early if early is not None else PlotProcess()
     return helper if helper.alive else InProcess()
 
 
@@ -298,9 +353,16 @@ def _read_message(f: BinaryIO) -> bytes | None:
     return body if len(body) == n else None
 
 
+def _write_message(f: BinaryIO, data: bytes) -> None:
+    f.write(_HEADER.pack(len(data)))
+    f.write(data)
+    f.flush()
+
+
 def _warm_up() -> None:
     """Import the plot modules and draw a small contour plot with text into memory: the
-    fonts, the text layout and the contouring are loaded before the first real plot."""
+    fonts, the text layout and the contouring are loaded before the first real plot (a
+    fuller warm-up, every plot once, cost more than the idle core gives: docs/peer.md)."""
     import io
 
     import numpy as np
@@ -319,11 +381,29 @@ def _warm_up() -> None:
     fig.savefig(io.BytesIO(), format="png", dpi=50)
 
 
-def _serve(inp: BinaryIO, out: BinaryIO) -> None:
-    """The helper's loop: read a job, draw it, send back (key, ok, value)."""
+def _die_with_parent() -> None:
+    """Linux: the helper is killed when the process that started it dies (a killed run
+    must not get a plot into its folder afterwards)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+def _serve(inp: BinaryIO, out: BinaryIO, parent: int | None = None) -> None:
+    """The helper's loop: ask for a plot, draw it, send back (key, ok, value)."""
     import signal
 
-    # Ctrl-C reaches the whole process group: the run stops at its frame's end and closes
+    _die_with_parent()
+    if parent is not None and os.getppid() != parent:
+        return  # the parent died before the line above took effect
+    # Ctrl-C reaches the whole process group: the run stops at its frame's end and ends
     # this helper itself
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(os, "nice"):
@@ -333,8 +413,9 @@ def _serve(inp: BinaryIO, out: BinaryIO) -> None:
             pass
     try:
         _warm_up()
-    except Exception:  # the jobs themselves will say what is wrong
+    except Exception:  # the plots themselves will say what is wrong
         pass
+    _write_message(out, pickle.dumps(_READY))
     while True:
         msg = _read_message(inp)
         if msg is None:
@@ -348,12 +429,35 @@ def _serve(inp: BinaryIO, out: BinaryIO) -> None:
             data = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
         except Exception as exc:  # an unpicklable result or error
             data = pickle.dumps((key, False, RuntimeError(f"plot {name}: {exc!r}")))
-        out.write(_HEADER.pack(len(data)))
-        out.write(data)
-        out.flush()
+        _write_message(out, data)
+
+
+def main(package: str, parent: int | None = None) -> None:
+    """The helper process (see :data:`_BOOT`) of the process ``parent``: replies on a copy
+    of file descriptor 1, which itself is pointed at standard error, so nothing else can
+    write into the pipe."""
+    import lightsim
+
+    if Path(lightsim.__file__).resolve().parent != Path(package):
+        return  # another lightsim came first on this path: the caller draws its plots
+    out = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+    _serve(sys.stdin.buffer, out, parent)
+
+
+#: the helper's start: this very lightsim first on the path (``argv``: its parent folder,
+#: the package folder, the parent's process id), unless that folder is on the path
+#: already (an installed package: the path keeps Python's own order)
+_BOOT = (
+    "import sys\n"
+    "root, package, parent = sys.argv[1], sys.argv[2], int(sys.argv[3])\n"
+    "if root not in sys.path:\n"
+    "    sys.path.insert(0, root)\n"
+    "from lightsim.io.plot_worker import main\n"
+    "main(package, parent)\n"
+)
 
 
 if __name__ == "__main__":
-    _stdin, _stdout = sys.stdin.buffer, sys.stdout.buffer
-    sys.stdout = sys.stderr  # nothing but replies on the pipe
-    _serve(_stdin, _stdout)
+    main(str(Path(__file__).resolve().parents[1]), os.getppid())
