@@ -41,12 +41,9 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
         raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
     if not 0 < confidence < 1:
         raise InputError(f"--confidence must lie in (0, 1), got {confidence}")
-    from lightsim import report as rp
-    from lightsim.io.errorplot import error_vs_time_plot
+    from lightsim.io import plot_worker
     from lightsim.io.exr import read_exr
-    from lightsim.io.png import write_lux_png
-    from lightsim.io.summary import read_json, write_json
-    from lightsim.luminaires.regulations import check
+    from lightsim.io.summary import read_json
 
     out = Path(result_dir)
     summary = read_json(out / "summary.json")
@@ -59,12 +56,37 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     except (KeyError, TypeError):
         raise InputError(f"{out / 'summary.json'}: no wall frame (not a lightsim result?)"
                          ) from None
-    written = [out / "wall_lux.png"]
-    write_lux_png(out / "wall_lux.png", lux, wall, log=log_scale,
-                  title=f"{Path(summary.get('scene', {}).get('source', '')).name}: "
-                        f"{summary.get('photons', 0):,} photons")
-    error_vs_time_plot(out / "error_vs_time.png", summary.get("error_vs_time", []))
-    written.append(out / "error_vs_time.png")
+    # the plots' helper process (started with the command) draws what it takes while
+    # the regulation tables are re-checked here (lightsim/io/plot_worker.py)
+    plots = plot_worker.start()
+    drawn = [plots.draw("lux_png", out / "wall_lux.png", lux, wall, log=log_scale,
+                        title=f"{Path(summary.get('scene', {}).get('source', '')).name}: "
+                              f"{summary.get('photons', 0):,} photons"),
+             plots.draw("error_vs_time", out / "error_vs_time.png",
+                        summary.get("error_vs_time", []))]
+    try:
+        written = _tables_and_plots(out, summary, lux, wall, regulation, confidence,
+                                    mount_height, plots, console)
+        for p in drawn:
+            p.result()
+    except BaseException:
+        plots.settle()  # no plot is cut short in the result folder
+        raise
+    finally:
+        plots.close()
+    written = [out / "wall_lux.png", out / "error_vs_time.png", *written]
+    click.echo(summary["road"]["text"])
+    click.echo("wrote " + ", ".join(str(p) for p in written))
+
+
+def _tables_and_plots(out: Path, summary: dict, lux, wall, regulation: str | None,
+                      confidence: float, mount_height: float, plots, console) -> list[Path]:
+    """Re-check every rule set of the run, then the iso-lux and road plots; summary.json
+    rewritten with both."""
+    from lightsim import report as rp
+    from lightsim.io.summary import write_json
+    from lightsim.luminaires.regulations import check
+
     results = None
     names: list[str | None] = ([regulation] if regulation else
                                [t.get("ruleset") for t in check.regulation_tables(summary)])
@@ -77,7 +99,7 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
         console.print(check.format_regulation(reg))
     if names:
         write_json(out / "summary.json", summary)
-    written += rp.engineering_plots(out, lux, wall, results, mount_height, summary=summary)
+    written = rp.engineering_plots(out, lux, wall, results, mount_height, summary=summary,
+                                   plots=plots)
     write_json(out / "summary.json", summary)  # noise floor and road reach
-    click.echo(summary["road"]["text"])
-    click.echo("wrote " + ", ".join(str(p) for p in written))
+    return written

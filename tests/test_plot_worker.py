@@ -214,7 +214,9 @@ def test_plot_outputs_are_the_option_s_plots():
     (["simulate", "lamp.glb", "--outputs=all"], True),
     (["simulate", "lamp.glb", "--outputs", "exr,json"], False),
     (["simulate", "lamp.glb", "--outputs=json"], False),
-    (["report", "out"], False),
+    (["report", "out"], True),
+    (["report", "--list-rulesets"], False),
+    (["view", "lamp.glb"], False),
     ([], False),
 ])
 def test_prestart_reads_the_command_line(monkeypatch, argv, started):
@@ -234,3 +236,32 @@ def test_prestart_reads_the_command_line(monkeypatch, argv, started):
     early = plot_worker._early
     assert isinstance(plot_worker.start(wanted=False), InProcess)
     assert early._proc.poll() is not None
+
+
+def test_report_draws_with_the_helper(monkeypatch, tmp_path, capsys):
+    """``lightsim report`` redraws a run's plots with the helper: the same files as the
+    run's own; a bad rule set stops it with one line and leaves the plots whole."""
+    lamp = write_point_lamp(tmp_path / "point.glb")
+    run = tmp_path / "run"
+    monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "0")
+    code, _, err = run_cli(["simulate", str(lamp), "--photons", "40000", "--wall-distance",
+                            "2", "--wall-size", "4x4", "--resolution", "24x24", "--quiet",
+                            "--out", str(run)], capsys)
+    assert code == 0, err
+    names = ("wall_lux.png", "error_vs_time.png", "isolux.png", "road.png")
+    first = {n: (run / n).read_bytes() for n in names}
+    for n in names:
+        (run / n).unlink()
+    started = []
+    real = plot_worker.start
+    monkeypatch.setattr(plot_worker, "start", lambda wanted=True: started.append(
+        real(wanted)) or started[-1])
+    monkeypatch.setattr(plot_worker, "_cores", lambda: 2)
+    monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "1")
+    code, out, err = run_cli(["report", str(run)], capsys)
+    assert code == 0, err
+    assert isinstance(started[0], PlotProcess) and started[0]._proc.poll() is not None
+    assert {n: (run / n).read_bytes() for n in names} == first
+    code, _, err = run_cli(["report", str(run), "--regulation", "no-such-rules"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert sorted(p.name for p in run.iterdir() if p.name.startswith(".")) == []

@@ -49,6 +49,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -140,6 +141,9 @@ class InProcess:
         return p
 
     def abandon(self) -> None:
+        pass
+
+    def settle(self, patience: float = PATIENCE_S) -> None:
         pass
 
     def close(self) -> None:
@@ -273,6 +277,21 @@ class PlotProcess:
                 pass
             self._proc.wait()
 
+    def settle(self, patience: float = PATIENCE_S) -> None:
+        """Hand out no more plots and wait (at most ``patience`` s) for the one the helper
+        is drawing: where the caller gives up in a folder that is kept (``lightsim
+        report``), no file is cut short there by :meth:`close`."""
+        with self._lock:
+            for _, p in self._queue:
+                p._owner = None
+            self._queue.clear()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < patience:
+            with self._lock:
+                if not (self._taken and self.alive):
+                    return
+            time.sleep(0.02)
+
     def close(self) -> None:
         """Kill the helper. A finished run's outputs have their plots by then (they wait
         for them), so nothing is cut short; an idle or warming helper just ends."""
@@ -308,11 +327,17 @@ _early: PlotProcess | None = None  # started by prestart, taken by start
 
 
 def prestart(argv: list[str]) -> None:
-    """Start the helper before the command's own imports, for ``lightsim simulate`` with
-    plots among its outputs (read from ``argv``: ``--outputs`` absent or naming a plot or
-    ``all``); :func:`start` then takes it. A helper nobody takes ends with this process."""
+    """Start the helper before the command's own imports, for ``lightsim report`` and for
+    ``lightsim simulate`` with plots among its outputs (read from ``argv``: ``--outputs``
+    absent or naming a plot or ``all``); :func:`start` then takes it. A helper nobody takes
+    ends with this process."""
     global _early
-    if _early is not None or not argv or argv[0] != "simulate" or not _can_help():
+    if _early is not None or not argv or not _can_help():
+        return
+    if argv[0] == "report":
+        if any(a in ("--list-rulesets", "--help", "-h") for a in argv):
+            return
+    elif argv[0] != "simulate":
         return
     for i, a in enumerate(argv):
         if a == "--outputs" or a.startswith("--outputs="):
