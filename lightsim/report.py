@@ -126,7 +126,10 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
     if "road" in which:
         rd = plots.draw("road", Path(out) / "road.png", lux, fd,
                         mount_height_m=mount_height_m)
-    paths = [] if iso is None else [iso.result()]
+    paths = []
+    if iso is not None:
+        iso.result()
+        paths.append(Path(out) / "isolux.png")  # as given (the helper's path is absolute)
     if rd is not None:
         road = rd.result()
         paths.append(Path(out) / "road.png")

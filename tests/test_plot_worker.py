@@ -258,7 +258,7 @@ def test_report_draws_with_the_helper(monkeypatch, tmp_path, capsys):
         real(wanted)) or started[-1])
     monkeypatch.setattr(plot_worker, "_cores", lambda: 2)
     monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "1")
-    code, out, err = run_cli(["report", str(run)], capsys)
+    code, _, err = run_cli(["report", str(run)], capsys)
     assert code == 0, err
     assert isinstance(started[0], PlotProcess) and started[0]._proc.poll() is not None
     assert {n: (run / n).read_bytes() for n in names} == first

@@ -133,8 +133,6 @@ class Pending:
 class InProcess:
     """Draws every plot at once, in this process."""
 
-    alive = False
-
     def draw(self, name: str, *args: Any, **kwargs: Any) -> Pending:
         p = Pending(name, args, kwargs)
         p._run_here()
@@ -304,12 +302,6 @@ class PlotProcess:
                 f.close()
             except (OSError, ValueError):
                 pass
-
-    def __enter__(self) -> PlotProcess:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
 
 
 def _cores() -> int:
