@@ -228,9 +228,7 @@ class PlotProcess:
             if msg is None:
                 break
             try:
-                stdin.write(_HEADER.pack(len(msg)))
-                stdin.write(msg)
-                stdin.flush()
+                _write_message(stdin, msg)
             except (OSError, ValueError):
                 self.abandon()
                 return
