@@ -375,7 +375,9 @@ def test_page_end_to_end(tmp_path):
             # a second tab watches the same session; a dropped connection resumes
             other = browser.new_page()
             other.goto(server.url)
-            other.wait_for_function("window.lightsimView.wallFrames >= 1", timeout=40_000)
+            # its first wall frame and its first status are separate messages
+            other.wait_for_function("window.lightsimView.wallFrames >= 1 && "
+                                    "window.lightsimView.status !== null", timeout=40_000)
             assert other.evaluate("window.lightsimView.status.edit") == \
                 page.evaluate("window.lightsimView.status.edit")
             frames = page.evaluate("window.lightsimView.wallFrames")
