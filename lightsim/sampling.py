@@ -243,21 +243,31 @@ def _radical_inverse(index: np.int64, d: int, perms: np.ndarray) -> float:
     return min(x, 1.0 - 1.1102230246251565e-16)
 
 
-def _radical_inverse_in(d: int):
-    """:func:`_radical_inverse` for dimension ``d`` with its base and digit count as
-    compile-time constants: the divisions become multiplications (several times faster),
-    the arithmetic — and so every point — stays bit-identical.
+#: digits of base PRIMES[d] one table lookup of :func:`halton_points_grouped` takes:
+#: M digits as one digit of base b^M ≤ 128 (3⁴ = 81, 5³ = 125, 7² = 49, 11² = 121)
+GROUP = np.array([1, 4, 3, 2, 2], dtype=np.int64)
+#: digit groups per dimension (the last may be short) and table entries per group (the
+#: last entry stays 0: what a point whose index is spent adds)
+N_GROUPS = int(max(-(-int(DIGITS[d]) // int(GROUP[d])) for d in range(1, N_DIMS)))
+GROUP_SIZE = 128
 
-    Once the index has no digits left, every further digit is 0 and its term
-    ``perms[d, k, 0] · f_k`` is a constant of the scramble: ``tail[d, k]``
-    (:func:`_tail_terms`, the same product), added in the same order. Base 2 needs no
-    loop at all: its terms are distinct powers of two, so the sum is exact in any order —
-    the index's 53 low bits reversed, each digit through its permutation (a bit flip
-    where ``perms[0, k, 0]`` is 1), times 2⁻⁵³. The other bases take four points at a
-    time (:func:`halton_points_grouped`), each with its own scramble.
+
+def _radical_inverse_in(d: int):
+    """:func:`_radical_inverse` for dimension ``d``, with its base and digit count as
+    compile-time constants (the divisions become multiplications).
+
+    Base 2 needs no loop at all: its terms are distinct powers of two, so the sum is
+    exact in any order — the index's 53 low bits reversed, each digit through its
+    permutation (a bit flip where ``perms[0, k, 0]`` is 1), times 2⁻⁵³: the same bits as
+    the definition. The other bases take four points at a time, each with its own
+    scramble, M = :data:`GROUP` [d] digits per step: the index's digits m·M … m·M + M − 1
+    are one digit v of base b^M, whose terms Σ perms[d, k, digit_k(v)] · f_k are one
+    table entry ``tab[d, m, v]`` (:func:`_digit_tables`); once the index is spent, the
+    zero digits left add ``tail[d, m]``, their sum. The same terms as the definition,
+    summed in another order: the points agree with it to a few units in the last place
+    (``tests/test_halton_kernel.py``).
     """
     base, digits = int(PRIMES[d]), int(DIGITS[d])
-    ubase = np.uint64(base)
 
     if base == 2:
         @njit(cache=True, inline="always")
@@ -280,36 +290,42 @@ def _radical_inverse_in(d: int):
 
         return radical_inverse_2
 
+    M = int(GROUP[d])
+    groups = -(-digits // M)
+    ubig = np.uint64(base ** M)
+    zero = np.uint64(0)
+    spent = np.uint64(GROUP_SIZE - 1)  # an empty slot: b^M < GROUP_SIZE
+
     @njit(cache=True, inline="always")
     def radical_inverse4(j0: np.int64, j1: np.int64, j2: np.int64, j3: np.int64,
-                         p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, p3: np.ndarray,
+                         a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, a3: np.ndarray,
                          t0: np.ndarray, t1: np.ndarray, t2: np.ndarray, t3: np.ndarray
                          ) -> tuple[float, float, float, float]:
-        # four points in step (their scrambles p, tail tables t): four independent
-        # chains of additions instead of one, which the core overlaps (~20 % faster).
-        # Once a point's index is spent its digits are 0, whose term perms[d, k, 0] · f
-        # is the tail's own product: each point gets the sums it gets alone.
-        inv = 1.0 / base
-        f = inv
+        # four points in step (their digit tables a, tail sums t): four independent
+        # chains of additions instead of one, which the core overlaps. A point whose
+        # index is spent adds the table's empty slot (+0.0, exact) while the others go
+        # on, and its own tail once at the end: each point gets the sums it gets alone
         x0 = x1 = x2 = x3 = 0.0
         i0, i1 = np.uint64(j0), np.uint64(j1)  # indices are ≥ 0: unsigned division
         i2, i3 = np.uint64(j2), np.uint64(j3)  # by a constant is cheapest
-        k = 0
-        while (i0 | i1 | i2 | i3) != np.uint64(0) and k < digits:
-            q0, q1, q2, q3 = i0 // ubase, i1 // ubase, i2 // ubase, i3 // ubase
-            x0 += p0[d, k, i0 - q0 * ubase] * f
-            x1 += p1[d, k, i1 - q1 * ubase] * f
-            x2 += p2[d, k, i2 - q2 * ubase] * f
-            x3 += p3[d, k, i3 - q3 * ubase] * f
+        m0 = m1 = m2 = m3 = 0
+        m = 0
+        while (i0 | i1 | i2 | i3) != zero and m < groups:
+            q0, q1, q2, q3 = i0 // ubig, i1 // ubig, i2 // ubig, i3 // ubig
+            x0 += a0[d, m, i0 - q0 * ubig if i0 != zero else spent]
+            x1 += a1[d, m, i1 - q1 * ubig if i1 != zero else spent]
+            x2 += a2[d, m, i2 - q2 * ubig if i2 != zero else spent]
+            x3 += a3[d, m, i3 - q3 * ubig if i3 != zero else spent]
+            m0 += i0 != zero
+            m1 += i1 != zero
+            m2 += i2 != zero
+            m3 += i3 != zero
             i0, i1, i2, i3 = q0, q1, q2, q3
-            f *= inv
-            k += 1
-        while k < digits:  # the indices' digits are spent: only zero digits are left
-            x0 += t0[d, k]
-            x1 += t1[d, k]
-            x2 += t2[d, k]
-            x3 += t3[d, k]
-            k += 1
+            m += 1
+        x0 += t0[d, m0]  # the zero digits left (0 once every group is taken)
+        x1 += t1[d, m1]
+        x2 += t2[d, m2]
+        x3 += t3[d, m3]
         top = 1.0 - 1.1102230246251565e-16
         return min(x0, top), min(x1, top), min(x2, top), min(x3, top)
 
@@ -320,25 +336,46 @@ _RI0, _RI1, _RI2, _RI3, _RI4 = (_radical_inverse_in(d) for d in range(N_DIMS))
 
 
 @njit(cache=True)
-def _tail_terms(perms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per scramble g ((G, N_DIMS, MAX_DIGITS, 11)): the term of a zero digit,
-    ``tail[g, d, k] = perms[g, d, k, 0] · f_k`` with ``f_k`` the radical inverse's own
-    running factor, and base 2's bit flips (bit 52 − k set where ``perms[g, 0, k, 0]``
-    is 1)."""
+def _digit_tables(perms: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per scramble g ((G, N_DIMS, MAX_DIGITS, 11)) the tables of
+    :func:`_radical_inverse_in` for bases 3–11: ``tab[g, d, m, v]``, the terms of the M
+    digits of v (base b, least significant first) at digits m·M …, each
+    ``perms[g, d, k, digit] · f_k`` with ``f_k`` = b^-(k+1) as the definition's running
+    product makes it (digits past ``DIGITS[d]`` add nothing); ``tail[g, d, m]``, what
+    the zero digits from m·M on add, summed from the last digit up (smallest first);
+    and base 2's bit flips (bit 52 − k set where ``perms[g, 0, k, 0]`` is 1)."""
     G = perms.shape[0]
-    tail = np.zeros((G, N_DIMS, MAX_DIGITS))
+    tab = np.zeros((G, N_DIMS, N_GROUPS, GROUP_SIZE))
+    tail = np.zeros((G, N_DIMS, N_GROUPS + 1))
     flips = np.zeros(G, np.uint64)
+    f = np.zeros(MAX_DIGITS)
     for g in range(G):
-        for d in range(N_DIMS):
-            inv = 1.0 / PRIMES[d]
-            f = inv
-            for k in range(DIGITS[d]):
-                tail[g, d, k] = perms[g, d, k, 0] * f
-                f *= inv
+        for d in range(1, N_DIMS):
+            base, digits, M = PRIMES[d], DIGITS[d], GROUP[d]
+            inv = 1.0 / base
+            fk = inv
+            for k in range(digits):
+                f[k] = fk
+                fk *= inv
+            for m in range(-(-digits // M)):
+                for v in range(base ** M):
+                    x = 0.0
+                    rest = v
+                    for i in range(M):
+                        k = m * M + i
+                        if k < digits:
+                            x += perms[g, d, k, rest % base] * f[k]
+                        rest //= base
+                    tab[g, d, m, v] = x
+            acc = 0.0
+            for k in range(digits - 1, -1, -1):
+                acc += perms[g, d, k, 0] * f[k]
+                if k % M == 0:
+                    tail[g, d, k // M] = acc
         for k in range(DIGITS[0]):
             if perms[g, 0, k, 0] == 1:
                 flips[g] |= np.uint64(1) << np.uint64(52 - k)
-    return tail, flips
+    return tab, tail, flips
 
 
 @njit(cache=True, parallel=True)
@@ -349,14 +386,14 @@ def halton_points_grouped(indices: np.ndarray, group: np.ndarray, perms: np.ndar
     one thread launch per frame instead of one per set, the same points. Four points at
     a time (the last ones repeated where ``n`` is not a multiple of 4)."""
     n = indices.shape[0]
-    tail, flips = _tail_terms(perms)
+    tab, tail, flips = _digit_tables(perms)
     out = np.empty((n, N_DIMS), dtype=np.float64)
     for b in prange((n + 3) // 4):
         a0 = 4 * b
         a1, a2, a3 = min(a0 + 1, n - 1), min(a0 + 2, n - 1), min(a0 + 3, n - 1)
         j0, j1, j2, j3 = indices[a0], indices[a1], indices[a2], indices[a3]
         g0, g1, g2, g3 = group[a0], group[a1], group[a2], group[a3]
-        p0, p1, p2, p3 = perms[g0], perms[g1], perms[g2], perms[g3]
+        p0, p1, p2, p3 = tab[g0], tab[g1], tab[g2], tab[g3]
         t0, t1, t2, t3 = tail[g0], tail[g1], tail[g2], tail[g3]
         out[a0, 0] = _RI0(j0, flips[g0])
         out[a1, 0] = _RI0(j1, flips[g1])

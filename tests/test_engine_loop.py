@@ -174,7 +174,9 @@ def test_halton_points_match_the_digit_by_digit_definition():
     perms = digit_permutations(11, 3, 2, (5, 3))
     got = halton_points(idx, perms)
     ref = np.array([_halton_reference(int(i), perms) for i in idx])
-    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(got[:, 0], ref[:, 0])  # base 2: the same bits
+    # bases 3–11: the same terms summed in another order (digit-group tables)
+    np.testing.assert_allclose(got[:, 1:], ref[:, 1:], rtol=0, atol=8 * 2.0**-53)
 
 
 def test_bench_pipeline_rows(point):
