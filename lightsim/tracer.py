@@ -730,6 +730,49 @@ class TraceResult:
     extra: dict = field(default_factory=dict)
 
 
+@njit(cache=True, nogil=True)
+def sort_by_source(position, normal, power, part, flags, source, n_sources, first=0):
+    """The records in stable order of ``source`` (a counting sort; ``source`` in
+    [first, first + n_sources)): the same arrays as gathering every array through
+    ``np.argsort(source, kind="stable")``."""
+    n = source.shape[0]
+    start = np.zeros(n_sources + 1, np.int64)
+    for i in range(n):
+        start[source[i] - first + 1] += 1
+    for s in range(n_sources):
+        start[s + 1] += start[s]
+    C = power.shape[1]
+    pos = np.empty((n, 3), position.dtype)
+    nrm = np.empty((n, 3), normal.dtype)
+    pw = np.empty((n, C), power.dtype)
+    pt = np.empty(n, part.dtype)
+    fl = np.empty(n, flags.dtype)
+    src = np.empty(n, source.dtype)
+    for i in range(n):
+        s = source[i]
+        k = start[s - first]
+        start[s - first] = k + 1
+        for a in range(3):
+            pos[k, a] = position[i, a]
+            nrm[k, a] = normal[i, a]
+        for c in range(C):
+            pw[k, c] = power[i, c]
+        pt[k] = part[i]
+        fl[k] = flags[i]
+        src[k] = s
+    return pos, nrm, pw, pt, fl, src
+
+
+def _by_source(parts: list[PhotonRecords], first: int, n: int) -> PhotonRecords:
+    """A chunk's per-bounce records (photons first … first + n − 1) as one part in photon
+    order, each photon's records in bounce order (:func:`sort_by_source`: the chunk's
+    share of what sorting the whole trace's records would give)."""
+    fields = ("position", "normal", "power", "part", "flags", "source")
+    whole = [np.concatenate([getattr(p, f) for p in parts]) if len(parts) > 1
+             else getattr(parts[0], f) for f in fields]
+    return PhotonRecords(*sort_by_source(*whole, n, first))
+
+
 def _caster_for(scene, caster: RayCaster | None, threads: int | None) -> RayCaster:
     """The ray caster of ``scene``: the wall (up to WALL_MAX_TRIANGLES) outside embree, so
     a ``caster`` of the same lamp with the wall elsewhere is reused with the wall moved
@@ -812,7 +855,7 @@ class PhotonTracer:
 
     def trace_points(self, points: np.ndarray, keys: np.ndarray, weight: np.ndarray | None = None,
                      group: np.ndarray | None = None, n_groups: int = 1,
-                     record_escaped: bool = False) -> TraceResult:
+                     record_escaped: bool = False, by_source: bool = False) -> TraceResult:
         """Emit and trace photons from sample points.
 
         Parameters
@@ -825,6 +868,9 @@ class PhotonTracer:
             Power factor per photon (SPT); photon power = Φ · weight.
         group, n_groups :
             Group (interleave set) of each photon; bookkeeping is returned per group.
+        by_source : bool
+            Records in photon order (each photon's in bounce order: a stable sort by
+            ``source``, done per chunk on the tracer's threads) instead of bounce-major.
         """
         points = np.ascontiguousarray(points, dtype=np.float64)
         # photon power Φ · weight, made per chunk by the kernels (no (n, C) array here)
@@ -837,15 +883,16 @@ class PhotonTracer:
             return self.emitters.sample(points[lo:hi])  # photon i from point i only
 
         return self._trace(source, len(points), power, weight, keys, group, n_groups,
-                           record_escaped)
+                           record_escaped, by_source)
 
     def trace(self, origins: np.ndarray, directions: np.ndarray, power: np.ndarray,
               keys: np.ndarray, group: np.ndarray | None = None, n_groups: int = 1,
-              record_escaped: bool = False) -> TraceResult:
+              record_escaped: bool = False, by_source: bool = False) -> TraceResult:
         """Trace photons given their origins (m), unit directions and powers (n, C).
 
         The ledger is (n_groups, len(LEDGER), C); per group it is summed in photon order,
         so a set's bookkeeping is bit-identical however sets are batched together.
+        ``by_source``: records in photon order, as :meth:`trace_points`.
         """
         def source(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
             # copies: the tracer moves its rays in place
@@ -854,12 +901,14 @@ class PhotonTracer:
 
         power = np.asarray(power, dtype=np.float64).reshape(len(origins), self.channels)
         return self._trace(source, len(origins), power, np.zeros(0), keys, group, n_groups,
-                           record_escaped)
+                           record_escaped, by_source)
 
     def _trace(self, source, n: int, power: np.ndarray, weight: np.ndarray, keys: np.ndarray,
-               group: np.ndarray | None, n_groups: int, record_escaped: bool) -> TraceResult:
+               group: np.ndarray | None, n_groups: int, record_escaped: bool,
+               by_source: bool = False) -> TraceResult:
         """Photon i: emitted by ``source``, flux ``power[i]`` × ``weight[i]`` (``weight``
-        empty: ``power[i]``)."""
+        empty: ``power[i]``); ``by_source``: records in photon order (each chunk's sorted
+        on its thread, the chunks in photon order)."""
         C = self.channels
         keys = np.asarray(keys, dtype=np.uint64)
         group = np.zeros(n, np.int64) if group is None else np.asarray(group, np.int64)
@@ -876,7 +925,8 @@ class PhotonTracer:
         for lo in range(0, n, self.batch):
             hi = min(n, lo + self.batch)
             pending.append(self._submit_batch(source, lo, hi, power, weight, keys,
-                                              record_escaped, sums, caustic_source, hi == n))
+                                              record_escaped, sums, caustic_source, hi == n,
+                                              by_source))
             if len(pending) > 1:
                 done.append(self._collect_batch(pending.pop(0)))
         done.extend(self._collect_batch(b) for b in pending)
@@ -975,7 +1025,7 @@ class PhotonTracer:
         return recs, escs, rays
 
     def _submit_batch(self, source, lo, hi, power, weight, keys, record_escaped, sums,
-                      caustic, last):
+                      caustic, last, by_source=False):
         """Queue one batch's chunks on the threads (or trace them here without a pool);
         :meth:`_collect_batch` waits for them. Each chunk books into its own per-photon
         ledger rows, summed per group in photon order as the chunks finish
@@ -1001,6 +1051,8 @@ class PhotonTracer:
                                     power[lo:hi], w, keys[lo:hi], rows, lo + a, caustic,
                                     record_escaped)
             sums.done(first + k, rows)
+            if by_source and out[0]:  # one part: the chunk's records in photon order
+                out = ([_by_source(out[0], lo + a, b - a)], *out[1:])
             return out
 
         if self._pool is None or len(bounds) <= 2:
@@ -1011,8 +1063,10 @@ class PhotonTracer:
 
     def _collect_batch(self, batch):
         """One batch's records in (bounce, photon) order (a list of the chunks' bounces,
-        concatenated once per trace by :meth:`_trace`) and its per-group ledger (final
-        once every earlier chunk of the trace is summed: :meth:`_TraceLedger.check`)."""
+        concatenated once per trace by :meth:`_trace`; with ``by_source`` every chunk has
+        one part, so they come in chunk order, which is photon order) and its per-group
+        ledger (final once every earlier chunk of the trace is summed:
+        :meth:`_TraceLedger.check`)."""
         led, chunks = batch
         chunks = [c.result() if hasattr(c, "result") else c for c in chunks]
         C = self.channels

@@ -98,3 +98,68 @@ def test_false_hits_match_the_numpy_test(scene):
     assert np.array_equal(close, ref) and np.array_equal(step, t_min[ref])
     empty = _false_hits(near[:0], o, d, prim, tfar, tracer.eps_floor, tri, fn)
     assert len(empty[0]) == len(empty[1]) == 0
+
+
+@pytest.mark.parametrize("case, record", [("covered", "wall"), ("headlight", "all")])
+def test_records_by_source_are_the_stable_sort_of_the_trace(case, record):
+    """``by_source``: each chunk's records sorted on the tracer's threads, the chunks in
+    photon order — the same arrays as one stable counting sort of the trace's
+    bounce-major records (what ``PhotonSets.shoot`` did after the trace), whatever the
+    threads, batches and chunks; ledgers and the rest as without it."""
+    from pathlib import Path
+
+    from lightsim.tracer import sort_by_source
+    from lightsim.validation.scenes.analytic import covered_paraboloid_case
+
+    if case == "covered":
+        scene = covered_paraboloid_case(resolution=(16, 16)).scene
+    else:  # diffuse parts: with record="all" a photon can leave records on two bounces
+        from lightsim.simulate import SimulateOptions, load
+
+        glb = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
+        scene = load(SimulateOptions(scene_path=str(glb)))
+    n = 20_000 if case == "covered" else 6_000
+    pts, keys = _photons(n)
+    group = np.random.default_rng(2).integers(0, 3, n)
+    want = None
+    for threads, batch, min_chunk in ((1, 262144, 8192), (2, 7000, 500), (2, 1501, 64)):
+        tr = PhotonTracer(scene, threads=threads, batch=batch, min_chunk=min_chunk,
+                          record=record)
+        base = tr.trace_points(pts, keys, group=group, n_groups=3)
+        r = base.records
+        assert np.any(np.diff(r.source) < 0)  # bounce-major: not in photon order
+        sorted_ = sort_by_source(r.position, r.normal, r.power, r.part, r.flags, r.source, n)
+        if want is None:
+            want = sorted_
+            if record == "all":  # photons with records on two bounces, in bounce order
+                assert len(np.unique(want[5])) < len(want[5])
+        got = tr.trace_points(pts, keys, group=group, n_groups=3, by_source=True)
+        for f, w, s_ in zip(("position", "normal", "power", "part", "flags", "source"), want,
+                            sorted_, strict=True):
+            assert np.array_equal(getattr(got.records, f), s_), (threads, batch, f)
+            assert np.array_equal(s_, w), (threads, batch, f)  # the same for any batching
+        for f in ("emitted", "ledger", "caustic_source"):
+            assert np.array_equal(getattr(got, f), getattr(base, f)), f
+        assert got.rays == base.rays
+    empty = PhotonTracer(scene, threads=2).trace_points(pts[:0], keys[:0], by_source=True)
+    assert len(empty.records) == 0
+
+
+def test_sort_by_source_with_an_offset():
+    """The chunk sort: sources in [first, first + n), the same order and values as the
+    sort of sources from 0."""
+    from lightsim.tracer import sort_by_source
+
+    rng = np.random.default_rng(4)
+    n, first, m = 500, 10_000, 60
+    src = rng.integers(0, m, n).astype(np.int64)
+    arrays = (rng.random((n, 3)).astype(np.float32), rng.random((n, 3)).astype(np.float32),
+              rng.random((n, 2)).astype(np.float32), rng.integers(0, 5, n).astype(np.int32),
+              rng.integers(0, 3, n).astype(np.uint8))
+    a = sort_by_source(*arrays, src, m)
+    b = sort_by_source(*arrays, src + first, m, first)
+    for x, y in zip(a[:5], b[:5], strict=True):
+        assert np.array_equal(x, y)
+    assert np.array_equal(a[5] + first, b[5])
+    order = np.argsort(src, kind="stable")
+    assert np.array_equal(a[0], arrays[0][order]) and np.array_equal(a[5], src[order])

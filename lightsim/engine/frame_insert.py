@@ -10,6 +10,8 @@ compares them with the per-set NumPy path (:meth:`PhotonSets.insert`).
 kernel                   replaces
 =======================  =====================================================
 :func:`sort_by_source`   ``np.argsort(source, kind="stable")`` and six gathers
+                         (:mod:`lightsim.tracer`'s, which sorts each chunk's
+                         records with it when asked: ``by_source``)
 :func:`insert_wall`      ``np.isin(part, ids)`` and the wall's h, v; one
                          ``bincount`` per window offset and channel (probe
                          windows); ``np.unique`` over (set, cell) and one
@@ -22,38 +24,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from lightsim.tracer import sort_by_source
 
-@njit(cache=True, nogil=True)
-def sort_by_source(position, normal, power, part, flags, source, n_sources):
-    """The records in stable order of ``source`` (a counting sort; ``source`` in
-    [0, n_sources)): the same arrays as gathering every array through
-    ``np.argsort(source, kind="stable")``."""
-    n = source.shape[0]
-    start = np.zeros(n_sources + 1, np.int64)
-    for i in range(n):
-        start[source[i] + 1] += 1
-    for s in range(n_sources):
-        start[s + 1] += start[s]
-    C = power.shape[1]
-    pos = np.empty((n, 3), position.dtype)
-    nrm = np.empty((n, 3), normal.dtype)
-    pw = np.empty((n, C), power.dtype)
-    pt = np.empty(n, part.dtype)
-    fl = np.empty(n, flags.dtype)
-    src = np.empty(n, source.dtype)
-    for i in range(n):
-        s = source[i]
-        k = start[s]
-        start[s] = k + 1
-        for a in range(3):
-            pos[k, a] = position[i, a]
-            nrm[k, a] = normal[i, a]
-        for c in range(C):
-            pw[k, c] = power[i, c]
-        pt[k] = part[i]
-        fl[k] = flags[i]
-        src[k] = s
-    return pos, nrm, pw, pt, fl, src
+__all__ = ["insert_wall", "sort_by_source"]
 
 
 _BIG = 2.0 ** 62  # |u| beyond it: no window can hold the photon (and no int64 overflow)

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from lightsim.engine.config import RunConfig
-from lightsim.engine.frame_insert import insert_wall, sort_by_source
+from lightsim.engine.frame_insert import insert_wall
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
 from lightsim.sampling import (
@@ -384,17 +384,17 @@ class PhotonSets:
         # every set's Halton points in one parallel pass (one thread launch per frame)
         points = halton_points_grouped(np.concatenate(owners), group, np.stack(perms))
         t1 = time.perf_counter()
+        # the records in photon order (a stable sort by photon index, each chunk's on the
+        # tracer's threads): a set's photons are one index range, so its records are one
+        # slice, in the order (photon, bounce) that keeps maps identical across batching.
+        # What every store needs (on the wall?, h, v) is computed once per frame, not
+        # once per set.
         res = self.tracer.trace_points(points, np.concatenate(keys), np.concatenate(weights),
-                                       group=group, n_groups=len(self.set_indices))
+                                       group=group, n_groups=len(self.set_indices),
+                                       by_source=True)
         t2 = time.perf_counter()
         rec = res.records
         offsets = np.cumsum([0] + [len(o) for o in owners])
-        # One stable sort by photon index for the whole frame (a compiled counting sort):
-        # a set's photons are one index range, so its records become one slice, in the
-        # order (photon, bounce) that keeps maps identical across batching. What every
-        # store needs (on the wall?, h, v) is computed once per frame, not once per set.
-        rec = PhotonRecords(*sort_by_source(rec.position, rec.normal, rec.power, rec.part,
-                                            rec.flags, rec.source, int(offsets[-1])))
         bounds = np.searchsorted(rec.source, offsets)
         frame_level = self._insert_frame(rec, bounds, offsets)
         wall = None if frame_level else _WallHits(self, rec)
