@@ -7,7 +7,9 @@ applies the surface optics to every ray and compacts the survivors in place, wri
 float32 rays embree casts next. No OpenMP region runs in the loop, so no spinning worker
 competes with embree for the two cores; chunks are independent, so the result does not
 depend on the number of threads or chunks (photon i is a function of its sample point and
-key). Records come back bounce-major, in photon order, as one wavefront would give them.
+key). Records come back bounce-major, in photon order, as one wavefront would give them;
+with ``by_source`` (what a run's frames ask) in photon order, each photon's in bounce
+order, sorted chunk by chunk on the tracer's threads.
 
 The interaction (in :func:`_bounce`) dispatches to the optics of the surface hit
 (:mod:`lightsim.materials`: the same flux rules as its BSDF kernels, the directions from
