@@ -765,6 +765,13 @@ def sort_by_source(position, normal, power, part, flags, source, n_sources, firs
     return pos, nrm, pw, pt, fl, src
 
 
+def _record_buffer(rows: int, C: int) -> RecordBuffer:
+    """Empty record arrays of ``rows`` rows."""
+    return RecordBuffer(np.empty((rows, 3), np.float32), np.empty((rows, 3), np.float32),
+                        np.empty((rows, C), np.float32), np.empty(rows, np.int32),
+                        np.empty(rows, np.uint8), np.empty(rows, np.int64))
+
+
 def _by_source(parts: list[PhotonRecords], first: int, n: int) -> PhotonRecords:
     """A chunk's per-bounce records (photons first … first + n − 1) as one part in photon
     order, each photon's records in bounce order (:func:`sort_by_source`: the chunk's
@@ -997,6 +1004,11 @@ class PhotonTracer:
         escs: list[tuple[np.ndarray, np.ndarray]] = []
         rays = 0
         m = n
+        # one record buffer for the chunk, each bounce writing after the last: with
+        # record="wall" a photon records once (the wall ends it), so n rows hold them all;
+        # a buffer per bounce kept m rows alive for the few records most bounces make
+        buf = _record_buffer(n, C)
+        r0 = 0
         for depth in range(self.max_depth):
             if m == 0:
                 break
@@ -1007,9 +1019,9 @@ class PhotonTracer:
                 t1 = clock()
                 t_cast += t1 - t0
             rays += m
-            rb = RecordBuffer(np.empty((m, 3), np.float32), np.empty((m, 3), np.float32),
-                              np.empty((m, C), np.float32), np.empty(m, np.int32),
-                              np.empty(m, np.uint8), np.empty(m, np.int64))
+            if len(buf.source) - r0 < m:  # record="all": a bounce may record every ray
+                buf, r0 = _record_buffer(max(2 * len(buf.source), m), C), 0  # parts kept
+            rb = RecordBuffer(*(a[r0:] for a in buf))
             esc = ((np.empty((m, 3), np.float32), np.empty((m, C))) if record_escaped
                    else (np.empty((0, 3), np.float32), np.empty((0, C))))
             m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
@@ -1017,7 +1029,8 @@ class PhotonTracer:
                               d32, esc[0], esc[1], record_escaped)
             if clock:
                 t_bounce += clock() - t1
-            recs.append(PhotonRecords(*(a[:r] for a in rb)))
+            recs.append(PhotonRecords(*(a[r0:r0 + r] for a in buf)))
+            r0 += r
             escs.append((esc[0][:e], esc[1][:e]))
         if clock:
             with self._stages_lock:
