@@ -772,16 +772,6 @@ def _record_buffer(rows: int, C: int) -> RecordBuffer:
                         np.empty(rows, np.uint8), np.empty(rows, np.int64))
 
 
-def _by_source(parts: list[PhotonRecords], first: int, n: int) -> PhotonRecords:
-    """A chunk's per-bounce records (photons first … first + n − 1) as one part in photon
-    order, each photon's records in bounce order (:func:`sort_by_source`: the chunk's
-    share of what sorting the whole trace's records would give)."""
-    fields = ("position", "normal", "power", "part", "flags", "source")
-    whole = [np.concatenate([getattr(p, f) for p in parts]) if len(parts) > 1
-             else getattr(parts[0], f) for f in fields]
-    return PhotonRecords(*sort_by_source(*whole, n, first))
-
-
 def _caster_for(scene, caster: RayCaster | None, threads: int | None) -> RayCaster:
     """The ray caster of ``scene``: the wall (up to WALL_MAX_TRIANGLES) outside embree, so
     a ``caster`` of the same lamp with the wall elsewhere is reused with the wall moved
@@ -979,12 +969,13 @@ class PhotonTracer:
         return Hits(prim, tfar, bu, bv)
 
     def _trace_chunk(self, source, lo: int, hi: int, power, weight, keys, ledger, base,
-                     caustic, record_escaped):
+                     caustic, record_escaped, by_source=False):
         """Trace photons lo..hi to the end in this thread: emit, then per bounce one embree
         cast and one fused interaction + compaction kernel. ``source(lo, hi)`` returns new
         arrays of origins and directions (they become the wavefront); photon lo + i is
         photon base + i of the trace (its records' source), its ledger row is
-        ``ledger[i]``. Returns per-bounce records, escaped photons and the ray count."""
+        ``ledger[i]``. Returns per-bounce records (with ``by_source`` one part, sorted by
+        photon: :func:`sort_by_source`), escaped photons and the ray count."""
         n = hi - lo
         C = self.channels
         clock = time.perf_counter if self.stages is not None else None
@@ -1032,6 +1023,12 @@ class PhotonTracer:
             recs.append(PhotonRecords(*(a[r0:r0 + r] for a in buf)))
             r0 += r
             escs.append((esc[0][:e], esc[1][:e]))
+        if by_source and recs:  # one part: the chunk's records in photon order
+            whole = (PhotonRecords(*(a[:r0] for a in buf)) if r0 == sum(map(len, recs))
+                     else PhotonRecords.concatenate(recs, C))  # buffers replaced: join them
+            recs = [PhotonRecords(*sort_by_source(
+                whole.position, whole.normal, whole.power, whole.part, whole.flags,
+                whole.source, n, base))]
         if clock:
             with self._stages_lock:
                 for k, v in (("emit", t_emit), ("start", t_start), ("cast", t_cast),
@@ -1064,10 +1061,8 @@ class PhotonTracer:
             rows = self._ledgers.get(b - a)
             out = self._trace_chunk(lambda x, y: source(lo + x, lo + y), a, b,
                                     power[lo:hi], w, keys[lo:hi], rows, lo + a, caustic,
-                                    record_escaped)
+                                    record_escaped, by_source)
             sums.done(first + k, rows)
-            if by_source and out[0]:  # one part: the chunk's records in photon order
-                out = ([_by_source(out[0], lo + a, b - a)], *out[1:])
             return out
 
         if self._pool is None or len(bounds) <= 2:
