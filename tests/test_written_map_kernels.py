@@ -154,17 +154,20 @@ def test_the_branch_thread_in_a_forked_child_after_the_parent_used_it():
         assert pool.apply_async(_on_branch_thread, (41,)).get(timeout=60) == 42
 
 
-@pytest.mark.parametrize("H, W, C, emitted", [(1, 1, 1, 1), (5, 7, 3, 123_457),
-                                              (16, 40, 1, 2**40 + 3)])
-def test_raster_lux_is_the_normalised_window_sums_cast(H, W, C, emitted):
+@pytest.mark.parametrize("H, W, C, emitted, scale", [
+    (1, 1, 1, 1, 1.0), (5, 7, 3, 123_457, 1.0), (16, 40, 1, 2**40 + 3, 1.0),
+    (3, 64, 1, 999, 1e-30), (9, 33, 2, 7, 1e30), (4, 2, 1, 5, 1.0)])
+def test_raster_lux_is_the_normalised_window_sums_cast(H, W, C, emitted, scale):
     """A set's part of the written map in one pass (:func:`raster_lux`): the window sums
     of every pixel, normalised by normalise_flux and cast to float32, bit for bit (sums
-    over clipped windows, empty cells, a tiny and a huge photon count)."""
+    over clipped windows, windows wider than the wall, rows with unclipped windows on
+    one and on several channels, empty cells, a tiny and a huge photon count, powers of
+    1e-30 and 1e30 lm)."""
     from lightsim.engine.estimator import normalise_flux
     from lightsim.render.ici import raster_lux, raster_queries, window_sums
 
     rng = np.random.default_rng(H * W * C)
-    sub = rng.random((2 * H, 2 * W, C)) * (rng.random((2 * H, 2 * W, 1)) < 0.3)
+    sub = scale * rng.random((2 * H, 2 * W, C)) * (rng.random((2 * H, 2 * W, 1)) < 0.3)
     sides = np.arange(1, 6)
     rows, cols, geometry = raster_queries(H, W, tuple(int(m) for m in sides))
     sums, cells = window_sums(sub, rows, cols, sides, geometry)

@@ -221,8 +221,11 @@ def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray, emitted: f
     columns, then along the rows: the same additions in the same order) and the four
     corners of each window as its fancy indexing reads them, so the sums are NumPy's bit
     for bit; no (H, W) temporaries per corner and side (the written map's largest cost
-    on a 640 × 256 wall). Serial: 4× NumPy's time on that wall, where ``prange`` (thread
-    start-up per call, 16 calls per map) was slower than NumPy.
+    on a 640 × 256 wall). Both sums are made in one pass a row at a time (the columns'
+    running sums in one row of their own), and a row's windows that the wall does not
+    clip share one divisor, so that loop runs without per-pixel bounds (it vectorises):
+    2.1 against 6.1 ms a set at 640 × 256 (the earlier two-pass form). Serial: ``prange``
+    (thread start-up per call, 16 calls per map) was slower.
 
     ``emitted`` > 0: each sum is written normalised instead, ``sum / ((emitted ·
     max(cells, 1)) · area)`` — :func:`~lightsim.engine.estimator.normalise_flux` of the
@@ -231,30 +234,61 @@ def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray, emitted: f
     sums and quotient in between (:func:`raster_lux`)."""
     H2, W2, C = sub.shape
     H, W = H2 // 2, W2 // 2
-    sat = np.zeros((H2 + 1, W2 + 1, C))
-    for r in range(H2):  # down the columns, a row at a time (contiguous)
-        for c in range(W2):
-            for k in range(C):
-                sat[r + 1, c + 1, k] = sat[r, c + 1, k] + sub[r, c, k]
+    sat = np.empty((H2 + 1, W2 + 1, C))
+    for c in range(W2 + 1):
+        for k in range(C):
+            sat[0, c, k] = 0.0
+    col = np.zeros((W2, C))  # the column sums down to the current row
     for r in range(H2):
         for k in range(C):
+            sat[r + 1, 0, k] = 0.0
             acc = 0.0
             for c in range(W2):
-                acc += sat[r + 1, c + 1, k]
+                x = col[c, k] + sub[r, c, k]
+                col[c, k] = x
+                acc += x
                 sat[r + 1, c + 1, k] = acc
     for r in range(H):
         for j in range(sides.shape[0]):
             m = sides[j]
             r0, r1 = max(2 * r + 1 - m, 0), min(2 * r + 1 + m, H2)
-            for c in range(W):
-                c0, c1 = max(2 * c + 1 - m, 0), min(2 * c + 1 + m, W2)
-                q = r * W + c
-                den = 1.0  # x / 1.0 is x: the raw sums where not normalised
-                if emitted > 0:
-                    den = (emitted * max(np.float64((r1 - r0) * (c1 - c0)), 1.0)) * area
-                for k in range(C):
-                    out[j, q, k] = (sat[r1, c1, k] - sat[r0, c1, k] - sat[r1, c0, k]
-                                    + sat[r0, c0, k]) / den
+            # columns ca … cb − 1: the window 2c + 1 ± m lies inside the wall
+            ca = min(m // 2, W)
+            cb = max(min((W2 - 1 - m) // 2 + 1, W), ca)
+            for c in range(ca):
+                _clipped_window(sat, out, j, r, c, m, r0, r1, W, W2, emitted, area)
+            den = 1.0  # x / 1.0 is x: the raw sums where not normalised
+            if emitted > 0:
+                den = (emitted * max(np.float64((r1 - r0) * (2 * m)), 1.0)) * area
+            q0 = r * W
+            if C == 1:
+                for c in range(ca, cb):
+                    c0 = 2 * c + 1 - m
+                    c1 = c0 + 2 * m
+                    out[j, q0 + c, 0] = (sat[r1, c1, 0] - sat[r0, c1, 0] - sat[r1, c0, 0]
+                                         + sat[r0, c0, 0]) / den
+            else:
+                for c in range(ca, cb):
+                    c0 = 2 * c + 1 - m
+                    c1 = c0 + 2 * m
+                    for k in range(C):
+                        out[j, q0 + c, k] = (sat[r1, c1, k] - sat[r0, c1, k]
+                                             - sat[r1, c0, k] + sat[r0, c0, k]) / den
+            for c in range(cb, W):
+                _clipped_window(sat, out, j, r, c, m, r0, r1, W, W2, emitted, area)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _clipped_window(sat, out, j, r, c, m, r0, r1, W, W2, emitted, area):
+    """:func:`_raster_sums`' window of side ``m`` at pixel (r, c), clipped to the wall."""
+    c0, c1 = max(2 * c + 1 - m, 0), min(2 * c + 1 + m, W2)
+    q = r * W + c
+    den = 1.0
+    if emitted > 0:
+        den = (emitted * max(np.float64((r1 - r0) * (c1 - c0)), 1.0)) * area
+    for k in range(out.shape[2]):
+        out[j, q, k] = (sat[r1, c1, k] - sat[r0, c1, k] - sat[r1, c0, k]
+                        + sat[r0, c0, k]) / den
 
 
 def raster_lux(sub: np.ndarray, sides: np.ndarray, emitted: int, area: float,
