@@ -30,22 +30,57 @@ def test_window_sums_match_brute_force_and_clip_at_the_wall():
     assert np.allclose(sums[0], sub.reshape(H, 2, W, 2, C).sum(axis=(1, 3)).reshape(-1, C))
 
 
+def _numpy_window_sums(sub: np.ndarray, geometry) -> np.ndarray:
+    """The definition the compiled paths reproduce: NumPy's summed-area table (``cumsum``
+    down the columns, then along the rows) and each window's four corners by fancy
+    indexing."""
+    H2, W2, C = sub.shape
+    sat = np.zeros((H2 + 1, W2 + 1, C))
+    np.cumsum(sub, axis=0, out=sat[1:, 1:])
+    np.cumsum(sat[1:, 1:], axis=1, out=sat[1:, 1:])
+    return np.stack([sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
+                     for r0, r1, c0, c1 in geometry.bounds])
+
+
 @pytest.mark.parametrize("H,W,C", [(7, 9, 2), (1, 1, 1), (16, 40, 3), (3, 1, 1)])
 def test_raster_window_sums_are_numpys_bit_for_bit(H, W, C):
-    """The compiled pass over every pixel against the summed-area table NumPy builds for
-    any query list (the same geometry with the raster flag off)."""
+    """The compiled pass over every pixel, and the compiled table for any query list
+    (the same geometry with the raster flag off, with and without its stacked bounds),
+    against the summed-area table NumPy builds, bit for bit across 60 decades."""
     rng = np.random.default_rng(H * W)
     sub = rng.random((2 * H, 2 * W, C)) * 10.0 ** rng.integers(-30, 30, (2 * H, 2 * W, C))
     rows, cols = np.divmod(np.arange(H * W), W)
     sides = np.array([1, 2, 3, 5])
     geometry = ici.WindowGeometry.of(H, W, rows, cols, sides)
     assert geometry.raster
+    want = _numpy_window_sums(sub, geometry)
     fast, cells = ici.window_sums(sub, rows, cols, sides, geometry)
-    slow, cells_slow = ici.window_sums(sub, rows, cols, sides,
-                                       ici.WindowGeometry(geometry.bounds, geometry.cells))
-    np.testing.assert_array_equal(fast, slow)
-    np.testing.assert_array_equal(cells, cells_slow)
+    np.testing.assert_array_equal(fast, want)
+    for general in (ici.WindowGeometry(geometry.bounds, geometry.cells),
+                    ici.WindowGeometry(geometry.bounds, geometry.cells,
+                                       stacked=geometry.stacked)):
+        slow, cells_slow = ici.window_sums(sub, rows, cols, sides, general)
+        np.testing.assert_array_equal(slow, want)
+        np.testing.assert_array_equal(cells, cells_slow)
     assert not ici.WindowGeometry.of(H, W, rows[::-1], cols[::-1], sides).raster or H * W == 1
+
+
+def test_window_sums_of_a_query_list_are_numpys_bit_for_bit():
+    """Queries too many for the direct sums and not the raster (the grid probes of a
+    small wall): the compiled summed-area table, in any order, with repeats and the
+    wall's corners."""
+    H, W, C = 24, 20, 2
+    rng = np.random.default_rng(5)
+    sub = rng.random((2 * H, 2 * W, C)) * 10.0 ** rng.integers(-30, 30, (2 * H, 2 * W, C))
+    rows = np.r_[rng.integers(0, H, 300), 0, H - 1, 0, H - 1, 7, 7]
+    cols = np.r_[rng.integers(0, W, 300), 0, W - 1, W - 1, 0, 3, 3]
+    sides = np.array([1, 2, 3, 4])
+    geometry = ici.WindowGeometry.of(H, W, rows, cols, sides)
+    assert not geometry.raster and not geometry.direct
+    sums, _ = ici.window_sums(sub, rows, cols, sides, geometry)
+    np.testing.assert_array_equal(sums, _numpy_window_sums(sub, geometry))
+    empty = ici.WindowGeometry.of(H, W, rows[:0], cols[:0], sides)
+    assert ici.window_sums(sub, rows[:0], cols[:0], sides, empty)[0].shape == (4, 0, C)
 
 
 @pytest.mark.parametrize("H,W,C", [(64, 160, 3), (256, 640, 1), (40, 30, 2)])

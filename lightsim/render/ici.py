@@ -140,6 +140,7 @@ class WindowGeometry:
     cells: np.ndarray
     raster: bool = False  # every pixel in row order: summed by :func:`_raster_sums`
     direct: bool = False  # few queries: their windows summed cell by cell (_direct_sums)
+    stacked: np.ndarray | None = None  # bounds as one (J, 4, Q) int64 array (_bounded_sums)
 
     @classmethod
     def of(cls, H: int, W: int, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray
@@ -152,8 +153,9 @@ class WindowGeometry:
         # (the grid probes of a frame's error figure: 2 048 × 8² cells against 2 × 2H × 2W)
         m = int(np.max(sides)) if len(sides) else 0
         direct = not raster and len(rows) * (2 * m) ** 2 <= 2 * (2 * H) * (2 * W)
-        return cls(tuple(_bounds(2 * H, 2 * W, rows, cols, sides)),
-                   window_cells(H, W, rows, cols, sides), raster, direct)
+        bounds = tuple(_bounds(2 * H, 2 * W, rows, cols, sides))
+        stacked = np.array(bounds, dtype=np.int64).reshape(len(bounds), 4, len(rows))
+        return cls(bounds, window_cells(H, W, rows, cols, sides), raster, direct, stacked)
 
 
 @lru_cache(maxsize=4)
@@ -204,13 +206,49 @@ def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.n
                      np.asarray(rows, np.int64), np.asarray(cols, np.int64),
                      np.asarray(sides, np.int64), sums)
         return sums, geometry.cells
-    sat = np.zeros((H2 + 1, W2 + 1, C))
-    np.cumsum(sub, axis=0, out=sat[1:, 1:])
-    np.cumsum(sat[1:, 1:], axis=1, out=sat[1:, 1:])
-    sums = np.zeros((len(sides), len(rows), C))
-    for j, (r0, r1, c0, c1) in enumerate(geometry.bounds):
-        sums[j] = sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
+    sums = np.empty((len(sides), len(rows), C))
+    stacked = (np.array(geometry.bounds, dtype=np.int64).reshape(len(sides), 4, len(rows))
+               if geometry.stacked is None else geometry.stacked)
+    _bounded_sums(_summed_area(np.ascontiguousarray(sub, dtype=np.float64)), stacked, sums)
     return sums, geometry.cells
+
+
+@njit(cache=True, nogil=True)
+def _summed_area(sub: np.ndarray) -> np.ndarray:
+    """(2H + 1, 2W + 1, C) summed-area table of a lattice (2H, 2W, C), zero first row and
+    column: NumPy's ``cumsum`` down the columns and then along the rows, the same
+    additions in the same order (bit for bit), in one pass a row at a time (the columns'
+    running sums in one row of their own)."""
+    H2, W2, C = sub.shape
+    sat = np.empty((H2 + 1, W2 + 1, C))
+    for c in range(W2 + 1):
+        for k in range(C):
+            sat[0, c, k] = 0.0
+    col = np.zeros((W2, C))  # the column sums down to the current row
+    for r in range(H2):
+        for k in range(C):
+            sat[r + 1, 0, k] = 0.0
+            acc = 0.0
+            for c in range(W2):
+                x = col[c, k] + sub[r, c, k]
+                col[c, k] = x
+                acc += x
+                sat[r + 1, c + 1, k] = acc
+    return sat
+
+
+@njit(cache=True, nogil=True)
+def _bounded_sums(sat: np.ndarray, bounds: np.ndarray, out: np.ndarray) -> None:
+    """out[j, q] = the sum of the window ``bounds[j, :, q]`` (r0, r1, c0, c1) read from
+    the summed-area table ``sat``: its four corners as NumPy's fancy indexing reads them,
+    in the same order."""
+    J, _, Q = bounds.shape
+    for j in range(J):
+        for q in range(Q):
+            r0, r1 = bounds[j, 0, q], bounds[j, 1, q]
+            c0, c1 = bounds[j, 2, q], bounds[j, 3, q]
+            for k in range(sat.shape[2]):
+                out[j, q, k] = sat[r1, c1, k] - sat[r0, c1, k] - sat[r1, c0, k] + sat[r0, c0, k]
 
 
 @njit(cache=True, nogil=True)
@@ -234,20 +272,7 @@ def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray, emitted: f
     sums and quotient in between (:func:`raster_lux`)."""
     H2, W2, C = sub.shape
     H, W = H2 // 2, W2 // 2
-    sat = np.empty((H2 + 1, W2 + 1, C))
-    for c in range(W2 + 1):
-        for k in range(C):
-            sat[0, c, k] = 0.0
-    col = np.zeros((W2, C))  # the column sums down to the current row
-    for r in range(H2):
-        for k in range(C):
-            sat[r + 1, 0, k] = 0.0
-            acc = 0.0
-            for c in range(W2):
-                x = col[c, k] + sub[r, c, k]
-                col[c, k] = x
-                acc += x
-                sat[r + 1, c + 1, k] = acc
+    sat = _summed_area(sub)
     for r in range(H):
         for j in range(sides.shape[0]):
             m = sides[j]
