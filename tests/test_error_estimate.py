@@ -77,7 +77,8 @@ def test_windows_measure_the_pixel_mean():
     from lightsim.validation.scenes import analytic as an
 
     case = an.isotropic_case()
-    cfg = RunConfig(seed=2, interleave=2, estimator="knn", frame_photons=250_000)
+    cfg = RunConfig(seed=2, interleave=2, estimator="knn", bandwidth="knn",
+                    frame_photons=250_000)  # the windows are the kNN figure's store
     with Session(case.scene, cfg) as s:
         est = s.run(photons=1_000_000)
         hv = s.probes_hv[:s.grid_count]

@@ -39,22 +39,33 @@ def _assert_same_stores(a: PhotonSets, b: PhotonSets) -> None:
         assert (x.emitted, x.caustic, x.records) == (y.emitted, y.caustic, y.records)
 
 
-@pytest.mark.parametrize("case, channels, resolution", [
-    ("paraboloid", 1, (40, 40)), ("paraboloid", 3, (17, 23)), ("isotropic", 1, (5, 7))])
-def test_frame_insertion_is_the_per_set_insertion_bit_for_bit(case, channels, resolution):
+@pytest.mark.parametrize("case, channels, resolution, bandwidth", [
+    ("paraboloid", 1, (40, 40), "ici"), ("paraboloid", 3, (17, 23), "ici"),
+    ("isotropic", 1, (5, 7), "ici"), ("paraboloid", 1, (40, 40), "knn"),
+    ("isotropic", 3, (5, 7), "knn")])
+def test_frame_insertion_is_the_per_set_insertion_bit_for_bit(case, channels, resolution,
+                                                              bandwidth):
+    """Every store as the per-set path makes it: with ICI the lattice (and no probe
+    windows: only the kNN figure reads them), without it the probe windows."""
     make = paraboloid_case if case == "paraboloid" else isotropic_case
     scene = make(resolution=resolution).scene
     config = RunConfig(frame_photons=8_000, interleave=2, seed=3, channels=channels,
-                       probe_grid=(16, 8) if case == "paraboloid" else (32, 32))
+                       probe_grid=(16, 8) if case == "paraboloid" else (32, 32),
+                       bandwidth=bandwidth)
     fast, ref = _sets(scene, config, False), _sets(scene, config, True)
     for _ in range(3):  # frames accumulate into stores that already hold photons
         fast.shoot()
         ref.shoot()
         _assert_same_stores(fast, ref)
-    assert any(st.lattice is not None for st in fast.sets.values())
     st = fast.sets[0]  # the compiled pass filled it (a row of the stacked stores)
-    assert st.lattice.base is fast._blocks["lattice"] and ref.sets[0].lattice.base is None
-    assert any(st.windows.any() for st in fast.sets.values())
+    if bandwidth == "ici":
+        assert any(st.lattice is not None for st in fast.sets.values())
+        assert st.lattice.base is fast._blocks["lattice"] and ref.sets[0].lattice.base is None
+        assert all(st.windows is None for st in fast.sets.values())
+    else:
+        assert all(st.lattice is None for st in fast.sets.values())
+        assert st.windows.base is fast._blocks["windows"] and ref.sets[0].windows.base is None
+        assert any(st.windows.any() for st in fast.sets.values())
     fast.reset()  # a reset starts from empty stores again
     ref.reset()
     fast.shoot(2_000)

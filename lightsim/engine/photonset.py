@@ -15,7 +15,8 @@ store               unit         kept when
 ==================  ===========  ====================================================
 ``photonmap``       lm           kNN and radius estimators (built when first queried)
 ``bins``            lm           ``estimator=bin``: power per wall pixel
-``windows``         lm           kNN/radius: power in the pixel window of each grid probe
+``windows``         lm           kNN/radius without ICI: power in the pixel window of
+                                 each grid probe (the kNN figure's blur reference)
 ``lattice``         lm           ``bandwidth=ici``: power per half-pixel cell
 ``wall_moments``    lm, lm², –   kNN/radius: ΣΦ, ΣΦ², count of luminous wall photons
 ``apertures``       lm           regulation detector apertures
@@ -339,7 +340,8 @@ class PhotonSets:
             structure = "hash" if self.config.estimator == "radius" else self.config.structure
             st.photonmap = DeferredPhotonMap(structure, self.channels)
             nh, nv = self._grid_shape
-            st.windows = np.zeros((nh * nv, self.channels))
+            if not self.config.uses_ici:  # the ICI figure reads the lattice instead
+                st.windows = np.zeros((nh * nv, self.channels))
             st.wall_moments = np.zeros(3)
         return st
 
@@ -459,13 +461,16 @@ class PhotonSets:
         dh, dv = fr.pixel_size_m
         (i0, i1), (j0, j1) = window_offsets(0.5 * dh / pitch_h), window_offsets(0.5 * dv / pitch_v)
         reach = (i0, i1, j0, j1, nh, nv)
+        if self.config.uses_ici:  # no probe windows (see the table above): empty reach
+            reach = (0, -1, 0, -1, nh, nv)
         n_slots = (reach[1] - reach[0] + 1) * (reach[3] - reach[2] + 1)
         need_hv = any(st.apertures is not None for st in sets)
         axes = np.array([fr.centre, fr.h_axis, fr.v_axis], np.float64)
         win_geometry = (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh,
                         0.5 * dv)
         lat_geometry = (float(h0), float(v1), float(dh), float(dv))
-        windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
+        windows = (np.zeros((len(sets), 0, C)) if self.config.uses_ici
+                   else self._stacked(sets, "windows", (nh * nv, C), ~none))
         W, H = fr.resolution
         lattice = (self._stacked(sets, "lattice", (4 * H * W, C), none)
                    if self.config.uses_ici else np.zeros((0, 0, C)))
@@ -474,9 +479,9 @@ class PhotonSets:
             """Sets g0..g1-1 into their stores (the rows of those sets only, with work
             arrays of their own): :func:`insert_wall`'s outputs, then the apertures."""
             win_work = self._blocks.get(f"windows work {name}")
-            if win_work is None or win_work.shape != (n_slots, nh * nv, C):
+            if win_work is None or win_work.shape != (n_slots, windows.shape[1], C):
                 win_work = self._blocks[f"windows work {name}"] = np.zeros(
-                    (n_slots, nh * nv, C))
+                    (n_slots, windows.shape[1], C))
             work = np.zeros(0, np.int32)
             if self.config.uses_ici:
                 work = self._blocks.get(f"lattice work {name}")
@@ -571,7 +576,8 @@ class PhotonSets:
             st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
             if len(idx):
                 power = rec.power[idx].astype(np.float64)
-                self._add_to_windows(st, h, v, power)
+                if st.windows is not None:
+                    self._add_to_windows(st, h, v, power)
                 self._add_to_lattice(st, h, v, power)
 
     def _add_to_bins(self, st: SetState, h: np.ndarray, v: np.ndarray,
