@@ -121,3 +121,26 @@ def test_own_pcg64_steps_give_numpys_permutations(seed):
     for s, p, cells in [(0, None, (0, 0)), (3, 0, (5, 3)), (1, 17, (5, 3)), (2, 4, (53, 34))]:
         np.testing.assert_array_equal(digit_permutations(seed, s, p, cells),
                                       _digit_permutations_reference(seed, s, p, cells))
+
+
+def test_photon_keys_are_the_numpy_hash_bit_for_bit():
+    """The compiled keys (one pass) are the NumPy SplitMix64 chain of the definition:
+    every seed, set and pass, indices 0, 1, 2⁶³ − 1 and random ones, any shape."""
+    from lightsim.sampling import _GOLDEN, _mix64_np, photon_keys
+
+    def numpy_keys(seed, s, p, idx):
+        with np.errstate(over="ignore"):
+            base = _mix64_np(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) + _GOLDEN)
+            base = _mix64_np(base ^ np.uint64(s + 1))
+            base = _mix64_np(base ^ (np.uint64(p + 1) * _GOLDEN))
+            return _mix64_np(base ^ np.asarray(idx, dtype=np.int64).astype(np.uint64))
+
+    rng = np.random.default_rng(0)
+    idx = np.r_[0, 1, 2**63 - 1, rng.integers(0, 2**63 - 1, 2000)].astype(np.int64)
+    for seed, s, p in ((0, 0, 0), (7, 15, 3), (2**64 - 1, 3, 99), (2**63 + 5, 0, 0)):
+        got = photon_keys(seed, s, p, idx)
+        assert got.dtype == np.uint64
+        np.testing.assert_array_equal(got, numpy_keys(seed, s, p, idx))
+    grid = idx[:2000].reshape(40, 50)
+    np.testing.assert_array_equal(photon_keys(1, 2, 3, grid), numpy_keys(1, 2, 3, grid))
+    assert photon_keys(1, 2, 3, idx[:0]).shape == (0,)
