@@ -1,10 +1,11 @@
 """One helper thread for work that runs beside the calling thread.
 
-Two stages use it, never at the same time: the written map's second branch
-(:func:`lightsim.render.ici.written_map`) and the second half of a frame's insertion
-(:meth:`lightsim.engine.photonset.PhotonSets.shoot`). Both hand it compiled kernels that
-run without the GIL, so the two halves of their work proceed on both cores; the results
-are the same as doing both halves in turn.
+Three stages use it, never at the same time: the written map's second branch
+(:func:`lightsim.render.ici.written_map`), the second half of a frame's insertion
+(:meth:`lightsim.engine.photonset.PhotonSets.shoot`) and the second half of the sets'
+window sums of a frame's estimate (:meth:`lightsim.engine.client.Client.render`). Each
+hands it compiled kernels that run without the GIL, so the two halves of their work
+proceed on both cores; the results are the same as doing both halves in turn.
 
 =============  ====================================================================
 parameter      meaning

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -24,6 +23,7 @@ from lightsim.engine.photonset import PhotonSets
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ClientFrame, RenderRequest, ShootResult
 from lightsim.scene import Scene
+from lightsim.threads import helper_thread
 
 
 def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
@@ -137,17 +137,34 @@ class Client:
         """Every owned set's answer to ``request``, in set order."""
         t0 = time.perf_counter()
         sets = self.photons.sets
-        rungs: list[np.ndarray | None] = [None] * len(self.set_indices)
+        n = len(self.set_indices)
+        rungs: list[tuple[np.ndarray | None, np.ndarray | None]] = [(None, None)] * n
         threads = self.config.threads or os.cpu_count() or 1
-        if request.full_image and self.config.uses_ici and threads > 1 and len(rungs) > 1:
-            # the written map's rungs, set by set on the cores (each set's sums are its
-            # own: the same numbers in any order); the rest of each set's answer follows
-            # here, in set order
+        probe_rungs = bool(request.error) and self.config.uses_ici
+        if (request.full_image or probe_rungs) and self.config.uses_ici and threads > 1 \
+                and n > 1:
+            # the written map's rungs and the error figure's rungs at the grid probes, set
+            # by set on the cores (each set's sums are its own: the same numbers in any
+            # order); the rest of each set's answer follows here, in set order
             est = self.estimator
-            with ThreadPoolExecutor(min(threads, len(rungs))) as pool:
-                rungs = list(pool.map(lambda s: est.full_rungs(sets[s]), self.set_indices))
-        frames = [self.estimator.render(sets[s], request, len(sets), r)
-                  for s, r in zip(self.set_indices, rungs, strict=True)]
+
+            def sums(s: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+                st = sets[s]
+                return (est.full_rungs(st) if request.full_image else None,
+                        est.probe_rungs(st) if probe_rungs and st.wall_moments is not None
+                        else None)
+
+            # the second half of the sets on the helper thread (no pool to start per
+            # frame: on a small wall a set's probe sums take ~0.1 ms)
+            half = n // 2
+            pending = helper_thread().submit(lambda: [sums(s) for s in self.set_indices[half:]])
+            try:
+                first = [sums(s) for s in self.set_indices[:half]]
+            finally:
+                second = pending.result()
+            rungs = first + second
+        frames = [self.estimator.render(sets[s], request, len(sets), full, probe)
+                  for s, (full, probe) in zip(self.set_indices, rungs, strict=True)]
         return ClientFrame(frames, time.perf_counter() - t0)
 
     def probe(self, points_hv: np.ndarray) -> dict[int, np.ndarray]:

@@ -236,10 +236,17 @@ class SetEstimator:
         r = self.ici_rungs(st, rows, cols, geometry=geometry)
         return r.reshape((len(r), H, W, self.channels)).astype(np.float32)
 
+    def probe_rungs(self, st: SetState) -> np.ndarray:
+        """The set's rungs (lx) at the grid probes' pixels, (J+1, G, C): what the ICI error
+        figure of a frame reads (:meth:`ici_rungs`)."""
+        return self.ici_rungs(st, *self._grid_pixels, key="grid probes")
+
     def render(self, st: SetState, request: RenderRequest, n_owned: int = 1,
-               full_rungs: np.ndarray | None = None) -> SetFrame:
+               full_rungs: np.ndarray | None = None,
+               probe_rungs: np.ndarray | None = None) -> SetFrame:
         """What ``request`` asks of set ``st`` (see :class:`SetFrame`), float32
-        (``full_rungs``: :meth:`full_rungs` of this set, when already computed)."""
+        (``full_rungs``, ``probe_rungs``: :meth:`full_rungs` and :meth:`probe_rungs` of
+        this set, when already computed)."""
         s = st.index
         out = SetFrame(s)
         normal = self._normal
@@ -259,7 +266,7 @@ class SetEstimator:
             est = self.estimate(st, pts, np.broadcast_to(normal, pts.shape), "pooled")
             out.full_image = est.reshape((*hh.shape, self.channels))
         if request.error and self.config.uses_ici and st.wall_moments is not None:
-            out.probe_rungs = self.ici_rungs(st, *self._grid_pixels, key="grid probes")
+            out.probe_rungs = self.probe_rungs(st) if probe_rungs is None else probe_rungs
             out.moments = st.wall_moments.copy()
         if request.camera is not None:
             camera = request.camera
