@@ -137,8 +137,8 @@ def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit(mon
 
     class Counting:
         def submit(self, fn, *args):
-            if args[-1:] == ("b",):  # the second half of a frame's sets (not the lattice's
-                handed.append(args)  # zeros, written ahead: PhotonSets._prefault_lattice)
+            if len(args) > 1 and args[-1] == "b":  # the second half of a frame's sets
+                handed.append(args)  # (not the lattice's pages: _prefault_lattice)
             return helper().submit(fn, *args)
 
     monkeypatch.setattr(photonset, "helper_thread", Counting)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 
 import numpy as np
 import pytest
@@ -229,3 +230,39 @@ def test_simulate_with_a_time_budget_stops_for_memory_and_says_so(tmp_path, monk
     stop = summary["memory_stop"]
     assert stop["kept_bytes"] <= budget and summary["photons"] == stop["photons"]
     assert summary["seconds"] < 120 and (out / "wall_lux.exr").exists()
+
+
+def _resident_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+@pytest.mark.parametrize("madvise", [True, False])
+def test_write_pages_faults_the_pages_in_and_keeps_the_values(madvise, monkeypatch):
+    """The lattice's pages written ahead (:func:`write_pages`): every page of an untouched
+    array resident afterwards, by ``madvise(MADV_POPULATE_WRITE)`` or, without it, by
+    writing one element a page; the values as they were (zeros, and a filled array)."""
+    import ctypes
+
+    from lightsim.engine.memory import write_pages
+
+    if not madvise:
+        def no_libc(*a, **k):
+            raise OSError("no libc here")
+        monkeypatch.setattr(ctypes, "CDLL", no_libc)
+    big = np.zeros((4, 2_000_003, 1))  # 64 MB: its own mapping, pages untouched
+    before = _resident_bytes()
+    write_pages(big)
+    assert _resident_bytes() - before > 0.9 * big.nbytes
+    assert not big.any()
+    filled = np.arange(3 * 5_000 * 7, dtype=np.float64).reshape(3, 5_000, 7)
+    want = filled.copy()
+    write_pages(filled)
+    np.testing.assert_array_equal(filled, want)
+    for small in (np.zeros(0), np.ones(1), np.arange(1_000, dtype=np.int32)):
+        copy = small.copy()
+        write_pages(small)
+        np.testing.assert_array_equal(small, copy)
+    strided = np.arange(100.0)[::3]  # not contiguous: left alone
+    write_pages(strided)
+    np.testing.assert_array_equal(strided, np.arange(100.0)[::3])

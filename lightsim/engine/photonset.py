@@ -36,6 +36,7 @@ import numpy as np
 
 from lightsim.engine.config import RunConfig
 from lightsim.engine.frame_insert import insert_wall
+from lightsim.engine.memory import write_pages
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
 from lightsim.sampling import (
@@ -298,19 +299,21 @@ class PhotonSets:
         self._lattice_ready = self._prefault_lattice()
 
     def _prefault_lattice(self) -> Future | None:
-        """Make the sets' ICI lattice block now and write its zeros on the helper thread
-        (the first frame's tracing hides it): the pending write, or None.
+        """Make the sets' ICI lattice block now and fault its pages in on the helper thread
+        (the first frame's tracing hides it): the pending work, or None.
 
         A fresh page costs a fault on first touch. Left to the insertion, the lattice's
         pages (84 MB on the shipped headlight's wall) were first touched in random order
         by the first frames' photons: their insertion took 0.4–0.55 µs per record against
-        0.1 µs once the pages were in, ~0.1 s of a 1 M-photon run. Writing them in order
-        takes ~40 ms of one core, beside the tracer. Only where a frame's photons could
-        reach every page (a set's photons per frame at least its lattice's 4 KiB pages:
-        the default 200 k-photon frames, not the live view's 20 k, whose first frame
-        would wait for the writing and would touch a few pages only); not for the
+        0.1 µs once the pages were in, ~0.1 s of a 1 M-photon run. Faulting them in, in
+        order, takes ~34 ms of one core beside the tracer (writing the zeros 43–85 ms).
+        Only where a frame's photons could reach every page (a set's photons per frame at
+        least its lattice's 4 KiB pages: the default 200 k-photon frames, not the live
+        view's 20 k, whose first frame would wait for the writing and would touch a few
+        pages only); not for the
         ``bin`` estimator (no lattice), nor above :data:`PREFAULT_MAX_BYTES` (reading
-        untouched zeros costs no memory).
+        untouched zeros costs no memory). The block is made zero (``calloc``: pages
+        untouched) and :func:`~lightsim.engine.memory.write_pages` faults them in.
         """
         if not self.config.uses_ici or self.config.estimator == "bin":
             return None
@@ -319,9 +322,9 @@ class PhotonSets:
         if (set_bytes * len(self.set_indices) > PREFAULT_MAX_BYTES
                 or self.config.photons_per_set < set_bytes / 4096):
             return None
-        block = np.empty((len(self.set_indices), 4 * H * W, self.channels))
+        block = np.zeros((len(self.set_indices), 4 * H * W, self.channels))  # lazy pages
         self._blocks["lattice"] = block
-        return helper_thread().submit(block.fill, 0.0)
+        return helper_thread().submit(write_pages, block)
 
     def _new_set(self, s: int) -> SetState:
         st = SetState(s, self.channels)
