@@ -236,9 +236,9 @@ def write_pages(array: np.ndarray) -> None:
     left as they are."""
     import ctypes
 
-    flat = array.reshape(-1)  # a view: the array is C-contiguous (checked below)
     if not array.flags.c_contiguous or array.nbytes == 0:
         return
+    flat = array.reshape(-1)  # a view of a C-contiguous array
     step = max(1, 4096 // array.itemsize)
     start = (array.ctypes.data + 4095) & ~4095  # whole pages only: the array's own memory
     end = (array.ctypes.data + array.nbytes) & ~4095

@@ -310,10 +310,10 @@ class PhotonSets:
         Only where a frame's photons could reach every page (a set's photons per frame at
         least its lattice's 4 KiB pages: the default 200 k-photon frames, not the live
         view's 20 k, whose first frame would wait for the writing and would touch a few
-        pages only); not for the
-        ``bin`` estimator (no lattice), nor above :data:`PREFAULT_MAX_BYTES` (reading
-        untouched zeros costs no memory). The block is made zero (``calloc``: pages
-        untouched) and :func:`~lightsim.engine.memory.write_pages` faults them in.
+        pages only); not for the ``bin`` estimator (no lattice), nor above
+        :data:`PREFAULT_MAX_BYTES` (reading untouched zeros costs no memory). The block is
+        made zero (``calloc``: pages untouched) and
+        :func:`~lightsim.engine.memory.write_pages` faults them in.
         """
         if not self.config.uses_ici or self.config.estimator == "bin":
             return None
