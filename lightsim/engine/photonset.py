@@ -463,20 +463,21 @@ class PhotonSets:
         pitch_h, pitch_v = (h1 - h0) / nh, (v1 - v0) / nv
         dh, dv = fr.pixel_size_m
         (i0, i1), (j0, j1) = window_offsets(0.5 * dh / pitch_h), window_offsets(0.5 * dv / pitch_v)
-        reach = (i0, i1, j0, j1, nh, nv)
-        if self.config.uses_ici:  # no probe windows (see the table above): empty reach
-            reach = (0, -1, 0, -1, nh, nv)
+        W, H = fr.resolution
+        if self.config.uses_ici:  # the lattice, and no probe windows (the table above)
+            reach = (0, -1, 0, -1, nh, nv)  # empty: no photon reaches a window
+            windows = np.zeros((len(sets), 0, C))
+            lattice = self._stacked(sets, "lattice", (4 * H * W, C), none)
+        else:
+            reach = (i0, i1, j0, j1, nh, nv)
+            windows = self._stacked(sets, "windows", (nh * nv, C), ~none)
+            lattice = np.zeros((0, 0, C))
         n_slots = (reach[1] - reach[0] + 1) * (reach[3] - reach[2] + 1)
         need_hv = any(st.apertures is not None for st in sets)
         axes = np.array([fr.centre, fr.h_axis, fr.v_axis], np.float64)
         win_geometry = (float(h0), float(v0), float(pitch_h), float(pitch_v), 0.5 * dh,
                         0.5 * dv)
         lat_geometry = (float(h0), float(v1), float(dh), float(dv))
-        windows = (np.zeros((len(sets), 0, C)) if self.config.uses_ici
-                   else self._stacked(sets, "windows", (nh * nv, C), ~none))
-        W, H = fr.resolution
-        lattice = (self._stacked(sets, "lattice", (4 * H * W, C), none)
-                   if self.config.uses_ici else np.zeros((0, 0, C)))
 
         def insert(g0: int, g1: int, name: str) -> tuple:
             """Sets g0..g1-1 into their stores (the rows of those sets only, with work

@@ -142,6 +142,12 @@ class WindowGeometry:
     direct: bool = False  # few queries: their windows summed cell by cell (_direct_sums)
     stacked: np.ndarray | None = None  # bounds as one (J, 4, Q) int64 array (_bounded_sums)
 
+    def __post_init__(self) -> None:
+        if self.stacked is None:  # derived from the bounds when not given
+            n = len(self.bounds[0][0]) if self.bounds else 0
+            object.__setattr__(self, "stacked", np.array(
+                self.bounds, dtype=np.int64).reshape(len(self.bounds), 4, n))
+
     @classmethod
     def of(cls, H: int, W: int, rows: np.ndarray, cols: np.ndarray, sides: np.ndarray
            ) -> WindowGeometry:
@@ -153,9 +159,8 @@ class WindowGeometry:
         # (the grid probes of a frame's error figure: 2 048 × 8² cells against 2 × 2H × 2W)
         m = int(np.max(sides)) if len(sides) else 0
         direct = not raster and len(rows) * (2 * m) ** 2 <= 2 * (2 * H) * (2 * W)
-        bounds = tuple(_bounds(2 * H, 2 * W, rows, cols, sides))
-        stacked = np.array(bounds, dtype=np.int64).reshape(len(bounds), 4, len(rows))
-        return cls(bounds, window_cells(H, W, rows, cols, sides), raster, direct, stacked)
+        return cls(tuple(_bounds(2 * H, 2 * W, rows, cols, sides)),
+                   window_cells(H, W, rows, cols, sides), raster, direct)
 
 
 @lru_cache(maxsize=4)
@@ -207,9 +212,8 @@ def window_sums(sub: np.ndarray, rows: np.ndarray, cols: np.ndarray, sides: np.n
                      np.asarray(sides, np.int64), sums)
         return sums, geometry.cells
     sums = np.empty((len(sides), len(rows), C))
-    stacked = (np.array(geometry.bounds, dtype=np.int64).reshape(len(sides), 4, len(rows))
-               if geometry.stacked is None else geometry.stacked)
-    _bounded_sums(_summed_area(np.ascontiguousarray(sub, dtype=np.float64)), stacked, sums)
+    _bounded_sums(_summed_area(np.ascontiguousarray(sub, dtype=np.float64)),
+                  geometry.stacked, sums)
     return sums, geometry.cells
 
 
