@@ -222,7 +222,9 @@ def _summed_area(sub: np.ndarray) -> np.ndarray:
     """(2H + 1, 2W + 1, C) summed-area table of a lattice (2H, 2W, C), zero first row and
     column: NumPy's ``cumsum`` down the columns and then along the rows, the same
     additions in the same order (bit for bit), in one pass a row at a time (the columns'
-    running sums in one row of their own)."""
+    running sums in one row of their own). Each running sum starts from 0.0, so a −0.0
+    cell reads +0.0 where ``cumsum`` would copy it (a lattice sums non-negative powers;
+    :func:`lightsim.render.directional.pixel_sat` keeps NumPy's −0.0 and its own loop)."""
     H2, W2, C = sub.shape
     sat = np.empty((H2 + 1, W2 + 1, C))
     for c in range(W2 + 1):
