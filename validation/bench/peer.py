@@ -68,6 +68,7 @@ import numpy as np
 
 from lightsim.io.exr import read_exr
 from lightsim.luminaires.gltf_writer import write_glb
+from lightsim.luminaires.live import scene_gltf_parts
 from lightsim.materials import DIELECTRIC, MIRROR
 from lightsim.scene import EMITTER, WALL
 from lightsim.validation.converge import error_metrics
@@ -207,8 +208,6 @@ A later ``--lightsim-arg --outputs …`` overrides it."""
 
 def write_scene_glb(case: an.AnalyticScene, path: Path) -> Path:
     """The case's scene as glTF (the mirror with its analytic vertex normals)."""
-    from lightsim.cli.view import scene_gltf_parts
-
     write_glb(path, scene_gltf_parts(case.scene))
     return path
 
