@@ -7,6 +7,7 @@ import statistics
 import click
 
 from lightsim.errors import InputError
+from lightsim.validation.bench import peer
 from lightsim.validation.bench.table import print_table, write_json
 
 
@@ -36,8 +37,6 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
     """Mitsuba 3 (ptracer) and `lightsim simulate --target-error` on the same analytic
     scenes: whole-process seconds to a TRUE error below the target, and their ratio, on
     the inner 80 % of the beam (the headline) and on the lit pixels (rim included)."""
-    from lightsim.validation.bench import peer
-
     if not 0 < target < 1:
         raise InputError(f"--target must be in (0, 1), got {target}")
     if resolution < 4 or spp0 < 1 or repeats < 1 or not max_seconds > 0:
@@ -63,7 +62,7 @@ def command(cases: tuple[str, ...], target: float, resolution: int, spp0: int,
     summary = peer.summary_rows(results, target)
     for i, row in enumerate(summary):
         row["repeat"] = i // max(len(cases or peer.CASES), 1) + 1
-    print_table("peer: time to target (inner = the issue's score; _lit = lit pixels)",
+    print_table("peer: time to target (inner = the headline score; _lit = lit pixels)",
                 summary)
     print_table("peer: both ratios (Mitsuba / lightsim; inner is the headline, goal ≥ 3)",
                 [{k: row.get(k) for k in ("case", "mitsuba_s", "lightsim_s", "ratio",

@@ -3,18 +3,22 @@ real browser (headless Chromium), with a model for 16 and 64 Ray workers."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
-from lightsim.engine.config import RunConfig
+from lightsim.cli.bench_tracer import example_headlight
+from lightsim.errors import InputError
 from lightsim.options import click_option, lookup
-from lightsim.simulate import SimulateOptions
 from lightsim.validation.bench.table import print_table, write_json
+from lightsim.validation.bench.view import bench_view, error_law
+from lightsim.view.settings import ViewSettings
 
 
 @click.command("view")
 @click.argument("scene_file", required=False, type=click.Path(dir_okay=False))
-@click_option(lookup(SimulateOptions, "resolution"))
-@click_option(lookup(RunConfig, "frame_photons"), default=20_000)
+@click_option(lookup(ViewSettings, "resolution"))
+@click_option(lookup(ViewSettings, "frame_photons"))
 @click.option("--changes", type=int, default=5, show_default=True, help="Latency samples.")
 @click.option("--drag-seconds", type=float, default=6.0, show_default=True)
 @click.option("--converge-timeout", type=float, default=40.0, show_default=True)
@@ -30,17 +34,9 @@ def command(scene_file: str | None, resolution: tuple[int, int], frame_photons: 
             drag_seconds: float, converge_timeout: float, chromium: str,
             screenshots: str | None, law_marks: str | None, json_path: str | None) -> None:
     """Time from a control change to the drawn image, interaction frames/s, convergence."""
-    from pathlib import Path
-
-    from lightsim.cli.bench_tracer import example_headlight
-    from lightsim.errors import InputError
-    from lightsim.validation.bench.view import bench_view
-
     w, h = resolution
     path = scene_file or str(example_headlight())
     if law_marks is not None:
-        from lightsim.validation.bench.view import error_law
-
         try:
             marks = tuple(float(x) * 1e6 for x in law_marks.split(","))
         except ValueError:

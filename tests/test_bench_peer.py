@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 import pytest
+import trimesh
 
 from lightsim.validation.bench import peer
 
 
 def test_ply_writer_round_trips_through_trimesh(tmp_path):
-    trimesh = pytest.importorskip("trimesh")
     case = peer.CASES["paraboloid"](8)
     mirror = case.scene.parts[1]
     path = peer.write_ply(tmp_path / "m.ply", mirror.vertices, mirror.faces, mirror.normals)
@@ -30,10 +30,10 @@ def test_covered_case_exact_is_transmittance_times_open_beam():
 
 
 def test_libllvm_version_parsing():
-    assert peer._llvm_version("libLLVM.so.19.1") == 19
-    assert peer._llvm_version("libLLVM-20.so") == 20
-    assert peer._llvm_version("libLLVM-14.so.1") == 14
-    assert peer._llvm_version("libfoo.so") == 0
+    assert peer.llvm_version("libLLVM.so.19.1") == 19
+    assert peer.llvm_version("libLLVM-20.so") == 20
+    assert peer.llvm_version("libLLVM-14.so.1") == 14
+    assert peer.llvm_version("libfoo.so") == 0
 
 
 @pytest.mark.skipif(peer.mitsuba_unavailable() is not None,

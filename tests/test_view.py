@@ -7,18 +7,49 @@ import asyncio
 import json
 import math
 import shutil
+import socket
+import sys
+import textwrap
 import time
 import zlib
 from pathlib import Path
 
 import numpy as np
+import OpenEXR
 import pytest
+from helpers import run_cli
 
+from lightsim import raycast
+from lightsim.cli.main import main
+from lightsim.engine.config import RunConfig
+from lightsim.engine.server import Session
 from lightsim.errors import InputError
+from lightsim.io.summary import read_json
+from lightsim.luminaires.gltf_writer import write_glb
+from lightsim.luminaires.live import build_live, bulb_presets, scene_gltf_parts, start_view
+from lightsim.render.frame import ErrorEstimate
 from lightsim.scene import load_scene
+from lightsim.validation.bench.view import error_law
+from lightsim.view.app import Connection, check_glb, same_origin
 from lightsim.view.controls import Controls
 from lightsim.view.editor import SceneEditor, aim_matrix
 from lightsim.view.encode import decode_image, encode_image
+from lightsim.view.schedule import (
+    FIRST_AIM,
+    LEVEL_AIM,
+    THREAD_TRIAL,
+    PooledSchedule,
+    ThreadChoice,
+    blur_estimate,
+)
+from lightsim.view.settings import ViewSettings
+
+from netns import run_in_netns
+
+try:  # the browser test's driver (an optional extra): the other tests run without it
+    from playwright.sync_api import sync_playwright
+except ImportError:
+    sync_playwright = None
 
 ROOT = Path(__file__).resolve().parents[1]
 HEADLIGHT = ROOT / "luminaires" / "examples" / "headlight.glb"
@@ -79,8 +110,6 @@ def headlight():
 
 
 def _bulbs():
-    from lightsim.cli.view import bulb_presets
-
     return bulb_presets()
 
 
@@ -143,9 +172,6 @@ def test_bulb_swap_uses_the_preset_at_the_same_focus(headlight):
 
 
 def test_edited_scene_written_as_glb_reads_back(headlight, tmp_path):
-    from lightsim.cli.view import scene_gltf_parts
-    from lightsim.luminaires.gltf_writer import write_glb
-
     ed = SceneEditor(headlight, _bulbs())
     scene = ed.build(ed.defaults().with_changes({"aim_h_deg": 2.0, "flux_lm": 800.0,
                                                  "wall_distance_m": 12.0}))
@@ -163,8 +189,6 @@ def test_edited_scene_written_as_glb_reads_back(headlight, tmp_path):
 
 
 def test_upload_check_rejects_what_is_not_a_glb():
-    from lightsim.view.app import check_glb
-
     for data, words in ((b"hello world, not a glb!", "not a GLB"),
                         (b"glTF" + (1).to_bytes(4, "little") + (24).to_bytes(4, "little")
                          + bytes(12), "version 1"),
@@ -189,8 +213,6 @@ class _SlowSocket:
 
 
 def test_slow_connection_gets_latest_frame_and_every_message():
-    from lightsim.view.app import Connection
-
     async def scenario() -> tuple[Connection, _SlowSocket]:
         ws = _SlowSocket()
         c = Connection(ws, 1)
@@ -213,14 +235,9 @@ def test_slow_connection_gets_latest_frame_and_every_message():
 
 # -- the session thread: save run, autosave --------------------------------------------------
 def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
-    import OpenEXR
-
-    from lightsim.cli.view import build_live
-    from lightsim.io.summary import read_json
-
     published: list[str] = []
-    live = build_live(str(HEADLIGHT), resolution=(48, 24), folder=tmp_path,
-                      frame_photons=4000, camera=False,
+    live = build_live(str(HEADLIGHT), ViewSettings(resolution=(48, 24), frame_photons=4000,
+                                                   camera=False), folder=tmp_path,
                       publish=lambda kind, payload: published.append(kind))
     live.start()
     try:
@@ -273,8 +290,6 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
 
 
 def test_same_origin_rule():
-    from lightsim.view.app import same_origin
-
     assert same_origin({"host": "127.0.0.1:8765"})
     assert same_origin({"host": "127.0.0.1:8765", "origin": "http://127.0.0.1:8765"})
     assert not same_origin({"host": "127.0.0.1:8765", "origin": "https://evil.example"})
@@ -283,9 +298,7 @@ def test_same_origin_rule():
 
 # -- end to end in a real browser ----------------------------------------------------------------
 def _browser():
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
+    if sync_playwright is None:
         pytest.skip("playwright (Python) is not installed: pip install playwright")
     if not Path(CHROMIUM).exists():
         pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
@@ -312,16 +325,15 @@ def _centroid(page) -> tuple[float, float]:
 
 @pytest.mark.timeout(120)
 def test_page_end_to_end(tmp_path):
-    sync_playwright = _browser()
-    from lightsim.cli.view import start_view
-
-    live, server = start_view(str(HEADLIGHT), 0, resolution=(160, 64), folder=tmp_path,
-                              frame_photons=20000, camera_resolution=(80, 40))
+    browser_driver = _browser()
+    live, server = start_view(str(HEADLIGHT), ViewSettings(
+        port=0, resolution=(160, 64), frame_photons=20000, camera_resolution=(80, 40)),
+        folder=tmp_path)
     assert server.url.startswith("http://127.0.0.1:")  # loopback only
     host = server.server.servers[0].sockets[0].getsockname()[0]
     assert host == "127.0.0.1"
     try:
-        with sync_playwright() as p:
+        with browser_driver() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             page = browser.new_page(viewport={"width": 1300, "height": 900})
             errors: list[str] = []
@@ -421,17 +433,11 @@ def test_pose_edit_as_light_transform_equals_the_rebuilt_scene(headlight):
     (["--workers", "-1"], "--workers"),
 ])
 def test_view_command_bad_options_are_one_line(extra, words, capsys, tmp_path):
-    from helpers import run_cli
-
     code, _, err = run_cli(["view", str(HEADLIGHT), "--out", str(tmp_path), *extra], capsys)
     assert code == 2 and words in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_view_command_missing_scene_bad_state_and_taken_port(capsys, tmp_path):
-    import socket
-
-    from helpers import run_cli
-
     code, _, err = run_cli(["view", str(tmp_path / "nope.glb"), "--out", str(tmp_path)], capsys)
     assert code == 2 and "no such file" in err
     bad = tmp_path / "state.json"
@@ -453,19 +459,15 @@ def test_view_command_missing_scene_bad_state_and_taken_port(capsys, tmp_path):
 def test_live_session_on_ray_workers(tmp_path):
     """The same live session with two Ray actors (loopback-only namespace): frames are
     published, an edit is applied and frames follow it."""
-    import sys
-    import textwrap
-
-    from netns import run_in_netns
-
     script = tmp_path / "ray_view.py"
     script.write_text(textwrap.dedent(f"""
         import json, time
-        from lightsim.cli.view import build_live
+        from lightsim.luminaires.live import build_live
+        from lightsim.view.settings import ViewSettings
         got = []
-        live = build_live({str(HEADLIGHT)!r}, resolution=(48, 24), workers=2,
-                          frame_photons=4000, camera=False, regulation=None,
-                          publish=lambda k, p: got.append((k, p)))
+        live = build_live({str(HEADLIGHT)!r}, ViewSettings(
+            resolution=(48, 24), workers=2, frame_photons=4000, camera=False,
+            regulation=None), publish=lambda k, p: got.append((k, p)))
         live.start()
         t0 = time.monotonic()
         while live.stats.frames < 2 and time.monotonic() - t0 < 200:
@@ -489,9 +491,6 @@ def test_live_session_on_ray_workers(tmp_path):
 
 def test_accumulate_shoots_the_same_photons_as_frames():
     """``Session.accumulate`` (added for the view) is ``frame`` without the estimates."""
-    from lightsim.engine.config import RunConfig
-    from lightsim.engine.server import Session
-
     scene = load_scene(HEADLIGHT, resolution=(32, 16))
     cfg = RunConfig(frame_photons=1600, probe_grid=(8, 4))
     with Session(scene, cfg) as a, Session(scene, cfg) as b:
@@ -508,9 +507,6 @@ def test_interaction_frame_without_probes_and_ici_only_error_figure():
     """``frame(probes=False)`` (the view's interaction frame) draws the same image with no
     error figure; ``probes="ici"`` (its accumulation) gives the same error figure as the
     full frame without the kNN probe estimates."""
-    from lightsim.engine.config import RunConfig
-    from lightsim.engine.server import Session
-
     scene = load_scene(HEADLIGHT, resolution=(32, 16))
     cfg = RunConfig(frame_photons=1600, probe_grid=(8, 4))
     assert cfg.uses_ici
@@ -539,9 +535,6 @@ def test_interaction_image_at_every_second_pixel_is_the_coarser_wall(size):
     the same photons on a wall of ⌈W/2⌉ × ⌈H/2⌉ pixels over the same extent — bit for bit
     what a session at that resolution draws (radii fixed, so they do not follow the
     pixel size) — and needs a quarter of the queries."""
-    from lightsim.engine.config import RunConfig
-    from lightsim.engine.server import Session
-
     W, H = size
     fine = load_scene(HEADLIGHT, resolution=(W, H))
     coarse = load_scene(HEADLIGHT, resolution=(-(-W // 2), -(-H // 2)))
@@ -560,9 +553,6 @@ def test_interaction_image_at_every_second_pixel_is_the_coarser_wall(size):
 def test_error_law_bench_and_its_bad_input(capsys):
     """``lightsim bench view --law``: the written map's figure at growing photons (noise
     falls with N); a malformed list is one line and exit code 2."""
-    from lightsim.cli.main import main
-    from lightsim.validation.bench.view import error_law
-
     rows = error_law(str(HEADLIGHT), (48, 24), (20_000, 80_000), batch=20_000)
     assert [r["photons"] for r in rows] == [20_000, 80_000]
     assert rows[1]["noise"] < rows[0]["noise"] and 0 < rows[1]["written map error"] < 1
@@ -578,120 +568,126 @@ def test_pooled_maps_are_scheduled_from_the_noise_and_blur_of_the_error_law():
     """The first pooled map after an edit comes where e·√N of the map nearest 5 % predicts
     5 % (aimed 10 % below); later ones where noise ∝ 1/√N beside the kept blur reaches the
     next level (7 % below) — none where the blur alone is above it."""
-    from lightsim.cli.view import build_live
-    from lightsim.view import live as live_mod
-
-    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
-                      regulation=None, warm_up=False)
+    st = ViewSettings()
+    plan = PooledSchedule(st.first_pooled_seconds, st.first_cap_seconds, st.pooled_share)
     photons = {"n": 0}
-    live._photons_now = lambda: photons["n"]
-    live._traced_s, live._pooled_cost = 5.0, 0.5
-    assert live._pooled_due()  # no law yet: after first_pooled_seconds of tracing
-    live._law_5 = (1_000_000, 0.06)
-    n5 = 1_000_000 * (0.06 / (live_mod.FIRST_AIM * 0.05)) ** 2
+
+    def now() -> int:
+        return photons["n"]
+
+    plan.traced_s, plan.pooled_cost = 5.0, 0.5
+    assert plan.due(now)  # no law yet: after first_pooled_seconds of tracing
+    plan.law_5 = (1_000_000, 0.06)
+    n5 = 1_000_000 * (0.06 / (FIRST_AIM * 0.05)) ** 2
     photons["n"] = int(n5) - 1
-    assert not live._pooled_due()
+    assert not plan.due(now)
     photons["n"] = int(n5) + 1
-    assert live._pooled_due()
+    assert plan.due(now)
     # after a map at 4 %: noise 3 %, blur 2.6 % → 2 % is out of reach, 1 % too
-    live._honest, live._law = (0.04, 2_000_000), (2_000_000, 0.04, 0.03, 0.0265)
-    assert live._photons_for(0.02) is None and live._photons_for(0.01) is None
-    live._traced_at_pooled = live._traced_s = 100.0
+    plan.written, plan.law = (0.04, 2_000_000), (2_000_000, 0.04, 0.03, 0.0265)
+    assert plan.photons_for(0.02) is None and plan.photons_for(0.01) is None
+    plan.traced_at_pooled = plan.traced_s = 100.0
     photons["n"] = 3_000_000
-    assert not live._pooled_due()  # neither a crossing nor doubled photons
+    assert not plan.due(now)  # neither a crossing nor doubled photons
     # blur 1 %: 2 % is due at N·noise² / ((0.93·2 %)² − blur²)
-    live._law = (2_000_000, 0.04, 0.03, 0.01)
-    due = 2_000_000 * 0.03 ** 2 / ((live_mod.LEVEL_AIM * 0.02) ** 2 - 0.01 ** 2)
-    assert live._photons_for(0.02) == pytest.approx(due)
+    plan.law = (2_000_000, 0.04, 0.03, 0.01)
+    due = 2_000_000 * 0.03 ** 2 / ((LEVEL_AIM * 0.02) ** 2 - 0.01 ** 2)
+    assert plan.photons_for(0.02) == pytest.approx(due)
     photons["n"] = int(due) + 1
-    assert live._pooled_due()
+    assert plan.due(now)
     photons["n"] = int(due) - 1  # twice the photons and the map's share paid, but the
-    live._traced_s += 9.01 * live._pooled_cost  # crossing comes first: no doubled map
-    assert not live._pooled_due()
+    plan.traced_s += 9.01 * plan.pooled_cost  # crossing comes first: no doubled map
+    assert not plan.due(now)
     # blur 1.8 %: the crossing far beyond twice the photons → the doubling rule, once
     # the map's share (pooled_share 0.1: 9 × its cost of tracing) is paid
-    live._law = (2_000_000, 0.04, 0.03, 0.018)
+    plan.law = (2_000_000, 0.04, 0.03, 0.018)
     photons["n"] = 4_000_001
-    assert live._photons_for(0.02) > 2 * photons["n"]
-    live._traced_s = live._traced_at_pooled + 8.9 * live._pooled_cost
-    assert not live._pooled_due()
-    live._traced_s = live._traced_at_pooled + 9.01 * live._pooled_cost
-    assert live._pooled_due()
-    live.stop()
+    assert plan.photons_for(0.02) > 2 * photons["n"]
+    plan.traced_s = plan.traced_at_pooled + 8.9 * plan.pooled_cost
+    assert not plan.due(now)
+    plan.traced_s = plan.traced_at_pooled + 9.01 * plan.pooled_cost
+    assert plan.due(now)
 
 
 def test_blur_of_the_prediction_pools_the_maps_by_precision():
     """The crossing is predicted from every map's blur² of the scene weighted by 1/se²
     (read back from ``bias`` and ``bias_upper``), not from the last map's alone."""
-    from lightsim.cli.view import build_live
-    from lightsim.render.frame import ErrorEstimate
-    from lightsim.view.live import blur_estimate
-
     e = ErrorEstimate(0.03, 0.025, 0.012, math.sqrt(0.012**2 + 2 * 3e-5))
     b2, se = blur_estimate(e)
     assert b2 == pytest.approx(0.012**2) and se == pytest.approx(3e-5)
     assert blur_estimate(ErrorEstimate(0.03, 0.03, 0.0, 0.01))[0] == 0.0
     assert blur_estimate(None) is None
-    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
-                      regulation=None, warm_up=False)
-    live._law = (8_000_000, 0.0225, 0.0175, 0.0143)
-    assert live._blur2() == pytest.approx(0.0143**2)  # no measured se: the last map's
-    live._blurs = [(1.5e-4, 5e-4), (1.7e-5, 1.6e-4), (2.0e-4, 9e-5)]
+    plan = PooledSchedule()
+    plan.law = (8_000_000, 0.0225, 0.0175, 0.0143)
+    assert plan.blur2() == pytest.approx(0.0143**2)  # no measured se: the last map's
+    plan.blurs = [(1.5e-4, 5e-4), (1.7e-5, 1.6e-4), (2.0e-4, 9e-5)]
     w = [1 / 5e-4**2, 1 / 1.6e-4**2, 1 / 9e-5**2]
     want = (w[0] * 1.5e-4 + w[1] * 1.7e-5 + w[2] * 2.0e-4) / sum(w)
-    assert live._blur2() == pytest.approx(want)
+    assert plan.blur2() == pytest.approx(want)
     room = (0.93 * 0.02) ** 2 - want
-    assert live._photons_for(0.02) == pytest.approx(8_000_000 * 0.0175**2 / room)
-    live._reset_clock()
-    assert live._blurs == []  # a change: the next scene's maps measure its own blur
-    live.stop()
+    assert plan.photons_for(0.02) == pytest.approx(8_000_000 * 0.0175**2 / room)
+    plan.reset()
+    assert plan.blurs == []  # a change: the next scene's maps measure its own blur
+    assert plan.law is not None  # … while the law predicts its first map
 
 
 def test_still_batches_revise_the_thread_choice():
     """Still batches run at the faster measured thread count, one in THREAD_TRIAL at the
     other; a count that turns out faster takes over; moving scenes keep the warm-up's."""
-    from lightsim.cli.view import build_live
-    from lightsim.view import live as live_mod
-
-    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
-                      regulation=None, warm_up=False)
-    live.accumulate_threads, live.batch_rates = 1, {1: 200_000.0, 2: 100_000.0}
-    assert live._batch_threads(still=False) == 1  # a moving scene: the faster so far
-    picks = [live._batch_threads(still=True) for _ in range(2 * live_mod.THREAD_TRIAL)]
+    choice = ThreadChoice()
+    choice.timed({1: 0.01, 2: 0.02}, {1: 0.25, 2: 0.5}, 50_000)
+    assert (choice.frame, choice.accumulate) == (1, 1)
+    assert choice.rates == {1: 200_000.0, 2: 100_000.0}
+    assert choice.for_batch(still=False) == 1  # a moving scene: the faster so far
+    picks = [choice.for_batch(still=True) for _ in range(2 * THREAD_TRIAL)]
     # the still scene's first batch and every THREAD_TRIAL-th try the other count
-    assert picks[0] == 2 and picks[live_mod.THREAD_TRIAL - 1] == 2
+    assert picks[0] == 2 and picks[THREAD_TRIAL - 1] == 2
     assert picks.count(2) == 3 and picks.count(1) == len(picks) - 3
     for _ in range(6):  # two threads now trace 3 × faster
-        live._note_batch_rate(2, 300_000.0)
-        live._note_batch_rate(1, 100_000.0)
-    assert max(live.batch_rates, key=live.batch_rates.get) == 2
-    assert live._batch_threads(still=True) == 2  # the 17th still batch: not a trial
-    assert live._batch_threads(still=False) == 2
-    live._reset_clock()  # a change: the next still scene measures afresh
-    assert live._batch_threads(still=True) == 1  # its first batch tries the other count
-    live._note_batch_rate(1, 500_000.0)  # … measured now, not averaged
-    assert live.batch_rates[1] == 500_000.0
-    live.threads = 1  # a fixed count is never revised
-    assert live._batch_threads(still=True) == 1
-    live.stop()
+        choice.note_rate(2, 300_000.0)
+        choice.note_rate(1, 100_000.0)
+    assert max(choice.rates, key=choice.rates.get) == 2 == choice.batch_threads()
+    assert choice.for_batch(still=True) == 2  # the 17th still batch: not a trial
+    assert choice.for_batch(still=False) == 2
+    choice.reset()  # a change: the next still scene measures afresh
+    assert choice.for_batch(still=True) == 1  # its first batch tries the other count
+    choice.note_rate(1, 500_000.0)  # … measured now, not averaged
+    assert choice.rates[1] == 500_000.0
+    choice.fixed = 1  # a fixed count is never revised
+    assert choice.for_batch(still=True) == 1
+
+
+def test_view_settings_are_one_table_of_checked_options():
+    """The command's options and the session's tuning come from ViewSettings' records:
+    out-of-range values are one-line errors, and ``--regulation none`` is no table."""
+    for bad, words in (({"port": 70000}, "--port"), ({"pooled_share": 0.95}, "pooled share"),
+                       ({"threads": 0}, "threads"), ({"traffic": "middle"}, "--traffic"),
+                       ({"workers": 1, "address": "1.2.3.4:1"}, "not both"),
+                       ({"batch_seconds": 0.5}, "batch_max_seconds")):
+        with pytest.raises(InputError, match=words) as exc:
+            ViewSettings(**bad)
+        assert "\n" not in str(exc.value)
+    assert ViewSettings(threads=2).threads == 2
+    assert ViewSettings.from_command_line({"regulation": "none"}).regulation is None
+    assert ViewSettings().with_(still_seconds=0.0).still_seconds == 0.0
 
 
 def test_camera_pass_only_while_a_tab_shows_the_camera():
     """The session is planned without the camera pass (wall records only) until a tab
     shows the camera view; then the next step opens one with it."""
-    from lightsim.cli.view import build_live
-
-    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000,
-                      camera_resolution=(16, 8), regulation=None, warm_up=False)
-    live._open(live.editor.session_scene(live.controls), live.controls)
-    assert not live.session.plan.camera and not live._camera_shown()
-    live._step()
+    live = build_live(str(HEADLIGHT), ViewSettings(
+        resolution=(32, 16), frame_photons=2000, camera_resolution=(16, 8), regulation=None,
+        warm_up=False, threads=1))
+    assert live.threads.fixed == 1 and live.schedule.pooled_share == live.settings.pooled_share
+    live.open_session(live.editor.session_scene(live.controls), live.controls)
+    assert not live.session.plan.camera and not live.camera_shown()
+    live.step()
     assert not live.session.plan.camera
     live.camera_watchers = 1
-    assert not live._camera_shown()  # this session cannot render it
-    live._step()
-    assert live.session.plan.camera and live._camera_shown()
-    live._step()
+    assert not live.camera_shown()  # this session cannot render it
+    live.step()
+    assert live.session.plan.camera and live.camera_shown()
+    live.step()
     assert live.session.plan.camera  # kept while watched
     live.stop()
 
@@ -700,17 +696,16 @@ def test_live_session_warm_up_and_quick_first_frame(tmp_path):
     """The session thread warms up before ``ready`` (threads chosen from timed frames),
     then an edit's first frame is an interaction frame of ``quick_photons`` with no error
     figure, and the still scene's frames carry one."""
-    from lightsim.cli.view import build_live
-
     got: list[tuple[str, object]] = []
-    live = build_live(str(HEADLIGHT), resolution=(64, 32), frame_photons=4000,
-                      camera=False, regulation=None, folder=tmp_path,
-                      publish=lambda k, p: got.append((k, p)), quick_photons=1600)
+    live = build_live(str(HEADLIGHT), ViewSettings(
+        resolution=(64, 32), frame_photons=4000, camera=False, regulation=None,
+        quick_photons=1600), folder=tmp_path, publish=lambda k, p: got.append((k, p)))
     live.start()
     try:
         assert live.ready.wait(300) and live.error is None
-        assert set(live.thread_times) >= {1} and all(t > 0 for t in live.thread_times.values())
-        assert live.accumulate_threads in live.accumulate_times
+        times = live.threads.frame_times
+        assert set(times) >= {1} and all(t > 0 for t in times.values())
+        assert live.threads.accumulate in live.threads.batch_times
         live.submit({"filament_x_mm": 0.5})
         t_end = time.monotonic() + 300
         while time.monotonic() < t_end and not any(
@@ -744,21 +739,25 @@ def test_aim_as_a_wall_move_equals_the_aimed_lamp(headlight):
     """The live session aims by moving the wall the other way (the embree scene stays):
     its lux map in wall coordinates is the rebuilt aimed lamp's, and the same after a
     filament move on top (pose in the lamp's frame)."""
-    from lightsim.engine.config import RunConfig
-    from lightsim.engine.server import Session
-
     ed = SceneEditor(headlight, _bulbs())
     assert ed.wall_aimable()
     c0 = ed.defaults()
     c1 = c0.with_changes({"aim_h_deg": 2.5, "aim_v_deg": -1.5})
     c2 = c1.with_changes({"filament_x_mm": 0.4, "filament_tilt_deg": 3.0})
     cfg = RunConfig(frame_photons=16_000, probe_grid=(8, 4), seed=3)
-    with Session(ed.session_scene(c0), cfg) as live:
+    built: list[int] = []
+    embree_scene = raycast.embree_scene
+
+    def counted(*args, **kw):
+        built.append(1)
+        return embree_scene(*args, **kw)
+
+    with Session(ed.session_scene(c0), cfg) as live, pytest.MonkeyPatch.context() as mp:
         live.frame(image=False, probes=False)
-        caster = live.backend.clients[0].tracer.caster
+        mp.setattr(raycast, "embree_scene", counted)
         live.update(wall_transform=ed.wall_matrix(c1) @ np.linalg.inv(ed.wall_matrix(c0)))
-        assert live.backend.clients[0].tracer.caster._scene is caster._scene  # no rebuild
         a1 = live.frame(probes=False)
+        assert built == []  # no embree rebuild: the wall moved outside it
         live.update(light_transform=ed.pose_matrix(c2) @ np.linalg.inv(ed.pose_matrix(c1)))
         a2 = live.frame(probes=False)
     with Session(ed.build(c0), cfg) as ref:
@@ -785,21 +784,20 @@ def _lux_centroid(lux: np.ndarray) -> np.ndarray:
 def test_accumulation_stops_before_the_photon_maps_fill_the_memory(tmp_path):
     """A still scene accumulates until its maps hold ``memory_share`` of the available
     memory, then idles with one message (here a tiny share: after the first batches)."""
-    from lightsim.cli.view import build_live
-
     got: list[tuple[str, object]] = []
-    live = build_live(str(HEADLIGHT), resolution=(32, 16), frame_photons=2000, camera=False,
-                      regulation=None, publish=lambda k, p: got.append((k, p)),
-                      memory_share=1e-9, warm_up=False, still_seconds=0.0)
+    live = build_live(str(HEADLIGHT), ViewSettings(
+        resolution=(32, 16), frame_photons=2000, camera=False, regulation=None,
+        memory_share=1e-9, warm_up=False, still_seconds=0.0),
+        publish=lambda k, p: got.append((k, p)))
     live.start()
     try:
         t_end = time.monotonic() + 120
         while time.monotonic() < t_end and not any(
                 k == "message" and "accumulation stopped" in p["text"] for k, p in list(got)):
             time.sleep(0.05)
-        photons = live._photons_now()
+        photons = live.photons_now()
         time.sleep(1.0)
-        assert live._photons_now() == photons  # idle: nothing more is shot
+        assert live.photons_now() == photons  # idle: nothing more is shot
     finally:
         live.stop()
     said = [p for k, p in got if k == "message" and "accumulation stopped" in p["text"]]

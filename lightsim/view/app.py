@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 import tempfile
 import threading
 from collections import deque
@@ -249,6 +250,19 @@ def create_app(live: Any, hub: Hub, load_upload: Callable[[Path], Any]) -> Any:
     return Starlette(routes=routes)
 
 
+def serve(live: Any, hub: Hub, load_upload: Callable[[Path], Any], port: int = 0
+          ) -> ViewServer:
+    """Serve ``live`` (its output published through ``hub``) on 127.0.0.1:``port`` (0 =
+    any free port), then start its session thread; returns the running server.
+
+    ``load_upload(path)`` loads an uploaded GLB (see :func:`create_app`).
+    """
+    server = ViewServer(create_app(live, hub, load_upload), port)
+    server.start()
+    live.start()
+    return server
+
+
 def _load_bytes(data: bytes, load_upload: Callable[[Path], Any]) -> Any:
     with tempfile.TemporaryDirectory(prefix="lightsim-upload-") as d:
         path = Path(d) / "upload.glb"
@@ -283,8 +297,6 @@ class ViewServer:
 
     def start(self, timeout: float = 30.0) -> ViewServer:
         if self.config.port:  # a taken port: one line, before uvicorn logs its own
-            import socket
-
             with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
                 try:
                     probe.bind((HOST, self.config.port))

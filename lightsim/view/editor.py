@@ -30,13 +30,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lightsim.errors import InputError
+from lightsim.raycast import WALL_MAX_TRIANGLES
 from lightsim.scene import EMITTER, WALL, Part, Scene
 from lightsim.view.controls import Controls
 
 
 @dataclass(frozen=True)
 class BulbPreset:
-    """What the editor needs of a bulb preset (built by ``lightsim.cli.view``).
+    """What the editor needs of a bulb preset (built by ``lightsim.luminaires.live``).
 
     Attributes
     ----------
@@ -167,8 +168,6 @@ class SceneEditor:
         """Whether the engine can aim by moving the wall (its wall is intersected outside
         embree, :meth:`~lightsim.scene.Scene.with_wall_transform`); a wall of more
         triangles stays in the embree scene, so aiming rebuilds it."""
-        from lightsim.raycast import WALL_MAX_TRIANGLES
-
         n = int(np.count_nonzero(self.base.tri_is_wall))
         return 0 < n <= WALL_MAX_TRIANGLES
 

@@ -5,7 +5,7 @@ clock (interpreter start-up, imports, JIT/numba compilation, embree/LLVM builds,
 and its output files), and both images are scored by the same metric against the exact
 answer: the per-pixel relative rms (:func:`lightsim.validation.converge.error_metrics`)
 over the pixels whose centre lies in the inner 80 % of the beam radius (``inner``: the
-issue's score, the headline ratio) and over the lit pixels (``lit``: exact E ≥ 10 % of
+headline score and ratio) and over the lit pixels (``lit``: exact E ≥ 10 % of
 its peak, the region lightsim's own error figure covers, rim included). Each tool's
 time to the target is found on **both** scores (:data:`SCORES`) and both ratios are
 reported: Mitsuba's spp is picked per score from its 1/√spp law, lightsim's
@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import ctypes.util
 import glob
+import importlib.util
 import json
 import math
 import os
@@ -65,6 +66,9 @@ from typing import Any
 
 import numpy as np
 
+from lightsim.io.exr import read_exr
+from lightsim.luminaires.gltf_writer import write_glb
+from lightsim.luminaires.live import scene_gltf_parts
 from lightsim.materials import DIELECTRIC, MIRROR
 from lightsim.scene import EMITTER, WALL
 from lightsim.validation.converge import error_metrics
@@ -87,9 +91,9 @@ MAX_MITSUBA_RUNS = 7  # renders per case at most (the spp ladder, both scores)
 MAX_LADDER_RUNS = 3   # fixed-budget lightsim runs per case at most
 CAMERA_DISTANCE = 0.1  # m: Mitsuba's camera in front of the wall (clear of all geometry)
 #: the second score's pixels: exact E ≥ this × its peak — the lit region lightsim's own
-#: error figure covers (rim included), next to the issue's inner-80 % score
+#: error figure covers (rim included), next to the headline inner-80 % score
 LIT_FRACTION = 0.1
-#: the two scores every run is timed on: the issue's (headline) and the lit pixels
+#: the two scores every run is timed on: the headline inner one and the lit pixels
 SCORES = ("inner", "lit")
 #: lightsim's stop per score: its error figure over the beam's interior (the lit pixels
 #: 0.2 × √(A/π) inside the edge: the inner 80 % of a round beam) or over the lit pixels
@@ -111,23 +115,22 @@ def find_libllvm() -> str | None:
     for name in ("LLVM", *(f"LLVM-{v}" for v in range(30, 18, -1))):
         lib = ctypes.util.find_library(name)
         if lib:
-            found.append((_llvm_version(lib), lib))
+            found.append((llvm_version(lib), lib))
     for pattern in ("/usr/lib/*-linux-gnu/libLLVM*.so*", "/usr/lib/llvm-*/lib/libLLVM*.so*",
                     "/usr/lib64/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*"):
-        found += [(_llvm_version(p), p) for p in glob.glob(pattern)]
+        found += [(llvm_version(p), p) for p in glob.glob(pattern)]
     found = [f for f in found if f[0] >= 19]
     return max(found)[1] if found else None
 
 
-def _llvm_version(name: str) -> int:
+def llvm_version(name: str) -> int:
+    """The major version in a libLLVM file name or soname (0 when it names none)."""
     m = re.search(r"LLVM(?:-|\.so\.)(\d+)", os.path.basename(name))
     return int(m.group(1)) if m else 0
 
 
 def mitsuba_unavailable() -> str | None:
     """One line saying why Mitsuba cannot run here, or None when it can."""
-    import importlib.util
-
     if importlib.util.find_spec("mitsuba") is None:
         return "mitsuba is not installed (pip install \".[peer]\")"
     if find_libllvm() is None:
@@ -205,9 +208,6 @@ A later ``--lightsim-arg --outputs …`` overrides it."""
 
 def write_scene_glb(case: an.AnalyticScene, path: Path) -> Path:
     """The case's scene as glTF (the mirror with its analytic vertex normals)."""
-    from lightsim.cli.view import scene_gltf_parts
-    from lightsim.luminaires.gltf_writer import write_glb
-
     write_glb(path, scene_gltf_parts(case.scene))
     return path
 
@@ -218,11 +218,11 @@ class Truth:
     """Exact pixel means and the scored pixels of one case."""
 
     exact_px: np.ndarray  # (H, W) lx
-    inner: np.ndarray     # (H, W) bool: the issue's score (inner 80 % of the rim)
+    inner: np.ndarray     # (H, W) bool: the headline score (inner 80 % of the rim)
     lit: np.ndarray | None = None  # (H, W) bool: exact ≥ LIT_FRACTION × its peak
 
     def error(self, lux: np.ndarray, where: str = "inner") -> float:
-        """Relative rms error of a lux map (H, W) over the ``inner`` pixels (the issue's
+        """Relative rms error of a lux map (H, W) over the ``inner`` pixels (the headline
         score) or the ``lit`` ones (what lightsim's own figure covers: the rim too)."""
         if lux.shape != self.exact_px.shape:
             raise ValueError(f"map {lux.shape} does not match the exact {self.exact_px.shape}")
@@ -316,8 +316,6 @@ def run_lightsim(case: an.AnalyticScene, truth: Truth, folder: Path, target: flo
                  photons: int | None = None) -> PeerRun:
     """``lightsim simulate SCENE --target-error target`` as its own process (or, given
     ``photons``, ``--photons N``: a fixed budget, for the time to a true error)."""
-    from lightsim.io.exr import read_exr
-
     glb = folder / "scene.glb"
     if not glb.exists():
         write_scene_glb(case, glb)
@@ -476,7 +474,7 @@ def summary_rows(results: Sequence[PeerResult], target: float) -> list[dict[str,
     """One row per case: the two times to target, their ratio (Mitsuba / lightsim) and
     the stop check (``ls_*``: lightsim; ``ls_fixed_s``: its first fixed budget with a
     true error below ``target``; ``ratio_vs_fixed``: Mitsuba's time over that), on the
-    issue's inner score (the headline) and the same with ``_lit`` on the lit-pixel score
+    inner score (the headline) and the same with ``_lit`` on the lit-pixel score
     (``lightsim_s_lit`` None: the self-stop's lit-pixel error is not below the target).
     Both tools' true errors at their stops over the scored inner pixels (``*_err``) and
     over the lit pixels (``*_err_lit``, what lightsim's own figure covers);

@@ -39,10 +39,20 @@ import shutil
 import statistics
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
+
+from lightsim.engine.config import RunConfig
+from lightsim.engine.server import Session
+from lightsim.errors import LightsimError
+from lightsim.luminaires.live import build_live, start_view
+from lightsim.scene import load_scene
+from lightsim.view.editor import SceneEditor
+from lightsim.view.settings import ViewSettings
 
 T_RPC = 1.5e-3
 T_RESULT = 0.2e-3
@@ -59,25 +69,18 @@ def load_average() -> float:
 
 def engine_baseline(scene_path: str, resolution: tuple[int, int], frame_photons: int,
                     frames: int = 3) -> dict[str, float]:
-    """:func:`_engine_baseline` in a worker thread, as the view's session runs (so the
+    """:func:`engine_alone` in a worker thread, as the view's session runs (so the
     two differ only in the browser, server and page)."""
-    from concurrent.futures import ThreadPoolExecutor
-
     with ThreadPoolExecutor(1) as pool:
-        return pool.submit(_engine_baseline, scene_path, resolution, frame_photons,
+        return pool.submit(engine_alone, scene_path, resolution, frame_photons,
                            frames).result()
 
 
-def _engine_baseline(scene_path: str, resolution: tuple[int, int], frame_photons: int,
+def engine_alone(scene_path: str, resolution: tuple[int, int], frame_photons: int,
                      frames: int = 3) -> dict[str, float]:
     """The engine alone, the same edits as the page makes: seconds of an aim change
     (scene rebuilt) + frame, frames/s of filament moves (light transform) + frame, and
     photons/s of accumulation (``Session.accumulate``)."""
-    from lightsim.engine.config import RunConfig
-    from lightsim.engine.server import Session
-    from lightsim.scene import load_scene
-    from lightsim.view.editor import SceneEditor
-
     scene = load_scene(scene_path, resolution=resolution)
     editor = SceneEditor(scene)
     c = editor.defaults()
@@ -120,13 +123,9 @@ def error_law(scene_path: str, resolution: tuple[int, int] = (640, 256),
     numba thread) and a pooled map with its figure at each of ``marks`` photons. Shows
     which part falls: noise ∝ 1/√N, the blur (ICI bandwidth bias) does not, so the
     photons a level needs follow from √(noise² + blur²)."""
-    import numba
-
-    from lightsim.cli.view import build_live
-
-    live = build_live(scene_path, resolution=tuple(resolution), regulation=None,
-                      camera=False)
-    live._open(live.editor.session_scene(live.controls), live.controls)
+    live = build_live(scene_path, ViewSettings(resolution=tuple(resolution), regulation=None,
+                                               camera=False))
+    live.open_session(live.editor.session_scene(live.controls), live.controls)
     s = live.session
     rows: list[dict[str, Any]] = []
     try:
@@ -136,7 +135,7 @@ def error_law(scene_path: str, resolution: tuple[int, int] = (640, 256),
         s.update(light_transform=np.eye(4))
         traced = 0.0
         for mark in sorted(marks):
-            while live._photons_now() < mark:
+            while live.photons_now() < mark:
                 t0 = time.perf_counter()
                 s.shoot(batch)
                 traced += time.perf_counter() - t0
@@ -253,16 +252,14 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
     """Run the benchmark (see the module docstring); returns rows and the raw figures."""
     from playwright.sync_api import sync_playwright
 
-    from lightsim.cli.view import start_view
-    from lightsim.errors import LightsimError
-
     if not Path(chromium).exists():
         raise LightsimError(f"{chromium}: no Chromium (apt-get install chromium)")
     load0 = load_average()
     base = engine_baseline(scene_path, resolution, frame_photons)
     folder = Path(tempfile.mkdtemp(prefix="lightsim-bench-view-"))
-    live, server = start_view(scene_path, 0, resolution=resolution, folder=folder,
-                              frame_photons=frame_photons)
+    live, server = start_view(scene_path, ViewSettings(port=0, resolution=tuple(resolution),
+                                                       frame_photons=frame_photons),
+                              folder=folder)
     out: dict[str, Any] = {"engine": base, "load_average_start": load0}
     try:
         with sync_playwright() as p:
@@ -310,10 +307,10 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
             out["tracing_photons_per_s"] = (sum(e["batch_photons"] for e in batches)
                                             / traced if traced > 0 else 0.0)
             out["view_threads"] = {"used": live.last_status.get("numba_threads"),
-                                   "warm_up_frame_s": dict(live.thread_times),
-                                   "warm_up_batch_s": dict(live.accumulate_times),
-                                   "accumulate": live.accumulate_threads,
-                                   "still_batch_rates": dict(live.batch_rates)}
+                                   "warm_up_frame_s": dict(live.threads.frame_times),
+                                   "warm_up_batch_s": dict(live.threads.batch_times),
+                                   "accumulate": live.threads.accumulate,
+                                   "still_batch_rates": dict(live.threads.rates)}
             if screenshots is not None:
                 page.wait_for_timeout(1500)  # let a pooled map arrive if one is due
                 page.screenshot(path=str(screenshots / "view-converged.png"))
