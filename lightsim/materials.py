@@ -62,6 +62,7 @@ import numpy as np
 from numba import njit
 
 from lightsim.errors import InputError
+from lightsim.io.gltf_check import check_material
 from lightsim.sampling import uniform
 
 DIFFUSE, MIRROR, DIELECTRIC = 0, 1, 2
@@ -141,8 +142,6 @@ def material_from_gltf(name: str, mat: dict) -> tuple[Material, bool]:
     InputError
         One line naming the material and the field.
     """
-    from lightsim.io.gltf_check import check_material
-
     mat_name = mat.get("name") if isinstance(mat, dict) else None
     mat_name = mat_name if isinstance(mat_name, str) and mat_name else name
     check_material(f"material '{mat_name}'", mat)
@@ -236,10 +235,6 @@ class MaterialTable:
     def arrays(self) -> MaterialArrays:
         """The table for the numba kernels."""
         return MaterialArrays(self.kind, self.value, self.ior, self.sigma)
-
-    @property
-    def has_volume(self) -> bool:
-        return bool(np.any(self.sigma > 0))
 
 
 # --------------------------------------------------------------------------------------

@@ -22,11 +22,17 @@ parameter      unit   default                   meaning
 
 from __future__ import annotations
 
+import ctypes
 import functools
+import glob
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import embreex
 import numpy as np
+from embreex import rtcore as rtc
+from embreex import rtcore_scene as rtcs
+from embreex.mesh_construction import TriangleMesh
 from numba import njit
 
 WALL_MAX_TRIANGLES = 64  # a wall with more triangles stays in the embree scene
@@ -46,7 +52,7 @@ def embree_scene(triangles: np.ndarray, fast: bool = True):
     bench's mirror). With ``fast``, the same embree calls are made through ctypes on the
     library embreex loaded and the corners are copied by NumPy; this needs the scene's
     embree handles, read from the ``EmbreeScene`` object's C layout, which is checked
-    first (``_embree_handles``). Where the check fails (another embreex build) the slow
+    first (``embree_handles``). Where the check fails (another embreex build) the slow
     path is taken, so the result is always the same mesh.
 
     Parameters
@@ -56,15 +62,10 @@ def embree_scene(triangles: np.ndarray, fast: bool = True):
     fast : bool
         Try the ctypes path first.
     """
-    from embreex import rtcore as rtc
-    from embreex import rtcore_scene as rtcs
-
     device = rtc.EmbreeDevice()
     scene = rtcs.EmbreeScene(device)
     if fast and len(triangles) and _fill_fast(scene, device, triangles):
         return scene
-    from embreex.mesh_construction import TriangleMesh
-
     TriangleMesh(scene, triangles)
     return scene
 
@@ -80,11 +81,6 @@ def _embree_lib():
 
 
 def _load_embree_lib():
-    import ctypes
-    import glob
-
-    import embreex
-
     root = os.path.dirname(os.path.abspath(embreex.__file__))
     for pattern in ("../embreex.libs/libembree4*.so*", ".dylibs/libembree4*.dylib",
                     "libembree4*.so*", "../embreex.libs/embree4*.dll", "embree4*.dll"):
@@ -112,7 +108,7 @@ def _load_embree_lib():
     return None
 
 
-def _embree_handles(scene, device) -> tuple[int, int] | None:
+def embree_handles(scene, device) -> tuple[int, int] | None:
     """(RTCScene, RTCDevice) pointers of an embreex scene made with ``device``, or None.
 
     embreex declares ``EmbreeScene`` as {RTCScene scene_i; public int is_committed;
@@ -120,8 +116,6 @@ def _embree_handles(scene, device) -> tuple[int, int] | None:
     header. The layout is trusted only if the object sizes match, the ``device`` slot
     holds this very ``device`` object and ``is_committed`` reads back what was set.
     """
-    import ctypes
-
     head = object.__basicsize__  # PyObject header: refcount and type
     ptr = ctypes.sizeof(ctypes.c_void_p)
     if (type(scene).__basicsize__ != head + 3 * ptr
@@ -143,10 +137,8 @@ def _embree_handles(scene, device) -> tuple[int, int] | None:
 def _fill_fast(scene, device, tri: np.ndarray) -> bool:
     """Attach ``tri`` to ``scene`` through ctypes (see :func:`embree_scene`); False where
     that cannot be done safely (nothing attached then)."""
-    import ctypes
-
     lib = _embree_lib()
-    handles = None if lib is None else _embree_handles(scene, device)
+    handles = None if lib is None else embree_handles(scene, device)
     if handles is None or not handles[0] or not handles[1]:
         return False
     rtc_scene, rtc_device = handles

@@ -70,6 +70,8 @@ from lightsim.emitters import EmitterMix
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, WALL, scatter
 from lightsim.raycast import WALL_MAX_TRIANGLES, RayCaster, merge_wall_hit
 from lightsim.sampling import uniform
+from lightsim.scene import WALL as WALL_ROLE
+from lightsim.scene import Scene
 
 # bookkeeping categories (columns of the ledger)
 LEDGER = ("wall", "absorbed_diffuse", "absorbed_mirror", "absorbed_volume", "escaped",
@@ -154,10 +156,8 @@ class Geometry(NamedTuple):
         """This geometry with the wall rows taken from ``scene`` (the same lamp with the
         wall moved, :meth:`~lightsim.scene.Scene.with_wall_transform`): a copy and a few
         rows instead of a pass over every triangle of the lamp."""
-        from lightsim.scene import WALL, Scene
-
         rows = np.flatnonzero(self.is_wall)
-        walls = Scene([p for p in scene.surfaces if p.role == WALL], None,
+        walls = Scene([p for p in scene.surfaces if p.role == WALL_ROLE], None,
                       channels=scene.channels)
         if len(rows) != walls.n_triangles:
             raise ValueError("with_wall_of: the scene's wall has another triangle count")

@@ -68,7 +68,6 @@ from numba import njit, prange
 
 from lightsim.errors import InputError
 from lightsim.photonmap.common import (
-    _EMPTY_KEYS,
     SERIAL_BELOW,
     PhotonIndex,
     block_size,
@@ -88,6 +87,7 @@ DEFAULT_LEAF_SIZE = 10
 #: photons (amortised: re-splitting leaves that grew by a photon or two was the largest
 #: share of an insertion); leaves of a built tree hold ≤ leaf_size
 INSERT_SLACK = 2
+_NO_KEYS = np.zeros(0, np.int64)  # scan_radius without a key filter
 #: at most this many top levels are split at the middle of the *voxel* in one counting
 #: sort (see :meth:`KdTree._build_top`)
 MAX_TOP_LEVELS = 12
@@ -436,7 +436,7 @@ def _merge_ranges(child: np.ndarray, start: np.ndarray, end: np.ndarray, count: 
     photons, so a leaf's photons move up by ``shift[leaf]``: the new photons of all the
     leaves before it. Updates the leaves' ``start``/``end`` and returns (the leaves in
     slot order, ``shift`` per node). The walk reads the nodes in memory order when they
-    are numbered depth-first (:meth:`_BoxTree._to_dfs_order`).
+    are numbered depth-first (:meth:`BoxTree._to_dfs_order`).
     """
     m = child.shape[0]
     shift = np.zeros(m, np.int64)
@@ -942,7 +942,7 @@ def _tree_radius_one(qx: float, qy: float, qz: float, qnx: float, qny: float, qn
         c = child[nd]
         if c < 0:
             pos = scan_radius(start[nd], end[nd], qx, qy, qz, qnx, qny, qnz, pts, nrm,
-                              use_nrm, ncos, _EMPTY_KEYS, 0, 0, r2, out_i, out_d, pos,
+                              use_nrm, ncos, _NO_KEYS, 0, 0, r2, out_i, out_d, pos,
                               write, 0.0, 0, pw, acc)
             continue
         if _box_d2(box, c + 1, qx, qy, qz) <= r2:
@@ -988,9 +988,11 @@ def _tree_radius(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, ncos: flo
 
 
 # =========================================================================== classes
-class _BoxTree(PhotonIndex):
+class BoxTree(PhotonIndex):
     """Node storage and kernels shared by the middle and median trees (queries and
-    density estimates: :class:`~lightsim.photonmap.common.PhotonIndex`)."""
+    density estimates: :class:`~lightsim.photonmap.common.PhotonIndex`): tight node
+    boxes, leaf-contiguous photons. A subclass sets ``_median`` (split at the median
+    instead of the spatial middle) and defines ``add``."""
 
     _median = False
 
@@ -1241,7 +1243,7 @@ class _BoxTree(PhotonIndex):
                             self._perm, *self._args_nodes(), self._depth + 2)
 
 
-class KdTree(_BoxTree):
+class KdTree(BoxTree):
     """Spatial-middle-split kd-tree with incremental insertion (paper sections 5.2, 5.4).
 
     Examples
