@@ -246,7 +246,9 @@ class RayCaster:
         self.n_triangles = len(triangles)
         self.threads = max(1, int(threads or os.cpu_count() or 1))
         self.min_chunk = int(min_chunk)
-        self._scene = None
+        #: the lamp's embree scene (None without lamp triangles), shared by the casters
+        #: :meth:`with_wall` makes
+        self.lamp_scene = None
         mask = (np.zeros(self.n_triangles, np.bool_) if wall is None
                 else np.asarray(wall, dtype=np.bool_).reshape(-1))
         if len(mask) != self.n_triangles:
@@ -262,9 +264,9 @@ class RayCaster:
         self._lamp_index = np.zeros(0, np.int32) if identity else lamp
         self.n_lamp = len(lamp)
         if len(lamp):
-            self._scene = embree_scene(np.ascontiguousarray(triangles[lamp], np.float32))
+            self.lamp_scene = embree_scene(np.ascontiguousarray(triangles[lamp], np.float32))
             # commit now, in one thread: embreex commits lazily on the first run()
-            self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+            self.lamp_scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.geometry = None  # the tracer's packed triangles of this soup (set by it)
 
@@ -317,10 +319,10 @@ class RayCaster:
         indices): for a caller that intersects :attr:`wall_triangles` itself in its own
         pass over the rays (:func:`merge_wall_hit` gives the same answer as :meth:`cast`)."""
         n = len(origins)
-        if n == 0 or self._scene is None:
+        if n == 0 or self.lamp_scene is None:
             return (np.full(n, -1, dtype=np.int32), np.full(n, _MISS_T, dtype=np.float32),
                     np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32))
-        res = self._scene.run(origins, directions, output=1)
+        res = self.lamp_scene.run(origins, directions, output=1)
         prim, tfar, u, v = res["primID"], res["tfar"], res["u"], res["v"]
         if len(self._lamp_index):
             _merge_wall(origins, directions, prim, tfar, u, v, self._lamp_index,
@@ -331,8 +333,8 @@ class RayCaster:
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """embree's closest hits of float32 rays, merged with the exact wall."""
         n = len(o)
-        if self._scene is not None:
-            res = self._scene.run(o, d, output=1)
+        if self.lamp_scene is not None:
+            res = self.lamp_scene.run(o, d, output=1)
             prim, tfar, u, v = res["primID"], res["tfar"], res["u"], res["v"]
         else:
             prim = np.full(n, -1, dtype=np.int32)

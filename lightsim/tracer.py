@@ -499,7 +499,7 @@ def _start(o, d, power, weight, keys, lo, hi, base):
 
 
 @njit(cache=True, nogil=True)
-def _near_hits(prim, tfar, bound):
+def near_hits(prim, tfar, bound):
     """Indices of hits closer than ``bound`` (m): candidates for false self-hits."""
     out = np.empty(prim.shape[0], np.int64)
     n = 0
@@ -511,8 +511,8 @@ def _near_hits(prim, tfar, bound):
 
 
 @njit(cache=True, nogil=True)
-def _false_hits(near, o, d, prim, tfar, eps_floor, tri, fn):
-    """Of the rays ``near`` (:func:`_near_hits`), those whose hit is closer than their
+def false_hits(near, o, d, prim, tfar, eps_floor, tri, fn):
+    """Of the rays ``near`` (:func:`near_hits`), those whose hit is closer than their
     origin offset t_min = 4 · 2⁻¹⁸ · (|o|∞ + eps_floor) while they move away from the hit
     face's plane on their origin's side (false self-hits), and their t_min."""
     close = np.empty(near.shape[0], np.int64)
@@ -803,18 +803,20 @@ class PhotonTracer:
         of = getattr(caster, "geometry_of", None)  # the parts ``prev`` was packed from
         if prev is not None and of is not None and len(of) == len(scene.parts) and all(
                 a is b for a, b in zip(of, scene.parts)):
-            self._geom = prev  # the very same parts (the plan's pilot and the run)
+            self.geometry = prev  # the very same parts (the plan's pilot and the run)
         elif (prev is not None and self.caster.exact_wall and self.caster is not caster
                 and len(prev.tri_part) == self.caster.n_triangles):
-            self._geom = prev.with_wall_of(scene)  # same lamp, the wall moved
+            self.geometry = prev.with_wall_of(scene)  # same lamp, the wall moved
         else:
-            self._geom = Geometry.from_scene(scene)
+            self.geometry = Geometry.from_scene(scene)
         # the packed lamp rides with its embree scene: a tracer reusing this caster
         # (only the wall or materials changed) reuses the lamp's rows too
-        self.caster.geometry = self._geom
+        self.caster.geometry = self.geometry
         if caster is not None and prev is None:  # the shared caster too, for the next
-            caster.geometry, caster.geometry_of = self._geom, tuple(scene.parts)
-        self._geom = self._geom.for_caster(self.caster)  # the bounce intersects the wall
+            caster.geometry, caster.geometry_of = self.geometry, tuple(scene.parts)
+        #: the traced triangles as the bounce kernel reads them (:class:`Geometry`), with
+        #: the exact wall of this tracer's caster (the bounce intersects the wall)
+        self.geometry = self.geometry.for_caster(self.caster)
         self._mats = mats.arrays
         self.eps_floor = 0.01 * scene.scale
         self._params = TraceParams(self.eps_floor, self.rr_threshold, self.rr_min_depth,
@@ -942,12 +944,12 @@ class PhotonTracer:
         prim, tfar, bu, bv = self.caster.cast_lamp(o32, d32)  # the wall: in _bounce
         # a cheap global bound first: only rays that hit very close need the per-ray test
         bound = 4 * 3.814697265625e-06 * (self.scene_extent + self.eps_floor)
-        near = _near_hits(prim, tfar, bound)
+        near = near_hits(prim, tfar, bound)
         if len(near) == 0:
             return Hits(prim, tfar, bu, bv)
-        tri, fn = self._geom.tri_v, self._geom.face_n
+        tri, fn = self.geometry.tri_v, self.geometry.face_n
         for _ in range(3):
-            close, step = _false_hits(near, o, d, prim, tfar, self.eps_floor, tri, fn)
+            close, step = false_hits(near, o, d, prim, tfar, self.eps_floor, tri, fn)
             if len(close) == 0:
                 break
             p2, t2, u2, v2 = self.caster.cast_lamp(
@@ -1003,7 +1005,7 @@ class PhotonTracer:
             rb = RecordBuffer(*(a[r0:] for a in buf))
             esc = ((np.empty((m, 3), np.float32), np.empty((m, C))) if record_escaped
                    else (np.empty((0, 3), np.float32), np.empty((0, C))))
-            m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
+            m, r, e = _bounce(wf, m, hits, self.geometry, self._mats, self._params, depth,
                               depth == self.max_depth - 1, rb, ledger, base, caustic, o32,
                               d32, esc[0], esc[1], record_escaped)
             if clock:

@@ -757,7 +757,7 @@ def test_aim_as_a_wall_move_equals_the_aimed_lamp(headlight):
         live.frame(image=False, probes=False)
         caster = live.backend.clients[0].tracer.caster
         live.update(wall_transform=ed.wall_matrix(c1) @ np.linalg.inv(ed.wall_matrix(c0)))
-        assert live.backend.clients[0].tracer.caster._scene is caster._scene  # no rebuild
+        assert live.backend.clients[0].tracer.caster.lamp_scene is caster.lamp_scene  # no rebuild
         a1 = live.frame(probes=False)
         live.update(light_transform=ed.pose_matrix(c2) @ np.linalg.inv(ed.pose_matrix(c1)))
         a2 = live.frame(probes=False)

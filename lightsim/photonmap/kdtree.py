@@ -17,8 +17,8 @@ partition. Leaves whose box has zero extent (coincident photons) stay leaves wha
 their size, and a zero-extent axis is never split, so construction terminates for any
 finite input (the float64 midpoint of two distinct float32 values separates them).
 
-Insertion (this session's layout)
----------------------------------
+Insertion
+---------
 Nodes are numbered depth-first (children adjacent, every subtree one block of ids), after
 a build and after every insertion. An insertion routes the batch (sorted by top voxel) to
 its leaves, then rewrites the photon arrays in one pass: a walk over the leaves in slot
@@ -62,6 +62,8 @@ name             unit   default   meaning
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -988,6 +990,46 @@ def _tree_radius(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, ncos: flo
 
 
 # =========================================================================== classes
+class TreeLayout(NamedTuple):
+    """A kd-tree's storage as it stands (views, not copies: read only), the node arrays
+    cut to the tree's nodes (m of them); photons in slot order (each leaf's photons are
+    one contiguous slot range).
+
+    Attributes
+    ----------
+    child : (m,) int32
+        First child of each inner node (its children are c and c + 1), −1 for a leaf.
+    box : (m, 6) float32
+        Tight box of each node's photons: lo xyz, hi xyz (m).
+    start, end : (m,) int64
+        Slot range of each node's photons.
+    dim : (m,) int32
+        Split axis of each inner node (a leaf's is never read).
+    split : (m,) float64
+        Split plane of each inner node (m).
+    depth : (m,) int32
+        Depth of each node (root = 0).
+    positions, normals : (n, 3) float32
+        Photon positions (m) and unit normals by slot (normals empty in a tree without).
+    powers : (n, C) float32
+        Photon powers Φ by slot.
+    indices : (n,) int64
+        Insertion index of the photon in each slot.
+    """
+
+    child: np.ndarray
+    box: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    dim: np.ndarray
+    split: np.ndarray
+    depth: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    powers: np.ndarray
+    indices: np.ndarray
+
+
 class BoxTree(PhotonIndex):
     """Node storage and kernels shared by the middle and median trees (queries and
     density estimates: :class:`~lightsim.photonmap.common.PhotonIndex`): tight node
@@ -1218,6 +1260,14 @@ class BoxTree(PhotonIndex):
     def depth(self) -> int:
         """Depth of the deepest leaf (root = 0)."""
         return self._depth
+
+    @property
+    def layout(self) -> TreeLayout:
+        """The node and photon arrays as stored (:class:`TreeLayout`; read only)."""
+        m = self._n_nodes
+        return TreeLayout(self._child[:m], self._box[:m], self._start[:m], self._end[:m],
+                          self._dim[:m], self._split[:m], self._node_depth[:m], self._pts,
+                          self._nrm, self._pw, self._perm)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
