@@ -25,9 +25,11 @@ BSDF kernels
 ------------
 Each kind of surface is one numba function with one signature (see :data:`BSDF_SIGNATURE`),
 plus the wall detector (kind :data:`WALL`, a diffuse surface that records and ends the
-photon). A kernel samples the outgoing direction of one photon, scales its flux (C,) in
-place by the surface's throughput and adds what it took to the ledger row it is given;
-the tracer's interaction kernel only dispatches on the kind and books the ledger.
+photon); :func:`scatter` dispatches on the kind and is what the tracer calls per hit. A
+kernel samples the outgoing direction of one photon, scales its flux ``power[i]`` in place
+by the surface's throughput and adds what the surface took (absorbed, or detected by the
+wall) to ``ledger[row, col]``. The photon is given as arrays and row indices, not as row
+views: a view made per photon costs reference counting in the tracer's loop.
 
 =================  ========================================================  ==========
 argument           meaning                                                   unit
@@ -39,9 +41,12 @@ argument           meaning                                                   uni
 ``ns``             unit shading normal on that side (= ng for diffuse)        –
 ``front``          the photon arrives on the front (outside) face             –
 ``t``              distance travelled to the hit (Beer–Lambert inside glass)  m
-``key``, ``ctr``   random-number key and counter base of this bounce          –
-``power``          (C,) photon flux, scaled in place                          tracer units
-``loss``           (C,) ledger row the absorbed flux is added to              tracer units
+``key``, ``ctr``   random-number key and counter base of this bounce:        –
+                   ``ctr`` the dielectric's Fresnel choice, ``ctr + 2`` and
+                   ``ctr + 3`` the diffuse direction
+``power``, ``i``   (n, C) photon flux, row ``i`` scaled in place              tracer units
+``ledger``,        (rows, columns, C) energy ledger: the flux the surface      tracer units
+``row``, ``col``   took is added to ``ledger[row, col]``
 returns            (wx, wy, wz, side): outgoing direction (not normalised)    –
                    and side +1 reflected, −1 transmitted, 0 ended
 =================  ========================================================  ==========
@@ -57,12 +62,14 @@ import numpy as np
 from numba import njit
 
 from lightsim.errors import InputError
+from lightsim.io.gltf_check import check_material
 from lightsim.sampling import uniform
 
 DIFFUSE, MIRROR, DIELECTRIC = 0, 1, 2
 WALL = 3  # the measurement wall: a detector, not a material of the table
 KIND_NAMES = {DIFFUSE: "diffuse", MIRROR: "mirror", DIELECTRIC: "dielectric", WALL: "wall"}
-BSDF_SIGNATURE = "(mats, m, d, ng, ns, front, t, key, ctr, power, loss) -> (wx, wy, wz, side)"
+BSDF_SIGNATURE = ("(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col)"
+                  " -> (wx, wy, wz, side)")
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance weights of linear RGB
 
 
@@ -135,8 +142,6 @@ def material_from_gltf(name: str, mat: dict) -> tuple[Material, bool]:
     InputError
         One line naming the material and the field.
     """
-    from lightsim.io.gltf_check import check_material
-
     mat_name = mat.get("name") if isinstance(mat, dict) else None
     mat_name = mat_name if isinstance(mat_name, str) and mat_name else name
     check_material(f"material '{mat_name}'", mat)
@@ -231,13 +236,9 @@ class MaterialTable:
         """The table for the numba kernels."""
         return MaterialArrays(self.kind, self.value, self.ior, self.sigma)
 
-    @property
-    def has_volume(self) -> bool:
-        return bool(np.any(self.sigma > 0))
-
 
 # --------------------------------------------------------------------------------------
-# Surface optics kernels (unit vectors; n is the normal on the side the light comes from)
+# Fresnel reflectance
 # --------------------------------------------------------------------------------------
 
 @njit(cache=True, inline="always")
@@ -273,7 +274,7 @@ def slab_transmittance(n: float, cos_i: float = 1.0, absorption: float = 1.0) ->
 
 
 # --------------------------------------------------------------------------------------
-# BSDF kernels: one per kind, one signature (see the module docstring)
+# Direction cores (scalars in, scalars out; unit vectors, normals on the incident side)
 # --------------------------------------------------------------------------------------
 
 @njit(cache=True, inline="always")
@@ -293,34 +294,9 @@ def cosine_direction(nx: float, ny: float, nz: float, u1: float, u2: float
 
 
 @njit(cache=True, inline="always")
-def wall_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
-    """The measurement wall: all flux is detected (booked to ``loss``), the photon ends."""
-    for c in range(power.shape[0]):
-        loss[c] += power[c]
-        power[c] = 0.0
-    return d[0], d[1], d[2], 0.0
-
-
-@njit(cache=True, inline="always")
-def diffuse_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
-    """Lambertian reflection: (1 − ρ) absorbed, the rest leaves cosine-distributed about ng.
-
-    Reflection only, on the side the photon came from; the shading normal is not used.
-    """
-    for c in range(power.shape[0]):
-        rho = mats.value[m, c]
-        loss[c] += (1.0 - rho) * power[c]
-        power[c] *= rho
-    wx, wy, wz = cosine_direction(ng[0], ng[1], ng[2], uniform(key, ctr + np.uint64(2)),
-                                  uniform(key, ctr + np.uint64(3)))
-    return wx, wy, wz, 1.0
-
-
-@njit(cache=True, inline="always")
 def mirror_direction(dx, dy, dz, sx, sy, sz, fgx, fgy, fgz):
     """Reflection of d about the shading normal s, or about the geometric normal g where
-    s would send it through the surface (scalars only: no arrays, no reference counts in
-    the tracer's loop). Returns the unnormalised outgoing direction."""
+    s would send it through the surface. Returns the unnormalised outgoing direction."""
     c_i = dx * sx + dy * sy + dz * sz
     wx, wy, wz = dx - 2 * c_i * sx, dy - 2 * c_i * sy, dz - 2 * c_i * sz
     if wx * fgx + wy * fgy + wz * fgz <= 0.0:
@@ -330,45 +306,10 @@ def mirror_direction(dx, dy, dz, sx, sy, sz, fgx, fgy, fgz):
 
 
 @njit(cache=True, inline="always")
-def mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
-    """Perfect specular reflection about ns with reflectance R; (1 − R) absorbed.
-
-    Where the shading normal would reflect the photon through the geometric surface, the
-    reflection is about ng instead (:func:`mirror_direction`).
-    """
-    for c in range(power.shape[0]):
-        rr_ = mats.value[m, c]
-        loss[c] += (1.0 - rr_) * power[c]
-        power[c] *= rr_
-    wx, wy, wz = mirror_direction(d[0], d[1], d[2], ns[0], ns[1], ns[2], ng[0], ng[1], ng[2])
-    return wx, wy, wz, 1.0
-
-
-@njit(cache=True, inline="always")
-def dielectric_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, loss):
-    """Smooth dielectric (air outside): Beer–Lambert for a path inside, then Fresnel.
-
-    A photon arriving from inside (``front`` false) first keeps exp(−σ t) of its flux
-    (the rest goes to ``loss``). It then reflects with probability F (exact unpolarised
-    Fresnel; F = 1 beyond the critical angle) or refracts by Snell's law; the flux is
-    unchanged by the choice (the choice is the weighting). Shading normals that would
-    send the photon to the wrong side are replaced by the geometric normal.
-    """
-    if not front:  # we travelled inside this material: Beer–Lambert
-        for c in range(power.shape[0]):
-            s_ = mats.sigma[m, c]
-            if s_ > 0.0:
-                keep = math.exp(-s_ * t)
-                loss[c] += (1.0 - keep) * power[c]
-                power[c] *= keep
-    return dielectric_direction(d[0], d[1], d[2], ns[0], ns[1], ns[2], ng[0], ng[1], ng[2],
-                                front, mats.ior[m], key, ctr)
-
-
-@njit(cache=True, inline="always")
 def dielectric_direction(dx, dy, dz, sx, sy, sz, fgx, fgy, fgz, front, ior, key, ctr):
-    """The Fresnel choice and Snell refraction of :func:`dielectric_bsdf` on scalars:
-    returns (wx, wy, wz, side), side +1 reflected, −1 transmitted."""
+    """The Fresnel choice (random number ``ctr``) and Snell refraction of
+    :func:`dielectric_bsdf`: returns (wx, wy, wz, side), the unnormalised outgoing
+    direction and side +1 reflected, −1 transmitted."""
     eta_i, eta_t = (1.0, ior) if front else (ior, 1.0)
     cos_i = -(dx * sx + dy * sy + dz * sz)
     nsx, nsy, nsz = sx, sy, sz
@@ -401,3 +342,85 @@ def dielectric_direction(dx, dy, dz, sx, sy, sz, fgx, fgy, fgz, front, ior, key,
             wx, wy, wz = dx + 2 * c_g * fgx, dy + 2 * c_g * fgy, dz + 2 * c_g * fgz
             side = 1.0
     return wx, wy, wz, side
+
+
+# --------------------------------------------------------------------------------------
+# BSDF kernels: one per kind, one signature (see the module docstring), and the dispatch
+# --------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def wall_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col):
+    """The measurement wall: all flux is detected (booked to ``ledger[row, col]``), the
+    photon ends."""
+    for c in range(power.shape[1]):
+        ledger[row, col, c] += power[i, c]
+        power[i, c] = 0.0
+    return d[0], d[1], d[2], 0.0
+
+
+@njit(cache=True, inline="always")
+def diffuse_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col):
+    """Lambertian reflection: (1 − ρ) absorbed, the rest leaves cosine-distributed about ng
+    (random numbers ``ctr + 2``, ``ctr + 3``).
+
+    Reflection only, on the side the photon came from; the shading normal is not used.
+    """
+    for c in range(power.shape[1]):
+        rho = mats.value[m, c]
+        ledger[row, col, c] += (1.0 - rho) * power[i, c]
+        power[i, c] *= rho
+    wx, wy, wz = cosine_direction(ng[0], ng[1], ng[2], uniform(key, ctr + np.uint64(2)),
+                                  uniform(key, ctr + np.uint64(3)))
+    return wx, wy, wz, 1.0
+
+
+@njit(cache=True, inline="always")
+def mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col):
+    """Perfect specular reflection about ns with reflectance R; (1 − R) absorbed.
+
+    Where the shading normal would reflect the photon through the geometric surface, the
+    reflection is about ng instead (:func:`mirror_direction`).
+    """
+    for c in range(power.shape[1]):
+        r = mats.value[m, c]
+        ledger[row, col, c] += (1.0 - r) * power[i, c]
+        power[i, c] *= r
+    wx, wy, wz = mirror_direction(d[0], d[1], d[2], ns[0], ns[1], ns[2], ng[0], ng[1], ng[2])
+    return wx, wy, wz, 1.0
+
+
+@njit(cache=True, inline="always")
+def dielectric_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col):
+    """Smooth dielectric (air outside): Beer–Lambert for a path inside, then Fresnel.
+
+    A photon arriving from inside (``front`` false) first keeps exp(−σ t) of its flux
+    (the rest is absorbed). It then reflects with probability F (exact unpolarised
+    Fresnel; F = 1 beyond the critical angle; random number ``ctr``) or refracts by
+    Snell's law; the flux is unchanged by the choice (the choice is the weighting).
+    Shading normals that would send the photon to the wrong side are replaced by the
+    geometric normal (:func:`dielectric_direction`).
+    """
+    if not front:  # the photon travelled inside this material: Beer–Lambert
+        for c in range(power.shape[1]):
+            s = mats.sigma[m, c]
+            if s > 0.0:
+                keep = math.exp(-s * t)
+                ledger[row, col, c] += (1.0 - keep) * power[i, c]
+                power[i, c] *= keep
+    return dielectric_direction(d[0], d[1], d[2], ns[0], ns[1], ns[2], ng[0], ng[1], ng[2],
+                                front, mats.ior[m], key, ctr)
+
+
+@njit(cache=True, inline="always")
+def scatter(kind, mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col):
+    """The BSDF kernel of ``kind`` (DIFFUSE, MIRROR, DIELECTRIC or WALL) applied to one
+    photon: the tracer's one entry to the surface optics. Arguments and return value as
+    every kernel's (:data:`BSDF_SIGNATURE`)."""
+    if kind == DIFFUSE:
+        return diffuse_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col)
+    if kind == MIRROR:
+        return mirror_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col)
+    if kind == DIELECTRIC:
+        return dielectric_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row,
+                               col)
+    return wall_bsdf(mats, m, d, ng, ns, front, t, key, ctr, power, i, ledger, row, col)

@@ -22,11 +22,17 @@ parameter      unit   default                   meaning
 
 from __future__ import annotations
 
+import ctypes
 import functools
+import glob
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import embreex
 import numpy as np
+from embreex import rtcore as rtc
+from embreex import rtcore_scene as rtcs
+from embreex.mesh_construction import TriangleMesh
 from numba import njit
 
 WALL_MAX_TRIANGLES = 64  # a wall with more triangles stays in the embree scene
@@ -46,7 +52,7 @@ def embree_scene(triangles: np.ndarray, fast: bool = True):
     bench's mirror). With ``fast``, the same embree calls are made through ctypes on the
     library embreex loaded and the corners are copied by NumPy; this needs the scene's
     embree handles, read from the ``EmbreeScene`` object's C layout, which is checked
-    first (``_embree_handles``). Where the check fails (another embreex build) the slow
+    first (``embree_handles``). Where the check fails (another embreex build) the slow
     path is taken, so the result is always the same mesh.
 
     Parameters
@@ -56,15 +62,10 @@ def embree_scene(triangles: np.ndarray, fast: bool = True):
     fast : bool
         Try the ctypes path first.
     """
-    from embreex import rtcore as rtc
-    from embreex import rtcore_scene as rtcs
-
     device = rtc.EmbreeDevice()
     scene = rtcs.EmbreeScene(device)
     if fast and len(triangles) and _fill_fast(scene, device, triangles):
         return scene
-    from embreex.mesh_construction import TriangleMesh
-
     TriangleMesh(scene, triangles)
     return scene
 
@@ -80,11 +81,6 @@ def _embree_lib():
 
 
 def _load_embree_lib():
-    import ctypes
-    import glob
-
-    import embreex
-
     root = os.path.dirname(os.path.abspath(embreex.__file__))
     for pattern in ("../embreex.libs/libembree4*.so*", ".dylibs/libembree4*.dylib",
                     "libembree4*.so*", "../embreex.libs/embree4*.dll", "embree4*.dll"):
@@ -112,7 +108,7 @@ def _load_embree_lib():
     return None
 
 
-def _embree_handles(scene, device) -> tuple[int, int] | None:
+def embree_handles(scene, device) -> tuple[int, int] | None:
     """(RTCScene, RTCDevice) pointers of an embreex scene made with ``device``, or None.
 
     embreex declares ``EmbreeScene`` as {RTCScene scene_i; public int is_committed;
@@ -120,8 +116,6 @@ def _embree_handles(scene, device) -> tuple[int, int] | None:
     header. The layout is trusted only if the object sizes match, the ``device`` slot
     holds this very ``device`` object and ``is_committed`` reads back what was set.
     """
-    import ctypes
-
     head = object.__basicsize__  # PyObject header: refcount and type
     ptr = ctypes.sizeof(ctypes.c_void_p)
     if (type(scene).__basicsize__ != head + 3 * ptr
@@ -143,10 +137,8 @@ def _embree_handles(scene, device) -> tuple[int, int] | None:
 def _fill_fast(scene, device, tri: np.ndarray) -> bool:
     """Attach ``tri`` to ``scene`` through ctypes (see :func:`embree_scene`); False where
     that cannot be done safely (nothing attached then)."""
-    import ctypes
-
     lib = _embree_lib()
-    handles = None if lib is None else _embree_handles(scene, device)
+    handles = None if lib is None else embree_handles(scene, device)
     if handles is None or not handles[0] or not handles[1]:
         return False
     rtc_scene, rtc_device = handles
@@ -254,7 +246,9 @@ class RayCaster:
         self.n_triangles = len(triangles)
         self.threads = max(1, int(threads or os.cpu_count() or 1))
         self.min_chunk = int(min_chunk)
-        self._scene = None
+        #: the lamp's embree scene (None without lamp triangles), shared by the casters
+        #: :meth:`with_wall` makes
+        self.lamp_scene = None
         mask = (np.zeros(self.n_triangles, np.bool_) if wall is None
                 else np.asarray(wall, dtype=np.bool_).reshape(-1))
         if len(mask) != self.n_triangles:
@@ -270,9 +264,9 @@ class RayCaster:
         self._lamp_index = np.zeros(0, np.int32) if identity else lamp
         self.n_lamp = len(lamp)
         if len(lamp):
-            self._scene = embree_scene(np.ascontiguousarray(triangles[lamp], np.float32))
+            self.lamp_scene = embree_scene(np.ascontiguousarray(triangles[lamp], np.float32))
             # commit now, in one thread: embreex commits lazily on the first run()
-            self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+            self.lamp_scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
         self.geometry = None  # the tracer's packed triangles of this soup (set by it)
 
@@ -325,10 +319,10 @@ class RayCaster:
         indices): for a caller that intersects :attr:`wall_triangles` itself in its own
         pass over the rays (:func:`merge_wall_hit` gives the same answer as :meth:`cast`)."""
         n = len(origins)
-        if n == 0 or self._scene is None:
+        if n == 0 or self.lamp_scene is None:
             return (np.full(n, -1, dtype=np.int32), np.full(n, _MISS_T, dtype=np.float32),
                     np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32))
-        res = self._scene.run(origins, directions, output=1)
+        res = self.lamp_scene.run(origins, directions, output=1)
         prim, tfar, u, v = res["primID"], res["tfar"], res["u"], res["v"]
         if len(self._lamp_index):
             _merge_wall(origins, directions, prim, tfar, u, v, self._lamp_index,
@@ -339,8 +333,8 @@ class RayCaster:
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """embree's closest hits of float32 rays, merged with the exact wall."""
         n = len(o)
-        if self._scene is not None:
-            res = self._scene.run(o, d, output=1)
+        if self.lamp_scene is not None:
+            res = self.lamp_scene.run(o, d, output=1)
             prim, tfar, u, v = res["primID"], res["tfar"], res["u"], res["v"]
         else:
             prim = np.full(n, -1, dtype=np.int32)

@@ -45,7 +45,8 @@ N_DIMS = 5
 # digits per base so that base**-digits < 2**-53: the scrambled tail is fully random
 DIGITS = np.array([53, 34, 23, 19, 16], dtype=np.int64)
 MAX_DIGITS = int(DIGITS.max())
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+#: 2⁶⁴ / φ, SplitMix64's increment (the key chain of :func:`photon_keys`)
+GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 # --------------------------------------------------------------------------------------
@@ -67,7 +68,8 @@ def uniform(key: np.uint64, counter: np.uint64) -> float:
     return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-def _mix64_np(z: np.ndarray) -> np.ndarray:
+def mix64_np(z: np.ndarray) -> np.ndarray:
+    """:func:`mix64` on a uint64 array (NumPy; wrapping arithmetic)."""
     z = np.asarray(z, dtype=np.uint64)
     with np.errstate(over="ignore"):
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -78,9 +80,9 @@ def _mix64_np(z: np.ndarray) -> np.ndarray:
 def photon_keys(seed: int, set_index: int, pass_index: int, indices: np.ndarray) -> np.ndarray:
     """uint64 random-number keys of photons: a hash of (seed, set, pass, Halton index)."""
     with np.errstate(over="ignore"):
-        base = _mix64_np(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) + _GOLDEN)
-        base = _mix64_np(base ^ np.uint64(set_index + 1))
-        base = _mix64_np(base ^ (np.uint64(pass_index + 1) * _GOLDEN))
+        base = mix64_np(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) + GOLDEN)
+        base = mix64_np(base ^ np.uint64(set_index + 1))
+        base = mix64_np(base ^ (np.uint64(pass_index + 1) * GOLDEN))
     indices = np.ascontiguousarray(indices, dtype=np.int64)
     out = np.empty(indices.shape, np.uint64)
     _keys_of(np.uint64(base), indices.reshape(-1), out.reshape(-1))
@@ -90,7 +92,7 @@ def photon_keys(seed: int, set_index: int, pass_index: int, indices: np.ndarray)
 @njit(cache=True, nogil=True)
 def _keys_of(base: np.uint64, indices: np.ndarray, out: np.ndarray) -> None:
     """out[i] = mix64(base ^ indices[i]) (the index's bits as uint64): NumPy's
-    ``_mix64_np`` of the array in one pass, without its five temporaries."""
+    ``mix64_np`` of the array in one pass, without its five temporaries."""
     for i in range(indices.shape[0]):
         out[i] = mix64(base ^ np.uint64(indices[i]))
 
@@ -118,7 +120,7 @@ def digit_permutations(seed: int, set_index: int, pass_index: int | None,
     generator (leading cell digits, or every digit without a pass) or the pass's; the
     shuffles run in one compiled loop that steps the generators' PCG64 states itself
     (:func:`_pcg64_next`, NumPy's ``random_interval`` and Fisher–Yates order), so the
-    permutations are NumPy's, bit for bit (:func:`_digit_permutations_reference` is the
+    permutations are NumPy's, bit for bit (:func:`digit_permutations_reference` is the
     plain loop) — 3× cheaper than numba's ``Generator`` (whose every bounded draw goes
     through the bit generator's function pointers, ~66 ns a draw).
     """
@@ -221,7 +223,7 @@ def _shuffled_digits(f_st: np.ndarray, f_buf: np.ndarray, p_st: np.ndarray,
     return perms
 
 
-def _digit_permutations_reference(seed: int, set_index: int, pass_index: int | None,
+def digit_permutations_reference(seed: int, set_index: int, pass_index: int | None,
                                   cell_digits: tuple[int, int] = (0, 0)) -> np.ndarray:
     """:func:`digit_permutations` as a Python loop over ``Generator.permutation`` (the
     definition its compiled loop must reproduce bit for bit; tests)."""
@@ -240,7 +242,9 @@ def _digit_permutations_reference(seed: int, set_index: int, pass_index: int | N
 
 
 @njit(cache=True)
-def _radical_inverse(index: np.int64, d: int, perms: np.ndarray) -> float:
+def radical_inverse(index: np.int64, d: int, perms: np.ndarray) -> float:
+    """The scrambled radical inverse of ``index`` in dimension ``d`` (digit permutations
+    ``perms``), digit by digit: the definition the Halton kernels reproduce (tests)."""
     base = PRIMES[d]
     inv = 1.0 / base
     f = inv
@@ -264,7 +268,7 @@ GROUP_SIZE = 128
 
 
 def _radical_inverse_in(d: int):
-    """:func:`_radical_inverse` for dimension ``d``, with its base and digit count as
+    """:func:`radical_inverse` for dimension ``d``, with its base and digit count as
     compile-time constants (the divisions become multiplications).
 
     Base 2 needs no loop at all: its terms are distinct powers of two, so the sum is
@@ -435,7 +439,7 @@ def halton_points(indices: np.ndarray, perms: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 
 @njit(cache=True, nogil=True)
-def _pass_indices(n_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def pass_indices(n_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A pass's Halton indices, cell by cell (cell c: c + jL for j < n_c[c], L cells),
     and their weights n_pass / (L · n_c[c]) (float64, the same division as NumPy's)."""
     L = n_c.shape[0]
@@ -515,7 +519,7 @@ class SelectiveSampler:
         else:
             J = max(self.pass_photons - L, 0) // n_ref
             n_c = np.where(self.refined, 1 + J, 1).astype(np.int64)
-        indices, weight = _pass_indices(n_c)
+        indices, weight = pass_indices(n_c)
         perms = digit_permutations(self.seed, self.set_index, self.passes_done,
                                    self.cell_digits)
         p = self.passes_done

@@ -46,6 +46,10 @@ from lightsim.emitters.goniometric import GoniometricEmitter
 from lightsim.emitters.rayfile import RaySource
 from lightsim.emitters.registry import filament_factory, photometric_reader
 from lightsim.errors import InputError
+from lightsim.io.cad import read_cad
+from lightsim.io.closed_mesh import closed_mesh  # numpy: no trimesh import
+from lightsim.io.gltf import read_gltf
+from lightsim.materialmap import read_material_map, split_cad_faces
 from lightsim.materials import (
     DIELECTRIC,
     DIFFUSE,
@@ -332,15 +336,13 @@ def _read_parts(path: Path, tessellation: Any = None, warnings: list[str] | None
     """(name, vertices, faces, normals, material json, extras) for each mesh in ``path``;
     what the reader repaired is appended to ``warnings``."""
     if path.suffix.lower() in (".step", ".stp", ".iges", ".igs"):
-        from lightsim.io.cad import read_cad
-
         return [(p.name, p.vertices, p.faces, p.normals, p.material, p.extras)
                 for p in read_cad(path, tessellation)]
     if path.suffix.lower() in (".glb", ".gltf"):
-        from lightsim.io.gltf import read_gltf
-
         return [(p.name, p.vertices, p.faces, p.normals, p.material, p.extras)
                 for p in read_gltf(path, warnings)]
+    # other mesh formats: trimesh, imported here only, since it imports scipy.linalg
+    # (seconds at start-up) that a glTF or STEP run never needs
     import trimesh
 
     try:
@@ -402,8 +404,6 @@ def solid_wall_face(part: Part) -> tuple[Part, str] | None:
     nearest to it. Returns the reduced part and a one-line description, or None when the
     part is open, not thin, or has no planar front face (then it stays "not planar").
     """
-    from lightsim.io.closed_mesh import closed_mesh  # numpy: no trimesh import
-
     if len(part.faces) < 4:
         return None
     mesh = closed_mesh(part.vertices, part.faces)
@@ -462,7 +462,6 @@ def make_wall(distance: float, size: tuple[float, float], albedo: float = 0.8,
 
 def _check_dielectric(part: Part, warnings: list[str]) -> Part:
     """Flip a closed dielectric with inward normals; warn about open ones."""
-    from lightsim.io.closed_mesh import closed_mesh  # numpy: no trimesh import
 
     mesh = closed_mesh(part.vertices, part.faces)
     if not mesh.watertight:
@@ -528,13 +527,9 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
     part_materials = dict(part_materials or {})
     mmap = None
     if materials is not None:
-        from lightsim.materialmap import read_material_map
-
         mmap = read_material_map(materials)
     warnings: list[str] = []
     raw = _read_parts(path, tessellation, warnings)
-    from lightsim.materialmap import split_cad_faces
-
     raw = split_cad_faces(raw, mmap, part_materials)  # CAD faces a rule/option names
     unmatched: list[str] = []
     if not raw:

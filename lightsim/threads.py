@@ -1,4 +1,4 @@
-"""One helper thread for work that runs beside the calling thread.
+"""One second thread for work that runs beside the calling thread.
 
 Three stages use it, never at the same time: the written map's second branch
 (:func:`lightsim.render.ici.written_map`), the second half of a frame's insertion
@@ -24,10 +24,10 @@ _POOL: ThreadPoolExecutor | None = None
 
 
 def helper_thread() -> ThreadPoolExecutor:
-    """The process's helper thread (an executor of one worker)."""
+    """The process's second thread (an executor of one worker)."""
     global _POOL
     if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lightsim-helper")
+        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lightsim-second")
     return _POOL
 
 

@@ -11,9 +11,9 @@ key). Records come back bounce-major, in photon order, as one wavefront would gi
 with ``by_source`` (what a run's frames ask) in photon order, each photon's in bounce
 order, sorted chunk by chunk on the tracer's threads.
 
-The interaction (in :func:`_bounce`) dispatches to the optics of the surface hit
-(:mod:`lightsim.materials`: the same flux rules as its BSDF kernels, the directions from
-their scalar cores) and books the ledger:
+The interaction (in :func:`_bounce`) hands each hit to the BSDF kernel of the surface's
+kind (:func:`lightsim.materials.scatter`), which samples the outgoing direction, scales the
+flux and books what the surface took in the ledger:
 
 * **wall** (detector): the photon is recorded and ends there;
 * **diffuse**: the photon is recorded (if recording all surfaces), (1 − ρ) of its flux is
@@ -67,21 +67,19 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from lightsim.emitters import EmitterMix
-from lightsim.materials import (
-    DIFFUSE,
-    MIRROR,
-    WALL,
-    cosine_direction,
-    dielectric_direction,
-    mirror_direction,
-)
+from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, WALL, scatter
 from lightsim.raycast import WALL_MAX_TRIANGLES, RayCaster, merge_wall_hit
 from lightsim.sampling import uniform
+from lightsim.scene import WALL as WALL_ROLE
+from lightsim.scene import Scene
 
 # bookkeeping categories (columns of the ledger)
 LEDGER = ("wall", "absorbed_diffuse", "absorbed_mirror", "absorbed_volume", "escaped",
           "roulette", "max_depth")
 L_WALL, L_ABS_DIFF, L_ABS_MIRR, L_ABS_VOL, L_ESC, L_RR, L_MAXD = range(len(LEDGER))
+# the ledger column of the flux a surface of each kind takes (indexed by kind)
+_TAKEN = tuple(col for _, col in sorted({DIFFUSE: L_ABS_DIFF, MIRROR: L_ABS_MIRR,
+                                         DIELECTRIC: L_ABS_VOL, WALL: L_WALL}.items()))
 
 # photon flags
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
@@ -158,10 +156,8 @@ class Geometry(NamedTuple):
         """This geometry with the wall rows taken from ``scene`` (the same lamp with the
         wall moved, :meth:`~lightsim.scene.Scene.with_wall_transform`): a copy and a few
         rows instead of a pass over every triangle of the lamp."""
-        from lightsim.scene import WALL, Scene
-
         rows = np.flatnonzero(self.is_wall)
-        walls = Scene([p for p in scene.surfaces if p.role == WALL], None,
+        walls = Scene([p for p in scene.surfaces if p.role == WALL_ROLE], None,
                       channels=scene.channels)
         if len(rows) != walls.n_triangles:
             raise ValueError("with_wall_of: the scene's wall has another triangle count")
@@ -289,26 +285,30 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
             o32, d32, esc_d, esc_p, record_escaped):
     """One bounce of the first ``m`` rays of a wavefront, fused with its compaction.
 
-    Per ray: dispatch to the optics of the surface hit (:mod:`lightsim.materials`; the
-    flux loops here, the direction from the kinds' scalar kernels), book the ledger,
-    roulette; records go densely into ``rec``, escaped photons into ``esc_d``/``esc_p``
-    (if ``record_escaped``), and the surviving rays move to the front of ``wf`` in order,
-    with float32 copies of their origins and directions in ``o32``/``d32`` for the next
-    embree cast. Photon ``j``
-    (``wf.lid``: its index in the trace) books into ``ledger[j - led_off]`` (the chunk's
-    rows), and its record, if on a specular path, marks ``caustic[j]``.
+    Per ray, in named steps: escape (no hit), the hit (point, facing geometric normal,
+    kind), the record, the shading normal, scattering (the kind's BSDF kernel through
+    :func:`lightsim.materials.scatter`: direction, side, flux and the ledger), the spawned
+    ray, Russian roulette, the depth limit, compaction. Records go densely into ``rec``,
+    escaped photons into ``esc_d``/``esc_p`` (if ``record_escaped``), and the surviving
+    rays move to the front of ``wf`` in order, with float32 copies of their origins and
+    directions in ``o32``/``d32`` for the next embree cast. Photon ``j`` (``wf.lid``: its
+    index in the trace) books into ``ledger[j - led_off]`` (the chunk's rows), and its
+    record, if on a specular path, marks ``caustic[j]``. Random numbers of a bounce at
+    ``depth``: counter 8 · depth + 0 the Fresnel choice, + 1 roulette, + 2 and + 3 the
+    diffuse direction.
 
-    The named tuples are unpacked once, before the loop, and the loop body handles only
-    scalars and array elements: an array or a tuple of arrays handed to a function per
-    ray costs a reference-count increment and decrement per array (≈ 40 atomic calls per
-    ray with the tuples, more than embree's cast itself). Serial and without the GIL: the
-    tracer runs one wavefront chunk per Python thread, embree casts included.
+    The named tuples are unpacked once, before the loop, and the loop body hands the BSDF
+    only scalars, tuples of scalars and whole arrays with row indices: a row view or a
+    tuple of arrays made per ray costs a reference-count increment and decrement per
+    array (≈ 40 atomic calls per ray with the tuples, more than embree's cast itself).
+    Serial and without the GIL: the tracer runs one wavefront chunk per Python thread,
+    embree casts included.
 
     Returns (alive, records, escaped) counts.
     """
     wo, wd, pw, pref, wflags, wkeys, wlid = wf
     prim, tfar, hu, hv = hits
-    kinds, value, ior, sigma = mats
+    kinds = mats.kind
     rpos, rnrm, rpow, rpart, rflags, rsrc = rec
     packed = geom.packed
     wall_tri, wall_index, slab = geom.wall_tri, geom.wall_index, geom.wall_slab
@@ -319,7 +319,7 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
     # the exact wall (outside embree) in its own pass before the loop. The hit triangles'
     # packed rows (a cache miss each on a large mesh: Halton-ordered photons hit scattered
     # triangles) are prefetched _PF rays ahead in the loop; a gather pass copying them
-    # into a buffer before the loop (sessions 4–10) cost 25–50 ns per ray more
+    # into a buffer before the loop cost 25–50 ns per ray more
     if wall_tri.shape[0] > 0:
         nx, ny, nz, h, rad = slab[0], slab[1], slab[2], slab[3], slab[4]
         for i in range(m):
@@ -347,7 +347,8 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
         j = wlid[i]
         jl = j - led_off
         k = prim[i]
-        if k < 0:  # escaped to infinity
+        # escape: no hit, the photon leaves to infinity
+        if k < 0:
             if record_escaped:
                 for q in range(3):
                     esc_d[e, q] = wd[i, q]
@@ -358,11 +359,13 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
                 ledger[jl, L_ESC, c] += pw[i, c]
                 pw[i, c] = 0.0
             continue
+
+        # the hit: point p on the triangle, facing geometric normal ng, surface kind
         t = float(tfar[i])
         dx, dy, dz = wd[i, 0], wd[i, 1], wd[i, 2]
         bu, bv = hu[i], hv[i]
-        # the hit point from barycentrics lies on the triangle (o + t·d with a float32 t
-        # can land just outside a neighbouring face at an edge and leak out of a box)
+        # p from barycentrics lies on the triangle (o + t·d with a float32 t can land
+        # just outside a neighbouring face at an edge and leak out of a box)
         b1 = min(max(float(bu), 0.0), 1.0)
         b2 = min(max(float(bv), 0.0), 1.0 - b1)
         # pulled strictly inside the triangle: a point on an edge lies on the plane of the
@@ -375,13 +378,13 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
         pz = b0 * packed[k, 2] + b1 * packed[k, 5] + b2 * packed[k, 8]
         gx, gy, gz = packed[k, 9], packed[k, 10], packed[k, 11]
         front = dx * gx + dy * gy + dz * gz < 0.0
-        # facing geometric normal: on the side the photon came from
-        fs = 1.0 if front else -1.0
+        fs = 1.0 if front else -1.0  # ng on the side the photon came from
         ngx, ngy, ngz = fs * gx, fs * gy, fs * gz
         mi = int(packed[k, 21])
         kind = WALL if packed[k, 22] != 0.0 else kinds[mi]
         key = wkeys[i]
 
+        # record: the photon map's entry, with the flux that arrived
         if kind == WALL or (kind == DIFFUSE and record_all):
             rpos[r, 0], rpos[r, 1], rpos[r, 2] = px, py, pz
             rnrm[r, 0], rnrm[r, 1], rnrm[r, 2] = ngx, ngy, ngz
@@ -394,22 +397,11 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
             if fl & F_SPECULAR:
                 caustic[j] = True
             r += 1
-        if kind == WALL:  # the detector: all flux detected, the photon ends
-            for c in range(C):
-                ledger[jl, L_WALL, c] += pw[i, c]
-                pw[i, c] = 0.0
-            continue
-        if kind == DIFFUSE:
-            for c in range(C):
-                rho = value[mi, c]
-                ledger[jl, L_ABS_DIFF, c] += (1.0 - rho) * pw[i, c]
-                pw[i, c] *= rho
-            wx, wy, wz = cosine_direction(ngx, ngy, ngz, uniform(key, ctr + np.uint64(2)),
-                                          uniform(key, ctr + np.uint64(3)))
-            side = 1.0
-            wflags[i] |= F_DIFFUSE
-        else:
-            # interpolated shading normal, oriented like the geometric one
+
+        # shading normal ns (specular kinds: interpolated vertex normals, facing like
+        # ng) and the path's flags
+        nsx, nsy, nsz = ngx, ngy, ngz
+        if kind == MIRROR or kind == DIELECTRIC:
             w0 = 1.0 - bu - bv
             sx = w0 * packed[k, 12] + bu * packed[k, 15] + bv * packed[k, 18]
             sy = w0 * packed[k, 13] + bu * packed[k, 16] + bv * packed[k, 19]
@@ -417,31 +409,24 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
             ln = math.sqrt(sx * sx + sy * sy + sz * sz)
             if ln > 1e-12:
                 nsx, nsy, nsz = fs * sx / ln, fs * sy / ln, fs * sz / ln
-            else:
-                nsx, nsy, nsz = ngx, ngy, ngz
             wflags[i] |= F_SPECULAR
-            if kind == MIRROR:
-                for c in range(C):
-                    rr_ = value[mi, c]
-                    ledger[jl, L_ABS_MIRR, c] += (1.0 - rr_) * pw[i, c]
-                    pw[i, c] *= rr_
-                wx, wy, wz = mirror_direction(dx, dy, dz, nsx, nsy, nsz, ngx, ngy, ngz)
-                side = 1.0
-            else:
-                if not front:  # we travelled inside this material: Beer–Lambert
-                    for c in range(C):
-                        s_ = sigma[mi, c]
-                        if s_ > 0.0:
-                            keep = math.exp(-s_ * t)
-                            ledger[jl, L_ABS_VOL, c] += (1.0 - keep) * pw[i, c]
-                            pw[i, c] *= keep
-                wx, wy, wz, side = dielectric_direction(dx, dy, dz, nsx, nsy, nsz, ngx, ngy,
-                                                        ngz, front, ior[mi], key, ctr)
+        elif kind == DIFFUSE:
+            wflags[i] |= F_DIFFUSE
+
+        # scattering: the kind's BSDF samples the outgoing direction ω and its side,
+        # scales the flux and books what the surface took (absorbed, or detected)
+        wx, wy, wz, side = scatter(kind, mats, mi, (dx, dy, dz), (ngx, ngy, ngz),
+                                   (nsx, nsy, nsz), front, t, key, ctr, pw, i,
+                                   ledger, jl, _TAKEN[kind])
+        if side == 0.0:  # the wall: detected, the photon ends
+            continue
+
+        # spawned ray: unit ω from p pushed off the surface on ω's side
         ln = math.sqrt(wx * wx + wy * wy + wz * wz)
         wx, wy, wz = wx / ln, wy / ln, wz / ln
         ox, oy, oz = _offset(px, py, pz, ngx, ngy, ngz, side, eps_floor)
 
-        # Russian roulette on weak photons, then the depth limit
+        # Russian roulette on weak photons
         pmax = 0.0
         for c in range(C):
             pmax = max(pmax, pw[i, c])
@@ -459,12 +444,15 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
                 boost = pw[i, c] / q - pw[i, c]
                 ledger[jl, L_RR, c] -= boost
                 pw[i, c] += boost
+
+        # depth limit
         if last_bounce:
             for c in range(C):
                 ledger[jl, L_MAXD, c] += pw[i, c]
                 pw[i, c] = 0.0
             continue
-        # alive: compact to row w
+
+        # compaction: the survivor moves to row w
         wo[w, 0], wo[w, 1], wo[w, 2] = ox, oy, oz
         wd[w, 0], wd[w, 1], wd[w, 2] = wx, wy, wz
         o32[w, 0], o32[w, 1], o32[w, 2] = ox, oy, oz
@@ -511,7 +499,7 @@ def _start(o, d, power, weight, keys, lo, hi, base):
 
 
 @njit(cache=True, nogil=True)
-def _near_hits(prim, tfar, bound):
+def near_hits(prim, tfar, bound):
     """Indices of hits closer than ``bound`` (m): candidates for false self-hits."""
     out = np.empty(prim.shape[0], np.int64)
     n = 0
@@ -523,8 +511,8 @@ def _near_hits(prim, tfar, bound):
 
 
 @njit(cache=True, nogil=True)
-def _false_hits(near, o, d, prim, tfar, eps_floor, tri, fn):
-    """Of the rays ``near`` (:func:`_near_hits`), those whose hit is closer than their
+def false_hits(near, o, d, prim, tfar, eps_floor, tri, fn):
+    """Of the rays ``near`` (:func:`near_hits`), those whose hit is closer than their
     origin offset t_min = 4 · 2⁻¹⁸ · (|o|∞ + eps_floor) while they move away from the hit
     face's plane on their origin's side (false self-hits), and their t_min."""
     close = np.empty(near.shape[0], np.int64)
@@ -815,18 +803,20 @@ class PhotonTracer:
         of = getattr(caster, "geometry_of", None)  # the parts ``prev`` was packed from
         if prev is not None and of is not None and len(of) == len(scene.parts) and all(
                 a is b for a, b in zip(of, scene.parts)):
-            self._geom = prev  # the very same parts (the plan's pilot and the run)
+            self.geometry = prev  # the very same parts (the plan's pilot and the run)
         elif (prev is not None and self.caster.exact_wall and self.caster is not caster
                 and len(prev.tri_part) == self.caster.n_triangles):
-            self._geom = prev.with_wall_of(scene)  # same lamp, the wall moved
+            self.geometry = prev.with_wall_of(scene)  # same lamp, the wall moved
         else:
-            self._geom = Geometry.from_scene(scene)
+            self.geometry = Geometry.from_scene(scene)
         # the packed lamp rides with its embree scene: a tracer reusing this caster
         # (only the wall or materials changed) reuses the lamp's rows too
-        self.caster.geometry = self._geom
+        self.caster.geometry = self.geometry
         if caster is not None and prev is None:  # the shared caster too, for the next
-            caster.geometry, caster.geometry_of = self._geom, tuple(scene.parts)
-        self._geom = self._geom.for_caster(self.caster)  # the bounce intersects the wall
+            caster.geometry, caster.geometry_of = self.geometry, tuple(scene.parts)
+        #: the traced triangles as the bounce kernel reads them (:class:`Geometry`), with
+        #: the exact wall of this tracer's caster (the bounce intersects the wall)
+        self.geometry = self.geometry.for_caster(self.caster)
         self._mats = mats.arrays
         self.eps_floor = 0.01 * scene.scale
         self._params = TraceParams(self.eps_floor, self.rr_threshold, self.rr_min_depth,
@@ -954,12 +944,12 @@ class PhotonTracer:
         prim, tfar, bu, bv = self.caster.cast_lamp(o32, d32)  # the wall: in _bounce
         # a cheap global bound first: only rays that hit very close need the per-ray test
         bound = 4 * 3.814697265625e-06 * (self.scene_extent + self.eps_floor)
-        near = _near_hits(prim, tfar, bound)
+        near = near_hits(prim, tfar, bound)
         if len(near) == 0:
             return Hits(prim, tfar, bu, bv)
-        tri, fn = self._geom.tri_v, self._geom.face_n
+        tri, fn = self.geometry.tri_v, self.geometry.face_n
         for _ in range(3):
-            close, step = _false_hits(near, o, d, prim, tfar, self.eps_floor, tri, fn)
+            close, step = false_hits(near, o, d, prim, tfar, self.eps_floor, tri, fn)
             if len(close) == 0:
                 break
             p2, t2, u2, v2 = self.caster.cast_lamp(
@@ -1015,7 +1005,7 @@ class PhotonTracer:
             rb = RecordBuffer(*(a[r0:] for a in buf))
             esc = ((np.empty((m, 3), np.float32), np.empty((m, C))) if record_escaped
                    else (np.empty((0, 3), np.float32), np.empty((0, C))))
-            m, r, e = _bounce(wf, m, hits, self._geom, self._mats, self._params, depth,
+            m, r, e = _bounce(wf, m, hits, self.geometry, self._mats, self._params, depth,
                               depth == self.max_depth - 1, rb, ledger, base, caustic, o32,
                               d32, esc[0], esc[1], record_escaped)
             if clock:

@@ -60,6 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from lightsim.errors import InputError
+from lightsim.render.filters import map_coordinates  # = scipy.ndimage's, in numpy
 
 DEFAULT_DISTANCE_M = 25.0
 """Measuring distance of the UN regulations (m)."""
@@ -481,10 +482,6 @@ class WallFrame:
         arr = self.check_image(lux)
         return candela_from_lux(arr, self.h_m()[None, :], self.v_m()[:, None], self.distance_m)
 
-    def candela_at(self, lux: ArrayLike, h_m: ArrayLike, v_m: ArrayLike) -> NDArray:
-        """Intensity (cd) from illuminance (lx) at H-V coordinates (m) on this wall."""
-        return candela_from_lux(lux, h_m, v_m, self.distance_m)
-
     def lux_at(self, candela: ArrayLike, h_m: ArrayLike, v_m: ArrayLike) -> NDArray:
         """Illuminance (lx) from intensity (cd) at H-V coordinates (m) on this wall."""
         return lux_from_candela(candela, h_m, v_m, self.distance_m)
@@ -493,8 +490,6 @@ class WallFrame:
                outside: float = np.nan) -> NDArray:
         """Intensity (cd) towards H/V angles, bilinear between the pixel centres of a wall
         lux image (:func:`sample_wall`)."""
-        from lightsim.render.filters import map_coordinates  # = scipy.ndimage's, numpy
-
         intensity = self.intensity_image(lux)
         h, v = np.broadcast_arrays(np.asarray(h_deg, float), np.asarray(v_deg, float))
         row, col = self.pixel_of(wall_m_from_deg(h, self.distance_m),

@@ -1,5 +1,6 @@
-"""BSDF kernels (lightsim.materials): energy, Fresnel limits, TIR, reciprocity, grazing
-angles and degenerate normals, one kernel at a time, against closed forms."""
+"""BSDF kernels (lightsim.materials), called through :func:`scatter` as the tracer calls
+them: energy, Fresnel limits, TIR, reciprocity, grazing angles and degenerate normals, one
+kind at a time, against closed forms; and one bounce of the tracer equals the kernel's."""
 
 from __future__ import annotations
 
@@ -13,14 +14,16 @@ from lightsim.materials import (
     DIELECTRIC,
     DIFFUSE,
     MIRROR,
+    WALL,
     Material,
     MaterialTable,
-    dielectric_bsdf,
-    diffuse_bsdf,
     fresnel_dielectric,
-    mirror_bsdf,
-    wall_bsdf,
+    scatter,
 )
+from lightsim.sampling import photon_keys
+from lightsim.scene import SURFACE, Part, Scene
+from lightsim.tracer import LEDGER, PhotonTracer
+from lightsim.validation.scenes import primitives as prim
 
 N = 20_000
 
@@ -37,35 +40,27 @@ def unit(*v: float) -> tuple[float, float, float]:
 
 
 @njit(cache=False)
-def _run(kernel_id, mats, d, ng, ns, front, t, n):
-    """n calls with keys 0..n-1: outgoing directions, sides, power after, loss."""
+def _run(kind, mats, d, ng, ns, front, t, keys):
+    """One :func:`scatter` per photon i (incident direction d[i], key keys[i], counter 0):
+    unit outgoing directions, sides, power after and the flux the surface took."""
+    n = keys.shape[0]
     out = np.empty((n, 3))
     side = np.empty(n)
-    power_after = np.empty(n)
-    loss = np.empty(n)
+    power = np.ones((n, 1))
+    ledger = np.zeros((n, 1, 1))
     for i in range(n):
-        p = np.ones(1)
-        lo = np.zeros(1)
-        key = np.uint64(i * 7919 + 1)
-        ctr = np.uint64(0)
-        if kernel_id == 0:
-            wx, wy, wz, s = diffuse_bsdf(mats, 0, d, ng, ns, front, t, key, ctr, p, lo)
-        elif kernel_id == 1:
-            wx, wy, wz, s = mirror_bsdf(mats, 0, d, ng, ns, front, t, key, ctr, p, lo)
-        elif kernel_id == 2:
-            wx, wy, wz, s = dielectric_bsdf(mats, 0, d, ng, ns, front, t, key, ctr, p, lo)
-        else:
-            wx, wy, wz, s = wall_bsdf(mats, 0, d, ng, ns, front, t, key, ctr, p, lo)
+        wx, wy, wz, s = scatter(kind, mats, 0, (d[i, 0], d[i, 1], d[i, 2]), ng, ns, front, t,
+                                keys[i], np.uint64(0), power, i, ledger, i, 0)
         ln = math.sqrt(wx * wx + wy * wy + wz * wz)
         out[i, 0], out[i, 1], out[i, 2] = wx / ln, wy / ln, wz / ln
         side[i] = s
-        power_after[i] = p[0]
-        loss[i] = lo[0]
-    return out, side, power_after, loss
+    return out, side, power[:, 0], ledger[:, 0, 0]
 
 
-def run(kernel_id, mats, d, ng, ns=None, front=True, t=0.0, n=N):
-    return _run(kernel_id, mats, d, ng, ng if ns is None else ns, front, t, n)
+def run(kind, mats, d, ng, ns=None, front=True, t=0.0, n=N):
+    keys = np.arange(n, dtype=np.uint64) * np.uint64(7919) + np.uint64(1)
+    return _run(kind, mats, np.tile(np.asarray(d, float), (n, 1)), ng, ng if ns is None else ns,
+                front, t, keys)
 
 
 UP = (0.0, 0.0, 1.0)
@@ -76,7 +71,7 @@ UP = (0.0, 0.0, 1.0)
 @pytest.mark.parametrize("rho", [0.0, 0.3, 1.0])
 def test_diffuse_energy_and_cosine_lobe(rho):
     d = unit(0.3, 0.1, -1.0)
-    w, side, p, loss = run(0, table(DIFFUSE, rho), d, UP)
+    w, side, p, loss = run(DIFFUSE, table(DIFFUSE, rho), d, UP)
     np.testing.assert_allclose(p + loss, 1.0, rtol=0, atol=1e-15)  # every lumen booked
     np.testing.assert_allclose(p, rho, rtol=0, atol=1e-15)
     assert np.all(side == 1.0)
@@ -89,7 +84,7 @@ def test_diffuse_energy_and_cosine_lobe(rho):
 
 def test_diffuse_ignores_the_incident_direction_and_any_normal_orientation():
     for ng in (UP, unit(1, 1, 1), (0.0, 0.0, -1.0), unit(1e-30, 0, -1)):
-        w, *_ = run(0, table(DIFFUSE, 0.5), unit(0, 0, -1), ng, n=2000)
+        w, *_ = run(DIFFUSE, table(DIFFUSE, 0.5), unit(0, 0, -1), ng, n=2000)
         assert (w @ np.asarray(ng)).min() >= 0.0
 
 
@@ -98,7 +93,7 @@ def test_diffuse_ignores_the_incident_direction_and_any_normal_orientation():
 @pytest.mark.parametrize("R", [0.0, 0.88, 1.0])
 def test_mirror_energy_and_law_of_reflection(R):
     d = unit(0.4, -0.2, -1.0)
-    w, side, p, loss = run(1, table(MIRROR, R), d, UP, n=10)
+    w, side, p, loss = run(MIRROR, table(MIRROR, R), d, UP, n=10)
     np.testing.assert_allclose(p + loss, 1.0, atol=1e-15)
     np.testing.assert_allclose(p, R, atol=1e-15)
     np.testing.assert_allclose(w, np.tile([d[0], d[1], -d[2]], (10, 1)), atol=1e-15)
@@ -109,20 +104,20 @@ def test_mirror_is_reciprocal():
     mats = table(MIRROR, 1.0)
     n = unit(0.1, 0.2, 1.0)
     d = unit(0.5, -0.3, -1.0)
-    w, *_ = run(1, mats, d, n, n=1)
-    back, *_ = run(1, mats, tuple(-w[0]), n, n=1)  # the reversed path
+    w, *_ = run(MIRROR, mats, d, n, n=1)
+    back, *_ = run(MIRROR, mats, tuple(-w[0]), n, n=1)  # the reversed path
     np.testing.assert_allclose(back[0], -np.asarray(d), atol=1e-14)
 
 
 def test_mirror_grazing_and_bent_shading_normal_stay_above_the_surface():
     mats = table(MIRROR, 1.0)
     graze = unit(1.0, 0.0, -1e-9)
-    w, *_ = run(1, mats, graze, UP, n=1)
+    w, *_ = run(MIRROR, mats, graze, UP, n=1)
     assert w[0, 2] > 0.0 and w[0, 0] == pytest.approx(1.0)
     # a shading normal tilted so far that the mirror image would go through the surface:
     # the kernel reflects about the geometric normal instead
     ns = unit(1.0, 0.0, 0.05)
-    w, *_ = run(1, mats, unit(1.0, 0.0, -0.2), UP, ns, n=1)
+    w, *_ = run(MIRROR, mats, unit(1.0, 0.0, -0.2), UP, ns, n=1)
     assert w[0, 2] > 0.0
     np.testing.assert_allclose(w[0], unit(1.0, 0.0, 0.2), atol=1e-14)
 
@@ -160,7 +155,7 @@ def test_dielectric_reflects_with_the_fresnel_probability_and_refracts_by_snell(
     n = 1.5
     th = math.radians(deg)
     d = (math.sin(th), 0.0, -math.cos(th))
-    w, side, p, loss = run(2, table(DIELECTRIC, ior=n), d, UP)
+    w, side, p, loss = run(DIELECTRIC, table(DIELECTRIC, ior=n), d, UP)
     np.testing.assert_array_equal(p, 1.0)  # the choice is the weighting: flux unchanged
     np.testing.assert_array_equal(loss, 0.0)
     F = fresnel_dielectric(math.cos(th), 1.0, n)
@@ -178,7 +173,7 @@ def test_dielectric_total_internal_reflection_from_inside():
     th = math.asin(1 / n) + 0.01  # just beyond the critical angle, inside the glass
     d = (math.sin(th), 0.0, math.cos(th))  # travelling out through the face z = 0
     # from inside the photon meets the back of the face: the facing normal points down
-    w, side, p, _ = run(2, table(DIELECTRIC, ior=n), d, (0.0, 0.0, -1.0), front=False)
+    w, side, p, _ = run(DIELECTRIC, table(DIELECTRIC, ior=n), d, (0.0, 0.0, -1.0), front=False)
     assert np.all(side == 1.0)
     np.testing.assert_allclose(w, np.tile([d[0], 0, -d[2]], (N, 1)), atol=1e-14)
     np.testing.assert_array_equal(p, 1.0)
@@ -188,10 +183,10 @@ def test_dielectric_refraction_is_reversible():
     n = 1.5
     th = math.radians(35.0)
     d = (math.sin(th), 0.0, -math.cos(th))
-    w, side, *_ = run(2, table(DIELECTRIC, ior=n), d, UP, n=200)
+    w, side, *_ = run(DIELECTRIC, table(DIELECTRIC, ior=n), d, UP, n=200)
     t = w[side == -1.0][0]
     # back along the refracted ray from inside: it leaves along the reversed incident ray
-    w2, side2, *_ = run(2, table(DIELECTRIC, ior=n), tuple(-t), (0.0, 0.0, -1.0),
+    w2, side2, *_ = run(DIELECTRIC, table(DIELECTRIC, ior=n), tuple(-t), (0.0, 0.0, -1.0),
                         front=False, n=200)
     np.testing.assert_allclose(w2[side2 == -1.0][0], -np.asarray(d), atol=1e-14)
 
@@ -199,10 +194,10 @@ def test_dielectric_refraction_is_reversible():
 def test_dielectric_beer_lambert_inside_only():
     mats = table(DIELECTRIC, ior=1.5, sigma=20.0)
     d = unit(0, 0, 1)
-    _, _, p, loss = run(2, mats, d, (0.0, 0.0, -1.0), front=False, t=0.01, n=10)
+    _, _, p, loss = run(DIELECTRIC, mats, d, (0.0, 0.0, -1.0), front=False, t=0.01, n=10)
     np.testing.assert_allclose(p, math.exp(-0.2), rtol=1e-14)
     np.testing.assert_allclose(p + loss, 1.0, rtol=1e-15)
-    _, _, p, loss = run(2, mats, unit(0, 0, -1), UP, front=True, t=0.01, n=10)
+    _, _, p, loss = run(DIELECTRIC, mats, unit(0, 0, -1), UP, front=True, t=0.01, n=10)
     np.testing.assert_array_equal(loss, 0.0)  # arriving from air: nothing absorbed
 
 
@@ -210,12 +205,12 @@ def test_dielectric_degenerate_shading_normal_uses_the_geometry():
     n = 1.5
     d = unit(0.3, 0.0, -1.0)
     away = unit(1.0, 0.0, -0.5)  # a shading normal facing away from the light
-    w, side, *_ = run(2, table(DIELECTRIC, ior=n), d, UP, away, n=4000)
-    w_ref, side_ref, *_ = run(2, table(DIELECTRIC, ior=n), d, UP, UP, n=4000)
+    w, side, *_ = run(DIELECTRIC, table(DIELECTRIC, ior=n), d, UP, away, n=4000)
+    w_ref, side_ref, *_ = run(DIELECTRIC, table(DIELECTRIC, ior=n), d, UP, UP, n=4000)
     np.testing.assert_allclose(w, w_ref, atol=1e-15)
     np.testing.assert_array_equal(side, side_ref)
     # grazing incidence: almost everything reflects, nothing goes through the surface
-    w, side, *_ = run(2, table(DIELECTRIC, ior=n), unit(1.0, 0.0, -1e-7), UP, n=4000)
+    w, side, *_ = run(DIELECTRIC, table(DIELECTRIC, ior=n), unit(1.0, 0.0, -1e-7), UP, n=4000)
     assert (side == 1.0).mean() > 0.999
     assert np.all(w[side == 1.0][:, 2] > 0) and np.all(w[side == -1.0][:, 2] < 0)
 
@@ -223,7 +218,57 @@ def test_dielectric_degenerate_shading_normal_uses_the_geometry():
 # -- wall detector ------------------------------------------------------------------------
 
 def test_wall_detects_everything_and_ends_the_photon():
-    _, side, p, loss = run(3, table(DIFFUSE, 0.8), unit(0.1, 0, 1), (0.0, 0.0, -1.0), n=5)
+    _, side, p, loss = run(WALL, table(DIFFUSE, 0.8), unit(0.1, 0, 1), (0.0, 0.0, -1.0), n=5)
     np.testing.assert_array_equal(side, 0.0)
     np.testing.assert_array_equal(p, 0.0)
     np.testing.assert_array_equal(loss, 1.0)
+
+
+# -- the tracer's bounce is the kernel's --------------------------------------------------
+
+def _plane(material: Material) -> Part:
+    """The square z = 0, |x|, |y| ≤ 1, front face +Z (geometric normal exactly (0, 0, 1))."""
+    verts = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=np.float64)
+    return Part("plane", SURFACE, verts, np.array([[0, 1, 2], [0, 2, 3]]), None, material)
+
+
+@pytest.mark.parametrize("material, below", [
+    (Material("m", DIFFUSE, np.full(3, 0.6)), False),
+    (Material("m", MIRROR, np.full(3, 0.85)), False),
+    (Material("m", DIELECTRIC, np.ones(3), 1.5), False),
+    (Material("m", DIELECTRIC, np.ones(3), 1.5, np.full(3, 4.0)), True),
+])
+def test_one_bounce_of_the_tracer_equals_the_kernel(material, below):
+    """Photons hit the plane once and escape: their escaped flux, direction and the ledger
+    are the kernel's, bit for bit (same random numbers, same floating-point operations)."""
+    n = 2000
+    rng = np.random.default_rng(4)
+    if below:  # from inside the glass, straight up: t = 0.25 exactly (Beer–Lambert)
+        o = np.column_stack([rng.uniform(-0.5, 0.5, (n, 2)), np.full(n, -0.25)])
+        d = np.tile([0.0, 0.0, 1.0], (n, 1))
+    else:  # from above, spread over ±37° of incidence
+        o = np.column_stack([rng.uniform(-0.3, 0.3, (n, 2)), np.full(n, 0.5)])
+        d = np.column_stack([rng.uniform(-0.5, 0.5, (n, 2)), -np.ones(n)])
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+    keys = photon_keys(9, 0, 0, np.arange(n))
+    scene = Scene([prim.point_source(1.0, centre=(40.0, 40.0, 40.0)), _plane(material)],
+                  None, channels=1)
+    tracer = PhotonTracer(scene, threads=1)
+    res = tracer.trace(o, d, np.full((n, 1), 0.5), keys, record_escaped=True)
+    tracer.close()
+
+    front = not below
+    fs = 1.0 if front else -1.0
+    ng = tuple(float(fs * g) for g in scene.face_normals[0])  # facing the photon
+    mats = MaterialTable.build([material], channels=1).arrays
+    w, side, p, taken = _run(material.kind, mats, d, ng, ng, front, 0.25 if below else 0.0,
+                             keys)
+    p, taken = 0.5 * p, 0.5 * taken  # flux factors: the kernel ran with flux 1
+    assert len(res.escaped_power) == n  # one bounce each, then out
+    np.testing.assert_array_equal(res.escaped_power[:, 0], p)
+    np.testing.assert_array_equal(res.escaped_dir, w.astype(np.float32))
+    col = {DIFFUSE: "absorbed_diffuse", MIRROR: "absorbed_mirror",
+           DIELECTRIC: "absorbed_volume"}[material.kind]
+    assert res.ledger[0, LEDGER.index(col), 0] == pytest.approx(taken.sum(), rel=1e-12)
+    if material.kind == DIELECTRIC:
+        assert 0.0 < (side == 1.0).mean() < 0.2  # both branches of the Fresnel choice ran

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
+from embreex import rtcore as rtc
+from embreex import rtcore_scene as rtcs
 
-from lightsim.raycast import RayCaster, _embree_handles, embree_scene
+from lightsim.raycast import RayCaster, embree_handles, embree_scene
 
 
 def _rays(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -27,11 +29,8 @@ def _compare(tri: np.ndarray, seed: int = 0) -> float:
 
 
 def test_fast_path_is_taken_with_the_installed_embreex():
-    from embreex import rtcore as rtc
-    from embreex import rtcore_scene as rtcs
-
     device = rtc.EmbreeDevice()
-    handles = _embree_handles(rtcs.EmbreeScene(device), device)
+    handles = embree_handles(rtcs.EmbreeScene(device), device)
     assert handles is not None and all(handles), (
         "embreex's EmbreeScene layout changed: lightsim falls back to TriangleMesh "
         "(correct, but ~2 µs per triangle slower)")

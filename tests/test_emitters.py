@@ -13,6 +13,7 @@ import pytest
 from lightsim.emitters import Emitter, EmitterMix, GoniometricEmitter, MeshEmitter, registry
 from lightsim.emitters.rayfile import RaySource
 from lightsim.errors import InputError
+from lightsim.luminaires.photometric import read_photometric
 from lightsim.sampling import digit_permutations, halton_points, photon_keys
 from lightsim.scene import load_scene
 from lightsim.tracer import PhotonTracer
@@ -37,8 +38,6 @@ def test_scene_emitters_follow_the_protocol():
 def test_goniometric_directions_follow_the_files_intensity():
     """Photons binned by direction reproduce the grid's interpolated intensity I = Φ dN/(N dΩ)
     in cones around a few directions (the reader and its interpolant are the reference)."""
-    from lightsim.luminaires.photometric import read_photometric
-
     grid = read_photometric(IES)
     src = GoniometricEmitter(np.zeros(3), grid.table, float(grid.total_flux()))
     n = 400_000
@@ -60,8 +59,6 @@ def test_goniometric_directions_follow_the_files_intensity():
 def test_mixture_shares_photons_by_flux():
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], float)
     mesh = MeshEmitter.build([(tri, "lambertian", 30.0)])
-    from lightsim.luminaires.photometric import read_photometric
-
     grid = read_photometric(IES)
     point = GoniometricEmitter(np.array([5.0, 5.0, 5.0]), grid.table, 70.0)
     mix = EmitterMix(mesh, 100.0, 0.3, [point])

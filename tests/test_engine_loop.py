@@ -285,10 +285,10 @@ def test_final_map_without_probes_is_the_ici_map(point):
 def test_compiled_digit_permutations_are_numpys(args):
     """The compiled shuffles draw from the same bit generators in the same order as a
     Python loop over ``Generator.permutation``: the same scramble, bit for bit."""
-    from lightsim.sampling import _digit_permutations_reference
+    from lightsim.sampling import digit_permutations_reference
 
     got = digit_permutations(*args)
-    np.testing.assert_array_equal(got, _digit_permutations_reference(*args))
+    np.testing.assert_array_equal(got, digit_permutations_reference(*args))
     for d in range(N_DIMS):  # each row a permutation of its base's digits
         b = int(PRIMES[d])
         assert np.array_equal(np.sort(got[d, :, :b], axis=1), np.tile(np.arange(b), (53, 1)))

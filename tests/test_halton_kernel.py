@@ -9,13 +9,18 @@ import numpy as np
 import pytest
 
 from lightsim.sampling import (
+    GOLDEN,
     GROUP,
     N_DIMS,
     PRIMES,
-    _radical_inverse,
     digit_permutations,
+    digit_permutations_reference,
     halton_points,
     halton_points_grouped,
+    mix64_np,
+    pass_indices,
+    photon_keys,
+    radical_inverse,
 )
 
 #: the points' largest difference from the digit loop: a few units in the last place of
@@ -45,7 +50,7 @@ def test_tables_and_bit_reversal_are_the_digit_loop(pass_index):
     idx = _edge_indices()
     perms = digit_permutations(4, 2, pass_index, (5, 3))
     got = halton_points(idx, perms)
-    want = np.array([[_radical_inverse(int(i), d, perms) for d in range(N_DIMS)]
+    want = np.array([[radical_inverse(int(i), d, perms) for d in range(N_DIMS)]
                      for i in idx])
     assert_definition(got, want)
     assert got.min() >= 0.0 and got.max() < 1.0
@@ -74,7 +79,7 @@ def test_points_four_at_a_time_each_keep_their_own_scramble(n):
                    rng.integers(0, 2**40, n)).astype(np.int64)
     group = rng.integers(0, 5, n)
     got = halton_points_grouped(idx, group, perms)
-    want = np.array([[_radical_inverse(int(i), d, perms[g]) for d in range(N_DIMS)]
+    want = np.array([[radical_inverse(int(i), d, perms[g]) for d in range(N_DIMS)]
                      for i, g in zip(idx, group, strict=True)])
     assert_definition(got, want)
 
@@ -93,7 +98,7 @@ def test_digit_group_boundaries():
             q *= b**M
     idx = np.array(sorted(idx), dtype=np.int64)
     got = halton_points(idx, perms)
-    want = np.array([[_radical_inverse(int(i), d, perms) for d in range(N_DIMS)]
+    want = np.array([[radical_inverse(int(i), d, perms) for d in range(N_DIMS)]
                      for i in idx])
     assert_definition(got, want)
 
@@ -101,12 +106,10 @@ def test_digit_group_boundaries():
 @pytest.mark.parametrize("L", [1, 7, 864])
 def test_pass_indices_are_the_cells_repeated(L):
     """SPT's pass layout: cell c at c + jL for j < n_c, weight n_pass / (L n_c)."""
-    from lightsim.sampling import _pass_indices
-
     n_c = np.random.default_rng(L).integers(1, 40, L).astype(np.int64)
     cells = np.repeat(np.arange(L, dtype=np.int64), n_c)
     j = np.arange(len(cells)) - np.repeat(np.cumsum(n_c) - n_c, n_c)
-    idx, w = _pass_indices(n_c)
+    idx, w = pass_indices(n_c)
     np.testing.assert_array_equal(idx, cells + j * L)
     np.testing.assert_array_equal(w, len(cells) / (L * n_c[cells].astype(np.float64)))
     assert len(np.unique(idx)) == len(idx) and np.all(idx % L == cells)
@@ -116,24 +119,20 @@ def test_pass_indices_are_the_cells_repeated(L):
 def test_own_pcg64_steps_give_numpys_permutations(seed):
     """The compiled shuffles step PCG64 themselves: NumPy's permutations for every kind of
     pass (plain, SPT passes with cell digits, all digits fixed)."""
-    from lightsim.sampling import _digit_permutations_reference
-
     for s, p, cells in [(0, None, (0, 0)), (3, 0, (5, 3)), (1, 17, (5, 3)), (2, 4, (53, 34))]:
         np.testing.assert_array_equal(digit_permutations(seed, s, p, cells),
-                                      _digit_permutations_reference(seed, s, p, cells))
+                                      digit_permutations_reference(seed, s, p, cells))
 
 
 def test_photon_keys_are_the_numpy_hash_bit_for_bit():
     """The compiled keys (one pass) are the NumPy SplitMix64 chain of the definition:
     every seed, set and pass, indices 0, 1, 2⁶³ − 1 and random ones, any shape."""
-    from lightsim.sampling import _GOLDEN, _mix64_np, photon_keys
-
     def numpy_keys(seed, s, p, idx):
         with np.errstate(over="ignore"):
-            base = _mix64_np(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) + _GOLDEN)
-            base = _mix64_np(base ^ np.uint64(s + 1))
-            base = _mix64_np(base ^ (np.uint64(p + 1) * _GOLDEN))
-            return _mix64_np(base ^ np.asarray(idx, dtype=np.int64).astype(np.uint64))
+            base = mix64_np(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) + GOLDEN)
+            base = mix64_np(base ^ np.uint64(s + 1))
+            base = mix64_np(base ^ (np.uint64(p + 1) * GOLDEN))
+            return mix64_np(base ^ np.asarray(idx, dtype=np.int64).astype(np.uint64))
 
     rng = np.random.default_rng(0)
     idx = np.r_[0, 1, 2**63 - 1, rng.integers(0, 2**63 - 1, 2000)].astype(np.int64)

@@ -1,8 +1,8 @@
 """Insertion into a kd-tree leaves the same tree as before the in-slot-order merge.
 
-The digests below are of every array of trees grown by main's algorithm at commit
-c5caa88 (the gather through a slot → old slot plan, the batch scattered afterwards and
-the node arrays renumbered into new ones): positions, normals, powers, insertion
+The digests below are of every array of trees grown by the reference insertion (a
+gather through a slot → old slot plan, the batch scattered afterwards and the node
+arrays renumbered into new ones): positions, normals, powers, insertion
 indices, boxes, children, ranges, depths and the split axes and planes of the inner
 nodes (a leaf's axis and plane are never read, nor set). The cases cover a tree with top
 levels and one without (a first batch too small for them), normals or none, 1 and 3
@@ -44,15 +44,13 @@ def _batches(case: str) -> tuple[int, list[tuple[np.ndarray, np.ndarray | None, 
 
 def _state(tree: KdTree) -> dict[str, np.ndarray]:
     """Every array that defines the tree (inner nodes' axes and planes only)."""
-    m = tree.n_nodes
-    child = tree._child[:m]
-    inner = child >= 0
-    return {"positions": tree._pts, "normals": tree._nrm, "powers": tree._pw,
-            "indices": tree._perm, "boxes": tree._box[:m], "children": child,
-            "starts": tree._start[:m], "ends": tree._end[:m],
-            "depths": tree._node_depth[:m], "axes": tree._dim[:m][inner],
-            "planes": tree._split[:m][inner],
-            "sizes": np.array([len(tree), m, tree.depth], np.int64)}
+    lay = tree.layout
+    inner = lay.child >= 0
+    return {"positions": lay.positions, "normals": lay.normals, "powers": lay.powers,
+            "indices": lay.indices, "boxes": lay.box, "children": lay.child,
+            "starts": lay.start, "ends": lay.end, "depths": lay.depth,
+            "axes": lay.dim[inner], "planes": lay.split[inner],
+            "sizes": np.array([len(tree), tree.n_nodes, tree.depth], np.int64)}
 
 
 def _digests(case: str) -> dict[str, str]:
@@ -70,8 +68,8 @@ def _digests(case: str) -> dict[str, str]:
     return {name: h.hexdigest()[:16] for name, h in hashes.items()}
 
 
-# main's digests (c5caa88), generated with _digests on that commit's code
-MAIN_DIGESTS: dict[str, dict[str, str]] = {
+# the reference insertion's digests (module docstring), made by _digests
+REFERENCE_DIGESTS: dict[str, dict[str, str]] = {
     "ring-c3": {
         "positions": "f7a7f3ab58257bf9",
         "normals": "9f99c5c917eb40b4",
@@ -119,12 +117,12 @@ MAIN_DIGESTS: dict[str, dict[str, str]] = {
 
 @pytest.mark.parametrize("serial_below", [0, 10**9])
 @pytest.mark.parametrize("case", ["ring-c3", "small-first", "stacks"])
-def test_grown_tree_is_bit_identical_to_mains(case: str, serial_below: int,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
+def test_grown_tree_is_bit_identical_to_the_reference(case: str, serial_below: int,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     # 0: every kernel with a serial twin runs its parallel version; 10⁹: the serial one
     monkeypatch.setattr(kd, "SERIAL_BELOW", serial_below)
     got = _digests(case)
-    want = MAIN_DIGESTS[case]
+    want = REFERENCE_DIGESTS[case]
     assert got.keys() == want.keys()
     assert [k for k in want if got[k] != want[k]] == []
 
@@ -149,7 +147,7 @@ def test_insertions_of_empty_coincident_and_tiny_batches_stay_exact() -> None:
         np.testing.assert_array_equal(a, before[name], err_msg=name)
     pts = np.concatenate([stack, np.zeros((0, 3), np.float32)])
     all_pts = np.empty((len(tree), 3), np.float32)
-    all_pts[tree._perm] = tree._pts  # insertion order
+    all_pts[tree.layout.indices] = tree.layout.positions  # insertion order
     np.testing.assert_array_equal(all_pts[:300], pts)
     q = np.array([[0.5, 0.5, 0.5], [0.1, 0.9, 0.3], [5.0, 5.0, 5.0]])
     k = len(tree) + 10  # k > N: every photon, then +inf / −1

@@ -1,5 +1,5 @@
-"""kd-tree layout after this session's changes: depth-first node order, the one-pass merge
-of an insertion, and the rank sort of kNN results (and its quicksort fallback for k > 128).
+"""kd-tree layout: depth-first node order, the one-pass merge of an insertion, and the
+rank sort of kNN results (and its quicksort fallback for k > 128).
 
 Exactness is checked against brute force (float64 squared distances from the float32
 photons, as the kernels compute them), including exact ties at the k-th distance.
@@ -51,7 +51,7 @@ def test_sorted_results_exact_on_both_sides_of_the_rank_sort_limit(make: type, k
 def _depth_first_ids(tree: KdTree) -> np.ndarray:
     """Ids in the order a depth-first walk (pair first, then left, then right) numbers
     them, as a check of the stored numbering."""
-    child = tree._child[:tree.n_nodes]
+    child = tree.layout.child
     order = [0]
     stack = [0]
     while stack:
@@ -72,7 +72,7 @@ def test_nodes_are_numbered_depth_first_after_build_and_insertions(batches: int)
         np.testing.assert_array_equal(_depth_first_ids(tree), np.arange(tree.n_nodes))
     # a walk (left subtree before right) meets the leaves in slot order, each range
     # following the previous one: what the merge of the next insertion relies on
-    child = tree._child[:tree.n_nodes]
+    child = tree.layout.child
     walk, stack = [], [0]
     while stack:
         nd = stack.pop()
@@ -81,8 +81,8 @@ def test_nodes_are_numbered_depth_first_after_build_and_insertions(batches: int)
         else:
             stack.extend([child[nd] + 1, child[nd]])
     walk = np.array(walk)
-    np.testing.assert_array_equal(tree._end[walk[:-1]], tree._start[walk[1:]])
-    assert tree._start[walk[0]] == 0 and tree._end[walk[-1]] == len(tree)
+    np.testing.assert_array_equal(tree.layout.end[walk[:-1]], tree.layout.start[walk[1:]])
+    assert tree.layout.start[walk[0]] == 0 and tree.layout.end[walk[-1]] == len(tree)
 
 
 def test_insertion_carries_normals_powers_and_indices_with_their_photons() -> None:
@@ -92,11 +92,11 @@ def test_insertion_carries_normals_powers_and_indices_with_their_photons() -> No
     tree = KdTree(leaf_size=4, channels=3)
     for part in np.array_split(np.arange(len(pos)), 7):
         tree.add(pos[part], nrm[part], pw[part])
-    perm = tree._perm
-    np.testing.assert_array_equal(tree._pts, pos[perm])
-    np.testing.assert_array_equal(tree._pw, pw[perm])
+    perm = tree.layout.indices
+    np.testing.assert_array_equal(tree.layout.positions, pos[perm])
+    np.testing.assert_array_equal(tree.layout.powers, pw[perm])
     unit = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
-    np.testing.assert_allclose(tree._nrm, unit[perm], atol=1e-6)
+    np.testing.assert_allclose(tree.layout.normals, unit[perm], atol=1e-6)
     # density estimates see the same photons as a tree built at once
     q = np.concatenate([pos[:50], pos[-50:]]).astype(np.float64)
     built = KdTree(pos, nrm, pw, leaf_size=4, channels=3)
@@ -111,10 +111,10 @@ def test_insertion_splits_a_leaf_only_past_the_slack_and_then_down_to_leaf_size(
     tree.add(pts[4:8])  # 8 = INSERT_SLACK · leaf_size photons: still one leaf
     assert tree.n_nodes == 1 and len(tree) == 8
     tree.add(pts[8:])  # 9 > 8: split until every leaf holds ≤ leaf_size
-    child = tree._child[:tree.n_nodes]
+    child = tree.layout.child
     leaves = np.flatnonzero(child < 0)
     assert tree.n_nodes > 1
-    assert (tree._end[leaves] - tree._start[leaves]).max() <= 4
+    assert (tree.layout.end[leaves] - tree.layout.start[leaves]).max() <= 4
     d2, _ = tree.query(pts.astype(np.float64), 3)
     _, expect = _brute(pts, pts.astype(np.float64), 3)
     np.testing.assert_array_equal(d2, expect)
@@ -130,13 +130,13 @@ def test_leaves_split_after_insertions_keep_their_slots_boxes_and_planes() -> No
     for part in np.array_split(np.arange(len(pos)), 9):
         tree.add(pos[part], nrm[part], pw[part])
     m = tree.n_nodes
-    child, start, end = tree._child[:m], tree._start[:m], tree._end[:m]
-    box, dim, split = tree._box[:m], tree._dim[:m], tree._split[:m]
+    child, start, end = tree.layout.child, tree.layout.start, tree.layout.end
+    box, dim, split = tree.layout.box, tree.layout.dim, tree.layout.split
     leaves = np.flatnonzero(child < 0)
     order = leaves[np.lexsort((end[leaves], start[leaves]))]
     assert start[order[0]] == 0 and end[order[-1]] == len(pos)
     np.testing.assert_array_equal(start[order[1:]], end[order[:-1]])
-    pts = tree._pts
+    pts = tree.layout.positions
     for nd in range(m):
         s, e = start[nd], end[nd]
         if e > s:
@@ -148,7 +148,7 @@ def test_leaves_split_after_insertions_keep_their_slots_boxes_and_planes() -> No
             assert end[c] == start[c + 1] and start[c] == s and end[c + 1] == e
             assert np.all(pts[start[c]:end[c], a] < split[nd])
             assert np.all(pts[start[c + 1]:end[c + 1], a] >= split[nd])
-    np.testing.assert_array_equal(tree._pw, pw[tree._perm])
+    np.testing.assert_array_equal(tree.layout.powers, pw[tree.layout.indices])
     q = pos[::301].astype(np.float64)
     d2, _ = tree.query(q, 7)
     _, expect = _brute(pos, q, 7)

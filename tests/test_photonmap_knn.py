@@ -258,17 +258,14 @@ def test_incremental_tree_answers_like_one_built_at_once(set_name: str) -> None:
 def _check_tree_invariants(tree: KdTree, max_leaf: int | None = None) -> None:
     """Slot ranges, boxes, child order and leaf sizes (≤ ``max_leaf``, default the
     leaf size; a tree grown by insertions splits above INSERT_SLACK · leaf_size)."""
-    n_nodes = tree.n_nodes
-    child = tree._child[:n_nodes]
-    box = tree._box[:n_nodes]
-    start = tree._start[:n_nodes]
-    end = tree._end[:n_nodes]
+    lay = tree.layout
+    child, box, start, end = lay.child, lay.box, lay.start, lay.end
     leaves = np.flatnonzero(child < 0)
     # leaf ranges partition the slots
     order = leaves[np.lexsort((end[leaves], start[leaves]))]  # empty leaves first
     assert start[order[0]] == 0 and end[order[-1]] == len(tree)
     np.testing.assert_array_equal(start[order[1:]], end[order[:-1]])
-    pts = tree._pts
+    pts = lay.positions
     for nd in leaves:
         p = pts[start[nd]:end[nd]]
         if len(p):
@@ -279,7 +276,7 @@ def _check_tree_invariants(tree: KdTree, max_leaf: int | None = None) -> None:
     assert (child[inner] > inner).all()
     for c in (child[inner], child[inner] + 1):
         assert (box[inner, :3] <= box[c, :3]).all() and (box[inner, 3:] >= box[c, 3:]).all()
-    assert np.array_equal(np.sort(tree._perm), np.arange(len(tree)))
+    assert np.array_equal(np.sort(tree.layout.indices), np.arange(len(tree)))
 
 
 def test_tree_invariants_after_insertions() -> None:

@@ -38,8 +38,8 @@ def test_coincident_clusters_split_only_between_them() -> None:
     pts = np.zeros((2 * n, 3), np.float32)
     pts[n:] = [1.0, 2.0, 3.0]
     tree = KdTree(pts)
-    leaves = np.flatnonzero(tree._child[:tree.n_nodes] < 0)
-    sizes = (tree._end - tree._start)[leaves]
+    leaves = np.flatnonzero(tree.layout.child < 0)
+    sizes = (tree.layout.end - tree.layout.start)[leaves]
     assert sorted(sizes[sizes > 0].tolist()) == [n, n]
     grid = UniformGrid(pts)
     d2, _ = grid.query(np.array([[0.0, 0.0, 0.1]]), 3)
@@ -64,8 +64,8 @@ def test_planar_sets_never_split_the_flat_axis(axis: int) -> None:
     pts = rng.random((50_000, 3)).astype(np.float32)
     pts[:, axis] = 7.0
     tree = KdTree(pts, leaf_size=4)
-    inner = np.flatnonzero(tree._child[:tree.n_nodes] >= 0)
-    assert not (tree._dim[inner] == axis).any()
+    inner = np.flatnonzero(tree.layout.child >= 0)
+    assert not (tree.layout.dim[inner] == axis).any()
     q = rng.random((50, 3)) * 1.2 - 0.1
     q[:, axis] = 7.0
     np.testing.assert_array_equal(tree.query(q, 9)[0], _brute(pts, q, 9))

@@ -13,6 +13,7 @@ from lightsim.errors import InputError
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR
 from lightsim.scene import EMITTER, WALL, load_scene
+from lightsim.validation.fuzz import pack_glb, small_scene_glb, split_glb, to_gltf_text
 
 EMIT = GltfMaterial("filament", emissive=(1.0, 0.9, 0.8))
 MIRROR_M = GltfMaterial("alu", base_color=(0.88, 0.88, 0.88), metallic=1.0)
@@ -171,8 +172,6 @@ def test_unknown_bulb_and_bad_wall(tmp_path):
 
 def _edited_glb(tmp_path, edit, suffix=".glb"):
     """The fuzz seed scene (filament, lens, reflector) with one JSON edit applied."""
-    from lightsim.validation.fuzz import pack_glb, small_scene_glb, split_glb, to_gltf_text
-
     doc, blob = split_glb(small_scene_glb())
     edit(doc)
     path = tmp_path / f"edited{suffix}"
@@ -254,8 +253,6 @@ def test_gltf_fields_are_validated_with_one_line(tmp_path, edit, match):
 def test_gltf_data_uri_is_validated(tmp_path):
     def corrupt(d):
         d["buffers"][0]["uri"] = "data:application/octet-stream;base64,@@@"
-
-    from lightsim.validation.fuzz import pack_glb, small_scene_glb, split_glb
 
     doc, blob = split_glb(small_scene_glb())
     corrupt(doc)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +11,13 @@ import pytest
 
 from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
-from lightsim.luminaires.photometric import read_photometric, sample_directions, write_ldt
+from lightsim.luminaires.photometric import (
+    HVGrid,
+    read_photometric,
+    sample_directions,
+    write_ies,
+    write_ldt,
+)
 from lightsim.scene import load_scene
 
 IES = Path(__file__).parents[1] / "luminaires" / "photometric" / "interlight-ovni-60w-5300lm.ies"
@@ -56,8 +64,6 @@ def test_photometric_source_flux_override():
 def test_type_a_source_wall_lux_is_the_files_intensity(tmp_path):
     """The wall a run produces from a Type A file is the file's interpolated intensity:
     E = I(direction)·D/r³ (grid.wall_lux), pixel by pixel within the photon noise."""
-    from lightsim.luminaires.photometric import HVGrid, write_ies
-
     h = np.linspace(-30, 30, 25)
     v = np.linspace(-15, 15, 13)
     H, V = np.meshgrid(h, v, indexing="ij")
@@ -86,9 +92,6 @@ def test_type_a_source_wall_lux_is_the_files_intensity(tmp_path):
 def test_core_finds_readers_through_the_entry_point():
     """A script that imports only the core still loads an IES file and a bulb: the
     registry loads the ``lightsim.sources`` entry point on first need."""
-    import subprocess
-    import sys
-
     code = ("import sys\n"
             "from lightsim.emitters import registry\n"
             "from lightsim.scene import load_scene\n"

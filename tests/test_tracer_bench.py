@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from lightsim.validation.bench.tracer import bench_tracer
+from lightsim.sampling import digit_permutations, halton_points, photon_keys
+from lightsim.tracer import PhotonTracer
+from lightsim.validation.bench.tracer import bench_tracer, stage_rows
+from lightsim.validation.bench.tracer_aim import aim_rotation, bench_aim
 from lightsim.validation.scenes.analytic import paraboloid_case
 
 
@@ -22,8 +26,6 @@ def test_bench_rows_compare_tracing_with_raw_embree():
 
 
 def test_aim_bench_rows():
-    from lightsim.validation.bench.tracer_aim import aim_rotation, bench_aim
-
     scene = paraboloid_case(resolution=(16, 16)).scene
     rebuild, moved = bench_aim(scene, repeats=1, frame_photons=5000)
     assert "rebuilt" in rebuild["what"] and "wall_transform" in moved["what"]
@@ -34,12 +36,6 @@ def test_aim_bench_rows():
 
 
 def test_stage_rows_add_up_to_the_traced_time_and_leave_records_unchanged():
-    import numpy as np
-
-    from lightsim.sampling import digit_permutations, halton_points, photon_keys
-    from lightsim.tracer import PhotonTracer
-    from lightsim.validation.bench.tracer import stage_rows
-
     scene = paraboloid_case(resolution=(16, 16)).scene
     rows = stage_rows(scene, photons=20_000, threads=1, repeats=1)
     assert [r["stage"] for r in rows] == ["emit", "start", "cast", "bounce", "rest"]

@@ -1,4 +1,4 @@
-"""The tracer against exact answers (issue 2). Tolerances come from the photon counts."""
+"""The tracer against exact answers. Tolerances come from the photon counts."""
 
 from __future__ import annotations
 

@@ -1,13 +1,17 @@
-"""Session 11's tracer speed-ups give the same answers as what they replaced."""
+"""The tracer's fast paths (the wall slab skip, chunks and threads, the false-hit kernels,
+records sorted by photon) give the same answers as the plain formulations."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lightsim.sampling import digit_permutations, halton_points, photon_keys
-from lightsim.tracer import PhotonTracer, _false_hits, _near_hits
-from lightsim.validation.scenes.analytic import paraboloid_case
+from lightsim.simulate import SimulateOptions, load
+from lightsim.tracer import PhotonTracer, false_hits, near_hits, sort_by_source
+from lightsim.validation.scenes.analytic import covered_paraboloid_case, paraboloid_case
 
 
 def _photons(n: int, seed: int = 3):
@@ -34,8 +38,8 @@ def test_wall_slab_skip_changes_no_hit(scene):
     pts, keys = _photons(20_000)
     fast = PhotonTracer(scene, threads=1)
     slow = PhotonTracer(scene, threads=1)
-    assert np.isfinite(fast._geom.wall_slab[4])
-    slow._geom = slow._geom._replace(wall_slab=np.array([0.0, 0.0, 1.0, 0.0, np.inf]))
+    assert np.isfinite(fast.geometry.wall_slab[4])
+    slow.geometry = slow.geometry._replace(wall_slab=np.array([0.0, 0.0, 1.0, 0.0, np.inf]))
     _same(fast.trace_points(pts, keys), slow.trace_points(pts, keys))
 
 
@@ -68,10 +72,10 @@ def test_group_outside_range_raises(scene, bad):
 
 
 def test_false_hits_match_the_numpy_test(scene):
-    """_false_hits picks the same rays (and steps) as the NumPy passes it replaced,
+    """false_hits picks the same rays (and steps) as the same test in NumPy passes,
     origins on triangle edges (exactly on the neighbouring faces' planes)."""
     tracer = PhotonTracer(scene, threads=1)
-    tri, fn = tracer._geom.tri_v, tracer._geom.face_n
+    tri, fn = tracer.geometry.tri_v, tracer.geometry.face_n
     rng = np.random.default_rng(5)
     lamp = np.flatnonzero(~scene.tri_is_wall)
     n = 50_000
@@ -84,9 +88,9 @@ def test_false_hits_match_the_numpy_test(scene):
     o32, d32 = o.astype(np.float32), d.astype(np.float32)
     prim, tfar, _, _ = tracer.caster.cast_lamp(o32, d32)
     bound = 4 * 3.814697265625e-06 * (tracer.scene_extent + tracer.eps_floor)
-    near = _near_hits(prim, tfar, bound)
-    close, step = _false_hits(near, o, d, prim, tfar, tracer.eps_floor, tri, fn)
-    # the NumPy formulation of sessions 1–10
+    near = near_hits(prim, tfar, bound)
+    close, step = false_hits(near, o, d, prim, tfar, tracer.eps_floor, tri, fn)
+    # the same test in NumPy
     t_min = np.full(n, -1.0)
     t_min[near] = 4 * 3.814697265625e-06 * (np.abs(o[near]).max(axis=1) + tracer.eps_floor)
     ref = np.flatnonzero((prim >= 0) & (tfar < t_min))
@@ -96,7 +100,7 @@ def test_false_hits_match_the_numpy_test(scene):
     ref = ref[side * moving > 0]
     assert len(ref) > 100
     assert np.array_equal(close, ref) and np.array_equal(step, t_min[ref])
-    empty = _false_hits(near[:0], o, d, prim, tfar, tracer.eps_floor, tri, fn)
+    empty = false_hits(near[:0], o, d, prim, tfar, tracer.eps_floor, tri, fn)
     assert len(empty[0]) == len(empty[1]) == 0
 
 
@@ -106,16 +110,9 @@ def test_records_by_source_are_the_stable_sort_of_the_trace(case, record):
     photon order — the same arrays as one stable counting sort of the trace's
     bounce-major records (what ``PhotonSets.shoot`` did after the trace), whatever the
     threads, batches and chunks; ledgers and the rest as without it."""
-    from pathlib import Path
-
-    from lightsim.tracer import sort_by_source
-    from lightsim.validation.scenes.analytic import covered_paraboloid_case
-
     if case == "covered":
         scene = covered_paraboloid_case(resolution=(16, 16)).scene
     else:  # diffuse parts: with record="all" a photon can leave records on two bounces
-        from lightsim.simulate import SimulateOptions, load
-
         glb = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
         scene = load(SimulateOptions(scene_path=str(glb)))
     n = 20_000 if case == "covered" else 6_000
@@ -148,8 +145,6 @@ def test_records_by_source_are_the_stable_sort_of_the_trace(case, record):
 def test_sort_by_source_with_an_offset():
     """The chunk sort: sources in [first, first + n), the same order and values as the
     sort of sources from 0."""
-    from lightsim.tracer import sort_by_source
-
     rng = np.random.default_rng(4)
     n, first, m = 500, 10_000, 60
     src = rng.integers(0, m, n).astype(np.int64)

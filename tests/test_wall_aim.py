@@ -42,11 +42,11 @@ def compare_aim(scene: Scene, m: np.ndarray, n: int = 40_000):
     base = PhotonTracer(scene, threads=1)
     moved = scene.with_wall_transform(np.linalg.inv(m))
     t_new = PhotonTracer(moved, threads=1, caster=base.caster)
-    assert t_new.caster._scene is base.caster._scene  # the lamp's BVH was not rebuilt
+    assert t_new.caster.lamp_scene is base.caster.lamp_scene  # the lamp's BVH was not rebuilt
     fresh = Geometry.from_scene(moved)  # the lamp's rows were reused, the wall's replaced
-    assert t_new._geom is not fresh and all(
-        np.array_equal(a, b) for a, b in zip(t_new._geom[:6], fresh[:6]))
-    np.testing.assert_array_equal(t_new._geom.wall_tri, moved.wall_triangles)
+    assert t_new.geometry is not fresh and all(
+        np.array_equal(a, b) for a, b in zip(t_new.geometry[:6], fresh[:6]))
+    np.testing.assert_array_equal(t_new.geometry.wall_tri, moved.wall_triangles)
     old = rotated_lamp(scene, m)
     t_old = PhotonTracer(old, threads=1)
     o, d, power, keys = emitted(base, n)
@@ -156,7 +156,8 @@ def test_moved_wall_frame_keeps_pixels_and_hv_point():
 
 
 def test_solid_wall_aim(tmp_path):
-    """Issue 17's slab wall (reduced to its front face) moves without a rebuild too."""
+    """A slab wall (a closed solid reduced to its front face) moves without a rebuild
+    too."""
     emit = GltfMaterial("filament", emissive=(1.0, 1.0, 1.0))
     grey = GltfMaterial("paint", base_color=(0.8, 0.8, 0.8))
     chrome = GltfMaterial("chrome", base_color=(0.9, 0.9, 0.9), metallic=1.0, roughness=0.0)
@@ -191,7 +192,7 @@ def test_session_wall_transform_keeps_embree_and_matches_a_fresh_session():
         s.frame()
         caster = s.backend.clients[0].tracer.caster
         s.update(wall_transform=m)
-        assert s.backend.clients[0].tracer.caster._scene is caster._scene
+        assert s.backend.clients[0].tracer.caster.lamp_scene is caster.lamp_scene
         a = s.frame()
     with Session(scene.with_wall_transform(m), cfg) as s2:
         b = s2.frame()

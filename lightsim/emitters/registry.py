@@ -24,6 +24,7 @@ filament factory               ``factory(bulb, at (m), axis)`` → (vertices (n,
 from __future__ import annotations
 
 from collections.abc import Callable
+from importlib.metadata import entry_points
 from typing import Any
 
 from lightsim.errors import InputError
@@ -47,8 +48,6 @@ def _load_plugins() -> None:
     if _PLUGINS_LOADED:
         return
     _PLUGINS_LOADED = True
-    from importlib.metadata import entry_points
-
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         ep.load()()
 

@@ -48,8 +48,6 @@ R_FLOOR_REL = 2.0**-20
 #: caustics, so a static split leaves one thread idle)
 QUERY_CHUNK = 4
 
-_EMPTY_KEYS = np.zeros(0, np.int64)
-
 #: kNN results of up to this many photons are ordered by rank sort (n² branch-free
 #: compares), larger ones by quicksort
 RANK_SORT_MAX = 128

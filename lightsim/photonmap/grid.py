@@ -535,11 +535,6 @@ class UniformGrid(PhotonIndex):
         return self._hashed
 
     @property
-    def table_bytes(self) -> int:
-        """Bytes of the start table (4 per cell or bucket)."""
-        return int(self._start.nbytes)
-
-    @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box (lo, hi) of the stored photons (m)."""
         return self._lo.copy(), self._hi.copy()

@@ -17,8 +17,8 @@ partition. Leaves whose box has zero extent (coincident photons) stay leaves wha
 their size, and a zero-extent axis is never split, so construction terminates for any
 finite input (the float64 midpoint of two distinct float32 values separates them).
 
-Insertion (this session's layout)
----------------------------------
+Insertion
+---------
 Nodes are numbered depth-first (children adjacent, every subtree one block of ids), after
 a build and after every insertion. An insertion routes the batch (sorted by top voxel) to
 its leaves, then rewrites the photon arrays in one pass: a walk over the leaves in slot
@@ -63,12 +63,13 @@ name             unit   default   meaning
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
 from lightsim.errors import InputError
 from lightsim.photonmap.common import (
-    _EMPTY_KEYS,
     SERIAL_BELOW,
     PhotonIndex,
     block_size,
@@ -88,6 +89,7 @@ DEFAULT_LEAF_SIZE = 10
 #: photons (amortised: re-splitting leaves that grew by a photon or two was the largest
 #: share of an insertion); leaves of a built tree hold ≤ leaf_size
 INSERT_SLACK = 2
+_NO_KEYS = np.zeros(0, np.int64)  # scan_radius without a key filter
 #: at most this many top levels are split at the middle of the *voxel* in one counting
 #: sort (see :meth:`KdTree._build_top`)
 MAX_TOP_LEVELS = 12
@@ -436,7 +438,7 @@ def _merge_ranges(child: np.ndarray, start: np.ndarray, end: np.ndarray, count: 
     photons, so a leaf's photons move up by ``shift[leaf]``: the new photons of all the
     leaves before it. Updates the leaves' ``start``/``end`` and returns (the leaves in
     slot order, ``shift`` per node). The walk reads the nodes in memory order when they
-    are numbered depth-first (:meth:`_BoxTree._to_dfs_order`).
+    are numbered depth-first (:meth:`BoxTree._to_dfs_order`).
     """
     m = child.shape[0]
     shift = np.zeros(m, np.int64)
@@ -942,7 +944,7 @@ def _tree_radius_one(qx: float, qy: float, qz: float, qnx: float, qny: float, qn
         c = child[nd]
         if c < 0:
             pos = scan_radius(start[nd], end[nd], qx, qy, qz, qnx, qny, qnz, pts, nrm,
-                              use_nrm, ncos, _EMPTY_KEYS, 0, 0, r2, out_i, out_d, pos,
+                              use_nrm, ncos, _NO_KEYS, 0, 0, r2, out_i, out_d, pos,
                               write, 0.0, 0, pw, acc)
             continue
         if _box_d2(box, c + 1, qx, qy, qz) <= r2:
@@ -988,9 +990,51 @@ def _tree_radius(queries: np.ndarray, qnrm: np.ndarray, use_nrm: bool, ncos: flo
 
 
 # =========================================================================== classes
-class _BoxTree(PhotonIndex):
+class TreeLayout(NamedTuple):
+    """A kd-tree's storage as it stands (views, not copies: read only), the node arrays
+    cut to the tree's nodes (m of them); photons in slot order (each leaf's photons are
+    one contiguous slot range).
+
+    Attributes
+    ----------
+    child : (m,) int32
+        First child of each inner node (its children are c and c + 1), −1 for a leaf.
+    box : (m, 6) float32
+        Tight box of each node's photons: lo xyz, hi xyz (m).
+    start, end : (m,) int64
+        Slot range of each node's photons.
+    dim : (m,) int32
+        Split axis of each inner node (a leaf's is never read).
+    split : (m,) float64
+        Split plane of each inner node (m).
+    depth : (m,) int32
+        Depth of each node (root = 0).
+    positions, normals : (n, 3) float32
+        Photon positions (m) and unit normals by slot (normals empty in a tree without).
+    powers : (n, C) float32
+        Photon powers Φ by slot.
+    indices : (n,) int64
+        Insertion index of the photon in each slot.
+    """
+
+    child: np.ndarray
+    box: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    dim: np.ndarray
+    split: np.ndarray
+    depth: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    powers: np.ndarray
+    indices: np.ndarray
+
+
+class BoxTree(PhotonIndex):
     """Node storage and kernels shared by the middle and median trees (queries and
-    density estimates: :class:`~lightsim.photonmap.common.PhotonIndex`)."""
+    density estimates: :class:`~lightsim.photonmap.common.PhotonIndex`): tight node
+    boxes, leaf-contiguous photons. A subclass sets ``_median`` (split at the median
+    instead of the spatial middle) and defines ``add``."""
 
     _median = False
 
@@ -1218,6 +1262,14 @@ class _BoxTree(PhotonIndex):
         return self._depth
 
     @property
+    def layout(self) -> TreeLayout:
+        """The node and photon arrays as stored (:class:`TreeLayout`; read only)."""
+        m = self._n_nodes
+        return TreeLayout(self._child[:m], self._box[:m], self._start[:m], self._end[:m],
+                          self._dim[:m], self._split[:m], self._node_depth[:m], self._pts,
+                          self._nrm, self._pw, self._perm)
+
+    @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box (lo, hi) of the stored photons (m); zeros when empty."""
         if not self._n_nodes:
@@ -1241,7 +1293,7 @@ class _BoxTree(PhotonIndex):
                             self._perm, *self._args_nodes(), self._depth + 2)
 
 
-class KdTree(_BoxTree):
+class KdTree(BoxTree):
     """Spatial-middle-split kd-tree with incremental insertion (paper sections 5.2, 5.4).
 
     Examples

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from lightsim.photonmap.kdtree import _BoxTree
+from lightsim.photonmap.kdtree import BoxTree
 
 
-class MedianKdTree(_BoxTree):
+class MedianKdTree(BoxTree):
     """Median-split balanced kd-tree (build only; :meth:`add` rebuilds).
 
     Parameters
