@@ -3,17 +3,21 @@
 Sub-commands are imported lazily so that ``lightsim --help`` and quick commands do not pay
 for numba, embree or Ray start-up. Errors caused by the user's input
 (:class:`lightsim.errors.LightsimError`) and bad options or arguments (click's
-``UsageError``) print one line ``lightsim: error: …`` and exit with code 2.
+``UsageError``) print one line ``lightsim: error: …`` and exit with code 2. The console
+script's process is tuned for a run by the engine
+(:func:`lightsim.engine.process.command_process`).
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+from contextlib import nullcontext
 
 import click
 
 from lightsim import __version__
+from lightsim.engine.process import command_process
 from lightsim.errors import LightsimError
 
 # command name -> "module:attribute" (modules relative to lightsim.cli)
@@ -68,8 +72,9 @@ class LazyGroup(click.Group):
 @click.version_option(__version__, prog_name="lightsim")
 def cli() -> None:
     """Simulate and check automotive headlight beam patterns with photon mapping."""
-    # wire the application: photometric readers and bulbs register with the core's emitters
-    import lightsim.luminaires  # noqa: F401
+    # wire the application: photometric readers and bulbs register with the core's
+    # emitters (a plug-in registry, loaded when a command runs, not for --help)
+    importlib.import_module("lightsim.luminaires")
 
 
 def _one_line(text: str) -> str:
@@ -77,35 +82,11 @@ def _one_line(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the console script; maps input errors to one line and exit code 2."""
-    if argv is None:  # the console script's process: freed arrays are reused, not faulted
-        from lightsim.io import plot_worker
-
-        # the plots' helper starts first: it imports matplotlib while this process
-        # imports the engine (lightsim/io/plot_worker.py)
-        plot_worker.prestart(sys.argv[1:])
-        from lightsim.engine.blas import single_blas_thread
-        from lightsim.engine.memory import keep_freed_memory, small_pages
-
-        keep_freed_memory()
-        small_pages()  # fresh huge pages are slow faults on the VMs (engine/memory.py)
-        single_blas_thread()  # the cores are the run's threads', not BLAS's spinning ones
-    try:
+    """Entry point of the console script (``argv`` None: this process is the command's,
+    tuned for the run) or of an in-process caller (``argv`` given, its process as it is);
+    maps input errors to one line and exit code 2."""
+    with command_process(sys.argv[1:]) if argv is None else nullcontext():
         _run(argv)
-    finally:
-        if argv is None:  # the process ends here: see _skip_final_collection
-            _skip_final_collection()
-
-
-def _skip_final_collection() -> None:
-    """Move every live object out of the cyclic collector's reach before the interpreter
-    exits: its final collections walk every object numba and llvmlite created (measured
-    0.27-0.31 s after any cached kernel ran, against 0.02-0.03 s frozen), on every
-    command. Reference counting still frees them and atexit handlers still run; only the
-    console script does it (an in-process caller's garbage stays collectable)."""
-    import gc
-
-    gc.freeze()
 
 
 def _run(argv: list[str] | None) -> None:

@@ -45,6 +45,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
+import click
+
 from lightsim.errors import InputError
 
 KINDS = ("value", "pair", "triple", "flag", "onoff", "assign", "file", "dir", "tuple",
@@ -361,8 +363,6 @@ def click_option(opt: Option, **override: Any) -> Callable:
     """The click decorator of ``opt``: the command receives the parsed value, checked
     against the record (one :class:`InputError` line otherwise). ``override`` may change
     ``default`` (another command's default for the same setting; the help says it)."""
-    import click
-
     if "default" in override:
         opt = dataclasses.replace(opt, default=override.pop("default"), default_text=None)
     if override:

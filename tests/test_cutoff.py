@@ -6,9 +6,18 @@ import json
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from lightsim.errors import InputError
-from lightsim.render.cutoff import TARGET_V_DEG, aim_shift, apply_shift, find_cutoff
+from lightsim.render.cutoff import (
+    TARGET_V_DEG,
+    aim_shift,
+    apply_shift,
+    cutoff_interval,
+    find_cutoff,
+    scan_sample_points,
+)
+from lightsim.render.filters import gaussian_filter1d, map_coordinates
 from lightsim.wall import WallFrame, lux_from_candela, wall_m_from_deg
 
 D = 25.0
@@ -125,8 +134,6 @@ def test_bad_inputs():
 
 # ---- the cut-off position's interval from the sets (jackknife) --------------------------
 def _set_values(v0: float, noise: float, seed: int, sets: int = 16) -> np.ndarray:
-    from lightsim.render.cutoff import scan_sample_points
-
     hv, _, _ = scan_sample_points(FRAME)
     hd = np.degrees(np.arctan2(hv[:, 0], D))
     vd = np.degrees(np.arctan2(hv[:, 1], D))
@@ -136,8 +143,6 @@ def _set_values(v0: float, noise: float, seed: int, sets: int = 16) -> np.ndarra
 
 
 def test_cutoff_interval_covers_the_true_position():
-    from lightsim.render.cutoff import cutoff_interval
-
     covered, widths = [], []
     for seed in range(24):
         ci = cutoff_interval(_set_values(-0.57, 0.3, seed), FRAME, None)
@@ -154,8 +159,6 @@ def test_cutoff_interval_covers_the_true_position():
 
 
 def test_cutoff_interval_degenerate_inputs():
-    from lightsim.render.cutoff import cutoff_interval
-
     flat = np.ones((16, _set_values(-0.57, 0.0, 0).shape[1]))
     ci = cutoff_interval(flat, FRAME, None)   # no cut-off anywhere: reported, not raised
     assert ci.found_sets == 0 and ci.interval_deg is None
@@ -167,10 +170,6 @@ def test_cutoff_interval_degenerate_inputs():
 def test_numpy_filters_match_scipy_ndimage():
     """The numpy bilinear sampler and Gaussian (scipy.ndimage is not imported by a run)
     agree with scipy.ndimage to rounding, edges and out-of-range coordinates included."""
-    from scipy import ndimage
-
-    from lightsim.render.filters import gaussian_filter1d, map_coordinates
-
     rng = np.random.default_rng(0)
     for H, W in [(1, 1), (1, 5), (7, 1), (40, 64)]:
         img = rng.random((H, W))

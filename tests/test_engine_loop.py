@@ -1,5 +1,5 @@
-"""The render loop as named steps (issue 14) and its pipeline speed-ups (issue 15 goal 2):
-each speed-up must leave the written map bit-identical."""
+"""The render loop as named stages (shoot → insert → estimate → error and stopping rule →
+final image) and its pipeline speed-ups: each must leave the written map bit-identical."""
 
 from __future__ import annotations
 
@@ -16,12 +16,23 @@ from lightsim.engine.server import (
     EXPONENT_RANGE,
     UPPER_SLACK,
     ErrorSchedule,
+    MapErrorRule,
     Session,
+    StoppingRule,
     stop_level,
 )
 from lightsim.photonmap.density import PhotonMap
 from lightsim.render.frame import ErrorEstimate
-from lightsim.sampling import DIGITS, N_DIMS, PRIMES, digit_permutations, halton_points
+from lightsim.sampling import (
+    DIGITS,
+    N_DIMS,
+    PRIMES,
+    digit_permutations,
+    digit_permutations_reference,
+    halton_points,
+    halton_points_grouped,
+)
+from lightsim.validation.bench.pipeline import _Recorder, _run, bench_pipeline
 from lightsim.validation.scenes.analytic import isotropic_case
 
 
@@ -180,8 +191,6 @@ def test_halton_points_match_the_digit_by_digit_definition():
 
 
 def test_bench_pipeline_rows(point):
-    from lightsim.validation.bench.pipeline import bench_pipeline
-
     rows = bench_pipeline(point, RunConfig(frame_photons=10_000, interleave=2),
                           photons=30_000, repeats=1)
     assert [r["what"] for r in rows] == ["pair 1", "median"]
@@ -206,8 +215,6 @@ def test_bench_pipeline_rows(point):
 
 
 def test_pipeline_recorder_keeps_the_runs_photons(point):
-    from lightsim.validation.bench.pipeline import _Recorder, _run
-
     cfg = RunConfig(frame_photons=10_000, interleave=2, seed=2)
     rec = _Recorder()
     a = _run(point, cfg, 30_000, rec)
@@ -226,8 +233,6 @@ def test_session_sums_what_the_clients_shot(point):
 
 
 def test_grouped_halton_points_are_each_sets_points():
-    from lightsim.sampling import halton_points_grouped
-
     perms = np.stack([digit_permutations(1, s, None) for s in range(3)])
     idx = [np.arange(5, 900), np.arange(0), np.arange(2**40, 2**40 + 77)]
     group = np.concatenate([np.full(len(i), s) for s, i in enumerate(idx)])
@@ -285,8 +290,6 @@ def test_final_map_without_probes_is_the_ici_map(point):
 def test_compiled_digit_permutations_are_numpys(args):
     """The compiled shuffles draw from the same bit generators in the same order as a
     Python loop over ``Generator.permutation``: the same scramble, bit for bit."""
-    from lightsim.sampling import digit_permutations_reference
-
     got = digit_permutations(*args)
     np.testing.assert_array_equal(got, digit_permutations_reference(*args))
     for d in range(N_DIMS):  # each row a permutation of its base's digits
@@ -321,3 +324,57 @@ def test_error_schedule_scales_the_probes_figure_to_the_written_maps():
     assert s.exponent("map") == 0.5
     s.calibrate(_est(None), _est(0.2))  # no probe figure: the ratio measured stays
     assert s.probe_scale == pytest.approx(0.5)
+
+
+def test_the_schedule_says_what_an_estimate_measures():
+    assert ErrorSchedule().measure(10) == "probes"  # no target: the probes, always
+    s = ErrorSchedule(target_error=0.1, min_frames=3)
+    assert s.measure(2) == "probes" and s.measure(3) == "calibrate"
+    s.calibrate(_est(0.4), _est(0.2))
+    assert s.measure(3) == "probes"
+    s.stop_expected = True
+    assert s.measure(3) == "map"
+    assert ErrorSchedule(target_error=0.1, map_is_cheap=True).measure(0) == "map"
+
+
+def test_map_error_rule_reads_the_stop_level_after_the_minimum_frames():
+    rule: StoppingRule = MapErrorRule(0.1, min_frames=3)
+    assert rule.satisfied(_est(0.09), 3) and not rule.satisfied(_est(0.09), 2)
+    assert not rule.satisfied(_est(0.11), 9) and not rule.satisfied(_est(None), 9)
+
+
+class _SecondEstimate:
+    """A stopping rule of another kind: satisfied from the second estimate it is asked
+    about on (what it reads is up to the rule)."""
+
+    def __init__(self) -> None:
+        self.asked: list[int] = []
+
+    def satisfied(self, est: FrameResult, frames: int) -> bool:
+        self.asked.append(est.photons)
+        return len(set(self.asked)) >= 2
+
+
+def test_run_stops_where_another_stopping_rule_is_satisfied(point):
+    """A rule other than the target error's plugs into the same loop: the probes propose
+    the stop, the written map confirms it, and the run returns that map."""
+    cfg = RunConfig(frame_photons=8_000, interleave=2, seed=3)
+    rule = _SecondEstimate()
+    with Session(point, cfg) as s:
+        final = s.run(photons=2_000_000, rule=rule)
+    assert final.photons == 16_000 and final.lux is not None  # estimates at 8 k and 16 k
+    assert rule.asked == [8_000, 16_000, 16_000]  # the probes', then the written map's
+
+
+def test_the_written_map_is_remade_from_its_inputs(point):
+    """The written-map interface: the inputs a run's map was made from make the same map
+    again, bit for bit (what studies such as validation/edge_study.py remake)."""
+    cfg = RunConfig(frame_photons=8_000, interleave=2, seed=4)
+    with Session(point, cfg) as s:
+        s.map_estimator.keep_inputs = True
+        final = s.run(photons=24_000, probes=False)
+        inputs = s.map_estimator.last_inputs
+    wm = inputs.make()
+    H, W = inputs.shape
+    assert np.array_equal(wm.lux.reshape(H, W, -1), final.lux)
+    assert wm.error == final.error and wm.fused == s.last_map_fused

@@ -9,8 +9,9 @@ import pytest
 
 from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
-from lightsim.render.frame import estimate_error, luminous, probe_stats
+from lightsim.render.frame import luminous, probe_error, probe_stats
 from lightsim.validation.converge import analytic_target, error_metrics, lit_mask
+from lightsim.validation.scenes import analytic as an
 
 
 def _sets(truth: np.ndarray, offset: np.ndarray, sd: float, S: int, seed: int
@@ -25,7 +26,7 @@ def test_bias_and_noise_recovered_from_synthetic_sets():
     bias = np.where(np.arange(G) % 2 == 0, 3.0, -3.0)  # ±3 %: rms bias 3 %
     probes = _sets(truth, bias, 5.0, S, 1)       # kNN: biased, noise 5 % per set
     windows = _sets(truth, 0.0, 20.0, S, 2)      # windows: unbiased, 4× noisier
-    err = estimate_error(probe_stats(probes, windows), G)
+    err = probe_error(probe_stats(probes, windows), G)
     assert err.noise == pytest.approx(0.05 / math.sqrt(S), rel=0.05)
     assert err.bias == pytest.approx(0.03, rel=0.1)
     assert err.total == pytest.approx(math.hypot(err.noise, err.bias))
@@ -34,8 +35,8 @@ def test_bias_and_noise_recovered_from_synthetic_sets():
 def test_no_bias_reads_as_nearly_none():
     G, S = 4000, 16
     truth = np.linspace(50.0, 150.0, G)
-    err = estimate_error(probe_stats(_sets(truth, 0.0, 5.0, S, 3),
-                                     _sets(truth, 0.0, 20.0, S, 4)), G)
+    err = probe_error(probe_stats(_sets(truth, 0.0, 5.0, S, 3),
+                                  _sets(truth, 0.0, 20.0, S, 4)), G)
     # the windows' noise is subtracted; what is left is the estimate's own scatter,
     # about (2/G)^¼ × the difference's standard error (0.8 % here), far below 5 %
     assert err.bias < 0.015
@@ -43,9 +44,9 @@ def test_no_bias_reads_as_nearly_none():
 
 def test_one_set_or_nothing_lit_gives_none():
     one = {0: np.ones((10, 1))}
-    assert estimate_error(probe_stats(one, one), 10) is None
+    assert probe_error(probe_stats(one, one), 10) is None
     dark = {s: np.zeros((10, 1)) for s in range(4)}
-    assert estimate_error(probe_stats(dark, dark), 10) is None
+    assert probe_error(probe_stats(dark, dark), 10) is None
 
 
 @pytest.mark.parametrize("estimator,bandwidth", [("knn", "knn"), ("knn", "ici"),
@@ -74,8 +75,6 @@ def test_estimate_is_honest_on_the_paraboloid(estimator, bandwidth):
 
 def test_windows_measure_the_pixel_mean():
     """The pixel windows at the grid probes are unbiased estimates of E there."""
-    from lightsim.validation.scenes import analytic as an
-
     case = an.isotropic_case()
     cfg = RunConfig(seed=2, interleave=2, estimator="knn", bandwidth="knn",
                     frame_photons=250_000)  # the windows are the kNN figure's store
@@ -99,10 +98,10 @@ def test_unresolved_blur_is_reported_as_a_bound():
     """Windows much noisier than the bias: the point estimate may read 0, the bound not."""
     G, S = 600, 16
     truth = np.full(G, 100.0)
-    err = estimate_error(probe_stats(_sets(truth, 1.0, 5.0, S, 5),
-                                     _sets(truth, 0.0, 150.0, S, 6)), G)
+    err = probe_error(probe_stats(_sets(truth, 1.0, 5.0, S, 5),
+                                  _sets(truth, 0.0, 150.0, S, 6)), G)
     assert err.bias_upper > 0.05  # 150 % window noise: blur below ~5 % is invisible
     assert not err.bias_resolved and "not resolved" in err.describe()
-    clear = estimate_error(probe_stats(_sets(truth, 10.0, 5.0, S, 7),
-                                       _sets(truth, 0.0, 20.0, S, 8)), G)
+    clear = probe_error(probe_stats(_sets(truth, 10.0, 5.0, S, 7),
+                                    _sets(truth, 0.0, 20.0, S, 8)), G)
     assert clear.bias_resolved and "blur 9." in clear.describe()  # 10 lx of 110 lx

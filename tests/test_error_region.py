@@ -11,8 +11,11 @@ from scipy.ndimage import distance_transform_edt
 from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
+from lightsim.render import ici
+from lightsim.render import written_map as written
 from lightsim.render.edt import squared_distance
 from lightsim.render.region import interior, restriction
+from lightsim.validation.bench.peer import CASES, truth_of
 
 
 @pytest.mark.parametrize("shape,cell", [((64, 64), (1.0, 1.0)), ((33, 70), (0.3, 1.7)),
@@ -71,8 +74,6 @@ def test_interior_figure_is_honest_on_the_paraboloid():
     """The written map's figure over the interior against the exact pixel means over the
     inner 80 % of the beam (the peer bench's score), and the lit figure against the lit
     pixels, from the same photons: each reads its own region's true error."""
-    from lightsim.validation.bench.peer import CASES, truth_of
-
     case = CASES["paraboloid"](64)
     truth = truth_of(case)
     got = {}
@@ -94,8 +95,6 @@ def test_probe_figure_reads_the_interior_too(estimator):
     """On a wall too large for the map check at every estimate the run's figures come
     from the grid probes (ICI rungs there, or the kNN/bin probe estimates): the interior
     is taken on the probe raster, and its figure is below the lit one."""
-    from lightsim.validation.bench.peer import CASES
-
     case = CASES["paraboloid"](128)  # 128 × 128 pixels > 4 per grid probe
     figures = {}
     for region in ("lit", "interior"):
@@ -111,9 +110,7 @@ def test_probe_figure_reads_the_interior_too(estimator):
 
 
 def test_tile_labels_cover_the_raster_in_row_order():
-    from lightsim.render.ici import tile_labels
-
-    got = tile_labels((5, 10), 4).reshape(5, 10)
+    got = written.tile_labels((5, 10), 4).reshape(5, 10)
     assert got[0, 0] == got[3, 3] == 0 and got[0, 4] == 1 and got[0, 9] == 2
     assert got[4, 0] == 3 and got[4, 9] == 5  # the cut last row and column of tiles
     assert len(np.unique(got)) == 6
@@ -125,8 +122,6 @@ def _clumped_sets(lam: np.ndarray, S: int, sides: np.ndarray, clump: int, rng
     half-pixel cell of ``clump`` × ``clump`` neighbouring pixels: neighbouring pixels'
     counts are correlated (as the windows' sharing of photons, and QMC sets' stratified
     counts, make them), with the mean field ``lam`` per cell and set."""
-    from lightsim.render import ici
-
     H, W = lam.shape[0] // 2, lam.shape[1] // 2
     rows, cols = np.divmod(np.arange(H * W), W)
     out = {}
@@ -146,8 +141,6 @@ def test_region_blur_standard_error_matches_its_scatter(clump, monkeypatch):
     with independent pixels and with pixels whose counts are correlated over 3 × 3
     neighbours. The Gaussian per-pixel formula, which ignores the correlation, reads
     about half the scatter there: a bound of blur + 2 s.e. would then not be one."""
-    from lightsim.render import ici
-
     H = W = 48
     S, R = 16, 30
     y, x = np.mgrid[0:2 * H, 0:2 * W] + 0.5
@@ -159,11 +152,11 @@ def test_region_blur_standard_error_matches_its_scatter(clump, monkeypatch):
     emitted = dict.fromkeys(range(S), 1)
 
     def spread(tiles_min: int) -> tuple[float, float]:
-        monkeypatch.setattr(ici, "TILES_MIN", tiles_min, raising=False)
+        monkeypatch.setattr(written, "TILES_MIN", tiles_min)
         rng = np.random.default_rng(3)
-        figs = [ici.written_map(_clumped_sets(lam, S, sides, clump, rng), emitted, 1.0,
-                                cells, 2.0, 0.1, directional=True,
-                                restrict=lambda m: m & inner).figure for _ in range(R)]
+        figs = [written.written_map(_clumped_sets(lam, S, sides, clump, rng), emitted,
+                                    1.0, cells, 2.0, 0.1, directional=True,
+                                    restrict=lambda m: m & inner).figure for _ in range(R)]
         b2 = np.array([f.bias2 for f in figs])
         return float(np.mean([f.bias2_se for f in figs])), float(b2.std(ddof=1))
 

@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import lightsim.engine.photonset as photonset
 from lightsim.engine.config import RunConfig
 from lightsim.engine.frame_insert import insert_wall, sort_by_source
-from lightsim.engine.photonset import PhotonSets
+from lightsim.engine.photonset import SPLIT_RECORDS, PhotonSets, window_offsets
 from lightsim.engine.plan import make_plan
 from lightsim.validation.scenes.analytic import isotropic_case, paraboloid_case
 
@@ -126,12 +127,9 @@ def test_wall_kernel_takes_empty_input_and_extreme_coordinates():
 
 def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit(monkeypatch):
     """A frame of ≥ SPLIT_RECORDS records (after the first) is inserted in two halves of
-    the sets, the second on the helper thread: every store (windows, lattice, moments, the
+    the sets, one half on a second thread: every store (windows, lattice, moments, the
     detector apertures' counts and their SPT triggers) as the per-set path and as one
     thread."""
-    import lightsim.engine.photonset as photonset
-    from lightsim.engine.photonset import SPLIT_RECORDS
-
     handed = []
     helper = photonset.helper_thread
 
@@ -166,8 +164,6 @@ def test_window_offsets_keep_every_window_that_can_hold_a_photon(reach):
     """No probe window outside :func:`window_offsets` holds a photon (the window test of
     ``insert_wall``, on photons at and next to the half-way points between centres),
     and the range is never wider than ⌈reach⌉."""
-    from lightsim.engine.photonset import window_offsets
-
     lo, hi = window_offsets(reach)
     assert lo == -hi and 0 <= hi <= int(np.ceil(reach))
     pitch = 0.37
@@ -185,11 +181,9 @@ def test_window_offsets_keep_every_window_that_can_hold_a_photon(reach):
 
 
 def test_lattice_pages_are_written_ahead_of_the_first_frame(monkeypatch):
-    """The ICI lattice block exists (zeros, written on the helper thread) before the first
+    """The ICI lattice block exists (zeros, written on the second thread) before the first
     frame and is the block the frames sum into; not for the ``bin`` estimator, nor for a
     block above PREFAULT_MAX_BYTES (made by the first frame, as before)."""
-    import lightsim.engine.photonset as photonset
-
     scene = paraboloid_case(resolution=(40, 24)).scene
     config = RunConfig(frame_photons=8_000, interleave=2, seed=3)
     sets = _sets(scene, config, False)

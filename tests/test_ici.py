@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from lightsim.render import ici
+from lightsim.render.ici import held_out_blur
+from lightsim.render.written_map import FUSED_MARGIN, error_figure, written_map
 from lightsim.scene import make_wall
 from lightsim.validation.scenes import analytic as an
 
@@ -167,15 +169,15 @@ def test_ici_keeps_the_edge_and_averages_the_flat_parts():
     assert np.all(choice.rung[:15] == 3) and np.all(choice.rung[25:] == 3)
     assert abs(choice.lux[19, 0] - 1.0) < 0.15 and abs(choice.lux[20, 0]) < 0.1
     # the error figure sees noise only where the rungs agree, and no blur at the step
-    err = ici.estimate_error(rungs, choice, lit_fraction=0.1)
-    assert err is not None and err.noise < 0.05
+    fig = error_figure(rungs, choice, lit_fraction=0.1)
+    assert fig is not None and fig.error.noise < 0.05
 
 
 def test_choose_without_photons_is_zero_and_rung_zero():
     rungs = {s: np.zeros((4, 5, 1)) for s in range(4)}
     choice = ici.choose(rungs, dict.fromkeys(range(4), 0), 0.0, np.ones(4), 2.0)
     assert np.all(choice.lux == 0) and choice.lux.shape == (5, 1)
-    assert ici.estimate_error(rungs, choice) is None
+    assert error_figure(rungs, choice) is None
 
 
 def test_shield_step_pixel_means_are_exact():
@@ -199,7 +201,7 @@ def test_shield_step_pixel_means_are_exact():
     assert exact[-1, 0] > 0 and exact[0, -1] == 0
 
 
-# -- the error figure against a planted blur (issue 12) ------------------------------------
+# -- the error figure against a planted blur ------------------------------------------
 
 def _lattice_field(H: int, W: int, level: float) -> np.ndarray:
     """Expected photons per set in each half-pixel cell: a gradient with an oblique 4:1
@@ -242,7 +244,7 @@ def test_error_figure_is_unbiased_for_a_planted_blur(level):
     true_n2 = np.mean(exact[3] / (cells[3] * S)) / mu.mean() ** 2  # Poisson, pooled sets
     rng = np.random.default_rng(11)
     choice = ici.IciChoice(np.full(H * W, 3), None)
-    figs = [ici.error_figure(_poisson_sets(lam, S, sides, rng), choice, 0.0) for _ in range(R)]
+    figs = [error_figure(_poisson_sets(lam, S, sides, rng), choice, 0.0) for _ in range(R)]
     b2 = np.array([f.bias2 for f in figs])
     n2 = np.array([f.error.noise**2 for f in figs])
     se = float(np.mean([f.bias2_se for f in figs]))
@@ -269,10 +271,10 @@ def test_written_map_figure_is_honest_although_the_rungs_come_from_the_same_phot
     held, naive = [], []
     for _ in range(R):
         sets = _poisson_sets(lam, S, sides, rng)
-        wm = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=False)
+        wm = written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=False)
         actual = math.sqrt(np.mean((wm.lux[:, 0] - mu) ** 2)) / mu.mean()
         held.append(wm.error.total / actual)
-        same = ici.error_figure(sets, wm.choice, 0.0, wm.alpha)  # D̄² − se_D², same photons
+        same = error_figure(sets, wm.choice, 0.0, wm.alpha)  # D̄² − se_D², same photons
         naive.append(same.error.total / actual)
     assert 0.92 <= np.median(held) <= 1.12
     assert np.quantile(held, 0.1) >= 0.8 and np.quantile(held, 0.9) <= 1.25
@@ -298,14 +300,14 @@ def test_fused_map_figure_is_honest_and_its_edge_error_lower():
     ratio, edge = [], []
     for _ in range(R):
         sets = _poisson_sets(lam, S, sides, rng)
-        fused = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=True)
-        centred = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=False)
+        fused = written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=True)
+        centred = written_map(sets, emitted, 1.0, cells, 2.0, 0.0, directional=False)
         assert fused.choice.weights is not None and not hasattr(centred.choice, "weights")
-        best = ici.written_map(sets, emitted, 1.0, cells, 2.0, 0.0)  # the default
+        best = written_map(sets, emitted, 1.0, cells, 2.0, 0.0)  # the default
         f, c = fused.error.total, centred.error.total
-        assert best.error.total == (f if f < ici.FUSED_MARGIN * c else c)
+        assert best.error.total == (f if f < FUSED_MARGIN * c else c)
         # the map says which it is, so a caller can ask for that one alone next time
-        assert fused.fused and not centred.fused and best.fused == (f < ici.FUSED_MARGIN * c)
+        assert fused.fused and not centred.fused and best.fused == (f < FUSED_MARGIN * c)
         err = {k: (m.lux[:, 0] - mu).reshape(H, W) for k, m in
                (("fused", fused), ("centred", centred))}
         ratio.append(fused.error.total / (math.sqrt(np.mean(err["fused"] ** 2)) / mu.mean()))
@@ -320,8 +322,6 @@ def test_fused_map_figure_is_honest_and_its_edge_error_lower():
 def test_held_out_blur_of_some_queries_is_theirs_of_all():
     """``queries=`` computes only those columns (the figure reads only the lit ones) and
     gives exactly the values of the full computation there."""
-    from lightsim.render.ici import held_out_blur
-
     rng = np.random.default_rng(3)
     S, J1, Q = 6, 4, 50
     rungs = {s: rng.gamma(3.0, 10.0, (J1, Q, 1)) for s in range(S)}

@@ -2,17 +2,27 @@
 
 from __future__ import annotations
 
+import ctypes
 import itertools
+import json
 import mmap
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from lightsim.cli.main import main
 from lightsim.engine import memory
 from lightsim.engine.config import RunConfig
+from lightsim.engine.memory import write_pages
+from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.photonmap import KdTree
+from lightsim.simulate import SimulateOptions, load
+from lightsim.validation.bench.peer import CASES, write_scene_glb
 
 
 def _photons(n: int, seed: int = 3):
@@ -70,9 +80,6 @@ def test_available_bytes_reads_meminfo():
 
 
 def test_simulate_refuses_before_it_starts(tmp_path, monkeypatch, capsys):
-    from lightsim.cli.main import main
-    from lightsim.validation.bench.peer import CASES, write_scene_glb
-
     glb = write_scene_glb(CASES["paraboloid"](8), tmp_path / "p.glb")
     out = tmp_path / "out"
     monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT", str(10**9))
@@ -91,9 +98,6 @@ def test_keep_freed_memory_reuses_freed_blocks_in_a_process_of_its_own():
     anew every time by default — the freed heap top beyond glibc's trim threshold goes
     back to the system — and not at all once the policy keeps it. The policy is set in a
     child process, not in the test process."""
-    import subprocess
-    import sys
-
     code = """
 import resource, sys
 import numpy as np
@@ -123,11 +127,6 @@ def test_small_pages_turns_numpy_huge_pages_off_in_a_process_of_its_own():
     off and a fresh 64 MB array is faulted in normal 4 KiB pages (one fault per page: no
     2 MiB page; unless the kernel gives huge pages to every process, THP ``always``); a
     ``NUMPY_MADVISE_HUGEPAGE`` set by the user is kept. Run in child processes."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
     thp = Path("/sys/kernel/mm/transparent_hugepage/enabled")
     always = thp.exists() and "[always]" in thp.read_text()
 
@@ -168,9 +167,6 @@ def _limit_for(budget_bytes: float, resolution, cfg: RunConfig, channels: int) -
 
 
 def test_a_run_stops_before_its_kept_photons_pass_the_memory(monkeypatch):
-    from lightsim.engine.server import Session
-    from lightsim.validation.bench.peer import CASES
-
     scene = CASES["paraboloid"](16).scene
     cfg = RunConfig(frame_photons=20_000, spt=False)
     with Session(scene, cfg) as s:  # the records one frame keeps, and the default memory
@@ -204,12 +200,6 @@ def test_simulate_with_a_time_budget_stops_for_memory_and_says_so(tmp_path, monk
                                                                     capsys):
     """`--time` cannot be checked before the run: it stops short of the memory with
     one warning, writes its outputs, and summary.json records the stop."""
-    import json
-
-    from lightsim.cli.main import main
-    from lightsim.simulate import SimulateOptions, load
-    from lightsim.validation.bench.peer import CASES, write_scene_glb
-
     glb = write_scene_glb(CASES["paraboloid"](16), tmp_path / "p.glb")
     argv = ["--resolution", "16x16", "--frame-photons", "20000"]
     opts = SimulateOptions(scene_path=str(glb), resolution=(16, 16),
@@ -243,10 +233,6 @@ def test_write_pages_faults_the_pages_in_and_keeps_the_values(madvise, monkeypat
     """The lattice's pages written ahead (:func:`write_pages`): every page of an untouched
     array resident afterwards, by ``madvise(MADV_POPULATE_WRITE)`` or, without it, by
     writing one element a page; the values as they were (zeros, and a filled array)."""
-    import ctypes
-
-    from lightsim.engine.memory import write_pages
-
     if not madvise:
         def no_libc(*a, **k):
             raise OSError("no libc here")

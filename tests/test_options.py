@@ -4,6 +4,7 @@ unchanged; nonsense values exit 2 with one line; ``--resume`` refuses conflictin
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from typing import Any
@@ -16,12 +17,23 @@ from click.testing import CliRunner
 from helpers import run_cli, write_point_lamp
 
 from lightsim import options
+from lightsim.cli.main import cli
 from lightsim.cli.simulate import simulate
-from lightsim.engine.config import MAX_RADIUS_FACTOR, RunConfig
+from lightsim.engine.config import (
+    MAX_RADIUS_FACTOR,
+    SUPPORTED,
+    SUPPORTED_FIELDS,
+    RunConfig,
+    supported_text,
+)
+from lightsim.engine.estimator import effective_radii
 from lightsim.errors import InputError
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart
 from lightsim.options import Option
+from lightsim.scene import load_scene
 from lightsim.simulate import SimulateOptions, read_checkpoint, run_simulation
+from lightsim.validation import converge as cv
+from lightsim.view.controls import CONFIG_CONTROLS, SPEC_BY_NAME
 
 COMMAND_ONLY = {"scene_file", "resume_dir", "explain", "quiet"}  # not run options
 SIM = options.table(SimulateOptions)
@@ -114,8 +126,6 @@ def _parse(argv: list[str]) -> dict[str, Any]:
 
 # -- the table is complete both ways ----------------------------------------------------------
 def test_every_field_is_declared_and_every_flagless_one_says_who_sets_it():
-    import dataclasses
-
     for cls in (SimulateOptions, RunConfig):
         declared = {o.name for o in options.table(cls)}
         fields = {f.name for f in dataclasses.fields(cls)} - {"config"}
@@ -153,9 +163,6 @@ def test_help_shows_every_option_with_unit_range_and_default():
 
 def test_max_radius_help_says_what_the_estimator_does(lamp):
     """The auto max radius in --help comes from MAX_RADIUS_FACTOR; the estimator uses it."""
-    from lightsim.engine.estimator import effective_radii
-    from lightsim.scene import load_scene
-
     wall = load_scene(str(lamp), wall_distance=2.0, wall_size=(4.0, 2.0),
                       resolution=(16, 8)).wall
     help_text = options.lookup(RunConfig, "max_radius").help_text()
@@ -372,15 +379,11 @@ def test_other_commands_share_the_records():
 def test_other_commands_show_the_same_record(path, name, default):
     """Commands that take a run option take its record: the same help, unit and range as
     ``simulate``; only the default may be theirs."""
-    from lightsim.cli.main import cli
-
     cmd: Any = cli
     for word in path:
         cmd = cmd.get_command(None, word)
     opt = next(o for o in CLI if o.name == name)
     if default is not None:
-        import dataclasses
-
         opt = dataclasses.replace(opt, default=default, default_text=None)
     param = next(p for p in cmd.params if p.name == name)
     assert param.help == opt.help_text() and param.default == (
@@ -392,11 +395,49 @@ def test_other_commands_show_the_same_record(path, name, default):
 def test_view_sliders_stay_inside_the_run_config_ranges():
     """The view's k / interleave / frame-photons sliders feed RunConfig: their ranges must be
     ones RunConfig accepts."""
-    from lightsim.view.controls import CONFIG_CONTROLS, SPEC_BY_NAME
-
     for name in CONFIG_CONTROLS:
         spec = SPEC_BY_NAME[name]
         for end in (spec.lo, spec.hi):
             assert getattr(RunConfig(**{name: int(end)}), name) == end
         opt = options.lookup(RunConfig, name)
         assert spec.unit == opt.unit, name
+
+
+# -- the supported estimator settings -------------------------------------------------------
+def test_every_supported_estimator_setting_runs_and_the_runners_use_only_those():
+    """Every row of SUPPORTED makes a RunConfig (with any value where the estimator does
+    not read a setting); the combinations ``converge`` and ``validate`` run are among them."""
+    for row in SUPPORTED:
+        settings = {f: v for f, v in zip(SUPPORTED_FIELDS, row, strict=True) if v is not None}
+        RunConfig(**settings)
+        if row[0] == "bin":  # bin reads none of the others
+            RunConfig(estimator="bin", bandwidth="knn", final="interleaved", kernel="cone",
+                      structure="grid-hi")
+    for spec in cv.SPECS:
+        RunConfig(**spec.settings)
+    for est in ("bin", "knn", "radius"):  # validate's image checks: the kNN model (r_k)
+        RunConfig(estimator=est, bandwidth="knn")
+
+
+@pytest.mark.parametrize("settings", [
+    {"kernel": "cone"}, {"structure": "median"}, {"bandwidth": "knn", "final": "interleaved"},
+    {"estimator": "radius", "kernel": "epanechnikov"}])
+def test_unsupported_estimator_settings_are_refused_with_one_line(settings, lamp, tmp_path,
+                                                                   capsys):
+    with pytest.raises(InputError) as exc:
+        RunConfig(**settings)
+    msg = str(exc.value)
+    assert "\n" not in msg and "not supported" in msg and supported_text() in msg
+    words = [w for k, v in settings.items() for w in (f"--{k}", v)]
+    out = tmp_path / "o"
+    code, _, err = run_cli(["simulate", str(lamp), *words, "--out", str(out), "--quiet"],
+                           capsys)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "not supported" in lines[0], err
+    assert not out.exists()
+
+
+def test_help_names_the_supported_estimator_settings():
+    res = CliRunner().invoke(simulate, ["--help"], terminal_width=10_000,
+                             max_content_width=10_000)
+    assert supported_text() in " ".join(res.output.split())

@@ -1,4 +1,4 @@
-"""Distributed rendering on real Ray (no mocks), isolated on loopback (issue 5).
+"""Distributed rendering on real Ray (no mocks), isolated on loopback.
 
 Ray start-up costs seconds, so the checks share runtimes: one local runtime for the
 backend comparison and the fault test, and one two-node cluster for ``--address``.
@@ -14,6 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
+
+from lightsim.io.exr import read_exr
+from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 
 from netns import run_in_netns
 
@@ -130,8 +134,6 @@ def test_cluster_address_two_nodes(tmp_path):
     res = run_in_netns(textwrap.dedent(script), timeout=400)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
     assert "NODES 2" in res.stdout
-    from lightsim.io.exr import read_exr
-
     a = read_exr(out_a / "wall_lux.exr")[0]["Y"]
     b = read_exr(out_b / "wall_lux.exr")[0]["Y"]
     assert a.max() > 0 and np.array_equal(a, b)
@@ -140,10 +142,6 @@ def test_cluster_address_two_nodes(tmp_path):
 
 
 def test_unreachable_cluster_is_one_line(tmp_path):
-    import trimesh
-
-    from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
-
     ico = trimesh.creation.icosphere(1, radius=1e-3)
     glb = tmp_path / "p.glb"
     write_glb(glb, [GltfPart("filament", np.asarray(ico.vertices), np.asarray(ico.faces), None,

@@ -1,4 +1,4 @@
-"""The frame loop (issue 4): accumulation, interaction and walkthrough, camera view, SPT."""
+"""The frame loop: accumulation, interaction and walkthrough, camera view, SPT."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import pytest
 from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.render.camera import PinholeCamera
+from lightsim.validation.scenes import analytic as an
 from lightsim.validation.scenes import paper
 
 
@@ -111,8 +112,6 @@ def test_spt_raises_yield_and_agrees_with_plain(ring):
 def test_written_map_is_the_ici_choice_and_independent_of_batching():
     """The pooled map is each pixel's pooled value at its ICI rung; frames of another size
     (same photons per set) give the bit-identical map; ``bandwidth="knn"`` the old rule."""
-    from lightsim.validation.scenes import analytic as an
-
     case = an.shield_case(resolution=(32, 16))
     maps = []
     for frame_photons in (64_000, 32_000):

@@ -2,10 +2,23 @@
 
 from __future__ import annotations
 
+import multiprocessing as mp
+
 import numpy as np
 import pytest
 
-from lightsim.render.ici import _halves, held_out_blur, ici_rungs
+from lightsim.engine.estimator import normalise_flux
+from lightsim.render.directional import pixel_sat
+from lightsim.render.ici import (
+    add_scaled,
+    chosen_per_set,
+    halves,
+    held_out_blur,
+    ici_rungs,
+    raster_lux,
+    raster_queries,
+    window_sums,
+)
 from lightsim.threads import helper_thread
 
 
@@ -65,7 +78,7 @@ def _case(S, J1, Q, seed, scale=1.0):
 def test_same_numbers_as_numpy(S, J1, Q, seed, scale):
     rungs, emitted, areas = _case(S, J1, Q, seed, scale)
     q = 0.37 * scale
-    for groups in (None, _halves(S)):
+    for groups in (None, halves(S)):
         got = held_out_blur(rungs, emitted, q, areas, 2.0, groups)
         want = _reference(rungs, emitted, q, areas, 2.0, groups)
         assert got.shape == want.shape
@@ -80,8 +93,8 @@ def test_per_query_areas_no_power_and_empty_sets():
     rungs, emitted, areas = _case(8, 5, 90, 7)
     per_query = areas[:, None] * np.linspace(0.5, 2.0, 90)[None, :]
     for q in (0.0, 0.2):
-        got = held_out_blur(rungs, emitted, q, per_query, 1.5, _halves(8))
-        assert np.array_equal(got, _reference(rungs, emitted, q, per_query, 1.5, _halves(8)))
+        got = held_out_blur(rungs, emitted, q, per_query, 1.5, halves(8))
+        assert np.array_equal(got, _reference(rungs, emitted, q, per_query, 1.5, halves(8)))
     # sets that emitted nothing: pairs whose other sets hold no photons are skipped
     none = {s: 0 for s in emitted}
     none[0] = 10
@@ -92,8 +105,8 @@ def test_per_query_areas_no_power_and_empty_sets():
 def test_subset_of_queries_matches_the_whole():
     rungs, emitted, areas = _case(16, 8, 300, 8)
     read = np.arange(3, 300, 5)
-    full = held_out_blur(rungs, emitted, 0.4, areas, 2.0, _halves(16))
-    part = held_out_blur(rungs, emitted, 0.4, areas, 2.0, _halves(16), queries=read)
+    full = held_out_blur(rungs, emitted, 0.4, areas, 2.0, halves(16))
+    part = held_out_blur(rungs, emitted, 0.4, areas, 2.0, halves(16), queries=read)
     assert np.array_equal(part[:, read], full[:, read])
     assert not part[:, np.setdiff1d(np.arange(300), read)].any()
 
@@ -101,8 +114,6 @@ def test_subset_of_queries_matches_the_whole():
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("C", [1, 3])
 def test_pooling_and_chosen_values_match_numpy(dtype, C):
-    from lightsim.render.ici import add_scaled, chosen_per_set
-
     rng = np.random.default_rng(11)
     rungs = {s: (rng.random((5, 333, C)) * 10.0 ** rng.integers(-30, 30)).astype(dtype)
              for s in range(7)}
@@ -129,8 +140,6 @@ def test_pooling_and_chosen_values_match_numpy(dtype, C):
 @pytest.mark.parametrize("shape", [(16, 64, 160), (3, 1, 1), (2, 5, 1), (1, 1, 7), (4, 33, 17),
                                    (2, 0, 4)])
 def test_pixel_sat_matches_numpys_two_cumsums(shape):
-    from lightsim.render.directional import pixel_sat
-
     rng = np.random.default_rng(5)
     img = rng.random(shape) * 10.0 ** rng.integers(-30, 30, shape)
     img[..., ::5] = -0.0  # signed zeros as NumPy leaves them
@@ -147,8 +156,6 @@ def _on_branch_thread(x):
 
 
 def test_the_branch_thread_in_a_forked_child_after_the_parent_used_it():
-    import multiprocessing as mp
-
     assert helper_thread().submit(lambda: 1).result(timeout=30) == 1  # parent's thread
     with mp.get_context("fork").Pool(1) as pool:  # the child makes its own thread
         assert pool.apply_async(_on_branch_thread, (41,)).get(timeout=60) == 42
@@ -163,9 +170,6 @@ def test_raster_lux_is_the_normalised_window_sums_cast(H, W, C, emitted, scale):
     over clipped windows, windows wider than the wall, rows with unclipped windows on
     one and on several channels, empty cells, a tiny and a huge photon count, powers of
     1e-30 and 1e30 lm)."""
-    from lightsim.engine.estimator import normalise_flux
-    from lightsim.render.ici import raster_lux, raster_queries, window_sums
-
     rng = np.random.default_rng(H * W * C)
     sub = scale * rng.random((2 * H, 2 * W, C)) * (rng.random((2 * H, 2 * W, 1)) < 0.3)
     sides = np.arange(1, 6)

@@ -29,16 +29,27 @@ parameter           unit   default    meaning
 
 from __future__ import annotations
 
+import json
 import math
+import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from lightsim.engine.config import RunConfig
-from lightsim.render import ici
+from lightsim.engine.server import Session
+from lightsim.io.exr import read_exr
+from lightsim.render import written_map
 from lightsim.render.frame import luminous
+from lightsim.render.written_map import MapInputs
+from lightsim.scene import load_scene
+from lightsim.simulate import SimulateOptions, run_simulation
+from lightsim.validation import converge as cv
+from lightsim.validation.bench.peer import CASES, LIGHTSIM_OUTPUTS, truth_of, write_scene_glb
 
 REFERENCE_FACTOR = 6  # reference photons / largest budget (scene files)
 
@@ -103,43 +114,18 @@ HEADER = (f"{'map':8s} {'photons':>11s} {'figure':>7s} {'all-lit':7s} {'inner':>
           f"{'interior':8s} {'edge':6s} {'alpha':5s} {'map s':>6s}  edge-band rungs (share)")
 
 
-@dataclass
-class Capture:
-    """The final image's per-set rungs of one session run (server-side inputs of the
-    written map)."""
-
-    rungs: dict[int, np.ndarray]
-    emitted: dict[int, int]
-    q: float
-    areas: np.ndarray
-    shape: tuple[int, int]
-    gamma: float
-
-
-def capture_run(session, photons: int) -> Capture:
+def capture_run(session: Session, photons: int) -> MapInputs:
     """Run ``session`` to ``photons`` and keep what its written map was made from."""
-    got: dict[str, Any] = {}
-    original = session._ici_image
-
-    def spy(rungs, moments, emitted):
-        got.update(rungs=dict(rungs), moments=dict(moments), emitted=dict(emitted))
-        return original(rungs, moments, emitted)
-
-    session._ici_image = spy
+    estimator = session.map_estimator
+    estimator.keep_inputs = True
     try:
         session.run(photons=photons, probes=False)
     finally:
-        del session._ici_image
-    rungs, moments = got["rungs"], got["moments"]
-    J1, H, W, C = next(iter(rungs.values())).shape
-    J1 = session._ici_rungs_now(J1, moments)
-    flat = {s: np.asarray(v, np.float64)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
-    rows, cols = np.divmod(np.arange(H * W), W)
-    return Capture(flat, got["emitted"], ici.power_moment(moments),
-                   session._ici_areas(rows, cols), (H, W), session.config.ici_gamma)
+        estimator.keep_inputs = False
+    return estimator.last_inputs
 
 
-def score(cap: Capture, truth: np.ndarray, lit: np.ndarray, band: np.ndarray,
+def score(cap: MapInputs, truth: np.ndarray, lit: np.ndarray, band: np.ndarray,
           inner: np.ndarray | None, photons: int, truth_var: np.ndarray | None = None
           ) -> list[MapScore]:
     """Both written maps of one capture against the truth (``truth_var``: a reference's
@@ -148,9 +134,7 @@ def score(cap: Capture, truth: np.ndarray, lit: np.ndarray, band: np.ndarray,
     mean_lit = float(truth[lit].mean())
     for name, directional in (("centred", False), ("fused", True), ("written", None)):
         t0 = time.perf_counter()
-        wm = ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
-                             shape=cap.shape if directional else None,
-                             directional=directional)
+        wm = cap.make(directional)
         dt = time.perf_counter() - t0
         lux = luminous(wm.lux).reshape(cap.shape)
         rung = wm.choice.rung.reshape(cap.shape)[band]
@@ -171,8 +155,6 @@ def study(scene, truth: np.ndarray, budgets: list[int], inner: np.ndarray | None
     """Score both maps at every budget in one accumulating session (``settings``: more
     :class:`RunConfig` fields); rows carry the photons actually emitted (a Selective
     Photon Tracing pass is whole, so a budget may be overshot)."""
-    from lightsim.engine.server import Session
-
     lit = truth >= lit_fraction * truth.max()
     bnd = edge_band(truth, lit, band)
     progress(f"{int(lit.sum())} lit pixels, {int(bnd.sum())} in the edge band")
@@ -189,18 +171,16 @@ def study(scene, truth: np.ndarray, budgets: list[int], inner: np.ndarray | None
     return rows
 
 
-def time_maps(cap: Capture, repeats: int = 3) -> dict[str, float]:
-    """Median seconds of :func:`lightsim.render.ici.written_map` on one capture: the
+def time_maps(cap: MapInputs, repeats: int = 3) -> dict[str, float]:
+    """Median seconds of :func:`lightsim.render.written_map.written_map` on one capture: the
     centred map and the fused one (after a first call that loads numba's kernels)."""
     out = {}
     for name, directional in (("centred", False), ("fused", True), ("written", None)):
-        ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
-                        directional=directional)
+        cap.make(directional)
         ts = []
         for _ in range(repeats):
             t0 = time.perf_counter()
-            ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
-                            directional=directional)
+            cap.make(directional)
             ts.append(time.perf_counter() - t0)
         out[name] = float(np.median(ts))
     return out
@@ -209,9 +189,6 @@ def time_maps(cap: Capture, repeats: int = 3) -> dict[str, float]:
 def timing(path: str, resolution: tuple[int, int], photons: int, repeats: int = 3
            ) -> dict[str, float]:
     """:func:`time_maps` on a run of ``photons`` of the scene file at ``resolution``."""
-    from lightsim.engine.server import Session
-    from lightsim.scene import load_scene
-
     scene = load_scene(path, resolution=resolution)
     with Session(scene, RunConfig(seed=1, frame_photons=500_000)) as s:
         cap = capture_run(s, photons)
@@ -232,22 +209,10 @@ class StopRun:
 
 def stop_study(name: str = "paraboloid", target: float = 0.02, seed: int = 1,
                resolution: int = 64, folder=None) -> list[StopRun]:
-    """``lightsim simulate CASE.glb --target-error T`` in this process, with the centred
-    and with the fused written map (:data:`lightsim.render.ici.DIRECTIONAL`), each map
-    scored against the exact answer over all lit pixels and the inner 80 % of the beam."""
-    import json
-    import tempfile
-    from pathlib import Path
-
-    from lightsim.cli.main import main as cli
-    from lightsim.io.exr import read_exr
-    from lightsim.validation.bench.peer import (
-        CASES,
-        LIGHTSIM_OUTPUTS,
-        truth_of,
-        write_scene_glb,
-    )
-
+    """``lightsim simulate CASE.glb --target-error T`` in this process
+    (:func:`lightsim.simulate.run_simulation`), with the centred and with the fused
+    written map (:data:`lightsim.render.written_map.DIRECTIONAL`), each map scored against
+    the exact answer over all lit pixels and the inner 80 % of the beam."""
     case = CASES[name](resolution)
     tr = truth_of(case)
     lit = tr.exact_px >= 0.1 * tr.exact_px.max()
@@ -256,19 +221,17 @@ def stop_study(name: str = "paraboloid", target: float = 0.02, seed: int = 1,
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(folder or tmp)
         glb = write_scene_glb(case, base / "scene.glb")
-        before = ici.DIRECTIONAL
+        before = written_map.DIRECTIONAL
         try:
             for label, directional in (("centred", False), ("written", True)):
-                ici.DIRECTIONAL = directional
+                written_map.DIRECTIONAL = directional
                 out = base / f"out-{label}"
+                opts = SimulateOptions(scene_path=str(glb), target_error=target,
+                                       resolution=(resolution, resolution), out_dir=str(out),
+                                       outputs=tuple(LIGHTSIM_OUTPUTS.split(",")),
+                                       config={"seed": seed})
                 t0 = time.perf_counter()
-                try:
-                    cli(["simulate", str(glb), "--target-error", f"{target:g}",
-                         "--resolution", f"{resolution}x{resolution}", "--seed", str(seed),
-                         "--out", str(out), "--quiet", "--outputs", LIGHTSIM_OUTPUTS])
-                except SystemExit as exc:
-                    if exc.code:
-                        raise
+                run_simulation(opts)
                 dt = time.perf_counter() - t0
                 summary = json.loads((out / "summary.json").read_text())
                 lux = read_exr(out / "wall_lux.exr")[0]["Y"].astype(np.float64)
@@ -276,7 +239,7 @@ def stop_study(name: str = "paraboloid", target: float = 0.02, seed: int = 1,
                                     rel_rmse(lux, tr.exact_px, lit, mean_lit),
                                     tr.error(lux), dt))
         finally:
-            ici.DIRECTIONAL = before
+            written_map.DIRECTIONAL = before
     return runs
 
 
@@ -284,11 +247,6 @@ def main(argv: list[str] | None = None) -> None:
     """``python -m lightsim.validation.edge_study paraboloid|FILE.glb [WxH] budgets…
     [--reference=FILE.npz]`` (the scene file's reference kept there for the next run) or
     ``… --time FILE.glb WxH photons``."""
-    import sys
-    from pathlib import Path
-
-    from lightsim.validation.bench.peer import CASES, truth_of
-
     args = list(sys.argv[1:] if argv is None else argv)
     name = args.pop(0)
     if name == "--stop":  # --stop CASE [target]
@@ -298,9 +256,6 @@ def main(argv: list[str] | None = None) -> None:
                   f"true all-lit {r.all_lit:.4f}, inner {r.inner:.4f} ({r.seconds:.1f} s)")
         return
     if name == "--figure":  # --figure FILE WxH budgets…: the figures of both maps
-        from lightsim.engine.server import Session
-        from lightsim.scene import load_scene
-
         W, H = (int(v) for v in args[1].split("x"))
         scene = load_scene(args[0], resolution=(W, H))
         with Session(scene, RunConfig(seed=1, frame_photons=500_000)) as s:
@@ -309,10 +264,8 @@ def main(argv: list[str] | None = None) -> None:
                 figs = []
                 for directional in (False, None):
                     t0 = time.perf_counter()
-                    wm = ici.written_map(cap.rungs, cap.emitted, cap.q, cap.areas, cap.gamma,
-                                         directional=directional)
-                    figs.append((wm.error.total, time.perf_counter() - t0,
-                                 hasattr(wm.choice, "weights")))
+                    wm = cap.make(directional)
+                    figs.append((wm.error.total, time.perf_counter() - t0, wm.fused))
                 print(f"{b:>11,} photons: centred figure {figs[0][0]:.4f} "
                       f"({figs[0][1]:.2f} s), written {figs[1][0]:.4f} "
                       f"({'fused' if figs[1][2] else 'centred'}, {figs[1][1]:.2f} s)")
@@ -332,8 +285,6 @@ def main(argv: list[str] | None = None) -> None:
         tr = truth_of(case)
         study(case.scene, tr.exact_px, budgets, tr.inner)
         return
-    from lightsim.validation import converge as cv
-
     target = cv.scene_target(name, res[0] if res else (320, 128))
     saved = [x.split("=", 1)[1] for x in sys.argv if x.startswith("--reference=")]
     if saved and Path(saved[0]).exists():  # a reference kept from an earlier run

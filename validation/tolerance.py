@@ -600,7 +600,8 @@ def _ray_map(fn: Callable[..., SampleResult], opts: Any, offsets: np.ndarray, wo
              address: str | None, progress: Callable[[int, SampleResult], None] | None
              ) -> list[SampleResult]:
     """Run the samples as independent Ray tasks, at most ``workers`` at a time."""
-    from lightsim.engine.ray_backend import _init_ray, _ray
+    from lightsim.engine.ray_backend import import_ray as _ray
+    from lightsim.engine.ray_backend import init_ray as _init_ray
 
     ray = _ray()
     started = _init_ray(address, workers)

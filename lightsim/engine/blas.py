@@ -28,6 +28,8 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from threadpoolctl import threadpool_limits
+
 _USER_SET = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _LIMIT: Any = None  # threadpoolctl's limiter, kept so the limit holds for the process
 
@@ -36,14 +38,10 @@ def single_blas_thread() -> bool:
     """Limit every BLAS library of this process to one thread: those loaded now
     (threadpoolctl) and those loaded later (``OPENBLAS_NUM_THREADS=1`` in the
     environment, read when a library starts). Returns whether the limit is in force
-    (False where the user set the thread count, or threadpoolctl is missing)."""
+    (False where the user set the thread count)."""
     global _LIMIT
     if any(k in os.environ for k in _USER_SET):
         return False
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - a dependency; the variable still acts later
-        return False
     _LIMIT = threadpool_limits(limits=1, user_api="blas")
     return True

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import replace as dc_replace
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,8 @@ from lightsim.engine.estimator import SetEstimator
 from lightsim.engine.photonset import PhotonSets
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ClientFrame, RenderRequest, ShootResult
+from lightsim.errors import InputError
+from lightsim.raycast import WALL_MAX_TRIANGLES
 from lightsim.scene import Scene
 from lightsim.threads import helper_thread
 
@@ -36,10 +39,6 @@ def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
     intersected outside embree, so the embree scene stays — aiming the lamp by R is
     ``("wall", R⁻¹)``).
     """
-    from dataclasses import replace as dc_replace
-
-    from lightsim.errors import InputError
-
     geometry = False
     for change in changes:
         kind = change[0]
@@ -65,8 +64,6 @@ def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
             for p in scene.emitters:
                 scene = scene.transform_part(p.name, change[1])
         elif kind == "wall":
-            from lightsim.raycast import WALL_MAX_TRIANGLES
-
             scene = scene.with_wall_transform(change[1])
             # a wall too finely meshed to be tested exactly lives in embree: rebuild
             geometry = geometry or int(scene.tri_is_wall.sum()) > WALL_MAX_TRIANGLES
@@ -154,7 +151,7 @@ class Client:
                         est.probe_rungs(st) if probe_rungs and st.wall_moments is not None
                         else None)
 
-            # the second half of the sets on the helper thread (no pool to start per
+            # the second half of the sets on a second thread (no pool to start per
             # frame: on a small wall a set's probe sums take ~0.1 ms)
             half = n // 2
             pending = helper_thread().submit(lambda: [sums(s) for s in self.set_indices[half:]])

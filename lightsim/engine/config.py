@@ -18,14 +18,19 @@ Notes on the radii and the written map (detail the one-line help cannot hold):
   the paper's unlimited kNN.
 - ``bandwidth`` ``ici``: per pixel, the largest of the nested estimates (the pixel itself,
   disks r_min·2^(j/2) … r_max) whose confidence interval overlaps all smaller ones'
-  (:mod:`lightsim.render.ici`): the radius shrinks as photons grow wherever blur would
-  show, so the map converges to the pixel means (or the plain pixel counts when their
-  estimated error is the lower one); ``knn`` = r_k clamped to [r_min, r_max] (the paper;
-  its error levels off).
+  (:mod:`lightsim.render.ici`, :mod:`lightsim.render.written_map`): the radius shrinks
+  as photons grow wherever blur would show, so the map converges to the pixel means (or
+  the plain pixel counts when their estimated error is the lower one); ``knn`` = r_k
+  clamped to [r_min, r_max] (the paper; its error levels off).
 - ``final`` ``pooled``: every set estimates every pixel (radius ≥ the pixel's own disk),
   the mean is the estimate at pixel resolution and the sets' spread its honest error;
   ``interleaved``: the paper's frame (each set its pixels, then the box filter: M² times
   cheaper, blurred over n×n).
+- The estimator settings (``estimator``, ``bandwidth``, ``final``, ``kernel``,
+  ``structure``) multiply out to 144 combinations; :data:`SUPPORTED` names the few that
+  are run and tested, and any other is refused with one line (exit code 2). The photon
+  map's other kernels and structures stay available to :mod:`lightsim.photonmap`'s
+  callers.
 """
 
 from __future__ import annotations
@@ -43,6 +48,33 @@ BANDWIDTHS = ("ici", "knn")
 KERNELS = ("box", "cone", "epanechnikov")
 STRUCTURES = ("middle", "median", "grid-lo", "grid-hi")
 FINALS = ("pooled", "interleaved")
+
+#: The estimator settings a run may have, as (estimator, bandwidth, final, kernel,
+#: structure) — the combinations ``simulate``, ``validate``/``converge``, the benches, the
+#: view and the tests run; None: that estimator does not read the setting. Every other
+#: combination is refused (:meth:`RunConfig.__post_init__`).
+SUPPORTED: tuple[tuple[str | None, ...], ...] = (
+    ("knn", "ici", "pooled", "box", "middle"),       # the written map (the default)
+    ("knn", "ici", "interleaved", "box", "middle"),  # the paper's filtered frame as the map
+    ("knn", "knn", "pooled", "box", "middle"),       # the paper's r_k (validate's checks)
+    ("radius", None, "pooled", "box", None),         # the IGI baseline (a hashed grid)
+    ("radius", None, "interleaved", "box", None),
+    ("bin", None, None, None, None),                 # photons counted per pixel
+)
+SUPPORTED_FIELDS = ("estimator", "bandwidth", "final", "kernel", "structure")
+
+
+def supported_text() -> str:
+    """The supported set in one line, as --help and the refusal name it."""
+    rows = ", ".join("/".join("–" if v is None else v for v in row) for row in SUPPORTED)
+    return f"{'/'.join(SUPPORTED_FIELDS)}: {rows} (–: not read)"
+
+
+def is_supported(settings: tuple[str, ...]) -> bool:
+    """Whether (estimator, bandwidth, final, kernel, structure) is in :data:`SUPPORTED`."""
+    return any(all(want is None or want == got for want, got in zip(row, settings,
+                                                                     strict=True))
+               for row in SUPPORTED)
 
 MAX_RADIUS_FACTOR = {"pooled": 4.0, "interleaved": 2.0}
 """Automatic largest kNN radius as a multiple of the smallest, per final-image mode."""
@@ -63,7 +95,8 @@ class RunConfig:
         "(paper section 3.3).", flag=("--interleave", "-M"), low=1, high=16)
     estimator: str = option(
         "knn", "Density estimator on the wall: knn (photon map, exact k nearest), bin "
-        "(photons counted per pixel), radius (fixed-radius hashed grid, the IGI baseline).",
+        "(photons counted per pixel), radius (fixed-radius hashed grid, the IGI baseline). "
+        f"Supported {supported_text()}.",
         flag=("--estimator",), choices=ESTIMATORS)
     k: int = option(64, "Photons per kNN estimate.", flag=("-k",), low=1)
     max_radius: float | None = option(
@@ -75,12 +108,12 @@ class RunConfig:
         None, "Smallest kNN radius (and the radius estimator's radius); auto = the disk "
         "of one pixel's area (pooled) or of the n×n filter window's (interleaved).",
         unit="m", flag=("--min-radius",), low=0, default_text="auto")
-    kernel: str = option("box", "Density-estimate weights.", flag=("--kernel",),
-                         choices=KERNELS)
+    kernel: str = option("box", "Density-estimate weights (supported: see --estimator).",
+                         flag=("--kernel",), choices=KERNELS)
     bandwidth: str = option(
         "ici", "Written map's radius: ici = per pixel, the largest window the photon "
-        "counts do not contradict (consistent); knn = r_k in [min radius, max radius].",
-        flag=("--bandwidth",), choices=BANDWIDTHS)
+        "counts do not contradict (consistent); knn = r_k in [min radius, max radius] "
+        "(supported: see --estimator).", flag=("--bandwidth",), choices=BANDWIDTHS)
     ici_gamma: float = option(2.0, "Γ: ICI interval half-width in standard errors.",
                               low=0, low_open=True, internal="fixed by the ICI study")
     filter_size: int | None = option(
@@ -88,8 +121,8 @@ class RunConfig:
         flag=("--filter",), low=1, high=32, default_text="M")
     final: str = option(
         "pooled", "Written lux map: every set at every pixel (full resolution, honest "
-        "error) or the paper's interleaved + box-filtered frame (fast, blurred).",
-        flag=("--final",), choices=FINALS)
+        "error) or the paper's interleaved + box-filtered frame (fast, blurred; supported: "
+        "see --estimator).", flag=("--final",), choices=FINALS)
     error_region: str = option(
         "lit", "Pixels the error figure (and --target-error's stop) covers: lit = every "
         "lit pixel (≥ 10 % of the map's maximum), edges included; interior = the lit "
@@ -100,7 +133,8 @@ class RunConfig:
                                 flag=("--frame-photons",), low=1)
     structure: str = option(
         "middle", "Photon map index: middle (unbalanced kd-tree, incremental), median, "
-        "grid-lo, grid-hi.", flag=("--structure",), choices=STRUCTURES)
+        "grid-lo, grid-hi (supported: see --estimator).", flag=("--structure",),
+        choices=STRUCTURES)
     spt: bool | None = option(None, "Force Selective Photon Tracing on/off.",
                               flag=("--spt/--no-spt",), kind="onoff",
                               default_text="auto (the plan)")
@@ -141,6 +175,10 @@ class RunConfig:
 
     def __post_init__(self) -> None:
         options.check_fields(self)  # choices and ranges, from the declarations above
+        settings = tuple(getattr(self, f) for f in SUPPORTED_FIELDS)
+        if not is_supported(settings):
+            raise InputError(f"the estimator settings {'/'.join(settings)} are not "
+                             f"supported; supported {supported_text()}")
         if self.frame_photons < self.n_sets:
             raise InputError(f"photons per frame ({self.frame_photons}) must be at least the "
                              f"number of interleave sets ({self.n_sets})")

@@ -23,18 +23,18 @@ place, :func:`normalise_flux` (the ledger too: :meth:`Session.energy`).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from lightsim.engine.config import MAX_RADIUS_FACTOR, RunConfig
 from lightsim.engine.photonset import SetState
 from lightsim.engine.results import RenderRequest, SetFrame
+from lightsim.render import ici
+from lightsim.render.camera import eye_hits
+from lightsim.render.ici import WindowGeometry, pixel_of
 from lightsim.render.interleave import InterleavePattern
 from lightsim.scene import Scene, WallFrame
-
-if TYPE_CHECKING:
-    from lightsim.render.ici import WindowGeometry
 
 
 def normalise_flux(power: np.ndarray, emitted: int, *area_m2: Any) -> np.ndarray:
@@ -99,8 +99,6 @@ class SetEstimator:
 
     def __init__(self, scene: Scene, caster, config: RunConfig, channels: int,
                  probes_hv: np.ndarray) -> None:
-        from lightsim.render.ici import pixel_of
-
         self.scene, self.caster = scene, caster
         self.config = config
         self.channels = channels
@@ -114,7 +112,7 @@ class SetEstimator:
         nh, nv = (int(n) for n in config.probe_grid)
         grid = self.probes_hv[:min(nh * nv, len(self.probes_hv))]
         self._grid_pixels = pixel_of(self.frame, grid[:, 0], grid[:, 1])
-        self._window_geometry: dict[str, tuple] = {}  # key → (sides, ici.WindowGeometry)
+        self._window_geometry: dict[str, tuple] = {}  # key → (sides, WindowGeometry)
         self._wall_queries: dict[Any, np.ndarray] = {}  # set (, step) → points
         self._camera_cache: dict[Any, tuple] = {}
         self._normal = np.broadcast_to(self.frame.normal, (1, 3))
@@ -155,8 +153,6 @@ class SetEstimator:
         ``key`` names a fixed query set (the grid probes): its window bounds are computed
         once, not once per set and frame; ``geometry``: those bounds, already made (every
         pixel: :func:`lightsim.render.ici.raster_queries`)."""
-        from lightsim.render import ici
-
         sides = ici.rung_sides(self.frame.pixel_size_m, self.radii["pooled"][1])
         W, H = self.frame.resolution
         if st.emitted == 0 or st.lattice is None:
@@ -165,7 +161,7 @@ class SetEstimator:
         if geometry is None and key is not None:
             cached = self._window_geometry.get(key)
             if cached is None or cached[0] != tuple(sides):
-                cached = (tuple(sides), ici.WindowGeometry.of(H, W, rows, cols, sides))
+                cached = (tuple(sides), WindowGeometry.of(H, W, rows, cols, sides))
                 self._window_geometry[key] = cached
             geometry = cached[1]
         sums, cells = ici.window_sums(st.lattice.reshape(2 * H, 2 * W, self.channels),
@@ -203,8 +199,6 @@ class SetEstimator:
     def _camera_queries(self, s: int, camera, n_owned: int
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Diffuse points seen by the camera's pixels of set s (cached per camera)."""
-        from lightsim.render.camera import eye_hits
-
         key = (camera, s)
         if key not in self._camera_cache:
             if len(self._camera_cache) > 4 * n_owned:  # walkthrough: forget old views
@@ -223,8 +217,6 @@ class SetEstimator:
         """The set's rungs (lx) at every pixel of the wall, (J+1, H, W, C) float32: the
         written map's part of a set (GIL-free but for small steps, so the sets of a
         client can be summed on threads: :meth:`Client.render`)."""
-        from lightsim.render import ici
-
         W, H = self.frame.resolution
         sides = ici.rung_sides(self.frame.pixel_size_m, self.radii["pooled"][1])
         if st.emitted and st.lattice is not None:  # :meth:`ici_rungs`' numbers, one pass

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 
 from lightsim.engine.client import Client
@@ -24,8 +25,6 @@ class LocalBackend:
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
                  assignment: list[list[int]], probes_hv: np.ndarray, caster=None) -> None:
         if config.threads:  # numba's pool is per process: honour an explicit thread count
-            import numba
-
             numba.set_num_threads(max(1, min(config.threads, numba.config.NUMBA_NUM_THREADS)))
         # ``caster``: the scene's RayCaster, shared (read-only) by the clients
         self.clients = [Client(scene, config, plan, sets, probes_hv, caster=caster)

@@ -94,13 +94,14 @@ The sets' ICI lattice (one block above :data:`KEEP_BELOW`: 84 MB on the shipped
 headlight's 640 × 256 wall) is new in every run, and its pages were first touched in
 random order by the first frames' photons (0.4–0.55 µs per record against 0.1 µs once in).
 :meth:`~lightsim.engine.photonset.PhotonSets._prefault_lattice` faults them in, in order,
-on the helper thread while the first frame traces, where a frame's photons could reach
+on the second thread while the first frame traces, where a frame's photons could reach
 every page: :func:`write_pages`, one ``madvise(MADV_POPULATE_WRITE)`` (34 ms of one core
 for the 84 MB, against 43–85 ms for writing its zeros, which older kernels get).
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 from dataclasses import dataclass
 from typing import Any
@@ -108,6 +109,18 @@ from typing import Any
 import numpy as np
 
 from lightsim.errors import InputError
+
+try:  # NumPy's switch for transparent huge pages (:func:`small_pages`)
+    from numpy._core.multiarray import _set_madvise_hugepage
+except ImportError:  # pragma: no cover - NumPy 1.x keeps it in numpy.core
+    try:
+        from numpy.core.multiarray import _set_madvise_hugepage
+    except ImportError:
+        _set_madvise_hugepage = None
+try:  # optional: the available memory where /proc/meminfo does not tell
+    import psutil
+except ImportError:  # pragma: no cover
+    psutil = None
 
 NODE_BYTES = 60
 NODES_PER_PHOTON = 0.6
@@ -195,8 +208,6 @@ def keep_freed_memory() -> bool:
     to the system only beyond :data:`KEEP_FREE` free (glibc ``mallopt``; see the module
     docstring). Returns whether the policy is in force (False where the C library is not
     glibc)."""
-    import ctypes
-
     try:
         libc = ctypes.CDLL("libc.so.6")
         mallopt = libc.mallopt
@@ -212,15 +223,8 @@ def small_pages() -> bool:
     """Stop NumPy asking for transparent huge pages for its new arrays (see the module
     docstring). Returns whether the policy is in force (False where the user set
     ``NUMPY_MADVISE_HUGEPAGE`` or this NumPy has no switch)."""
-    if "NUMPY_MADVISE_HUGEPAGE" in os.environ:
+    if "NUMPY_MADVISE_HUGEPAGE" in os.environ or _set_madvise_hugepage is None:
         return False
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:  # pragma: no cover - NumPy 1.x keeps it in numpy.core
-        try:
-            from numpy.core.multiarray import _set_madvise_hugepage
-        except ImportError:
-            return False
     _set_madvise_hugepage(False)
     return True
 
@@ -234,8 +238,6 @@ def write_pages(array: np.ndarray) -> None:
     Linux has it (34 ms for 84 MB on the 2-core VM, against 43–85 ms for writing zeros
     over it), else one element of every page written with its own value. The values are
     left as they are."""
-    import ctypes
-
     if not array.flags.c_contiguous or array.nbytes == 0:
         return
     flat = array.reshape(-1)  # a view of a C-contiguous array
@@ -273,9 +275,7 @@ def available_bytes() -> int | None:
                     return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
-    try:
-        import psutil
-    except ImportError:
+    if psutil is None:
         return None
     return int(psutil.virtual_memory().available)
 

@@ -25,15 +25,18 @@ parameter      meaning
 
 from __future__ import annotations
 
+try:  # numba's own modules (imported with numba itself)
+    from numba.core import caching
+    from numba.core.runtime import rtsys
+except ImportError:  # pragma: no cover - another numba layout: leave it alone
+    caching = rtsys = None
+
 
 def lazy_target_setup() -> bool:
     """Make numba's cache loads initialise only its runtime, not the whole CPU target
     (see the module docstring). True if it did so now (False: already done, or a numba
     whose cache layout differs)."""
-    try:
-        from numba.core import caching
-        from numba.core.runtime import rtsys
-    except ImportError:  # pragma: no cover - another numba layout: leave it alone
+    if caching is None:  # pragma: no cover
         return False
     cache = caching.Cache
     if getattr(cache.load_overload, "lazy_target", False):

@@ -34,11 +34,17 @@ from typing import Any
 
 import numpy as np
 
+from lightsim.engine.apertures import counter_from_config
 from lightsim.engine.config import RunConfig
 from lightsim.engine.frame_insert import insert_wall
 from lightsim.engine.memory import write_pages
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
+from lightsim.photonmap.common import r_floor
+from lightsim.photonmap.density import PhotonMap
+from lightsim.photonmap.near import NearGrid
+from lightsim.render import ici
+from lightsim.render.frame import luminous
 from lightsim.sampling import (
     SelectiveSampler,
     digit_permutations,
@@ -111,8 +117,6 @@ class DeferredPhotonMap:
     LOCAL_SCANS = 8
 
     def __init__(self, structure: str, channels: int) -> None:
-        from lightsim.photonmap.density import PhotonMap
-
         self.map = PhotonMap(structure=structure, channels=channels)
         self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._n_pending = 0
@@ -145,8 +149,6 @@ class DeferredPhotonMap:
             return self.ready().estimate(points, normals, k=k, max_radius=max_radius,
                                          min_radius=min_radius, kernel=kernel)
         sub, bounds = near
-        from lightsim.photonmap.common import r_floor
-
         # the floor the whole map would use (it reads the photons' bounding box)
         floor = min(max(float(min_radius), r_floor(bounds[:3], bounds[3:])), float(max_radius))
         # no photon near: an empty map (it stores no normals to filter by) answers 0
@@ -164,9 +166,6 @@ class DeferredPhotonMap:
         if self._scanned + self._n_pending > self.LOCAL_SCANS * self._n_pending:
             return None
         self._scanned += self._n_pending
-        from lightsim.photonmap.density import PhotonMap
-        from lightsim.photonmap.near import NearGrid
-
         grid = NearGrid(points, r)
         bounds = np.array([np.inf] * 3 + [-np.inf] * 3)
         picks = [grid.select(b[0], bounds) for b in self._pending]
@@ -299,7 +298,7 @@ class PhotonSets:
         self._lattice_ready = self._prefault_lattice()
 
     def _prefault_lattice(self) -> Future | None:
-        """Make the sets' ICI lattice block now and fault its pages in on the helper thread
+        """Make the sets' ICI lattice block now and fault its pages in on the second thread
         (the first frame's tracing hides it): the pending work, or None.
 
         A fresh page costs a fault on first touch. Left to the insertion, the lattice's
@@ -333,8 +332,6 @@ class PhotonSets:
             st.sampler = SelectiveSampler(self.config.seed, s, refine_share=share,
                                           pass_photons=self.config.photons_per_set)
         if self.config.apertures:
-            from lightsim.engine.apertures import counter_from_config
-
             st.apertures = counter_from_config(self.config, self.frame, self.channels)
         if self.config.estimator == "bin":
             W, H = self.frame.resolution
@@ -444,8 +441,6 @@ class PhotonSets:
         photons in the same order, so the stores are bit-identical to
         :meth:`_insert_slice`'s. Returns False (nothing done) where :meth:`_insert_slice`
         must do it."""
-        from lightsim.render.frame import luminous
-
         sets = [self.sets[s] for s in self.set_indices]
         if any(st.bins is not None or st.photonmap is None for st in sets):
             return False
@@ -509,7 +504,7 @@ class PhotonSets:
                         st.aperture_hits = rec.source[idx][hit] - offsets[g]
             return out[:3]
 
-        # the sets in two halves of about equal records, the second on the helper thread:
+        # the sets in two halves of about equal records, one half on a second thread:
         # the kernels and the apertures' passes run without the GIL, and each set's stores
         # get the same sums either way. Not the first frame: it touches the stores' memory
         # for the first time (page faults that two threads would only queue for) and
@@ -597,9 +592,6 @@ class PhotonSets:
                         power: np.ndarray) -> None:
         """Add wall photons (h, v in m; power (n, C) lm) to the set's half-pixel lattice
         (the ICI windows) and to ΣΦ, ΣΦ² (their standard errors)."""
-        from lightsim.render import ici
-        from lightsim.render.frame import luminous
-
         if not self.config.uses_ici:
             return
         flat, ok = ici.lattice_index(h, v, self.frame)

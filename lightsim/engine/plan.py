@@ -32,7 +32,9 @@ import numpy as np
 
 from lightsim.engine.config import RunConfig
 from lightsim.materials import DIFFUSE
+from lightsim.sampling import digit_permutations, halton_points, photon_keys
 from lightsim.scene import Scene
+from lightsim.tracer import PhotonTracer
 
 PILOT_SET = 1 << 20  # key space of planning pilots: never used by an interleave set
 
@@ -66,9 +68,6 @@ def pilot_yield(scene: Scene, config: RunConfig, photons: int = 4096, caster=Non
 
     ``caster`` (a :class:`~lightsim.raycast.RayCaster` of ``scene``, kept open) saves
     building the embree scene twice when the run traces with the same one."""
-    from lightsim.sampling import digit_permutations, halton_points, photon_keys
-    from lightsim.tracer import PhotonTracer
-
     tracer = PhotonTracer(scene, max_depth=config.max_depth, record="all",
                           threads=config.threads, caster=caster)
     idx = np.arange(photons, dtype=np.int64)

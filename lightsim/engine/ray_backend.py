@@ -24,19 +24,25 @@ from __future__ import annotations
 
 import os
 import pickle
+import socket
 from collections.abc import Callable
 from typing import Any
 
+import numba
 import numpy as np
 
+from lightsim.engine.client import Client
 from lightsim.engine.config import RunConfig
 from lightsim.engine.plan import Plan
+from lightsim.engine.process import tune_process
 from lightsim.engine.results import ClientFrame, RenderRequest, ShootResult
 from lightsim.errors import ClusterError
 from lightsim.scene import Scene
 
 
-def _ray():
+def import_ray():
+    """The ``ray`` module, imported on first use (Ray's import is heavy, and only a run
+    with workers or a cluster needs it)."""
     import ray
 
     return ray
@@ -48,8 +54,6 @@ def _probe_address(address: str, timeout: float = 5.0) -> None:
     ``ray.init(address=…)`` on a dead address retries for minutes; a plain TCP connect to
     the GCS port tells within seconds.
     """
-    import socket
-
     host, sep, port = address.rpartition(":")
     if not sep or not port.isdigit() or "://" in address:
         return  # "auto", "ray://…": let Ray resolve them
@@ -61,9 +65,12 @@ def _probe_address(address: str, timeout: float = 5.0) -> None:
         raise ClusterError(f"cannot reach a Ray cluster at {address}: {reason}") from None
 
 
-def _init_ray(address: str | None, n_actors: int) -> bool:
-    """Connect to (or start) Ray; returns True if this call started it."""
-    ray = _ray()
+def init_ray(address: str | None, n_actors: int) -> bool:
+    """Connect to the Ray cluster at ``address`` (``HOST:PORT``, ``auto``) or start a
+    local Ray runtime with room for ``n_actors`` actors (at least one CPU each); returns
+    True if this call started it (the caller then shuts it down). A cluster that does not
+    answer raises :class:`~lightsim.errors.ClusterError` (one line)."""
+    ray = import_ray()
     if ray.is_initialized():
         return False
     if address:
@@ -83,7 +90,7 @@ def _init_ray(address: str | None, n_actors: int) -> bool:
 
 
 def _actor_class():
-    ray = _ray()
+    ray = import_ray()
 
     @ray.remote(max_restarts=0, max_task_retries=0)
     class ClientActor:
@@ -91,15 +98,7 @@ def _actor_class():
 
         def __init__(self, scene: Scene, config: RunConfig, plan: Plan, sets: list[int],
                      probes_hv: np.ndarray, threads: int) -> None:
-            import numba
-
-            from lightsim.engine.blas import single_blas_thread
-            from lightsim.engine.client import Client
-            from lightsim.engine.memory import keep_freed_memory, small_pages
-
-            keep_freed_memory()  # a worker process of its own: the command's heap policy,
-            small_pages()  # its page policy
-            single_blas_thread()  # ... and its BLAS policy
+            tune_process()  # a worker process of its own: the command's process policy
             numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
             self.client = Client(scene, config.with_(threads=threads), plan, sets, probes_hv)
 
@@ -145,8 +144,8 @@ class RayBackend:
                  assignment: list[list[int]], probes_hv: np.ndarray,
                  address: str | None = None, max_retries: int = 3) -> None:
         self.assignment = [sets for sets in assignment if sets]
-        self.started = _init_ray(address, len(self.assignment))
-        ray = _ray()
+        self.started = init_ray(address, len(self.assignment))
+        ray = import_ray()
         self.config, self.plan, self.probes_hv = config, plan, probes_hv
         self.max_retries = max_retries
         cpus = int(ray.cluster_resources().get("CPU", os.cpu_count() or 1))
@@ -172,7 +171,7 @@ class RayBackend:
         return [self._get(i, ref, call) for i, ref in enumerate(refs)]
 
     def _get(self, i: int, ref, call: Callable[[Any], Any]) -> Any:
-        ray = _ray()
+        ray = import_ray()
         for attempt in range(self.max_retries + 1):
             try:
                 return ray.get(ref)
@@ -187,7 +186,7 @@ class RayBackend:
 
     def _replace(self, i: int) -> None:
         """A new actor for client i, replayed to the frames it had completed."""
-        ray = _ray()
+        ray = import_ray()
         self.restarts += 1
         actor = self._spawn(self.assignment[i])
         for sent in self.changes_log:  # bring the newcomer to the current scene
@@ -217,7 +216,7 @@ class RayBackend:
 
     def apply(self, changes: list[tuple]) -> None:
         """Send the changes to every actor; a new whole scene goes via the object store."""
-        ray = _ray()
+        ray = import_ray()
         sent = []
         for change in changes:
             if change[0] == "scene":
@@ -251,7 +250,7 @@ class RayBackend:
 
     def replay(self, counters: dict[int, int], partial: dict[int, int] | None = None) -> None:
         counters = {int(k): int(v) for k, v in counters.items()}
-        ray = _ray()
+        ray = import_ray()
         refs = []
         self.partial = {int(k): int(v) for k, v in (partial or {}).items()}
         for i, (actor, sets) in enumerate(zip(self.actors, self.assignment, strict=True)):
@@ -261,11 +260,11 @@ class RayBackend:
         ray.get(refs)
 
     def pids(self) -> list[int]:
-        ray = _ray()
+        ray = import_ray()
         return ray.get([a.pid.remote() for a in self.actors])
 
     def close(self) -> None:
-        ray = _ray()
+        ray = import_ray()
         for a in self.actors:
             try:
                 ray.kill(a)

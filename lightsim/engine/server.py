@@ -13,17 +13,29 @@ runtime; ``address`` → the same actors on an existing Ray cluster. Results are
 bit-identical between backends for the same seed and photon count, because every set's
 photons depend only on (seed, set, index) and the server combines sets in set order.
 
-:meth:`Session.run` is the paper's loop in named steps: :meth:`~Session.shoot` (shoot →
-insert), :meth:`~Session.estimate_at_probes` (estimates at the probes, the error figure),
-:meth:`~Session.error_low_enough` (the stopping rule), :meth:`~Session.final_image`.
+:meth:`Session.run` is the paper's loop in named stages, one frame at a time: shoot →
+insert (:meth:`~Session.shoot`), estimate at the probes or on the written map
+(:meth:`~Session.estimate_at_probes`, :meth:`~Session.final_image`), the error figure and
+the stopping rule (a :class:`StoppingRule`; :class:`MapErrorRule` for a target error),
+and after the last frame the final image (:meth:`~Session.final_image`: the written map,
+:mod:`lightsim.render.written_map`).
 
-==================  =====  =======  ================================================
-parameter           unit   default  meaning
-==================  =====  =======  ================================================
-``min_frames``      –      3        frames before a target error may stop a run
-``growth``          –      2        photons between two error estimates grow ≤ this
-``aim``             –      0.98     a target-error stop is aimed at this × the target
-==================  =====  =======  ================================================
+====================  =====  ==========  =============================================
+parameter             unit   default     meaning
+====================  =====  ==========  =============================================
+``min_frames``        –      3           frames before a target error may stop a run
+``growth``            –      2           photons between two error estimates grow ≤
+                                         this
+``aim``               –      0.98        a target-error stop is aimed at this × the
+                                         target
+``UPPER_SLACK``       –      1.25        a stop allows the figure's upper bound this ×
+                                         the target
+``EXPONENT_RANGE``    –      0.35 … 1    the error law's exponent p (e ∝ N^-p) is
+                                         clamped to this range
+``LAW_POINTS``        –      3           estimates the error law is fitted to
+``MAP_CHECK_PIXELS``  –      4           walls with at most this many pixels per grid
+                                         probe judge every estimate on the written map
+====================  =====  ==========  =============================================
 
 A target error stops the run on the error *figure* itself (``ErrorEstimate.total``, the
 point estimate √(noise² + blur²), what the run reports), not on its upper bound: the
@@ -40,15 +52,19 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
+from lightsim.engine import memory
 from lightsim.engine.backend import Backend
 from lightsim.engine.client import apply_changes
 from lightsim.engine.config import RunConfig
 from lightsim.engine.estimator import effective_radii, normalise_flux
+from lightsim.engine.local import LocalBackend
+from lightsim.engine.numba_start import lazy_target_setup
 from lightsim.engine.plan import Plan, make_plan
+from lightsim.engine.ray_backend import RayBackend
 from lightsim.engine.results import (
     Estimate,
     FrameResult,
@@ -62,18 +78,18 @@ from lightsim.render.frame import (
     ErrorEstimate,
     ProbeStats,
     assemble_interleaved,
-    estimate_error,
     luminous,
     pool_full_images,
+    probe_error,
     probe_grid,
     probe_stats,
 )
 from lightsim.render.interleave import InterleavePattern
-from lightsim.render.region import Restrict, restriction
+from lightsim.render.written_map import MapEstimator
 from lightsim.scene import Scene
-from lightsim.tracer import LEDGER
+from lightsim.tracer import LEDGER, scene_caster
 
-__all__ = ["Estimate", "FrameResult", "Session", "lux_channel"]
+__all__ = ["Estimate", "FrameResult", "MapErrorRule", "Session", "StoppingRule"]
 
 
 #: the error law's exponent p (e ∝ N^-p) fitted between two estimates is clamped to this
@@ -98,6 +114,47 @@ def stop_level(error: ErrorEstimate | None) -> float | None:
     return max(error.total, error.upper / UPPER_SLACK)
 
 
+class StoppingRule(Protocol):
+    """When a run has what it was run for, besides its photon, time and memory budgets.
+
+    :meth:`Session.run` asks the rule at every estimate: first of the probes' estimate
+    (a frame between images) and, when that satisfies it, of the written map, which
+    has the last word — or of the written map alone where the schedule measures it
+    (:meth:`ErrorSchedule.measure`). The run stops on the first written map that
+    satisfies the rule, and returns it.
+    """
+
+    def satisfied(self, est: FrameResult, frames: int) -> bool:
+        """Whether the estimate ``est`` (the probes' or the written map's), made after
+        ``frames`` frames, lets the run stop."""
+        ...
+
+
+@dataclass(frozen=True)
+class MapErrorRule:
+    """The target-error rule (``--target-error``): :func:`stop_level` of the estimate's
+    error figure — the figure, its upper bound allowed :data:`UPPER_SLACK` × the
+    target — is at most ``target_error`` after at least ``min_frames`` frames.
+
+    ================  =====  =======  ================================================
+    parameter         unit   default  meaning
+    ================  =====  =======  ================================================
+    ``target_error``  –      –        relative error (a fraction) the run stops at
+    ``min_frames``    –      3        frames before the rule may stop a run
+    ================  =====  =======  ================================================
+    """
+
+    target_error: float
+    min_frames: int = 3
+
+    def satisfied(self, est: FrameResult, frames: int) -> bool:
+        """A :class:`StoppingRule`: the figure (:func:`stop_level`) at most the target
+        after ``min_frames`` frames; never without a figure."""
+        if est.error is None:
+            return False
+        return frames >= self.min_frames and stop_level(est.error) <= self.target_error
+
+
 @dataclass
 class ErrorSchedule:
     """When the run loop estimates the error: the figure costs about as much as a frame
@@ -115,19 +172,25 @@ class ErrorSchedule:
     can sit well above or below the written map's (on the shipped headlight ~2× above):
     :meth:`calibrate` measures their ratio once, and the probes' figure is scaled by it
     before the law places the stop. Deterministic: it depends on photons and estimates
-    only, never on the clock.
+    only, never on the clock. :meth:`measure` says what an estimate measures.
 
-    ==============  =====  =======  ==================================================
-    parameter       unit   default  meaning
-    ==============  =====  =======  ==================================================
-    ``growth``      –      2        photons between two estimates grow ≤ this factor
-    ``aim``         –      0.98     the stop is aimed at this fraction of the target
-    ==============  =====  =======  ==================================================
+    ================  =====  =======  ================================================
+    parameter         unit   default  meaning
+    ================  =====  =======  ================================================
+    ``target_error``  –      None     relative error the estimates are aimed at
+    ``growth``        –      2        photons between two estimates grow ≤ this factor
+    ``aim``           –      0.98     the stop is aimed at this fraction of the target
+    ``map_is_cheap``  –      False    the written map's figure costs about the probes'
+                                      (:meth:`Session.map_check_is_cheap`)
+    ``min_frames``    –      3        frames before the written map is calibrated
+    ================  =====  =======  ================================================
     """
 
     target_error: float | None = None
     growth: float = 2.0
     aim: float = 0.98
+    map_is_cheap: bool = False
+    min_frames: int = 3
     next_photons: float = 0.0
     stop_expected: bool = False
     history: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
@@ -146,6 +209,20 @@ class ErrorSchedule:
         if photons >= self.next_photons:
             return True
         return self.stop_expected and photons + 0.5 * self._step >= self.next_photons
+
+    def measure(self, frames: int) -> str:
+        """What the estimate due after ``frames`` frames measures: ``"map"`` — the written
+        map itself, where the error law places the stop or where it costs about the
+        probes' figure (``map_is_cheap``); ``"calibrate"`` — the probes and, once after
+        ``min_frames`` frames, the written map beside them (:meth:`calibrate`);
+        ``"probes"`` — the probes alone (always, without a target error)."""
+        if self.target_error is None:
+            return "probes"
+        if self.map_is_cheap or self.stop_expected:
+            return "map"
+        if not self.calibrated and frames >= self.min_frames:
+            return "calibrate"
+        return "probes"
 
     def exponent(self, kind: str) -> float:
         """The error law's exponent p: a least-squares line through the last
@@ -234,8 +311,6 @@ class Session:
                  plan: Plan | None = None, checkpoint: dict | None = None) -> None:
         if scene.wall is None:
             raise InputError("the scene has no measurement wall")
-        from lightsim.engine.numba_start import lazy_target_setup
-
         lazy_target_setup()  # before the first kernel load: cache loads set up no compiler
         self.config = config or RunConfig()
         # the written map's directional fusion: None lets its figure decide (both maps are
@@ -247,8 +322,6 @@ class Session:
         self.scene = scene
         caster = None
         if not (workers or address):  # one embree scene for the pilot and the run
-            from lightsim.tracer import scene_caster
-
             caster = scene_caster(scene, threads=self.config.threads)
         self.plan = plan or make_plan(scene, self.config, camera=camera, farfield=farfield,
                                       regulation=regulation, caster=caster)
@@ -260,18 +333,17 @@ class Session:
         extra = np.zeros((0, 2)) if extra_probes is None else np.asarray(extra_probes, float)
         self.grid_count = len(grid)
         self.probes_hv = np.vstack([grid, extra.reshape(-1, 2)])
+        # the written map and its error figure from the sets' ICI rungs
+        self.map_estimator = MapEstimator(self.config.ici_gamma, self.config.error_region,
+                                          grid, self.config.probe_grid)
         n_clients = max(1, workers) if (workers or address) else 1
         n_clients = min(n_clients, self.pattern.n_sets)
         self.assignment = self.pattern.assign(n_clients)
         self.backend: Backend
         if workers or address:
-            from lightsim.engine.ray_backend import RayBackend
-
             self.backend = RayBackend(scene, self.config, self.plan, self.assignment,
                                       self.probes_hv, address=address)
         else:
-            from lightsim.engine.local import LocalBackend
-
             self.backend = LocalBackend(scene, self.config, self.plan, self.assignment,
                                         self.probes_hv, caster=caster)
         self.log: list[dict[str, Any]] = []
@@ -286,9 +358,6 @@ class Session:
         self._t0: float | None = None
         self._elapsed_before = 0.0
         self.last: FrameResult | None = None
-        # the whole raster's ICI window areas, keyed by what they depend on (the wall's
-        # pixels and the ladder's sides): made once, not once per written map
-        self._raster_areas: tuple[tuple, np.ndarray, tuple[int, int] | None] | None = None
         if checkpoint is not None:
             self._restore(checkpoint)
 
@@ -332,19 +401,29 @@ class Session:
 
     def assemble(self, frames: SetFrames, timings: dict[str, float] | None = None,
                  camera=None, image_step: int = 1) -> FrameResult:
-        """Estimate at probes → error → image: the server's half of a frame."""
+        """Estimate at probes → error → image: the server's half of a frame.
+
+        The error figure is the written map's own where the frame made it (over every
+        pixel); else, from every set's ICI rungs at the grid probes, the same figure there
+        (:meth:`~lightsim.render.written_map.MapEstimator.error_at_probes`); else (kNN
+        and binning) the probes' (:func:`~lightsim.render.frame.probe_error`)."""
         timings = {} if timings is None else timings
         t0 = time.perf_counter()
         emitted = self.emitted_per_set()
-        lux, raw, rungs, map_error = self.image(frames, emitted, image_step)
-        error = map_error if map_error is not None else self.ici_error(frames, emitted)
+        wall = self.scene.wall
+        lux, raw, rungs, error = self.image(frames, emitted, image_step)
+        probe_rungs = frames.collect("probe_rungs")
+        ici_figure = bool(probe_rungs) and len(probe_rungs) == len(emitted)  # every set's
+        if error is None and ici_figure:
+            error = self.map_estimator.error_at_probes(wall, probe_rungs,
+                                                       frames.collect("moments"), emitted)
         cam_img = self.camera_image(frames, camera)
         timings["assemble"] = time.perf_counter() - t0
         probes = frames.collect("probes")
         stats = probe_stats(probes, frames.collect("window")) if probes else None
-        if error is None and not self._has_ici_rungs(frames, emitted):
-            error = (estimate_error(stats, self.grid_count, restrict=self._grid_region())
-                     if stats is not None else None)
+        if error is None and not ici_figure and stats is not None:
+            error = probe_error(stats, self.grid_count,
+                                restrict=self.map_estimator.grid_region(wall))
         n = sum(emitted.values())
         return FrameResult(lux, raw, stats, None if error is None else error.total, n,
                            self.elapsed, timings, camera=cam_img, error=error, rungs=rungs,
@@ -404,19 +483,7 @@ class Session:
         """A frame without shooting: the camera/view may change, the photons stay."""
         return self.frame(image=True, shoot=False, camera=camera)
 
-    # -- the server's half: error and images ----------------------------------------------
-    def _has_ici_rungs(self, frames: SetFrames, emitted: dict[int, int]) -> bool:
-        rungs = frames.collect("probe_rungs")
-        return bool(rungs) and len(rungs) == len(emitted)
-
-    def ici_error(self, frames: SetFrames, emitted: dict[int, int]) -> ErrorEstimate | None:
-        """The written map's error figure from the ICI rungs at the grid probes (None
-        without rungs from every set; see :meth:`_ici_error`)."""
-        if not self._has_ici_rungs(frames, emitted):
-            return None
-        return self._ici_error(frames.collect("probe_rungs"), frames.collect("moments"),
-                               emitted)
-
+    # -- the server's half: images ------------------------------------------------------
     def image(self, frames: SetFrames, emitted: dict[int, int], image_step: int = 1
               ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None,
                          ErrorEstimate | None]:
@@ -425,8 +492,8 @@ class Session:
 
         Interleaved sub-images are scattered and box-filtered (the paper's frame); the
         written ICI map mixes each pixel's chosen rung with its count
-        (:func:`lightsim.render.ici.written_map`); pooled full images are averaged with
-        the sets' photon counts as weights.
+        (:meth:`lightsim.render.written_map.MapEstimator.image`); pooled full images are
+        averaged with the sets' photon counts as weights.
         """
         subs = frames.collect("sub_image")
         full_rungs = frames.collect("full_rungs")
@@ -440,9 +507,10 @@ class Session:
             lux, raw = assemble_interleaved(pattern, subs, self.config.filter_n)
             return lux, raw, None, None
         if full_rungs:
-            lux, rungs, error = self._ici_image(full_rungs, frames.collect("moments"),
-                                                emitted)
-            return lux, lux, rungs, error
+            m = self.map_estimator.image(self.scene.wall, full_rungs, frames.collect("moments"),
+                                         emitted, directional=self.directional_map)
+            self.last_map_fused = m.fused
+            return m.lux, m.lux, m.rung, m.error
         if fulls:
             lux = pool_full_images(fulls, emitted)
             return lux, lux, None, None
@@ -457,89 +525,6 @@ class Session:
         img, _ = assemble_interleaved(InterleavePattern(self.config.interleave, W, H), cams,
                                       self.config.filter_n)
         return img
-
-    def _ici_areas(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """(J+1, Q) window areas (m²) of the ICI rungs at pixels (clipped to the wall)."""
-        from lightsim.render import ici
-
-        frame = self.scene.wall
-        dh, dv = frame.pixel_size_m
-        W, H = frame.resolution
-        sides = ici.rung_sides((dh, dv), effective_radii(self.config, frame, "pooled")[1])
-        return ici.window_cells(H, W, rows, cols, sides) * (0.25 * dh * dv)
-
-    def raster_areas(self) -> tuple[np.ndarray, tuple[int, int] | None]:
-        """(J+1, H·W) m²: :meth:`_ici_areas` at every pixel of the wall in row order
-        (read-only), and the (H, W) :func:`ici.raster_shape` recognises in them (None on
-        walls too small for it); made once per wall pixel grid and ladder."""
-        from lightsim.render import ici
-
-        frame = self.scene.wall
-        W, H = frame.resolution
-        key = (W, H, tuple(frame.pixel_size_m),
-               effective_radii(self.config, frame, "pooled")[1])
-        if self._raster_areas is None or self._raster_areas[0] != key:
-            rows, cols = np.divmod(np.arange(H * W), W)
-            areas = self._ici_areas(rows, cols)
-            areas.flags.writeable = False
-            self._raster_areas = (key, areas, ici.raster_shape(areas))
-        return self._raster_areas[1], self._raster_areas[2]
-
-    def _ici_rungs_now(self, n_rungs: int, moments: dict[int, np.ndarray]) -> int:
-        """How many rungs the ladder has at the photons so far (:func:`ici.shrink_sides`)."""
-        from lightsim.render import ici
-
-        W, H = self.scene.wall.resolution
-        return len(ici.shrink_sides(np.arange(1, n_rungs + 1),
-                                    ici.wall_photons(moments) / (W * H)))
-
-    def _ici_image(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int]
-                   ) -> tuple[np.ndarray, np.ndarray, ErrorEstimate | None]:
-        """The written map, every pixel at its rung (:func:`ici.written_map`), (H, W, C) lx,
-        the rungs (H, W) and the map's error figure over every pixel."""
-        from lightsim.render import ici
-
-        first = next(iter(rungs.values()))
-        J1, H, W, C = first.shape
-        J1 = self._ici_rungs_now(J1, moments)
-        flat = {s: np.asarray(v)[:J1].reshape(J1, H * W, C) for s, v in rungs.items()}
-        areas, shape = self.raster_areas()  # shape: recognised once, not per map
-        wm = ici.written_map(flat, emitted, ici.power_moment(moments),
-                             areas, self.config.ici_gamma, shape=shape,
-                             directional=self.directional_map,
-                             restrict=self._pixel_region())
-        self.last_map_fused = wm.fused
-        return wm.lux.reshape(H, W, C), wm.choice.rung.reshape(H, W), wm.error
-
-    def _ici_error(self, rungs: dict[int, np.ndarray], moments: dict[int, np.ndarray],
-                   emitted: dict[int, int]) -> ErrorEstimate | None:
-        """The error figure of the written map from the pixels under the grid probes (the
-        frames between images; the image itself is measured over every pixel)."""
-        from lightsim.render import ici
-
-        grid = self.probes_hv[:self.grid_count]
-        rows, cols = ici.pixel_of(self.scene.wall, grid[:, 0], grid[:, 1])
-        J1 = self._ici_rungs_now(next(iter(rungs.values())).shape[0], moments)
-        rungs = {s: np.asarray(v)[:J1] for s, v in rungs.items()}
-        return ici.written_map(rungs, emitted, ici.power_moment(moments),
-                               self._ici_areas(rows, cols), self.config.ici_gamma,
-                               restrict=self._grid_region()).error
-
-    def _pixel_region(self) -> Restrict | None:
-        """The error figure's region (``config.error_region``) over the wall's pixels
-        (None for ``lit``)."""
-        W, H = self.scene.wall.resolution
-        dh, dv = self.scene.wall.pixel_size_m
-        return restriction(self.config.error_region, (H, W), (dv, dh))
-
-    def _grid_region(self) -> Restrict | None:
-        """The error figure's region over the grid probes (:func:`probe_grid`: a regular
-        raster of cell centres over the wall, in row order; None for ``lit``)."""
-        wall = self.scene.wall
-        nh, nv = self.config.probe_grid
-        cell = (float(np.ptp(wall.v_range_m)) / nv, float(np.ptp(wall.h_range_m)) / nh)
-        return restriction(self.config.error_region, (nv, nh), cell)
 
     def probe(self, points_hv: np.ndarray) -> ProbeStats:
         """Estimates of every set at wall points (h, v in m): mean, standard error, values."""
@@ -587,7 +572,12 @@ class Session:
         return effective_radii(self.config, self.scene.wall)
 
     def emitted_per_set(self) -> dict[int, int]:
+        """Photons each set has emitted, keyed by set."""
         return {s: st["emitted"] for s, st in self.backend.stats().items()}
+
+    def photons_emitted(self) -> int:
+        """Photons emitted over all sets."""
+        return sum(self.emitted_per_set().values())
 
     def energy(self) -> dict[str, float]:
         """Energy bookkeeping in lm (luminous), summed over sets, normalised by photons."""
@@ -611,91 +601,96 @@ class Session:
     def run(self, photons: int | None = None, seconds: float | None = None,
             target_error: float | None = None, min_frames: int = 3,
             callback: Callable[[FrameResult], None] | None = None,
-            should_stop: Callable[[], bool] | None = None, probes: bool = True
-            ) -> FrameResult:
-        """Shoot frames until a budget is met, then render the final image.
+            should_stop: Callable[[], bool] | None = None, probes: bool = True,
+            rule: StoppingRule | None = None) -> FrameResult:
+        """Shoot frames until a budget is met or the stopping rule is satisfied, then
+        render the final image.
 
         Stops at whichever comes first: exactly ``photons`` emitted (total over sets; the
         last frame is partial, except with Selective Photon Tracing, whose passes are whole),
-        ``seconds`` elapsed, or the estimated relative error ≤ ``target_error`` — the
-        figure itself, with its upper bound (blur + 2 s.e.) at most :data:`UPPER_SLACK` ×
-        the target, so an unresolved blur cannot stop a run early (after at least
-        ``min_frames`` frames; :func:`stop_level`), first at the probes and then
-        confirmed on the written map itself. With no budget at all, one frame is shot.
-        Before every frame after the first the kept photons are measured against the
-        memory (:meth:`memory_full`): a run that would outgrow it stops there with its
-        final image, and :attr:`memory_stop` says so (None otherwise).
+        ``seconds`` elapsed, or the stopping ``rule`` satisfied — by default, with a
+        ``target_error``, :class:`MapErrorRule`: the estimated relative error ≤ the
+        target (the figure itself, with its upper bound at most :data:`UPPER_SLACK` × the
+        target, after at least ``min_frames`` frames; :func:`stop_level`), first at the
+        probes and then confirmed on the written map itself. With no budget at all, one
+        frame is shot. Before every frame after the first the kept photons are measured
+        against the memory (:meth:`memory_full`): a run that would outgrow it stops there
+        with its final image, and :attr:`memory_stop` says so (None otherwise).
         ``probes=False`` leaves the probe estimates (``FrameResult.probes``) out of the
         final image when the caller does not read them (the error figure of an ICI map
         does not need them).
 
-        The loop is the paper's: shoot → insert (:meth:`shoot`), estimate at the probes
-        and the error (:meth:`estimate_at_probes`), the stopping rule
-        (:meth:`error_low_enough`), and after it the final image (:meth:`final_image`).
-        The estimate runs on :class:`ErrorSchedule`'s photon counts, not every frame;
-        frames that only shoot report to ``callback`` with the latest error
-        (:meth:`progress`). The last frame goes straight to the final image. With a
-        target, the estimate the error law places at the stop measures the written map
-        itself (on a small wall, :meth:`map_check_is_cheap`, every estimate does), so the
-        run stops on the figure it reports, near the target rather than below it.
+        The loop is the paper's, one frame at a time: shoot → insert (:meth:`shoot`),
+        estimate at the probes or on the written map, the error figure and the stopping
+        rule (:meth:`_estimate_and_judge`), and after the last frame the final image
+        (:meth:`final_image`). The estimate runs on :class:`ErrorSchedule`'s photon
+        counts, not every frame; frames that only shoot report to ``callback`` with the
+        latest error (:meth:`progress`). The last frame of a budget goes straight to the
+        final image. With a target, the estimate the error law places at the stop
+        measures the written map itself (on a small wall, :meth:`map_check_is_cheap`,
+        every estimate does), so the run stops on the figure it reports, near the target
+        rather than below it.
         """
         if photons is None and seconds is None and target_error is None:
             photons = self.config.frame_photons
         if target_error is not None and not (0 < target_error < 1):
             raise InputError(f"target error must lie in (0, 1), got {target_error}")
+        if rule is None and target_error is not None:
+            rule = MapErrorRule(target_error, min_frames)
         self.start_clock()
-        schedule = ErrorSchedule(target_error)
-        cheap_map = self.map_check_is_cheap()
+        schedule = ErrorSchedule(target_error, map_is_cheap=self.map_check_is_cheap(),
+                                 min_frames=min_frames)
         self.memory_stop = None
         budget = self.photon_budget()
-        while not self.budget_spent(photons, seconds, should_stop):
-            if budget is not None and self.memory_full(budget):
-                break  # the final image of the photons kept so far, and memory_stop says so
+        stop: FrameResult | None = None  # the written map the stopping rule accepted
+        last_frame = False  # the budget is spent: the final image estimates everything
+        while not (last_frame or stop is not None
+                   or self.budget_spent(photons, seconds, should_stop)
+                   or self.memory_full(budget)):  # memory_stop says so
             t0 = time.perf_counter()
-            self.shoot(self.frame_photons(photons))
+            self.shoot(self.frame_photons(photons))  # shoot → insert
             timings = {"shoot": time.perf_counter() - t0}
-            if self.budget_spent(photons, seconds):
-                break  # the final image estimates everything once more
-            done = sum(self.emitted_per_set().values())
-            if not schedule.due(done):
-                if callback is not None:
-                    callback(self.progress(timings))
-                continue
-            if target_error is not None and (cheap_map or schedule.stop_expected):
-                # where the law places the stop (or always, when the written map costs
-                # about what the probes' figure does) the written map itself is measured:
-                # its figure is what the run reports, the probes' would miss its level
-                final = self.final_image(probes)
-                schedule.estimated(done, final, "map")
-                if callback is not None:
-                    callback(final)
-                if self.error_low_enough(final, target_error, min_frames):
-                    return final
-                continue
-            est = self.estimate_at_probes(timings)
-            if (target_error is not None and not schedule.calibrated
-                    and self.frames >= min_frames):
-                # once: how the written map's figure stands to the probes' (the map is
-                # what the run reports; the probes' figure alone may sit 2× off it)
-                final = self.final_image(probes)
-                schedule.calibrate(est, final)
-                schedule.estimated(done, est)
-                if callback is not None:
-                    callback(final)
-                if self.error_low_enough(final, target_error, min_frames):
-                    return final
-                continue
-            schedule.estimated(done, est)
+            last_frame = self.budget_spent(photons, seconds)
+            if not last_frame:  # estimate → error → stopping rule
+                stop = self._estimate_and_judge(schedule, rule, timings, callback, probes)
+        return stop if stop is not None else self.final_image(probes)
+
+    def _estimate_and_judge(self, schedule: ErrorSchedule, rule: StoppingRule | None,
+                            timings: dict[str, float],
+                            callback: Callable[[FrameResult], None] | None,
+                            probes: bool) -> FrameResult | None:
+        """One frame's estimate, error figure and stopping rule in :meth:`run`: the
+        written map when the rule lets the run stop here, else None.
+
+        A frame the schedule does not estimate reports progress only. An estimate
+        measures the probes, the written map (:meth:`ErrorSchedule.measure`) or both;
+        its figure places the next estimate; a stop the probes propose is decided on the
+        written map (every pixel, held-out blur), which is what the run delivers.
+        """
+        done = self.photons_emitted()
+        if not schedule.due(done):
             if callback is not None:
-                callback(est)
-            if self.error_low_enough(est, target_error, min_frames):
-                # The frame's figure comes from the grid probes; the written map (every
-                # pixel, held-out blur) is what the run delivers, so it has the last word.
-                final = self.final_image(probes)
-                if self.error_low_enough(final, target_error, min_frames):
-                    return final
-                schedule.estimated(done, final, "map")
-        return self.final_image(probes)
+                callback(self.progress(timings))
+            return None
+
+        def satisfied(est: FrameResult) -> bool:
+            return rule is not None and rule.satisfied(est, self.frames)
+
+        what = schedule.measure(self.frames)
+        est = None if what == "map" else self.estimate_at_probes(timings)
+        written = None if what == "probes" else self.final_image(probes)
+        if what == "calibrate":
+            schedule.calibrate(est, written)
+        if est is not None:
+            schedule.estimated(done, est)
+        else:
+            schedule.estimated(done, written, "map")
+        if callback is not None:
+            callback(written if written is not None else est)
+        if written is None and satisfied(est):  # the probes propose, the map decides
+            written = self.final_image(probes)
+            schedule.estimated(done, written, "map")  # read only if the map refuses
+        return written if written is not None and satisfied(written) else None
 
     def kept_photons(self) -> int:
         """Photon records the sets' maps keep (0 for the ``bin`` estimator's bins)."""
@@ -709,31 +704,27 @@ class Session:
         ``LIGHTSIM_MEMORY_LIMIT``, plus what the kept photons hold already, by the
         model); None where it is not checked (a cluster, the ``bin`` estimator, memory not
         known)."""
-        from lightsim.engine.memory import available_bytes, photon_budget, stored_photon_bytes
-
         if not self.memory_checked:
             return None
-        avail = available_bytes()
+        avail = memory.available_bytes()
         if avail is not None:
-            per = stored_photon_bytes(self.plan.channels or 1, self.config.n_sets)
+            per = memory.stored_photon_bytes(self.plan.channels or 1, self.config.n_sets)
             avail += int(self.kept_photons() * per)
-        return photon_budget(self.scene.wall.resolution, self.config,
-                             self.plan.channels or 1, available=avail)
+        return memory.photon_budget(self.scene.wall.resolution, self.config,
+                                    self.plan.channels or 1, available=avail)
 
-    def memory_full(self, budget: float) -> bool:
+    def memory_full(self, budget: float | None) -> bool:
         """Whether another frame's photons (as many as the largest frame so far) would take
         the kept photons past ``budget`` bytes; sets :attr:`memory_stop` when so. The
-        first frame always runs (``simulate`` checked one frame before it started)."""
-        from lightsim.engine.memory import kept_photon_bytes
-
-        if self.frames == 0:
+        first frame always runs (``simulate`` checked one frame before it started), and
+        every frame without a budget (None: :meth:`photon_budget` does not check)."""
+        if budget is None or self.frames == 0:
             return False
-        per = kept_photon_bytes(self.plan.channels or 1, self.config.n_sets)
+        per = memory.kept_photon_bytes(self.plan.channels or 1, self.config.n_sets)
         kept = self.kept_photons()
         if (kept + self.frame_records) * per <= budget:
             return False
-        self.memory_stop = MemoryStop(sum(self.emitted_per_set().values()), kept, kept * per,
-                                      budget)
+        self.memory_stop = MemoryStop(self.photons_emitted(), kept, kept * per, budget)
         return True
 
     def map_check_is_cheap(self) -> bool:
@@ -747,7 +738,7 @@ class Session:
                      should_stop: Callable[[], bool] | None = None) -> bool:
         """Whether ``photons`` are emitted, ``seconds`` elapsed (after a frame) or the
         caller asks to stop."""
-        if photons is not None and sum(self.emitted_per_set().values()) >= photons:
+        if photons is not None and self.photons_emitted() >= photons:
             return True
         if seconds is not None and self.elapsed >= seconds and self.frames > 0:
             return True
@@ -758,7 +749,7 @@ class Session:
         a ``photons`` budget when it is smaller (an SPT pass is always whole)."""
         if photons is None or self.plan.spt:
             return None
-        rest = photons - sum(self.emitted_per_set().values())
+        rest = photons - self.photons_emitted()
         return rest if rest < self.config.photons_per_set * self.config.n_sets else None
 
     def progress(self, timings: dict[str, float] | None = None) -> FrameResult:
@@ -766,7 +757,7 @@ class Session:
         estimate (at ``error_photons``)."""
         last = self.last
         return FrameResult(None, None, None, None if last is None else last.rel_error,
-                           sum(self.emitted_per_set().values()), self.elapsed,
+                           self.photons_emitted(), self.elapsed,
                            {} if timings is None else timings,
                            error=None if last is None else last.error,
                            error_photons=None if last is None else last.error_photons)
@@ -785,15 +776,6 @@ class Session:
         self.last = est
         self.log.append({**est.error_entry(), "frames": self.frames})
         return est
-
-    def error_low_enough(self, est: FrameResult, target_error: float | None,
-                         min_frames: int) -> bool:
-        """The stopping rule: :func:`stop_level` (the error figure; its upper bound
-        allowed :data:`UPPER_SLACK` × the target) is at most ``target_error`` after at
-        least ``min_frames`` frames."""
-        if target_error is None or est.error is None:
-            return False
-        return self.frames >= min_frames and stop_level(est.error) <= target_error
 
     def final_image(self, probes: bool = True) -> FrameResult:
         """The written map (``config.final``: pooled or interleaved) from every photon,
@@ -833,9 +815,4 @@ class Session:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def lux_channel(lux: np.ndarray) -> np.ndarray:
-    """(H, W, C) → (H, W) luminous illuminance (lx)."""
-    return luminous(lux)
 

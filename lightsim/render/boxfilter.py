@@ -79,7 +79,6 @@ __all__ = [
     "box_filter_naive",
     "box_stats",
     "box_sum",
-    "box_variance",
     "window_counts",
     "window_offsets",
 ]
@@ -536,12 +535,6 @@ def box_stats(image: np.ndarray, n: int, *, ddof: int = 1,
     with np.errstate(invalid="ignore", divide="ignore"):
         var = np.where(dof > 0, var / np.where(dof > 0, dof, 1.0), 0.0)
     return mean, var
-
-
-def box_variance(image: np.ndarray, n: int, *, ddof: int = 1,
-                 parallel: bool = False) -> np.ndarray:
-    """Sample variance of the n×n window values (image unit²), float64; see :func:`box_stats`."""
-    return box_stats(image, n, ddof=ddof, parallel=parallel)[1]
 
 
 def box_filter_naive(image: np.ndarray, n: int) -> np.ndarray:

@@ -1,8 +1,8 @@
 """Cut-off line of a passing beam on the wall: position, sharpness, linearity and aim.
 
-Method (UN R112 annex 9, as summarised in ``shared/data/headlamp-facts.md``): vertical
-scans through the flat part of the cut-off at 1.5°, 2.5° and 3.5° from V-V on the side
-away from the step (left of V-V for right-hand traffic, right for left-hand traffic).
+Method (UN R112 annex 9): vertical scans through the flat part of the cut-off at 1.5°,
+2.5° and 3.5° from V-V on the side away from the step (left of V-V for right-hand
+traffic, right for left-hand traffic).
 Along each scan the cut-off is the **inflection point**, where log10 E falls fastest going
 up: the maximum of ``g(v) = −d(log10 E)/dV``. The **sharpness** is
 ``G = log10 E(β) − log10 E(β + 0.1°)`` with the 0.1° window centred on the inflection
@@ -64,6 +64,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.special import stdtrit
 
 from lightsim.errors import InputError
 from lightsim.render.filters import gaussian_filter1d, map_coordinates
@@ -422,8 +423,6 @@ def cutoff_interval(values: ArrayLike, frame: Any, centre_deg: float | None,
     ``centre_deg``: the pooled image's cut-off (from :func:`find_cutoff`); None = scan
     the mean of the sets' profiles.
     """
-    from scipy.special import stdtrit
-
     wf = WallFrame.from_any(frame)
     _, hs, v = scan_sample_points(wf, traffic, scan_h_deg, v_window_deg, band_deg, step_deg)
     vals = np.nan_to_num(np.asarray(values, dtype=float), nan=0.0)

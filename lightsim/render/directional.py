@@ -32,10 +32,11 @@ per set: O(1) per pixel and rung, from the same data the centred map uses, only 
 whole wall raster (queries at scattered probes have no neighbours: they keep the centred
 map). Directional windows that would leave the wall end their ladder.
 
-The error figure stays the written map's (:func:`lightsim.render.ici.written_map`: noise
-plus blur, mixed with the counts by α) and stays honest by **cross-fitting**: each half of
-the interleave sets is read at the fusion chosen from the other half, so a set's value
-depends on its own photons only through the windows it sums. Its scatter is then the
+The error figure stays the written map's
+(:func:`lightsim.render.written_map.written_map`: noise plus blur, mixed with the counts
+by α) and stays honest by **cross-fitting**: each half of the interleave sets is read at
+the fusion chosen from the other half, so a set's value depends on its own photons only
+through the windows it sums. Its scatter is then the
 map's noise, and D̄² − se_D² of a half (D = value − rung 0, rung 0 unbiased for the pixel
 mean) is unbiased for the squared blur of the other half's choice. (A choice made from the
 same photons, with nine ladders to pick from, prefers windows whose noise happens to agree
@@ -66,12 +67,11 @@ import numpy as np
 from numba import njit, prange
 
 from lightsim.render.frame import luminous
-from lightsim.render.ici import IciChoice, add_scaled
+from lightsim.render.ici import IciChoice, add_scaled, halves, set_weights, stack_sets
 
 #: (dy, dx) of the directional ladders 1 … 8: rows grow downwards, columns to the right.
 DIRECTIONS = np.array([(-1, -1), (-1, 1), (1, -1), (1, 1), (-1, 0), (1, 0), (0, -1), (0, 1)],
                       dtype=np.int64)
-LADDERS = 1 + len(DIRECTIONS)  # the centred ladder first
 GUIDE = 0.5  # pixels fused: centred map ≥ GUIDE × the lit fraction × its maximum
 
 
@@ -266,14 +266,12 @@ class FusedChoice(IciChoice):
 
 @dataclass
 class FusedMap:
-    """What :func:`lightsim.render.ici.written_map` needs of the fused map: the choice,
-    every set's luminous values (S, Q) and the lit masks of
-    :func:`lightsim.render.ici._lit_masks` (no held-out blur: the map's own D̄² − se_D²
-    is unbiased, see :func:`fused_map`)."""
+    """What :func:`lightsim.render.written_map.written_map` needs of the fused map: the
+    choice and every set's luminous values (S, Q) (no held-out blur: the map's own
+    D̄² − se_D² is unbiased, see :func:`fused_map`)."""
 
     choice: FusedChoice
     vals: np.ndarray
-    lits: tuple | None
 
 
 def _combine(out: np.ndarray, stack: np.ndarray, which, weights) -> np.ndarray:
@@ -290,7 +288,7 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
               win: np.ndarray | None = None) -> FusedMap:
     """The fused directional map over the whole H × W raster (``shape``), cross-fitted.
 
-    With S ≥ 4 sets each half of them (:func:`lightsim.render.ici._halves`) is read at
+    With S ≥ 4 sets each half of them (:func:`lightsim.render.ici.halves`) is read at
     the choice made from the *other* half; the map is the emitted-weighted mean of every
     set's value. Each set's value then depends on its own photons only through the
     windows it sums, not through the choice, so its scatter is the map's noise and
@@ -320,17 +318,15 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         is mostly dark: several times less work).
     win : (S, Q) lx, optional
         Every set's luminous rung 0 in set order, if the caller has made it
-        (:func:`lightsim.render.ici._stack64` with ``lum=True, rung=0``).
+        (:func:`lightsim.render.ici.stack_sets` with ``lum=True, rung=0``).
     """
-    from lightsim.render import ici
-
     H, W = shape
     order = sorted(rungs)
     e = np.array([emitted[s] for s in order], dtype=np.float64)
     # every set's luminous rung 0 at every pixel (the windows' SATs, the lit masks); the
     # other rungs only at the fused pixels below (no (S, J+1, H·W) stack: 84 MB on the
     # shipped headlight's wall, of which a tenth is fused)
-    R0 = ici._stack64(rungs, order, lum=True, rung=0) if win is None else win  # (S, Q)
+    R0 = stack_sets(rungs, order, lum=True, rung=0) if win is None else win  # (S, Q)
     S, Q = R0.shape
     J1 = np.asarray(rungs[order[0]]).shape[0]
     if Q != H * W:
@@ -348,22 +344,22 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     else:
         sel = np.arange(Q, dtype=np.int64)
     rows, cols = rows_all[sel], cols_all[sel]
-    Rs = ici._stack64(rungs, order, lum=True, pixels=sel)  # (S, J+1, Qs)
+    Rs = stack_sets(rungs, order, lum=True, pixels=sel)  # (S, J+1, Qs)
     As = np.ascontiguousarray(areas[:, sel])
     Qs = len(sel)
     everyone = np.arange(S)
     # (sets read, sets that choose): each half at the other's choice, or all at their own
-    plan = ([(h, g) for h, g in zip(ici._halves(S), ici._halves(S)[::-1], strict=True)]
+    plan = ([(h, g) for h, g in zip(halves(S), halves(S)[::-1], strict=True)]
             if S >= 4 else [(everyone, everyone)])
     choices = []
     pooled_sat = np.empty_like(sats[0])
     pooled_c = np.empty((J1, Qs))
-    w_all = ici._weights(emitted, order)
+    w_all = set_weights(emitted, order)
     one = np.zeros(1, np.int64)
     means = []  # each half's mean fused value (what the lit masks read), (Qs,)
     lux1 = np.zeros(Qs)
     for read, chooser in plan:
-        w = ici._weights({k: emitted[order[k]] for k in chooser}, list(chooser))
+        w = set_weights({k: emitted[order[k]] for k in chooser}, list(chooser))
         n = float(e[chooser].sum())
         scale = q / n if n > 0 and q > 0 else 0.0
         jk, wk = choose_fused(_combine(pooled_sat, sats, chooser, w),
@@ -414,6 +410,4 @@ def fused_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
     if choices:
         jk0, wk0 = choices[0][1], choices[0][2]
         rung[sel] = jk0[np.arange(len(sel)), np.argmax(wk0, axis=1)]
-    choice = FusedChoice(rung, lux, jk0, wk0, sel if choices else None)
-    # every set's luminous rung 0 is R0: the lit masks need not convert it again
-    return FusedMap(choice, vals, ici._lit_masks(rungs, choice, lit_fraction, vals, R0))
+    return FusedMap(FusedChoice(rung, lux, jk0, wk0, sel if choices else None), vals)

@@ -12,8 +12,9 @@ every set). The **relative error over the lit region** is
 with *lit* = Ē ≥ 10 % of the brightest probe (Ē of the pixel windows below, where
 measured, as the blur spreads light beyond a bright edge). That is the noise. A kNN (or
 fixed-radius) estimate also has a **blur bias**: it averages E over a disk of radius r_k,
-not over the pixel. Every set therefore also counts its photons in a pixel-sized *window* centred on
-each grid probe — an unbiased estimate B of the pixel mean, noisier than the kNN value K.
+not over the pixel. Every set therefore also counts its photons in a pixel-sized *window*
+centred on each grid probe — an unbiased estimate B of the pixel mean, noisier than the kNN
+value K.
 Per set the difference D = K − B has expectation b (the bias) and the sets' spread gives
 its standard error se_D, so
 
@@ -23,13 +24,14 @@ is an unbiased estimate of the mean squared bias (noise subtracted). The reporte
 rel_error = √(rel_noise² + rel_bias²); ``lightsim converge`` checks it against exact
 answers (the ratio estimated / actual). With few photons per pixel window the bias
 estimate scatters; ``rel_bias_upper`` (the estimate plus two standard errors of the mean
-over the lit probes) says how much blur could hide in it.
+over the lit probes) says how much blur could hide in it (:func:`probe_error`: the figure
+of the kNN and binning maps; the ICI map measures its own,
+:mod:`lightsim.render.written_map`).
 
 =====================  =====  ========  =================================================
 parameter              unit   default   meaning
 =====================  =====  ========  =================================================
 ``lit_fraction``       –      0.1       probes at ≥ this × max count as lit
-``confidence``         –      0.95      two-sided level of probe intervals (Student t)
 =====================  =====  ========  =================================================
 """
 
@@ -105,15 +107,6 @@ class ProbeStats:
     def n_sets(self) -> int:
         return self.values.shape[0]
 
-    def interval(self, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
-        """Two-sided Student-t interval (lo, hi) of the mean, (P, C) each."""
-        from scipy.stats import t as student_t
-
-        S = self.n_sets
-        q = student_t.ppf(0.5 + confidence / 2, S - 1) if S > 1 else math.inf
-        half = q * self.se
-        return self.mean - half, self.mean + half
-
 
 def probe_stats(probes: dict[int, np.ndarray],
                 windows: dict[int, np.ndarray] | None = None) -> ProbeStats:
@@ -175,10 +168,11 @@ def _mean_over_sets(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return values.mean(axis=0), values.std(axis=0, ddof=1) / math.sqrt(values.shape[0])
 
 
-def estimate_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1,
-                   restrict: Callable[[np.ndarray], np.ndarray] | None = None
-                   ) -> ErrorEstimate | None:
-    """Noise and blur bias over the lit probes of the grid (see module docstring).
+def probe_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1,
+                restrict: Callable[[np.ndarray], np.ndarray] | None = None
+                ) -> ErrorEstimate | None:
+    """The error figure of the probes' estimates: noise and blur bias over the lit probes
+    of the grid (see module docstring; the kNN and binning maps' figure).
 
     Only the first ``grid_count`` probes (the regular grid) count; extra probes (test
     points) would bias the average. ``restrict``: the figure's region within the lit

@@ -3,8 +3,8 @@
 A density estimate at a pixel trades blur for noise through its radius. kNN picks the
 radius from the photon density alone (r_k), so next to a cut-off or a beam edge it reaches
 across the step, and with the radius held between fixed bounds its error stops falling
-(issue 12: 2.2–2.9 % from 2 M to 16 M photons on the paraboloid while binning fell as
-1/√N). Here every pixel has a ladder of nested estimates from the same photons
+(2.2–2.9 % from 2 M to 16 M photons on the paraboloid while binning fell as 1/√N). Here
+every pixel has a ladder of nested estimates from the same photons
 
     rung 0: the photons in the pixel itself (dh × dv) — unbiased for the pixel mean;
     rung j: the photons in the square of j + 1 pixels a side centred on it (j = 1 … J,
@@ -33,9 +33,14 @@ on the photon map cost in proportion to the photons inside the largest disk. A f
 (a frame's grid probes) sum their windows' cells directly instead (:func:`_direct_sums`):
 no pass over the whole lattice per frame.
 
-On the whole wall raster :func:`written_map` also makes the fused directional map of
-:mod:`lightsim.render.directional` (one-sided windows that reach inwards next to an edge,
-LPA-ICI) and writes it where its own, cross-fitted figure is clearly the lower.
+This module holds the primitives: the ladder (:func:`rung_sides`, :func:`shrink_sides`),
+the windows (:class:`WindowGeometry`, :func:`window_sums`, :func:`raster_lux`,
+:func:`window_cells`, :func:`raster_shape`), the ICI choice (:func:`choose`,
+:func:`ici_rungs`, :class:`IciChoice`), the held-out blur (:func:`held_out_blur`) and the
+per-set helpers the maps share (:func:`stack_sets`, :func:`set_weights`, :func:`halves`,
+:func:`chosen_per_set`, :func:`add_scaled`). The map the run writes and its error figure
+are :mod:`lightsim.render.written_map`'s; the directional windows are
+:mod:`lightsim.render.directional`'s.
 
 ===============  =====  ========  ========================================================
 parameter        unit   default   meaning
@@ -46,29 +51,22 @@ parameter        unit   default   meaning
 ``gamma``        –      2.0       interval half-width Γ in standard errors
                                   (``RunConfig.ici_gamma``)
 ``q``            lm     –         power-weighted mean photon power ΣΦ²/ΣΦ (all sets)
-``CERTIFY``      –      0.25      the blur estimate's standard error may be at most this
-                                  × the squared error the figure reports
-``MIX_STEPS``    –      40        steps of the counts' weight α in the written map
-``FUSED_MARGIN`` –      0.9       the fused map is written below this × the centred
-                                  map's figure
-``TILE``         px     8         a region's blur standard error: batch means over tiles
-                                  of this side (``TILES_MIN`` = 16 tiles at least)
+``MAX_RUNGS``    px     8         window sides 1 … this at most
+``SHRINK_START`` –      256       photons per pixel (all sets) where the largest window
+                                  starts to shrink (:func:`shrink_sides`)
 ===============  =====  ========  ========================================================
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
 
 import numpy as np
 from numba import njit
 
-from lightsim.render.frame import ErrorEstimate, luminous
-from lightsim.render.region import Restrict
-from lightsim.threads import helper_thread
+from lightsim.render.frame import luminous
 
 MAX_RUNGS = 8  # window sides 1 … 8 pixels at most
 
@@ -268,8 +266,8 @@ def _raster_sums(sub: np.ndarray, sides: np.ndarray, out: np.ndarray, emitted: f
     on a 640 × 256 wall). Both sums are made in one pass a row at a time (the columns'
     running sums in one row of their own), and a row's windows that the wall does not
     clip share one divisor, so that loop runs without per-pixel bounds (it vectorises):
-    2.1 against 6.1 ms a set at 640 × 256 (the earlier two-pass form). Serial: ``prange``
-    (thread start-up per call, 16 calls per map) was slower.
+    2.1 against 6.1 ms a set at 640 × 256 for two passes. Serial: ``prange`` (thread
+    start-up per call, 16 calls per map) is slower.
 
     ``emitted`` > 0: each sum is written normalised instead, ``sum / ((emitted ·
     max(cells, 1)) · area)`` — :func:`~lightsim.engine.estimator.normalise_flux` of the
@@ -410,13 +408,15 @@ class IciChoice:
     lux: np.ndarray
 
 
-def _weights(emitted: dict[int, int], order: list[int]) -> np.ndarray:
+def set_weights(emitted: dict[int, int], order: list[int]) -> np.ndarray:
+    """The sets' weights in ``order``: their emitted photons over the total (equal weights
+    while no set has emitted)."""
     w = np.array([emitted[s] for s in order], dtype=np.float64)
     return w / w.sum() if w.sum() > 0 else np.full(len(order), 1.0 / max(len(order), 1))
 
 
-def _stack64(rungs: dict[int, np.ndarray], order: list[int], lum: bool = False,
-             rung: int | None = None, pixels: np.ndarray | None = None) -> np.ndarray:
+def stack_sets(rungs: dict[int, np.ndarray], order: list[int], lum: bool = False,
+               rung: int | None = None, pixels: np.ndarray | None = None) -> np.ndarray:
     """The sets' rungs in ``order`` as one float64 array (S, J+1, Q, C) — or, with
     ``lum``, their luminous values (S, J+1, Q) — filled in place: the same values as
     ``np.stack`` of float64 copies, without the copies (the wire brings float32).
@@ -458,7 +458,7 @@ def choose(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         Half-width of the intervals in standard errors (Γ).
     """
     order = sorted(rungs)
-    w = _weights(emitted, order)
+    w = set_weights(emitted, order)
     # the weighted sum set by set: no (S, J+1, Q, C) float64 stack (105 MB at 640 × 256)
     pooled = np.zeros(np.asarray(rungs[order[0]]).shape)
     for wi, s in zip(w, order, strict=True):
@@ -519,7 +519,7 @@ def held_out_blur(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: floa
                 {k: np.asarray(rungs[k])[:, queries] for k in order}, emitted, q,
                 areas[:, queries] if areas.ndim == 2 else areas, gamma, groups)
         return full
-    R = _stack64(rungs, order, lum=True)  # (S, J+1, Q) lx
+    R = stack_sets(rungs, order, lum=True)  # (S, J+1, Q) lx
     e = np.array([emitted[k] for k in order], dtype=np.float64)
     n_all = float(e.sum())
     groups = [np.arange(S)] if groups is None else groups
@@ -552,7 +552,8 @@ def _held_out_pairs(R: np.ndarray, e: np.ndarray, n_all: float, q: float,
     (J+1, Q) temporaries per pair (its largest cost: 56 pairs on 16 sets). The inner
     loops run over a block's queries, which the compiler vectorises (2.5× the
     query-by-query loop). Serial: it runs beside the fused map's branch
-    (:func:`written_map`), whose kernels have the other core."""
+    (:func:`lightsim.render.written_map.written_map`), whose kernels have the other
+    core."""
     S, J1, Q = R.shape
     G, M = members.shape
     B = _HELD_OUT_BLOCK
@@ -662,421 +663,9 @@ def _add_scaled(acc: np.ndarray, x: np.ndarray, w: float) -> None:
         acc[i] += w * np.float64(x[i])
 
 
-CERTIFY = 0.25  # largest standard error of the blur estimate, × the squared error it certifies
-#: a region's blur standard error is the batch-means one over square tiles of this many
-#: pixels a side (twice the largest window's: queries a window apart share no photons)
-TILE = 8
-#: ... from this many tiles on (fewer: the Gaussian formula; a spread from a handful of
-#: tiles is itself too noisy)
-TILES_MIN = 16
-
-
-@dataclass(frozen=True)
-class ErrorFigure:
-    """The error figure of a map at given rungs, with the precision of its blur part.
-
-    All in units of the mean lit illuminance (dimensionless; squares where named so).
-
-    Attributes
-    ----------
-    error : ErrorEstimate
-        noise, blur and their sum as :class:`~lightsim.render.frame.ErrorEstimate`.
-    bias2 : float
-        Unbiased estimate of the mean squared blur (may be negative: noise).
-    bias2_se : float
-        Its standard error from the sets' scatter (the pixels are the whole region, not a
-        sample of it: only the noise of the estimate counts).
-    lit : int
-        Pixels (or probes) averaged.
-    """
-
-    error: ErrorEstimate
-    bias2: float
-    bias2_se: float
-    lit: int
-
-    @property
-    def certified(self) -> bool:
-        """Whether the blur estimate is precise enough to sign the figure: its standard
-        error is at most :data:`CERTIFY` × the squared error it reports (the figure then
-        scatters by about half that, ±12 %)."""
-        return self.bias2_se <= CERTIFY * self.error.total**2
-
-
-def error_figure(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float = 0.1,
-                 alpha: float = 0.0, blur: np.ndarray | None = None) -> ErrorFigure | None:
-    """Noise and blur of the map ``choice`` over the lit queries (pixels or probes), mixed
-    with weight ``alpha`` with the pixel counts (rung 0): (1 − α) chosen + α rung 0.
-    ``blur`` (2, Q) lx²: per-query squared-blur estimates of the unmixed map from each half
-    of the sets, to use instead of D̄² − se_D² (:func:`held_out_blur` over the halves, for
-    a choice made from these photons).
-
-    Noise: the spread of the S sets' values at the chosen rungs, se² = s²/S per query.
-    Blur: per set D = chosen − rung 0 (rung 0, the pixel window, is unbiased for the pixel
-    mean), so E[D̄² − se_D²] = b² at each query and their mean over the lit queries is an
-    unbiased estimate of the mean squared bias (0 where rung 0 was chosen). Its variance
-    is Σ (2 v² + 4 b² v) / n² with v = Var(D̄) (estimated by se_D², v² by
-    se_D⁴ (S − 1)/(S + 1), b² by the mean): for a window of A pixels v ≈ σ₀² (1 − 1/A),
-    the noise of the pixel's own count, which bounds how well any blur can be measured
-    (:attr:`ErrorFigure.certified`).
-
-    Lit: rung 0's mean and the map ≥ ``lit_fraction`` × the map's maximum; relative to
-    rung 0's mean over the lit queries, which is unbiased for the exact mean there (the
-    map's own mean is blurred). None with one set or nothing lit.
-    """
-    mix = _mix_parts(rungs, choice, lit_fraction, blur)
-    return None if mix is None else mix.figure(alpha)
-
-
-@dataclass(frozen=True)
-class _MixParts:
-    """The parts of :func:`error_figure` that depend on the counts' weight α only through
-    (1 − α)² (blur and its standard error) or a quadratic (noise): means over the lit
-    queries of the chosen values' variance ``a``, the counts' ``b`` and their covariance
-    ``c`` (each /S, relative²), the blur² ``b2`` and its standard error ``se`` at α = 0."""
-
-    a: float
-    b: float
-    c: float
-    b2: float
-    se: float
-    lit: int
-
-    def figure(self, alpha: float) -> ErrorFigure | None:
-        k = (1.0 - alpha) ** 2
-        n2 = k * self.a + 2.0 * alpha * (1.0 - alpha) * self.c + alpha * alpha * self.b
-        noise = math.sqrt(max(n2, 0.0))
-        b2, se = k * self.b2, k * self.se
-        if not all(math.isfinite(x) for x in (noise, b2, se)):
-            return None
-        bias = math.sqrt(max(b2, 0.0))
-        upper = math.sqrt(max(b2 + 2.0 * se, 0.0))
-        return ErrorFigure(ErrorEstimate(math.hypot(noise, bias), noise, bias, upper), b2, se,
-                           self.lit)
-
-
-def _halves(S: int) -> list[np.ndarray]:
+def halves(S: int) -> list[np.ndarray]:
     """Two halves of the sets (positions in set order): even and odd."""
     return [np.arange(0, S, 2), np.arange(1, S, 2)]
-
-
-def _rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """``a[idx]`` — as a strided view where ``idx`` is an increasing arithmetic run (the
-    halves): the same values in the same order without copying (S/2, Q) rows, whose
-    fresh pages cost more than the reductions that read them on this VM."""
-    idx = np.asarray(idx)
-    if idx.ndim == 1 and len(idx) >= 1:
-        step = int(idx[1] - idx[0]) if len(idx) > 1 else 1
-        if step > 0 and np.array_equal(idx, np.arange(idx[0], idx[-1] + 1, step)):
-            return a[int(idx[0]):int(idx[-1]) + 1:step]
-    return a[idx]
-
-
-def _mix_parts(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
-               blur: np.ndarray | None, lits: tuple | None = None,
-               tiles: np.ndarray | None = None) -> _MixParts | None:
-    """The figure's parts, each half of the sets measured over the pixels the other half
-    calls lit (``blur``: (2, Q) from :func:`held_out_blur` over :func:`_halves`, or None).
-
-    Lit — the pixel's own count and the map both ≥ ``lit_fraction`` × the map's maximum —
-    is decided by data the half does not use: decided and measured on the same photons,
-    dim pixels that caught a stray photon come in exactly when they scatter most (on the
-    paraboloid 36 such pixels tripled the noise figure).
-
-    ``tiles`` (Q,) int: every query's tile (:func:`tile_labels`); the blur's standard
-    error is then the batch-means one over them (:func:`_half_parts`), for a region's
-    figure.
-    """
-    lits = lits if lits is not None else _lit_masks(rungs, choice, lit_fraction)
-    if lits is None:
-        return None
-    vals, win, halves, masks = lits
-    S = vals.shape[0]
-    parts = []
-    for h, (own, lit) in enumerate(zip(halves, masks, strict=True)):
-        p = _half_parts(_rows(vals, own)[:, lit], _rows(win, own)[:, lit], S,
-                        None if blur is None else np.asarray(blur)[h][lit],
-                        None if tiles is None else tiles[lit])
-        if p is not None:
-            parts.append(p)
-    if not parts:
-        return None
-    k = len(parts)
-    return _MixParts(*(sum(getattr(p, f) for p in parts) / k for f in ("a", "b", "c", "b2")),
-                     math.sqrt(sum(p.se**2 for p in parts)) / k,
-                     round(sum(p.lit for p in parts) / k))
-
-
-def _lit_masks(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float,
-               vals: np.ndarray | None = None, win: np.ndarray | None = None):
-    """(vals (S, Q), counts (S, Q), halves, lit mask of each half) for :func:`_mix_parts`:
-    half h is measured over the queries the *other* half calls lit; None with fewer than
-    two sets or nothing lit. ``vals``: every set's luminous value of the map (S, Q), if
-    not each set's value at ``choice.rung``; ``win``: their rung 0 (S, Q), if known.
-    (A region within the lit queries is applied to these masks by :func:`_in_region`.)"""
-    if len(rungs) < 2:
-        return None
-    if vals is None:
-        vals = luminous(chosen_per_set(rungs, choice.rung))  # (S, Q)
-    if win is None:  # every set's luminous pixel count (rung 0), (S, Q)
-        win = luminous(np.stack([np.asarray(rungs[s][0], np.float64) for s in sorted(rungs)]))
-    S = vals.shape[0]
-    if vals.shape[1] == 0 or not np.any(vals.mean(axis=0) > 0):
-        return None
-    halves = _halves(S) if S >= 4 else [np.arange(S)]
-    thr = lit_fraction * vals.mean(axis=0).max()
-    masks = []
-    for h, own in enumerate(halves):
-        other = halves[1 - h] if len(halves) == 2 else own
-        masks.append((_rows(win, other).mean(axis=0) >= thr)
-                     & (_rows(vals, other).mean(axis=0) >= thr))
-    return vals, win, halves, masks
-
-
-def _half_parts(v_l: np.ndarray, w_l: np.ndarray, S: int, blur: np.ndarray | None,
-                tiles: np.ndarray | None = None) -> _MixParts | None:
-    """Parts from some of the sets (rows) over the lit queries (columns) for the pooled
-    map of all S sets.
-
-    The blur's standard error is √(Σ (2 v² + 4 b² v)) / n, the spread of D̄² − se_D² for
-    Gaussian D̄. With ``tiles`` ((n,) int, the queries' tiles, at least :data:`TILES_MIN`
-    of them) it is the batch-means standard error of the n per-query terms t instead,
-
-        se² = K/(K − 1) Σ_k (Σ_{q in tile k} (t_q − t̄))² / n²   (K tiles),
-
-    which assumes no distribution and takes in the correlation of neighbouring queries
-    (their windows share photons, a QMC set's counts are stratified). Measured over the
-    interior of the peer bench's two scenes (20 seeds each, 0.39–0.8 M photons): the
-    formula read 1.05–1.8 × the seed-to-seed spread of the blur estimate, the batch-means
-    error 0.91–1.33 ×; with counts correlated over 3 × 3 pixels the formula reads about
-    half the spread (tests/test_error_region.py). A blur that varies over the region only
-    adds to it (conservative)."""
-    s_h, n = v_l.shape
-    if n == 0 or s_h < 2:
-        return None
-    mean_lit = float(w_l.mean())
-    if not mean_lit > 0:
-        return None
-    dv, dw = v_l - v_l.mean(axis=0), w_l - w_l.mean(axis=0)
-    norm = (s_h - 1) * S * n * mean_lit**2  # sample (co)variance / S, mean over lit, relative
-    a, b, c = (float(np.sum(x * y)) / norm for x, y in ((dv, dv), (dw, dw), (dv, dw)))
-    d = v_l - w_l
-    d_mean, v = d.mean(axis=0), d.var(axis=0, ddof=1) / s_h  # v: Var(D̄) of these sets
-    terms = d_mean**2 - v if blur is None else np.asarray(blur, np.float64)
-    b2 = float(np.mean(terms)) / mean_lit**2
-    # Σ 4 b² v with the mean b² (one query's b² estimate is mostly noise, and its positive
-    # part would double the variance at a few photons per pixel)
-    var = float(np.sum(2.0 * v * v * (s_h - 1) / (s_h + 1))
-                + 4.0 * max(b2, 0.0) * mean_lit**2 * np.sum(v))
-    se = math.sqrt(max(var, 0.0)) / n / mean_lit**2
-    if tiles is not None:
-        labels, tile = np.unique(tiles, return_inverse=True)
-        K = len(labels)
-        if K >= TILES_MIN:  # batch means: each tile's summed deviation from the mean
-            dev = np.bincount(tile, weights=terms - float(np.mean(terms)), minlength=K)
-            se = math.sqrt(float(np.sum(dev * dev)) * K / (K - 1)) / n / mean_lit**2
-    if not all(math.isfinite(x) for x in (a, b, c, b2, se)):
-        return None
-    return _MixParts(a, b, c, b2, se, n)
-
-
-def estimate_error(rungs: dict[int, np.ndarray], choice: IciChoice, lit_fraction: float = 0.1
-                   ) -> ErrorEstimate | None:
-    """The :class:`~lightsim.render.frame.ErrorEstimate` of :func:`error_figure`."""
-    fig = error_figure(rungs, choice, lit_fraction)
-    return None if fig is None else fig.error
-
-
-MIX_STEPS = 40  # the weight of the pixel counts is searched in steps of 1/40
-#: whether :func:`written_map` (``directional=None``) may write the fused directional map
-#: of a whole raster; studies set it False to compare with the centred map
-DIRECTIONAL = True
-#: the fused map replaces the centred one only with a figure below this × the centred's:
-#: the two figures scatter by several per cent, and a choice between near-equal figures
-#: would pick the one that happens to read low (optimism), for no real gain
-FUSED_MARGIN = 0.9
-
-
-@dataclass
-class WrittenMap:
-    """The map the run writes, its error figure and its weight on the pixel counts.
-
-    Attributes
-    ----------
-    choice : IciChoice
-        The ICI rungs and their pooled values.
-    lux : (Q, C) float64
-        The written values (lx): (1 − α) ``choice.lux`` + α rung 0.
-    alpha : float
-        Weight α of the pixel counts (0: the ICI map, 1: the counts).
-    figure : ErrorFigure or None
-    fused : bool
-        True for the fusion of the directional ladders, False for the centred one.
-    """
-
-    choice: IciChoice
-    lux: np.ndarray
-    alpha: float
-    figure: ErrorFigure | None
-    fused: bool = False
-
-    @property
-    def error(self) -> ErrorEstimate | None:
-        return None if self.figure is None else self.figure.error
-
-
-def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
-                areas: np.ndarray, gamma: float, lit_fraction: float = 0.1,
-                shape: tuple[int, int] | None = None, directional: bool | None = None,
-                restrict: Restrict | None = None) -> WrittenMap:
-    """The ICI map mixed with the pixel counts: the lowest error that can be signed.
-
-    A window's blur is measured against the pixel's own count, whose noise σ₀ does not
-    fall with the window: the blur estimate's standard error is ≈ √2 σ₀² / √n over n lit
-    pixels whatever the map, so a map whose error is below ≈ (2/n)^¼ σ₀ carries an error
-    its figure cannot state (issue 12: the ICI figure read 0.65–1.05 × the actual error on
-    the shield at 250 k photons, from seed to seed). Mixing in the counts with weight α
-    scales the blur and its standard error by (1 − α)² and trades it for count noise, so
-    the written map is (1 − α) ICI + α counts with α (in steps of 1/:data:`MIX_STEPS`)
-    the lowest figure among those that are :attr:`ErrorFigure.certified`. α = 0 where the
-    ICI map is both best and measurable; α → 1 where ICI keeps a blur that no single pixel
-    can see but the figure, over all lit pixels, does (the curvature of a smooth beam
-    inside a 4 × 4 window: the counts are then better); α = 1, the counts, is always
-    certified. One number chosen from n pixels' figures adds little optimism; the blur
-    part is :func:`held_out_blur`, free of the per-pixel choice's.
-
-    When the queries are the whole wall raster in row order (``shape`` = (H, W), or
-    recognised from ``areas`` by :func:`raster_shape`), a second map is made: the fusion
-    of the centred ladder with eight directional ones (:mod:`lightsim.render.directional`),
-    whose windows next to an edge reach inwards instead of falling back to the pixel,
-    with a figure of its own (cross-fitted, honest like this one). ``directional``: None
-    (default, :data:`DIRECTIONAL`) writes the fused map where its certified figure is
-    below :data:`FUSED_MARGIN` × the centred map's — where the pattern is smooth enough
-    for its wider support (the paraboloid: 0.75–0.8 ×) — and the centred one elsewhere
-    (the headlight at 320 × 128: 0.96–1.0 ×, where the fused map's true error is the
-    higher); True the fused map, False the centred map alone.
-
-    ``rungs`` {set: (J+1, Q, C)} already cut to the ladder allowed at these photons
-    (:func:`shrink_sides`); ``restrict``: the queries the figure covers within the lit
-    ones (:func:`lightsim.render.region.restriction`; None: every lit query): the map is
-    chosen on the lit queries and only its figure is measured over the region
-    (:func:`_in_region`); the other parameters as in :func:`choose`.
-    """
-    if directional is None and not DIRECTIONAL:
-        directional = False
-    if directional is not False and shape is None:
-        shape = raster_shape(areas)
-    choice = choose(rungs, emitted, q, areas, gamma)
-    fused = win = fm = None  # win: every set's luminous rung 0, once made
-    pending = None
-    if directional is not False and shape is not None and \
-            np.asarray(rungs[next(iter(rungs))]).shape[0] >= 2:
-        from lightsim.render.directional import fused_map
-
-        win = _stack64(rungs, sorted(rungs), lum=True, rung=0)  # (S, Q)
-
-        def fused_branch() -> tuple[Any, WrittenMap]:
-            fmap = fused_map(rungs, emitted, q, areas, gamma, shape, lit_fraction,
-                             guide=choice, win=win)
-            wm = _mixed(rungs, emitted, fmap.choice, fmap.vals, None, fmap.lits,
-                        lit_fraction)
-            wm.fused = True
-            return fmap, wm
-
-        if directional:
-            fm, fused = fused_branch()
-            return _in_region(fused, rungs, None, fm.lits, restrict, lit_fraction, shape)
-        # the fused map and the centred map's figure share nothing but the choice and
-        # every set's rung 0: one on a second thread while the other runs here (their
-        # NumPy passes and compiled kernels run without the GIL; the same values either
-        # way)
-        pending = helper_thread().submit(fused_branch)
-    try:
-        centred, blur, lits = _centred(rungs, emitted, q, areas, gamma, choice,
-                                       lit_fraction, win)
-    finally:
-        if pending is not None:
-            fm, fused = pending.result()
-    if fused is not None and fused.figure is not None and (
-            centred.figure is None
-            or fused.figure.error.total < FUSED_MARGIN * centred.figure.error.total):
-        return _in_region(fused, rungs, None, fm.lits, restrict, lit_fraction, shape)
-    if restrict is not None and shape is None:
-        shape = raster_shape(areas)
-    return _in_region(centred, rungs, blur, lits, restrict, lit_fraction, shape)
-
-
-def _centred(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
-             areas: np.ndarray, gamma: float, choice: IciChoice, lit_fraction: float,
-             win: np.ndarray | None) -> tuple[WrittenMap, np.ndarray | None, Any]:
-    """The centred map of ``choice`` with its figure: (map, held-out blur, lit masks)."""
-    blur = None
-    lits = _lit_masks(rungs, choice, lit_fraction, win=win)
-    if len(rungs) >= 4:  # the blur of the queries the figure reads (lit for either half)
-        read = lit_queries(lits)
-        blur = held_out_blur(rungs, emitted, q, areas, gamma, _halves(len(rungs)),
-                             queries=read)
-    return _mixed(rungs, emitted, choice, None, blur, lits, lit_fraction), blur, lits
-
-
-def _in_region(wm: WrittenMap, rungs: dict[int, np.ndarray], blur: np.ndarray | None,
-               lits, restrict: Restrict | None, lit_fraction: float,
-               shape: tuple[int, int] | None = None) -> WrittenMap:
-    """``wm`` with its figure measured over the region ``restrict`` keeps of the lit
-    queries (unchanged without one).
-
-    The map itself — its counts' weight α and the centred/fused choice — stays the one
-    chosen on the lit queries: chosen on a smaller region, the lowest *certified* figure
-    is more often the counts' (a blur estimate from fewer queries is certified only at a
-    larger error), which on the paraboloid made the interior 1.75 × worse at the same
-    photons. The region's figure of that fixed map need not be certified; its upper bound
-    (blur + 2 s.e.) is what the stopping rule checks, so on a raster (``shape`` (H, W))
-    the blur's standard error is the batch-means one over :data:`TILE`-pixel tiles
-    (:func:`_half_parts`), which measures what the Gaussian per-pixel formula assumes
-    (it overstated the spread over the bench's interiors by up to 1.8 × and understates
-    it where neighbouring counts are correlated)."""
-    if restrict is None or lits is None:
-        return wm
-    vals, win, halves, masks = lits
-    tiles = None if shape is None else tile_labels(shape)
-    mix = _mix_parts(rungs, wm.choice, lit_fraction, blur,
-                     (vals, win, halves, [restrict(m) for m in masks]), tiles)
-    return replace(wm, figure=None if mix is None else mix.figure(wm.alpha))
-
-
-def tile_labels(shape: tuple[int, int], tile: int = TILE) -> np.ndarray:
-    """(H·W,) int: the tile of every pixel of an H × W raster in row order, tiles of
-    ``tile`` × ``tile`` pixels from the top-left corner (the last row and column of tiles
-    may be cut)."""
-    H, W = shape
-    rows, cols = np.divmod(np.arange(H * W, dtype=np.int64), W)
-    return (rows // tile) * (-(-W // tile)) + cols // tile
-
-
-def lit_queries(lits) -> np.ndarray:
-    """Indices of the queries either half's figure reads (see :func:`_lit_masks`)."""
-    return (np.flatnonzero(lits[3][0] | lits[3][1]) if lits is not None
-            else np.zeros(0, np.int64))
-
-
-def _mixed(rungs: dict[int, np.ndarray], emitted: dict[int, int], choice: IciChoice,
-           vals: np.ndarray | None, blur: np.ndarray | None, lits, lit_fraction: float
-           ) -> WrittenMap:
-    """The written map of a choice: the counts' weight α with the lowest certified figure
-    (``vals``: every set's luminous map values if not at ``choice.rung``)."""
-    order = sorted(rungs)
-    w = _weights(emitted, order)
-    counts = np.zeros_like(choice.lux)
-    for wi, s in zip(w, order, strict=True):
-        add_scaled(counts, np.asarray(rungs[s])[0], wi)
-    mix = None if lits is None else _mix_parts(rungs, choice, lit_fraction, blur, lits)
-    fig, alpha = None, 0.0
-    if mix is not None:
-        figs = [(mix.figure(k / MIX_STEPS), k / MIX_STEPS) for k in range(MIX_STEPS + 1)]
-        ok = [(f.error.total, a, f) for f, a in figs if f is not None and f.certified]
-        if ok:
-            _, alpha, fig = min(ok, key=lambda t: (t[0], t[1]))
-    return WrittenMap(choice, (1.0 - alpha) * choice.lux + alpha * counts, alpha, fig)
 
 
 def raster_shape(areas: np.ndarray) -> tuple[int, int] | None:

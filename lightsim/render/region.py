@@ -32,6 +32,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from lightsim.render.edt import squared_distance
+
 REGIONS = ("lit", "interior")
 INSET = 0.2
 
@@ -67,8 +69,6 @@ def interior(lit: np.ndarray, shape: tuple[int, int], cell: tuple[float, float],
     n_lit = int(lit.sum())
     if n_lit == 0 or n_lit == lit.size or not (dv > 0 and dh > 0):
         return lit.copy()
-    from lightsim.render.edt import squared_distance  # numba: only when asked for
-
     # in cell units of the finer side, so that 1e-30 m or 1e30 m pixels square alike
     unit = min(dv, dh)
     d2 = squared_distance(~lit.reshape(H, W), dv / unit, dh / unit).reshape(-1)
