@@ -31,6 +31,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from lightsim.errors import InputError
+from lightsim.simulate import SimulateOptions, run_simulation
+
+from .analyses import for_options
+from .design_terms import rule_interval
+
 __all__ = ["LampCheck", "check_lamp", "choose", "rule_margin"]
 
 
@@ -70,8 +76,6 @@ def rule_margin(row: dict[str, Any]) -> float:
     """Log-margin of one regulation row by its 95 % interval: ln(lo / min) for a minimum,
     ln(max / hi) for a maximum, the smaller of the two; ``inf`` without a limit. A zone is
     judged at its brightest probe (``max_interval_cd``) for a maximum."""
-    from lightsim.luminaires.design import rule_interval
-
     lim = row.get("limit") or {}
     lo, hi = rule_interval(row)
     m = math.inf
@@ -93,10 +97,6 @@ def check_lamp(glb: str | Path, regulation: str, *, photons: int = 32_000_000,
                note: Callable[[str], None] | None = None) -> LampCheck:
     """``lightsim simulate GLB --photons … --resolution … --regulation … --seed S`` for
     every seed (in this process, nothing written but a temporary folder), collected."""
-    from lightsim.errors import InputError
-    from lightsim.luminaires.analyses import for_options
-    from lightsim.simulate import SimulateOptions, run_simulation
-
     out = LampCheck()
     work = Path(tempfile.mkdtemp(prefix="lightsim-check-"))
     try:

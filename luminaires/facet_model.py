@@ -19,7 +19,7 @@ seed: common random numbers, so E(k alone) − E_base cancels the noise of the l
 does not come from facet k). Evaluating E(s) then costs a few image shifts (milliseconds)
 and is deterministic and continuous in s: the optimiser sees geometry, not photon noise.
 
-The objective evaluated on E(s) is :func:`lightsim.luminaires.design.objective_terms`
+The objective evaluated on E(s) is :func:`lightsim.luminaires.design_terms.map_terms`
 (every rule of every rule set, cut-off sharpness and linearity, aim, smoothness, road
 reach; rule values from the model map, so their "interval" is the value) plus a small
 regulariser ``ρ·Σ|s_k|²/(1°)²`` that keeps the shifts where the model is valid.
@@ -35,7 +35,7 @@ resolution          px     200×256    footprint map W×H (0.34° × 0.107° pix
 shift_bounds_deg    deg    ±1, ±0.5   bounds of Δh, Δv per facet
 regulariser         –      0.01       ρ above
 smooth_px           px     0          Gaussian σ applied to every footprint
-foreground_m        m      0          road foreground term (design's ``foreground_term``)
+foreground_m        m      0          road foreground term (``foreground_term``)
 aim_offset_deg      deg    None       check-run minus model-finder aim on the reference
 ==================  =====  =========  ===================================================
 """
@@ -43,31 +43,46 @@ aim_offset_deg      deg    None       check-run minus model-finder aim on the re
 from __future__ import annotations
 
 import math
+import tempfile
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
 from lightsim.errors import InputError
+from lightsim.wall import WallFrame
+
+from .design_lamp import (
+    FG_LIT_MIN,
+    LIT_MIN,
+    Layout,
+    facet_images,
+    facets_for,
+    hole_diameter,
+    simulate_lamp,
+    write_facets,
+)
+from .design_terms import Term, map_terms
+from .reflector import Facet
 
 __all__ = ["AWAY_V_DEG", "NOISE_CD", "NOISE_PHOTONS", "FootprintModel", "ShiftResult",
-           "map_terms", "measure_footprints", "model_terms", "movable_facets", "optimise_shifts",
-           "ruleset_probes"]
+           "add_shifted", "measure_footprints", "model_terms", "movable_facets",
+           "optimise_shifts"]
 
 AWAY_V_DEG = -25.0  # the wall spans ±13.5° at 25 m; −25° puts a facet's images below it
 SHIFT_BOUNDS_DEG = (1.0, 0.5)  # measured: with ±3°, ±1.5° (rms 0.8°) the re-measured
 # lamp's J was 20× the model's; with rms 0.3° the model held within ~5 % at most points
 REGULARISER = 0.01
-AIM_TOLERANCE_DEG = 0.15  # the check run's cut-off may sit this far from the model's
-# (measured: 0.04° and 0.09° on two designed lamps)
 NOISE_CD = 6.2
 """Half-width of the 95 % interval of a test point (relative) × √I, for the README demo's
 run (12 M photons, 320×128, 0.15° apertures, ``--aim``): measured on the designed lamp
 (B8 145 cd ±38 %, III 335 ±30 %, IV 2 860 ±14 %, 25L2 3 045 ±11 %, 50R 21 221 ±3.6 %:
 ≈ 6.2/√I). It scales as √(12 M / photons)."""
 NOISE_PHOTONS = 12_000_000
-_PROBES: dict[tuple[Any, ...], Any] = {}  # (rule set, traffic, wall) → (RuleSet, Probes)
 
 
 @dataclass
@@ -108,11 +123,11 @@ class FootprintModel:
         out = self.base.copy() if self.residual is None else self.base + self.residual
         for fp, (dh, dv) in zip(self.footprints, s):
             # rows run top→bottom (V up = −row); columns run with H (left → right)
-            _add_shifted(out, fp, -dv / self.px_deg[1], dh / self.px_deg[0])
+            add_shifted(out, fp, -dv / self.px_deg[1], dh / self.px_deg[0])
         return np.maximum(out, 0.0)
 
 
-def _add_shifted(out: np.ndarray, img: np.ndarray, dr: float, dc: float) -> None:
+def add_shifted(out: np.ndarray, img: np.ndarray, dr: float, dc: float) -> None:
     """out += img shifted by (dr, dc) pixels, bilinear, zero outside (in place)."""
     H, W = img.shape
     r0, c0 = math.floor(dr), math.floor(dc)
@@ -128,21 +143,19 @@ def _add_shifted(out: np.ndarray, img: np.ndarray, dr: float, dc: float) -> None
             out[ra:rb, ca:cb] += w * img[ra - ir:rb - ir, ca - ic:cb - ic]
 
 
-def movable_facets(facets: Sequence[Any], layout: Any, hole_m: float) -> list[int]:
+def movable_facets(facets: Sequence[Facet], layout: Layout, hole_m: float) -> list[int]:
     """Indices of the main (ring × sector) facets the cup leaves lit (with
     ``layout.shaded_spread_deg`` > 0 also the cup's edge facets, lit ≥ ``FG_LIT_MIN``, which
     light the foreground) and of every overhead-sign sliver (the other shaded facets carry
     only stray light and stay put)."""
-    from .design import FG_LIT_MIN, LIT_MIN, facet_images
-
     n = layout.rings * layout.sectors
     images = facet_images(list(facets[:n]), layout, hole_m)
-    lit = LIT_MIN if getattr(layout, "shaded_spread_deg", 0.0) <= 0 else FG_LIT_MIN
+    lit = LIT_MIN if layout.shaded_spread_deg <= 0 else FG_LIT_MIN
     return ([k for k, im in enumerate(images) if im.lit_fraction >= lit]
             + list(range(n, len(facets))))
 
 
-def measure_footprints(x: np.ndarray, layout: Any, regulation: str, *, photons: int,
+def measure_footprints(x: np.ndarray, layout: Layout, regulation: str, *, photons: int,
                        resolution: tuple[int, int], seed: int, residual_factor: int = 0,
                        progress: Callable[[str], None] | None = None,
                        smooth_px: float = 0.0) -> FootprintModel:
@@ -152,14 +165,6 @@ def measure_footprints(x: np.ndarray, layout: Any, regulation: str, *, photons: 
     (:attr:`FootprintModel.residual`). ``smooth_px`` > 0: each footprint is smoothed
     with a Gaussian of that σ (pixels; the residual keeps the model exact at zero shift),
     so that the optimiser cannot move a footprint's photon-noise peaks onto a test point."""
-    import tempfile
-    import time
-    from pathlib import Path
-
-    from lightsim.wall import WallFrame
-
-    from .design import facets_for, hole_diameter, simulate_lamp, write_facets
-
     t0 = time.perf_counter()
     hole = hole_diameter(layout)
     facets = facets_for(np.asarray(x, float), layout, hole)
@@ -200,8 +205,6 @@ def measure_footprints(x: np.ndarray, layout: Any, regulation: str, *, photons: 
     base = maps[0]
     fps = np.stack([m - base for m in maps[1:len(movable) + 1]])
     if smooth_px > 0:
-        from scipy.ndimage import gaussian_filter
-
         fps = np.stack([gaussian_filter(f, smooth_px, mode="constant") for f in fps])
     res = maps[-1] - base - fps.sum(axis=0) if residual_factor > 0 else None
     return FootprintModel(fd, base, fps, movable, px, time.perf_counter() - t0, res)
@@ -211,15 +214,13 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
                 traffic: str, *, safety: float, reach_m: float, smooth_max: float,
                 regulariser: float = REGULARISER, noise_cd: float = 0.0,
                 foreground_m: float = 0.0, aim_offset_deg: float | None = None,
-                lux: np.ndarray | None = None, reach_weight: float = 1.0) -> list[Any]:
-    """The objective's terms (:func:`lightsim.luminaires.design.objective_terms`) of every
+                lux: np.ndarray | None = None, reach_weight: float = 1.0) -> list[Term]:
+    """The objective's terms (:func:`lightsim.luminaires.design_terms.map_terms`) of every
     rule set on the model map, plus the shift regulariser.
 
     ``noise_cd``: the model's values get the interval I·(1 ± noise_cd/√I) (cd) that a
     verification run is expected to show (photon-count noise of the detector apertures;
     :data:`NOISE_CD`), so a faint point is asked for more margin than a bright one."""
-    from .design import Term
-
     lux = model.lux(shifts_deg) if lux is None else np.asarray(lux, float)
     terms = map_terms(lux, model.frame, regulations, traffic, safety=safety,
                       reach_m=reach_m, smooth_max=smooth_max, noise_cd=noise_cd,
@@ -232,93 +233,6 @@ def model_terms(model: FootprintModel, shifts_deg: np.ndarray, regulations: Sequ
     return terms
 
 
-def map_terms(lux: np.ndarray, frame: Any, regulations: Sequence[str], traffic: str, *,
-              safety: float, reach_m: float, smooth_max: float, noise_cd: float = 0.0,
-              foreground_m: float = 0.0, aim_offset_deg: float | None = None,
-              reach_weight: float = 1.0) -> list[Any]:
-    """The objective's terms of every rule set on a wall lux map (lx) as it stands (no
-    shift regulariser): the rules with the interval a ``noise_cd`` check run is expected
-    to show, the cut-off's sharpness, linearity and aim, reach and foreground."""
-    from lightsim.render.cutoff import find_cutoff
-    from lightsim.wall import WallFrame
-
-    from .design import _rule_terms, objective_terms
-
-    lux = np.asarray(lux, float)
-    wf = WallFrame.from_any(frame)
-    frame = wf.to_dict()
-    cut = find_cutoff(lux, frame, traffic).to_dict()
-    if aim_offset_deg is not None and cut.get("aim_dv_deg") is not None:
-        cut["aim_dv_deg"] = float(cut["aim_dv_deg"]) + aim_offset_deg
-    # the lamp is evaluated as it stands (its own cut-off near 0.57° D is a term of J):
-    # the model's cut-off finder jumps between pixel rows as the shifts change, and an aim
-    # taken from it would make J jump with it
-    dv0 = 0.0
-    terms: list[Any] = []
-    for i, name in enumerate(regulations):
-        rs, probes = ruleset_probes(name, traffic, frame)
-        # the check run aims the pattern at its cut-off (``--aim``) and its finder can
-        # differ from the model's by ~0.1° (pixel sizes, noise): every rule is taken at its
-        # worst over the pattern and the pattern moved ±AIM_TOLERANCE_DEG
-        per_offset = [_results(rs, probes, lux, frame, traffic, noise_cd, dv0 + e)
-                      for e in (0.0, -AIM_TOLERANCE_DEG, AIM_TOLERANCE_DEG)]
-        reg = {"results": per_offset[0], "aim": {"dv_deg": dv0, "cutoff": cut}}
-        got = objective_terms(reg, lux, wf, safety=safety, reach_m=reach_m,
-                              smooth_max=smooth_max, foreground_m=foreground_m,
-                              reach_weight=reach_weight)
-        worst = {}
-        for results in per_offset:
-            for t in _rule_terms(results, safety):
-                if t.name not in worst or t.margin < worst[t.name].margin:
-                    worst[t.name] = t
-        got = [worst.get(t.name, t) for t in got]
-        results = per_offset[0]
-        # the footprints' residual photon noise, not the geometry, sets the model map's
-        # smoothness ratio: checked on the simulated lamp only
-        got = [t for t in got if t.name != "smoothness"]
-        if i:  # the map terms (cut-off, smoothness, reach) once
-            got = [t for t in got if t.name in {r["name"] for r in results}]
-            got = [replace(t, name=f"{t.name} ({rs.id})") for t in got]
-        terms += got
-    return terms
-
-
-def ruleset_probes(name: str, traffic: str, frame: dict[str, Any]) -> tuple[Any, Any]:
-    """(RuleSet, Probes) of rule set ``name`` on the wall ``frame`` (a
-    :meth:`~lightsim.wall.WallFrame.to_dict`), cached: the probes a wall holds depend on
-    its extent, so there is one entry per wall."""
-    from .regulations import load_ruleset
-    from .regulations.evaluate import probe_points
-
-    key = (name, traffic, tuple(frame["resolution"]), tuple(frame["h_range_m"]),
-           tuple(frame["v_range_m"]), float(frame["distance_m"]))
-    if key not in _PROBES:
-        rs = load_ruleset(name)
-        _PROBES[key] = (rs, probe_points(rs, traffic, frame=frame))
-    return _PROBES[key]
-
-
-def _results(rs: Any, probes: Any, lux: np.ndarray, frame: Any, traffic: str,
-             noise_cd: float, dv_deg: float) -> list[dict[str, Any]]:
-    """Rule results of the model map aimed up by ``dv_deg`` (the aimed value at v is the
-    unaimed one at v − dv), with the expected check-run intervals."""
-    from lightsim.wall import sample_wall
-
-    from .regulations.evaluate import evaluate
-
-    cd = np.maximum(np.nan_to_num(sample_wall(lux, frame, probes.h_deg,
-                                              probes.v_deg - dv_deg, outside=0.0)), 0.0)
-    rel = np.minimum(noise_cd / np.sqrt(np.maximum(cd, 1.0)), 0.95)
-    results = evaluate(rs, probes, cd[None, :], traffic=traffic,
-                       intervals_cd=np.stack([cd * (1 - rel), cd * (1 + rel)], axis=1))
-    for r in results:
-        if r.get("kind") == "sum":  # photon counts add: the same law for the sum
-            v = float(r["value_cd"])
-            q = min(noise_cd / math.sqrt(max(v, 1.0)), 0.95)
-            r["interval_cd"] = [v * (1 - q), v * (1 + q)]
-    return results
-
-
 @dataclass
 class ShiftResult:
     """Outcome of :func:`optimise_shifts`: best shifts (K, 2) deg, J, terms, evaluations."""
@@ -326,7 +240,7 @@ class ShiftResult:
     shifts_deg: np.ndarray
     objective: float
     start_objective: float
-    terms: list[Any]
+    terms: list[Term]
     evaluations: int
 
 
@@ -334,7 +248,7 @@ def optimise_shifts(model: FootprintModel, regulations: Sequence[str], traffic: 
                     safety: float, reach_m: float, smooth_max: float, evaluations: int,
                     start: np.ndarray | None = None, noise_cd: float = 0.0,
                     foreground_m: float = 0.0, aim_offset_deg: float | None = None,
-                    progress: Callable[[int, float, list[Any]], None] | None = None,
+                    progress: Callable[[int, float, list[Term]], None] | None = None,
                     reach_weight: float = 1.0) -> ShiftResult:
     """Minimise J(s) on the model with :func:`scipy.optimize.minimize` (Powell, bounded
     |Δh| ≤ 1°, |Δv| ≤ 0.5° per facet); deterministic (the model is).

@@ -12,19 +12,24 @@ import numpy as np
 import pytest
 
 from lightsim.errors import InputError
-from lightsim.luminaires.design import (
+from lightsim.luminaires.design import DesignSettings, design_lowbeam
+from lightsim.luminaires.design_lamp import (
+    SIGN_AIMS,
     Layout,
-    _rule_terms,
     cutoff_line,
-    design_lowbeam,
     facet_images,
     facets_for,
+    filament_points,
     hole_diameter,
     start_vector,
+    unshaded,
     write_design,
 )
+from lightsim.luminaires.design_terms import rule_terms
+from lightsim.luminaires.headlight import build_headlight
 from lightsim.luminaires.reflector import Facet, aim_direction, faceted_reflector_mesh
 from lightsim.materials import MIRROR
+from lightsim.scene import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
 F = 0.025
@@ -88,21 +93,18 @@ def test_traced_rays_from_the_focus_leave_along_their_facets_aim():
 def test_shield_shading_of_the_image_model_matches_a_ray_cast_on_the_shield_mesh():
     """The image model's cup test against trimesh rays on the shield the lamp really has."""
     trimesh = pytest.importorskip("trimesh")
-    from lightsim.luminaires.design import _filament_points, _unshaded
-    from lightsim.luminaires.headlight import build_headlight
-
     shield = next(p for p in build_headlight(bulb="H4-low", lens="clear",
                                              reflector_rings=4, reflector_sectors=16)
                   if p.name == "shield")
     mesh = trimesh.Trimesh(shield.vertices, shield.faces, process=False)
     rng = np.random.default_rng(3)
-    s = _filament_points(Layout(), 300)
+    s = filament_points(Layout(), 300)
     phi = rng.uniform(0, 2 * math.pi, len(s))
     r = rng.uniform(0.012, 0.08, len(s))
     p = np.column_stack([r * np.cos(phi), r * np.sin(phi), r * r / (4 * F)])
     d = p - s
     hit = mesh.ray.intersects_any(s, d / np.linalg.norm(d, axis=1, keepdims=True))
-    model = _unshaded(s, p, Layout())
+    model = unshaded(s, p, Layout())
     assert 0.3 < model.mean() < 0.8  # both lit and shaded rays are tested
     assert np.mean(model == ~hit) > 0.97  # seam and coarse-arc rays may differ
 
@@ -127,8 +129,6 @@ def test_images_of_every_lit_facet_stay_under_the_cutoff_line():
 
 
 def test_sign_slivers_put_their_images_on_their_aims_and_keep_the_tiling():
-    from lightsim.luminaires.design import SIGN_AIMS
-
     plain = Layout()
     lay = Layout(sign_share=0.03)
     hole = hole_diameter(lay)
@@ -164,7 +164,7 @@ def test_rule_terms_use_the_interval_bounds_and_the_zone_maximum():
              "max_interval_cd": [200, 900], "limit": {"max": 625}, "verdict": "uncertain"},
             {"name": "HV", "kind": "measure", "value_cd": 1, "interval_cd": [0, 2],
              "limit": {}, "verdict": "info"}]
-    t = {x.name: x for x in _rule_terms(rows, 0.1)}
+    t = {x.name: x for x in rule_terms(rows, 0.1)}
     assert set(t) == {"75R", "B50L", "III"}
     assert t["75R"].margin == pytest.approx(math.log(9000 / 11110))  # the lower bound
     assert t["75R"].penalty == pytest.approx(math.log(9000 / 11110) ** 2)
@@ -173,8 +173,6 @@ def test_rule_terms_use_the_interval_bounds_and_the_zone_maximum():
 
 
 def test_written_design_loads_with_all_parts(tmp_path):
-    from lightsim.scene import load_scene
-
     path = tmp_path / "lamp.glb"
     write_design(path, start_vector(LAYOUT), LAYOUT)
     scene = load_scene(path)
@@ -201,10 +199,12 @@ def test_bad_facets_are_input_errors():
 
 
 def test_design_is_deterministic_for_a_seed():
-    kw = dict(layout=Layout(rings=1, sectors=4), photons=20_000, resolution=(80, 32),
-              evaluations=2, rounds=1, seed=2, validate_factor=0)
-    a = design_lowbeam("r112-b-passing", **kw)
-    b = design_lowbeam("r112-b-passing", **kw)
+    settings = DesignSettings(regulation="r112-b-passing", rings=1, sectors=4,
+                              photons=20_000, resolution=(80, 32), evaluations=2, rounds=1,
+                              seed=2, validate_factor=0, optimiser="simulator",
+                              sign_share=0.0, foreground=0.0)
+    a = design_lowbeam(settings)
+    b = design_lowbeam(settings)
     assert len(a.history) >= 2
     assert [h["objective"] for h in a.history] == [h["objective"] for h in b.history]
     assert a.x == b.x and np.isfinite(a.objective)

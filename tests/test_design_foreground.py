@@ -11,23 +11,25 @@ import numpy as np
 import pytest
 
 from lightsim.errors import InputError
-from lightsim.luminaires.design import (
+from lightsim.luminaires.design_lamp import (
     FG_LIT_MIN,
     FOREGROUND_AIMS,
     LIT_MIN,
     RISE_CAP_DEG,
     SIGN_AIMS,
     Layout,
-    _shift_all,
     cutoff_line,
     facet_images,
     facets_for,
+    hole_diameter,
+    shift_all,
+    start_vector,
+)
+from lightsim.luminaires.design_terms import (
     foreground_points,
     foreground_term,
-    hole_diameter,
     reach_points,
     reach_ratio,
-    start_vector,
 )
 from lightsim.luminaires.facet_model import movable_facets
 from lightsim.render.road import road_illuminance_from
@@ -127,7 +129,7 @@ def test_aim_step_moves_every_facet_by_the_same_angle():
     x = start_vector(LAY)
     lay = replace(LAY, facet_shifts_deg=((3, 0.2, -0.1),))
     a = facets_for(x, lay, hole)
-    b = facets_for(x, _shift_all(lay, len(a), -0.14), hole)
+    b = facets_for(x, shift_all(lay, len(a), -0.14), hole)
     assert [f.h_deg for f in b] == pytest.approx([f.h_deg for f in a])
     assert [f.v_deg for f in b] == pytest.approx([f.v_deg - 0.14 for f in a])
 

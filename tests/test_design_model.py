@@ -11,17 +11,18 @@ import pytest
 from scipy.ndimage import shift as nd_shift
 
 from lightsim.errors import InputError
-from lightsim.luminaires.design import (
+from lightsim.luminaires.design import DesignSettings, design_lowbeam
+from lightsim.luminaires.design_lamp import (
     Layout,
-    design_lowbeam,
     facets_for,
     hole_diameter,
+    read_design,
     simulate_lamp,
     start_vector,
     write_design,
 )
 from lightsim.luminaires.facet_model import (
-    _add_shifted,
+    add_shifted,
     measure_footprints,
     model_terms,
     optimise_shifts,
@@ -29,6 +30,11 @@ from lightsim.luminaires.facet_model import (
 
 LAYOUT = Layout(rings=1, sectors=4)
 RES = (60, 96)
+TINY = dict(regulation="r112-b-passing", rings=1, sectors=4, photons=20_000,
+            resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
+            model_photons=30_000, model_resolution=(40, 64), sign_share=0.0, foreground=0.0,
+            ring_offsets=(0.0,), aim_photons=0, linearity_photons=0)
+"""A model design of LAYOUT, small and fast (the ring offset given: no calibration)."""
 
 
 def test_bilinear_shift_matches_scipy_inside_the_image():
@@ -36,7 +42,7 @@ def test_bilinear_shift_matches_scipy_inside_the_image():
     img = g.random((40, 50))
     for dr, dc in [(0.3, -1.7), (-2.5, 3.2), (0.0, 0.0), (5.9, -0.01), (-60.0, 0.5)]:
         out = np.zeros_like(img)
-        _add_shifted(out, img, dr, dc)
+        add_shifted(out, img, dr, dc)
         ref = nd_shift(img, (dr, dc), order=1, mode="constant", cval=0.0, prefilter=False)
         np.testing.assert_allclose(out[7:-7, 7:-7], ref[7:-7, 7:-7], atol=1e-12)
 
@@ -118,15 +124,13 @@ def test_reach_weight_scales_only_the_reach_term(model):
     assert r1["reach 1 lx"] > 0 and r3["reach 1 lx"] == pytest.approx(3 * r1["reach 1 lx"])
     assert {k: v for k, v in r1.items() if k != "reach 1 lx"} == \
         {k: v for k, v in r3.items() if k != "reach 1 lx"}
-    with pytest.raises(InputError):
-        design_lowbeam("r112-b-passing", layout=LAYOUT, reach_weight=-1.0)
+    with pytest.raises(InputError, match="--reach-weight"):
+        DesignSettings(**{**TINY, "reach_weight": -1.0})
 
 
 def test_design_with_the_model_optimiser_writes_the_shifts(tmp_path):
-    out = design_lowbeam("r112-b-passing,r149-b-passing", layout=LAYOUT, photons=20_000,
-                         resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
-                         model_photons=30_000, model_resolution=(40, 64),
-                         model_evaluations=30, calibrate=False)
+    out = design_lowbeam(DesignSettings(**{**TINY, "model_evaluations": 30,
+                                            "regulation": "r112-b-passing,r149-b-passing"}))
     m = out.model[0]
     assert len(out.model) == 1 and m["evaluations"] >= 1
     assert m["objective"] <= m["start_objective"]
@@ -141,17 +145,15 @@ def test_design_with_the_model_optimiser_writes_the_shifts(tmp_path):
     else:
         assert all(t["objective"] >= m["start_objective"] for t in m["remeasured"])
         assert not moved
-    with pytest.raises(InputError):
-        design_lowbeam("r112-b-passing", layout=LAYOUT, optimiser="annealing")
+    with pytest.raises(InputError, match="--optimiser"):
+        DesignSettings(**{**TINY, "optimiser": "annealing"})
 
 
 @pytest.mark.parametrize("aim_rounds", [True, False])
 def test_aim_rounds_off_aims_only_at_the_end(aim_rounds):
-    out = design_lowbeam("r112-b-passing", layout=LAYOUT, photons=20_000,
-                         resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
-                         model_photons=30_000, model_resolution=(40, 64),
-                         model_evaluations=20, calibrate=False, aim_photons=40_000,
-                         aim_resolution=(80, 32), aim_rounds=aim_rounds)
+    out = design_lowbeam(DesignSettings(**{**TINY, "model_evaluations": 20,
+                                            "aim_photons": 40_000, "aim_resolution": (80, 32),
+                                            "aim_rounds": aim_rounds}))
     rounds = [m for m in out.model if m["round"] != "aim"]
     finals = [m for m in out.model if m["round"] == "aim"]
     assert len(rounds) == 1 and 1 <= len(finals) <= 2
@@ -161,12 +163,10 @@ def test_aim_rounds_off_aims_only_at_the_end(aim_rounds):
 
 
 def test_linearity_step_runs_in_the_design_and_its_record_is_written(tmp_path):
-    out = design_lowbeam("r112-b-passing", layout=LAYOUT, photons=20_000,
-                         resolution=(80, 32), seed=2, validate_factor=0, optimiser="model",
-                         model_photons=30_000, model_resolution=(40, 64),
-                         model_evaluations=20, calibrate=False, aim_photons=40_000,
-                         aim_resolution=(80, 32), aim_rounds=False,
-                         linearity_photons=40_000)
+    out = design_lowbeam(DesignSettings(**{**TINY, "model_evaluations": 20,
+                                            "aim_photons": 40_000, "aim_resolution": (80, 32),
+                                            "aim_rounds": False,
+                                            "linearity_photons": 40_000}))
     lin = [m for m in out.model if m["round"] == "linearity"]
     assert len(lin) == 1
     assert lin[0]["spread_before_deg"] is None or np.isfinite(lin[0]["spread_before_deg"])
@@ -176,8 +176,6 @@ def test_linearity_step_runs_in_the_design_and_its_record_is_written(tmp_path):
 
 
 def test_design_record_round_trips_through_the_glb(tmp_path):
-    from lightsim.luminaires.design import read_design
-
     lay = replace(LAYOUT, ring_offsets_deg=(-0.3,), facet_shifts_deg=((2, 0.25, -0.5),))
     x = start_vector(lay)
     write_design(tmp_path / "a.glb", x, lay, {"model": [{"round": 0}]})

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from lightsim.luminaires.design import read_design
 from lightsim.luminaires.design_check import LampCheck, check_lamp, choose, rule_margin
+from lightsim.luminaires.design_lamp import read_design
 
 LOWBEAM = Path(__file__).parents[1] / "luminaires" / "examples" / "lowbeam.glb"
 TINY = ["--regulation", "r112-b-passing", "--rings", "1", "--sectors", "4",

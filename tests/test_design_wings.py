@@ -3,6 +3,7 @@ road view's lit extent, and the shipped lamp's regulation table (fast)."""
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -13,7 +14,8 @@ import numpy as np
 import pytest
 
 from lightsim.errors import InputError
-from lightsim.luminaires.design import (
+from lightsim.luminaires.design import DesignSettings, design_lowbeam
+from lightsim.luminaires.design_lamp import (
     WING_HALF_WIDTH_DEG,
     Layout,
     facet_images,
@@ -90,8 +92,6 @@ def test_shipped_lamp_fails_no_rule(tmp_path):
                         "--out", str(tmp_path / "o")], capture_output=True, text=True,
                        timeout=600)
     assert r.returncode == 0, r.stderr
-    import json
-
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     rows = {(t["ruleset"], q["name"]): q for t in (s["regulation"],
                                                   s["regulation:r149-b-passing"])
@@ -103,13 +103,13 @@ def test_shipped_lamp_fails_no_rule(tmp_path):
 
 
 def test_a_design_run_with_wings_is_deterministic_for_a_seed(tmp_path):
-    from lightsim.luminaires.design import design_lowbeam
-
-    lay = Layout(rings=1, sectors=4, wing_facets=(0,), wing_deg=12.0)
-    kw = dict(layout=lay, photons=20_000, resolution=(80, 32), evaluations=2, rounds=1,
-              seed=4, validate_factor=0)
-    a = design_lowbeam("r112-b-passing", **kw)
-    b = design_lowbeam("r112-b-passing", **kw)
+    settings = DesignSettings(regulation="r112-b-passing", rings=1, sectors=4,
+                              wing_facets=(0,), wing_deg=12.0, photons=20_000,
+                              resolution=(80, 32), evaluations=2, rounds=1, seed=4,
+                              validate_factor=0, optimiser="simulator", sign_share=0.0,
+                              foreground=0.0)
+    a = design_lowbeam(settings)
+    b = design_lowbeam(settings)
     assert [h["objective"] for h in a.history] == [h["objective"] for h in b.history]
     assert a.x == b.x and a.layout == b.layout and a.layout.wing_facets == (0,)
     write_design(tmp_path / "a.glb", a.x, a.layout)

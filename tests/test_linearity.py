@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lightsim.luminaires import design as design_mod
+from lightsim.errors import InputError
 from lightsim.luminaires import facet_model
-from lightsim.luminaires.design import Layout, read_design
-from lightsim.luminaires.linearity import linearity_step, top_window_shares
+from lightsim.luminaires import linearity as linearity_mod
+from lightsim.luminaires.design import DesignSettings
+from lightsim.luminaires.design_lamp import Layout, read_design, with_shifts
+from lightsim.luminaires.linearity import LinearitySettings, linearity_step, top_window_shares
 from lightsim.render.cutoff import find_cutoff
 from lightsim.wall import WallFrame
 
@@ -84,19 +86,21 @@ def _synthetic(monkeypatch: pytest.MonkeyPatch, raise_deg: float) -> dict:
         return facet_model.FootprintModel(FRAME.to_dict(), np.zeros(fps.shape[1:]), fps,
                                           [0, 1, 2], (0.094, 0.094))
 
-    monkeypatch.setattr(design_mod, "write_design", write_design)
-    monkeypatch.setattr(design_mod, "simulate_lamp", simulate_lamp)
-    monkeypatch.setattr(facet_model, "measure_footprints", measure_footprints)
+    # the step's own references: the synthetic lamp replaces the simulator
+    monkeypatch.setattr(linearity_mod, "write_design", write_design)
+    monkeypatch.setattr(linearity_mod, "simulate_lamp", simulate_lamp)
+    monkeypatch.setattr(linearity_mod, "measure_footprints", measure_footprints)
     return state
 
 
 KW = dict(safety=0.05, reach_m=25.0, smooth_max=2.0, noise_cd=0.0)
+FAST = LinearitySettings(photons=1000, footprint_photons=10, seed=3)
 
 
 def test_linearity_step_lowers_the_facet_that_raises_a_scan(monkeypatch):
     _synthetic(monkeypatch, RAISE)
-    layout, res = linearity_step(np.zeros(2), Layout(), ["r112-b-passing"], photons=1000,
-                                 footprint_photons=10, seed=3, terms_kw=KW)
+    layout, res = linearity_step(np.zeros(2), Layout(), ["r112-b-passing"], FAST,
+                                 terms_kw=KW)
     # the broken lamp: 3.5° L sits RAISE above the other two scans
     assert res.spread_before_deg == pytest.approx(RAISE, abs=0.03)
     assert res.candidates[0] == 0  # the outlying scan's facet comes first
@@ -112,8 +116,8 @@ def test_linearity_step_lowers_the_facet_that_raises_a_scan(monkeypatch):
 
 def test_linearity_step_leaves_a_level_cutoff_alone(monkeypatch):
     state = _synthetic(monkeypatch, 0.0)
-    layout, res = linearity_step(np.zeros(2), Layout(), ["r112-b-passing"], photons=1000,
-                                 footprint_photons=10, seed=3, terms_kw=KW)
+    layout, res = linearity_step(np.zeros(2), Layout(), ["r112-b-passing"], FAST,
+                                 terms_kw=KW)
     assert res.spread_before_deg < 0.05
     assert layout.facet_shifts_deg == () and res.shifts_deg == []
     assert state["runs"] == 1  # one reference run, no footprints, no tries
@@ -124,26 +128,24 @@ def test_linearity_step_leaves_a_level_cutoff_alone(monkeypatch):
 
 def test_linearity_step_keeps_nothing_the_fresh_seed_does_not_confirm(monkeypatch):
     state = _synthetic(monkeypatch, RAISE)
-    real = design_mod.simulate_lamp
+    real = linearity_mod.simulate_lamp
 
     def flaky(glb, regulation, *, seed, **k):
         if seed == 4 and state["shifts"]:  # the fresh seed disagrees: the raise is back
             state["shifts"] = {}
         return real(glb, regulation, seed=seed, **k)
 
-    monkeypatch.setattr(design_mod, "simulate_lamp", flaky)
-    layout, res = linearity_step(np.zeros(2), Layout(), ["r112-b-passing"], photons=1000,
-                                 footprint_photons=10, seed=3, terms_kw=KW)
+    monkeypatch.setattr(linearity_mod, "simulate_lamp", flaky)
+    layout, res = linearity_step(np.zeros(2), Layout(), ["r112-b-passing"], FAST,
+                                 terms_kw=KW)
     assert res.accepted_step == 0.0 and res.shifts_deg == []
     assert layout.facet_shifts_deg == ()
     assert res.spread_after_deg == res.spread_before_deg
 
 
 def test_linearity_photons_must_not_be_negative():
-    from lightsim.errors import InputError
-
     with pytest.raises(InputError, match="--linearity-photons"):
-        design_mod.design_lowbeam("r112-b-passing", linearity_photons=-1)
+        DesignSettings(regulation="r112-b-passing", linearity_photons=-1)
 
 
 @pytest.mark.slow
@@ -161,10 +163,10 @@ def test_linearity_step_on_the_shipped_lamp_with_a_raised_facet():
     scans = [(s.h_deg, s.v_inflection_deg) for s in cut.scans]
     k = model.facets[int(np.argmax(top_window_shares(model.footprints, ref, model.frame,
                                                      scans)[:, 2]))]
-    broken = design_mod._with_shifts(layout, [k], np.array([[0.0, 0.3]]))
+    broken = with_shifts(layout, [k], np.array([[0.0, 0.3]]))
     kw = dict(KW, noise_cd=facet_model.NOISE_CD, reach_m=27.0, reach_weight=5.0)
-    _out, res = linearity_step(x, broken, ["r112-b-passing"], photons=2_000_000,
-                              footprint_photons=200_000, seed=11, terms_kw=kw)
+    level = LinearitySettings(photons=2_000_000, footprint_photons=200_000, seed=11)
+    _out, res = linearity_step(x, broken, ["r112-b-passing"], level, terms_kw=kw)
     assert res.spread_before_deg > 0.2
     assert k in res.candidates[:2] and res.shifts_deg
     fresh = res.remeasured[0]["end"]["spread_deg"]
