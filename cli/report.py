@@ -6,8 +6,15 @@ import sys
 from pathlib import Path
 
 import click
+from rich.console import Console
 
+from lightsim import report as rp
 from lightsim.errors import InputError
+from lightsim.io import plot_worker
+from lightsim.io.exr import read_exr
+from lightsim.io.summary import read_json, write_json
+from lightsim.luminaires import regulations
+from lightsim.luminaires.regulations import check
 
 
 @click.command()
@@ -23,13 +30,9 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
            mount_height: float, log_scale: bool, list_rulesets: bool) -> None:
     """Rebuild wall_lux.png, isolux.png, road.png, error_vs_time.png and the regulation
     table of RESULT_DIR from its wall_lux.exr, summary.json and probes.npz."""
-    from rich.console import Console
-
     console = Console(width=None if sys.stdout.isatty() else 160)
     if list_rulesets:
-        from lightsim.luminaires.regulations import list_rulesets as _list
-
-        for rs in _list():
+        for rs in regulations.list_rulesets():
             click.echo(f"{rs['id']:<20} {rs.get('title', '')}  [{rs.get('path', '')}]")
             if "error" in rs:
                 click.echo(f"{'':<20} error: {rs['error']}")
@@ -41,10 +44,6 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
         raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
     if not 0 < confidence < 1:
         raise InputError(f"--confidence must lie in (0, 1), got {confidence}")
-    from lightsim.io import plot_worker
-    from lightsim.io.exr import read_exr
-    from lightsim.io.summary import read_json
-
     out = Path(result_dir)
     summary = read_json(out / "summary.json")
     channels, _ = read_exr(out / "wall_lux.exr")
@@ -56,7 +55,7 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     except (KeyError, TypeError):
         raise InputError(f"{out / 'summary.json'}: no wall frame (not a lightsim result?)"
                          ) from None
-    # the plots' helper process (started with the command) draws what it takes while
+    # the plot process (started with the command) draws what it takes while
     # the regulation tables are re-checked here (lightsim/io/plot_worker.py)
     plots = plot_worker.start()
     drawn = [plots.draw("lux_png", out / "wall_lux.png", lux, wall, log=log_scale,
@@ -83,10 +82,6 @@ def _tables_and_plots(out: Path, summary: dict, lux, wall, regulation: str | Non
                       confidence: float, mount_height: float, plots, console) -> list[Path]:
     """Re-check every rule set of the run, then the iso-lux and road plots; summary.json
     rewritten with both."""
-    from lightsim import report as rp
-    from lightsim.io.summary import write_json
-    from lightsim.luminaires.regulations import check
-
     results = None
     names: list[str | None] = ([regulation] if regulation else
                                [t.get("ruleset") for t in check.regulation_tables(summary)])

@@ -16,10 +16,18 @@ option                 unit   default     meaning
 ``--photons``          –      400 000     photons per case
 ``--seed``             –      1
 ``--json``             –      none        every check with σ, q and allowance
-``--coverage``         –      off         the regulation-point coverage study instead:
+``--coverage``         –      off         the regulation coverage study instead:
                                           synthetic sharp cut-off lamps, 95 % intervals
-                                          against exact aperture means
-``--lamps``            –      40          lamps in the coverage study
+                                          and verdicts against exact aperture means
+``--lamps``            –      40          lamps in the coverage study (0: only ``--lamp``)
+``--counts``           –      --photons   photon counts of the coverage study (250k,1M)
+``--lamp``             –      none        a lamp file studied against a long reference
+                                          run (repeatable; the shipped lamps:
+                                          luminaires/examples/lowbeam.glb, headlight.glb)
+``--seeds``            –      8           runs per ``--lamp`` and photon count
+``--reference-photons`` –     48M         photons of a ``--lamp``'s reference run
+``--reference-dir``    –      temp        folder keeping the reference runs (default
+                                          ``lightsim-coverage`` in the temp directory)
 ``--aperture``         deg    0.15        detector aperture of the coverage study
 ``--spt-points``       –      off         SPT aimed at the test points (coverage study)
 =====================  =====  ==========  ================================================
@@ -48,12 +56,24 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
 
 import click
 
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.io.summary import write_json
 from lightsim.options import click_option, lookup
+from lightsim.validation.coverage import (
+    COVERAGE_BAND,
+    DEFAULT_CACHE,
+    REFERENCE_PHOTONS,
+    RULE_KINDS,
+    VerdictCount,
+    coverage_study,
+    shipped_study,
+)
 
 
 def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]]) -> None:
@@ -89,23 +109,33 @@ def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
               help="Coverage study of the regulation points' 95 % intervals on synthetic "
                    "sharp cut-off lamps with exact answers.")
 @click.option("--lamps", type=int, default=40, show_default=True,
-              help="Synthetic lamps in the coverage study.")
+              help="Synthetic lamps in the coverage study (0: only the --lamp files).")
+@click.option("--counts", help="Photon counts of the coverage study, comma-separated "
+                               "(250k,1M; default --photons, or 1M).")
+@click.option("--lamp", "lamp_files", multiple=True, type=click.Path(dir_okay=False),
+              help="A lamp file (e.g. luminaires/examples/lowbeam.glb) whose verdicts the "
+                   "coverage study judges against a long reference run (repeatable).")
+@click.option("--seeds", type=int, default=8, show_default=True,
+              help="Runs per --lamp and photon count.")
+@click.option("--reference-photons", default="48M", show_default=True,
+              help="Photons of a --lamp's reference run (made once, then kept).")
+@click.option("--reference-dir", type=click.Path(file_okay=False),
+              help="Folder keeping the reference runs [default: lightsim-coverage in the "
+                   "temporary directory].")
 @click.option("--aperture", type=float, default=0.15, show_default=True,
               help="Detector aperture (deg) of the coverage study.")
 @click.option("--spt-points", is_flag=True, help="Coverage study with SPT aimed at the points.")
 @click.option("--quiet", "-q", is_flag=True, help="Only the table.")
 def validate(full: bool, stability: bool, run_all: bool, cases: tuple[str, ...],
              estimators: tuple[str, ...], photons: int | None, seed: int,
-             json_path: str | None, coverage: bool, lamps: int, aperture: float,
-             spt_points: bool, quiet: bool) -> None:
+             json_path: str | None, coverage: bool, quiet: bool, **study: object) -> None:
     """Check the simulator against exact answers (and stiff, extreme cases).
 
     Prints case, quantity, expected, measured, error, uncertainty and pass for every
     check; exits with code 1 if any check fails.
     """
-    if coverage:
-        _coverage(lamps, photons or 1_000_000, aperture, spt_points, seed,
-                  json_path, quiet)
+    if coverage:  # ``study``: the coverage study's options (CoverageSettings)
+        _coverage(CoverageSettings.from_options(photons, seed, **study), json_path, quiet)
         return
     from lightsim.validation import analytic
     from lightsim.validation import stability as stab
@@ -319,42 +349,125 @@ def converge(scene: str, budgets: str | None, full: bool, photon_budgets: str | 
     click.echo(f"wrote {paths['csv']}, {paths['json']}, {paths['png']}")
 
 
-def _coverage(lamps: int, photons: int, aperture: float, spt: bool, seed: int,
-              json_path: str | None, quiet: bool) -> None:
-    """``validate --coverage``: print the rate, the worst biases and a per-point table."""
-    from lightsim.validation.coverage import COVERAGE_BAND, coverage_study
+@dataclass(frozen=True)
+class CoverageSettings:
+    """What ``validate --coverage`` studies (see the option table)."""
 
-    if lamps < 1:
-        raise InputError(f"--lamps must be at least 1, got {lamps}")
-    if photons < 1000:
-        raise InputError(f"--photons must be at least 1000, got {photons}")
-    if not (math.isfinite(aperture) and 0 < aperture <= 2):
-        raise InputError(f"--aperture must be in (0, 2] degrees, got {aperture}")
+    lamps: int
+    counts: list[float]
+    lamp_files: tuple[str, ...] = ()
+    seeds: int = 8
+    reference_photons: float = REFERENCE_PHOTONS
+    reference_dir: str | None = None
+    aperture: float = 0.15
+    spt: bool = False
+    seed: int = 1
 
-    def progress(n: int, run) -> None:
+    @classmethod
+    def from_options(cls, photons: int | None, seed: int, *, lamps: int, counts: str | None,
+                     lamp_files: tuple[str, ...], seeds: int, reference_photons: str,
+                     reference_dir: str | None, aperture: float,
+                     spt_points: bool) -> CoverageSettings:
+        """The settings from ``validate``'s options (photon counts parsed)."""
+        return cls(lamps=lamps,
+                   counts=_photon_budgets(counts) if counts else [photons or 1_000_000],
+                   lamp_files=lamp_files, seeds=seeds,
+                   reference_photons=_photon_budgets(reference_photons)[0],
+                   reference_dir=reference_dir, aperture=aperture, spt=spt_points,
+                   seed=seed)
+
+
+def _verdict_rows(rules: dict[str, VerdictCount]) -> list[list[str]]:
+    """One row per kind of rule: coverage, verdicts and the wrong ones."""
+    rows = []
+    for kind in RULE_KINDS:
+        c = rules.get(kind)
+        if c is None or not c.evaluations:
+            continue
+        cov = f"{c.covered / c.with_truth:.1%}" if c.with_truth else "–"
+        rows.append([kind, str(c.evaluations), cov, str(c.decisive), str(c.uncertain),
+                     str(c.wrong), f"{c.nominal():.1f}", str(c.allowed())])
+    return rows
+
+
+VERDICT_HEADER = ("rule kind", "evaluations", "coverage", "pass/fail", "uncertain",
+                  "wrong", "nominal", "allowed")
+
+
+def _coverage(st: CoverageSettings, json_path: str | None, quiet: bool) -> None:
+    """``validate --coverage``: per photon count the synthetic lamps' point coverage and
+    every kind of rule's coverage and wrong verdicts, then every ``--lamp`` against its
+    reference run."""
+    if st.lamps < 0 or (st.lamps == 0 and not st.lamp_files):
+        raise InputError(f"--lamps must be at least 1 (0 with --lamp), got {st.lamps}")
+    if min(st.counts) < 1000:
+        raise InputError(f"--photons must be at least 1000, got {min(st.counts):,.0f}")
+    if not (math.isfinite(st.aperture) and 0 < st.aperture <= 2):
+        raise InputError(f"--aperture must be in (0, 2] degrees, got {st.aperture}")
+    if st.seeds < 1:
+        raise InputError(f"--seeds must be at least 1, got {st.seeds}")
+    if st.reference_photons < max(st.counts):
+        raise InputError("--reference-photons must be at least the largest photon count")
+    for f in st.lamp_files:
+        if not Path(f).is_file():
+            raise InputError(f"--lamp: no such file: {f}")
+
+    def note(text: str) -> None:
         if not quiet:
-            click.echo(f"  lamp {n + 1}/{lamps}: {run.seconds:.1f} s", err=True)
+            click.echo(f"  {text}", err=True)
 
-    res = coverage_study(lamps, photons, aperture_deg=aperture, spt=spt, seed=seed,
-                         progress=progress)
-    lo, hi = res.band()
-    ok = lo <= res.rate <= hi
-    rows = [[name, f"{p['coverage']:.1%}", f"{p['mean_bias_halfwidths']:+.2f}"]
-            for name, p in res.per_point.items()]
-    _print_table(f"lightsim validate --coverage: {res.lamps} lamps × {photons:,} photons, "
-                 f"aperture {aperture:g}°{' with SPT' if spt else ''} "
-                 f"(truth: the file's bilinear intensity), {res.seconds:.0f} s",
-                 ["point", "coverage", "mean bias (half-widths)"], rows)
-    click.echo(f"coverage {res.covered}/{res.evaluations} = {res.rate:.1%} "
-               f"(target {COVERAGE_BAND[0]:.0%}–{COVERAGE_BAND[1]:.0%}, accepted "
-               f"{lo:.1%}–{hi:.1%} for this many evaluations): {'pass' if ok else 'FAIL'}")
-    click.echo(f"worst evaluation: {res.worst_bias_point} off by {res.worst_bias:.2f} "
-               f"half-widths; worst point on average: {res.worst_mean_point} "
-               f"{res.worst_mean_bias:+.2f} half-widths")
+    doc: dict = {"synthetic": [], "lamps": []}
+    ok = True
+    for photons in (int(c) for c in st.counts):
+        if not st.lamps:
+            break
+        res = coverage_study(st.lamps, photons, aperture_deg=st.aperture, spt=st.spt,
+                             seed=st.seed, progress=lambda n, run, p=photons: note(
+                                 f"lamp {n + 1}/{st.lamps} ({p:,} photons): "
+                                 f"{run.seconds:.1f} s"))
+        lo, hi = res.band()
+        good = lo <= res.rate <= hi and all(c.wrong <= c.allowed()
+                                            for c in res.rules.values())
+        ok &= good
+        rows = [[name, f"{p['coverage']:.1%}", f"{p['mean_bias_halfwidths']:+.2f}"]
+                for name, p in res.per_point.items()]
+        _print_table(f"lightsim validate --coverage: {res.lamps} lamps × {photons:,} "
+                     f"photons, aperture {st.aperture:g}°{' with SPT' if st.spt else ''} "
+                     f"(truth: the file's bilinear intensity), {res.seconds:.0f} s",
+                     ["point", "coverage", "mean bias (half-widths)"], rows)
+        click.echo(f"coverage {res.covered}/{res.evaluations} = {res.rate:.1%} "
+                   f"(target {COVERAGE_BAND[0]:.0%}–{COVERAGE_BAND[1]:.0%}, accepted "
+                   f"{lo:.1%}–{hi:.1%} for this many evaluations)")
+        click.echo(f"worst evaluation: {res.worst_bias_point} off by {res.worst_bias:.2f} "
+                   f"half-widths; worst point on average: {res.worst_mean_point} "
+                   f"{res.worst_mean_bias:+.2f} half-widths")
+        _print_table(f"rules of {res.lamps} synthetic lamps × {photons:,} photons: interval "
+                     f"coverage and wrong verdicts (pass where the truth fails or fail "
+                     f"where it passes; nominal α/2 per evaluation): "
+                     f"{'pass' if good else 'FAIL'}", VERDICT_HEADER,
+                     _verdict_rows(res.rules))
+        doc["synthetic"].append({"coverage": res.to_dict(), "passed": good,
+                                 "accepted_band": [lo, hi]})
+    for lamp in st.lamp_files:
+        for photons in (int(c) for c in st.counts):
+            res = shipped_study(lamp, photons, st.seeds,
+                                reference_photons=int(st.reference_photons),
+                                cache_dir=st.reference_dir or DEFAULT_CACHE,
+                                aperture_deg=st.aperture, progress=note)
+            good = all(c.wrong <= c.allowed() for c in res.rules.values())
+            ok &= good
+            _print_table(f"{Path(lamp).name}: {st.seeds} runs × {photons:,} photons "
+                         f"against a {int(st.reference_photons):,}-photon reference "
+                         f"(verdicts it decides at 99.9 %), {res.seconds:.0f} s: "
+                         f"{'pass' if good else 'FAIL'}", VERDICT_HEADER,
+                         _verdict_rows(res.rules))
+            for o in res.wrong_examples[:5]:
+                click.echo(f"  wrong: {o.ruleset} {o.name} {o.verdict} ({o.value:.4g} in "
+                           f"{o.lo:.4g}–{o.hi:.4g}; reference {o.truth:.4g}, "
+                           f"{o.truth_verdict})")
+            doc["lamps"].append({**res.to_dict(), "passed": good})
+    click.echo(f"coverage study: {'pass' if ok else 'FAIL'}")
     if json_path:
-        from lightsim.io.summary import write_json
-
-        write_json(json_path, {"coverage": res.to_dict(), "passed": ok,
-                               "accepted_band": [lo, hi]})
+        write_json(json_path, {**doc, "passed": ok})
     if not ok:
         raise SystemExit(1)

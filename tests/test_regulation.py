@@ -317,7 +317,8 @@ def test_relation_hv_vs_imax(tmp_path):
 
 
 def test_relation_row_shows_factor_times_reference():
-    """The limit column of "HV ≥ 0.8·Imax" shows 0.8 × Imax (the threshold), not Imax."""
+    """The limit column of "HV ≥ 0.8·Imax" shows 0.8 × Imax (the threshold), not Imax,
+    then Imax with the interval the verdict compares with."""
     rs = load_ruleset("r112-b-driving")
     pr = probe_points(rs, spacing_deg=1.0)
     imax, hv = pr.indices("Imax"), pr.indices("HV")[0]
@@ -330,7 +331,9 @@ def test_relation_row_shows_factor_times_reference():
     console = Console(record=True, width=250, color_system=None)
     console.print(format_table(res))
     row = next(line for line in console.export_text().splitlines() if "0.8·Imax" in line)
-    assert "0.8·Imax = 125,638 (Imax 157,048)" in row and "pass" in row
+    lo, hi = (f"{x:,.0f}" for x in rel["reference_interval_cd"])
+    assert f"0.8·Imax = 125,638 (Imax 157,048, {lo} – {hi})" in row and "pass" in row
+    assert rel["reference_interval_cd"][0] < 157048.0 < rel["reference_interval_cd"][1]
 
 
 def test_zone_relation_every_point(tmp_path):

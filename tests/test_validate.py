@@ -329,18 +329,45 @@ def test_coverage_study_small_within_a_binomial_band():
     lo, hi = res.band()   # 0.95 ± 3 binomial standard errors for 54 evaluations
     assert lo <= res.rate <= hi, res.to_dict()
     assert abs(res.worst_mean_bias) < 1.0
+    # every kind of rule judged against its exact truth, no wrong verdict beyond nominal
+    assert {k: c.evaluations > 0 for k, c in res.rules.items()} == dict.fromkeys(
+        ("point", "sum", "zone", "relation"), True)
+    assert all(c.wrong <= c.allowed() for c in res.rules.values()), res.wrong_examples
     json.dumps(res.to_dict())
 
 
 @pytest.mark.slow
-def test_coverage_study_full_93_to_97_percent():
+@pytest.mark.parametrize("photons", [250_000, 1_000_000])
+def test_coverage_study_full_93_to_97_percent(photons):
     from lightsim.validation.coverage import COVERAGE_BAND, coverage_study
 
-    res = coverage_study(40, 1_000_000)
+    res = coverage_study(40, photons)
     assert COVERAGE_BAND[0] <= res.rate <= COVERAGE_BAND[1], res.to_dict()
+    for kind, c in res.rules.items():  # wrong verdicts within the nominal α/2 rate
+        assert c.wrong <= c.allowed(), (kind, res.wrong_examples)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("lamp", ["lowbeam.glb", "headlight.glb"])
+def test_shipped_lamps_verdicts_against_a_long_reference(lamp, tmp_path_factory):
+    """8 seeds at 250 k and 1 M photons against a 48 M-photon reference (built once per
+    session in a temporary folder): no wrong verdict beyond the nominal rate."""
+    from pathlib import Path
+
+    from lightsim.validation.coverage import shipped_study
+
+    path = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / lamp
+    cache = tmp_path_factory.getbasetemp() / "coverage-reference"
+    for photons in (250_000, 1_000_000):
+        res = shipped_study(path, photons, 8, cache_dir=cache)
+        for kind, c in res.rules.items():
+            assert c.wrong <= c.allowed(), (kind, res.wrong_examples)
 
 
 def test_validate_coverage_cli_bad_input(capsys):
-    for argv in (["--lamps", "0"], ["--photons", "10"], ["--aperture", "-1"]):
+    for argv in (["--lamps", "0"], ["--photons", "10"], ["--aperture", "-1"],
+                 ["--counts", "250k,500"], ["--lamp", "no-such.glb"],
+                 ["--lamp", "luminaires/examples/lowbeam.glb", "--seeds", "0"],
+                 ["--counts", "1M", "--reference-photons", "100k"]):
         code, _, err = _run(["validate", "--coverage", *argv], capsys)
         assert code == 2 and len(err.strip().splitlines()) == 1

@@ -1,41 +1,63 @@
-"""Coverage of the regulation test points' intervals on synthetic lamps with known answers.
+"""Coverage of the regulation intervals and the verdicts' errors, on lamps with known answers.
 
 ``lightsim validate --coverage`` builds many synthetic low-beam intensity distributions
 with a sharp cut-off (:func:`synthetic_lamp`), writes each to a Type A IES file (the
 headlamp type) in a temporary folder, loads it as a user would (``load_scene(path)``: a
 goniometric point source in front of the 25 m wall), runs the engine with detector
-apertures at the rule set's test points
-(:func:`lightsim.luminaires.regulations.check.aperture_config`) and
-compares every point's 95 % Student-t interval with the exact answer: the aperture mean
-of the file's intensity,
+apertures at the rule sets' probes
+(:func:`lightsim.luminaires.regulations.check.aperture_config`) and compares the results
+with the exact answers: every probe's aperture mean of the file's intensity,
 
     I_true = ∫_aperture I(ω) dΩ / Ω,
 
 integrated with ``quad`` × ``quad`` midpoints in (H, V) weighted by the exact
 dΩ = sec²H sec²V / (1 + tan²H + tan²V)^{3/2} dH dV. The intensity is the one the source
 samples: the file's bilinear interpolant :meth:`HVGrid.intensity_hv` (the goniometric
-sampler draws exactly from it, see :mod:`~lightsim.emitters.polar`).
+sampler draws exactly from it, see :mod:`~lightsim.emitters.polar`). The true value of
+every rule — point, sum, zone maximum or minimum, relation ratio — and its true verdict
+follow from these exact intensities through the same rule evaluation
+(:func:`~lightsim.luminaires.regulations.evaluate` on one exact "set").
 
-Reported: the share of (lamp, point) evaluations whose interval covers the truth (target
-93–97 % for 95 % intervals), the worst single evaluation's bias in units of its interval
-half-width, and the worst *point's* mean bias over the lamps (a systematic error shows
-there; for an unbiased estimator it is ≈ N(0, 1/(1.96²·n_lamps))).
+Reported, per photon count:
 
-==============  =====  ================  ==============================================
-parameter       unit   default           meaning
-==============  =====  ================  ==============================================
-lamps           –      40 (quick 4)      synthetic lamps
-photons         –      1 000 000         photons per lamp
-aperture_deg    deg    0.15              detector aperture side
-ruleset         –      r112-b-passing    whose points are tested (plus H-V)
-spt             –      False             Selective Photon Tracing aimed at the points
-quad            –      64                midpoints per aperture side for the truth
-seed            –      1                 lamp parameters and photon sequences
-==============  =====  ================  ==============================================
+* the share of (lamp, point) evaluations whose 95 % interval covers the truth (target
+  93–97 %), the worst single evaluation's bias in units of its interval half-width and
+  the worst *point's* mean bias over the lamps (a systematic error shows there; for an
+  unbiased estimator it is ≈ N(0, 1/(1.96²·n_lamps)));
+* per kind of rule (point, sum, zone, relation): how often the interval covers the true
+  value (for a relation: the ratio interval the true ratio) and the **wrong verdicts** — a
+  "pass" where the truth fails or a "fail" where it passes. Each verdict is wrong with
+  probability at most α/2 = 2.5 % whatever the truth (and far less when the truth is far
+  from the limit), so the count is compared with α/2 × evaluations.
+
+The shipped lamps (:func:`shipped_study`, ``--lamp FILE``) have no exact answer: a long
+reference run (48 M photons by default; its per-set probe values kept in a folder of the
+study's choosing or a temporary folder, never in the repository) stands in for it. A
+rule's true verdict is known where the reference decides it at 99.9 % (it is left out of
+the verdict count elsewhere); its value is the reference's, whose own error is
+≈ √(photons / reference) of the runs', so the coverage there is slightly below nominal.
+
+==================  =====  ================  =============================================
+parameter           unit   default           meaning
+==================  =====  ================  =============================================
+lamps               –      40 (quick 4)      synthetic lamps
+photons             –      1 000 000         photons per lamp (the CLI takes several)
+aperture_deg        deg    0.15              detector aperture side
+ruleset             –      r112-b-passing,   rule sets tested (the first one's points and
+                           r149-b-passing    H-V make the point-coverage table)
+spt                 –      False             Selective Photon Tracing aimed at the points
+quad                –      64                midpoints per aperture side for a point's truth
+zone_quad           –      16                the same for zone samples
+seed                –      1                 lamp parameters and photon sequences
+seeds               –      8                 runs per shipped lamp and photon count
+reference_photons   –      48 000 000        photons of a shipped lamp's reference run
+==================  =====  ================  =============================================
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import tempfile
 import time
@@ -46,14 +68,37 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import binom
 
+from lightsim.engine.apertures import rect_solid_angle
 from lightsim.engine.config import RunConfig
+from lightsim.engine.server import Session
+from lightsim.io.atomic import atomic_path
+from lightsim.luminaires.photometric import HVGrid, hv_directions, read_ies, write_ies
+from lightsim.luminaires.photometric.candela import hv_from_directions
+from lightsim.luminaires.regulations import Probes, evaluate, load_ruleset, probe_points
+from lightsim.luminaires.regulations.check import (
+    aperture_config,
+    regulation_check,
+    split_rulesets,
+)
+from lightsim.render.frame import luminous
+from lightsim.report import aperture_values
+from lightsim.scene import load_scene
+from lightsim.simulate import SimulateOptions, load
 
-__all__ = ["COVERAGE_BAND", "CoverageResult", "SptGain", "aperture_truth", "coverage_study",
-           "run_lamp", "spt_gain", "synthetic_lamp"]
+__all__ = ["COVERAGE_BAND", "DEFAULT_RULESETS", "RULE_KINDS", "CoverageResult", "LampRun",
+           "RuleOutcome", "ShippedStudy", "SptGain", "VerdictCount", "aperture_truth",
+           "count_verdicts", "coverage_study", "distinct", "exact_truths", "reference_truths",
+           "rule_outcomes", "run_lamp", "shipped_study", "simulate_checks", "spt_gain",
+           "synthetic_lamp"]
 
 COVERAGE_BAND = (0.93, 0.97)
 """Target share of 95 % intervals that cover the truth."""
+DEFAULT_RULESETS = "r112-b-passing,r149-b-passing"
+"""Rule sets the studies test: R112's points and sums, R149's zones and relation."""
+DEFAULT_CACHE = Path(tempfile.gettempdir()) / "lightsim-coverage"
+"""Where a shipped lamp's reference run is kept unless the study is given a folder."""
 CUTOFF_STEP_DEG = 15.0
 """Slope of the right-hand-traffic cut-off's rising part (R112: 15°)."""
 
@@ -90,9 +135,6 @@ def synthetic_lamp(rng: np.random.Generator) -> tuple[Any, dict[str, float]]:
     (5° out to ±90°), V every 0.1° within ±6° (1° to ±30°, 10° to ±90°). Each node's
     value is :func:`lamp_intensity` at the node's wall angles.
     """
-    from lightsim.luminaires.photometric import HVGrid, hv_directions
-    from lightsim.luminaires.photometric.candela import hv_from_directions
-
     p = {"I0": rng.uniform(15e3, 35e3), "h0": rng.uniform(0.5, 2.5),
          "v0": rng.uniform(-2.0, -1.0), "sh": rng.uniform(2.0, 5.0),
          "sv": rng.uniform(0.8, 1.5), "I1": rng.uniform(2e3, 5e3),
@@ -119,8 +161,6 @@ def aperture_truth(grid: Any, h_deg: NDArray, v_deg: NDArray, size_deg: float,
     ``grid`` is any photometric grid with ``intensity_hv`` (the interpolant its sampler
     draws from); ``quad`` × ``quad`` midpoints per aperture, weighted by the exact dΩ.
     """
-    from lightsim.engine.apertures import rect_solid_angle
-
     u = (np.arange(quad) + 0.5) / quad - 0.5
     out = np.zeros(len(h_deg))
     for n, (hc, vc) in enumerate(zip(h_deg, v_deg, strict=True)):
@@ -135,8 +175,105 @@ def aperture_truth(grid: Any, h_deg: NDArray, v_deg: NDArray, size_deg: float,
 
 
 @dataclass(frozen=True)
+class RuleOutcome:
+    """One rule's result in one run next to its true value and verdict.
+
+    For a relation ``value``, ``lo``, ``hi`` and ``truth`` are the ratio lhs / rhs and its
+    interval; otherwise the quantity the verdict judges, in cd. ``truth_verdict`` is None
+    where the truth is not known well enough (a reference run that does not decide).
+    """
+
+    ruleset: str
+    name: str
+    kind: str
+    value: float
+    lo: float
+    hi: float
+    verdict: str
+    truth: float | None
+    truth_verdict: str | None
+
+    @property
+    def covered(self) -> bool | None:
+        """The interval holds the true value (None: no true value)."""
+        if self.truth is None:
+            return None
+        return bool(self.lo <= self.truth <= self.hi)
+
+    @property
+    def decisive(self) -> bool:
+        """A "pass" or "fail" judged against a known true verdict."""
+        return self.verdict in ("pass", "fail") and self.truth_verdict in ("pass", "fail")
+
+    @property
+    def wrong(self) -> bool:
+        """A "pass" where the truth fails or a "fail" where it passes."""
+        return self.decisive and self.verdict != self.truth_verdict
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ruleset": self.ruleset, "name": self.name, "kind": self.kind,
+                "value": self.value, "interval": [self.lo, self.hi],
+                "verdict": self.verdict, "truth": self.truth,
+                "truth_verdict": self.truth_verdict}
+
+
+RULE_KINDS = ("point", "sum", "zone", "relation")
+"""The kinds of rule the verdict study counts."""
+
+
+def _quantity(r: dict[str, Any]) -> tuple[float, float, float]:
+    """(value, lo, hi) of the quantity a result's verdict judges (a relation's ratio)."""
+    if r["kind"] == "relation":
+        lo, hi = r["ratio_interval"]
+        value = r["ratio"]
+        return (math.nan if value is None else float(value), 0.0 if lo is None else lo,
+                math.inf if hi is None else hi)
+    return float(r["value_cd"]), float(r["interval_cd"][0]), float(r["interval_cd"][1])
+
+
+def rule_outcomes(ruleset: str, results: list[dict[str, Any]],
+                  truths: dict[str, tuple[float | None, str | None]]) -> list[RuleOutcome]:
+    """Pair a rule set's results (:func:`~lightsim.luminaires.regulations.evaluate`) with
+    the true value and verdict of each rule (``truths`` by rule name)."""
+    out = []
+    for r in results:
+        if r.get("kind") not in RULE_KINDS or r["name"] not in truths:
+            continue
+        value, lo, hi = _quantity(r)
+        truth, verdict = truths[r["name"]]
+        out.append(RuleOutcome(ruleset, str(r["name"]), str(r["kind"]), value, lo, hi,
+                               str(r["verdict"]), truth, verdict))
+    return out
+
+
+def distinct(outcomes: list[RuleOutcome]) -> list[RuleOutcome]:
+    """The outcomes of one run without repeats: a rule that two rule sets share (R112's
+    and R149's B50L, zone III, the glare sums) counts once, not twice."""
+    seen: set[tuple[Any, ...]] = set()
+    out = []
+    for o in outcomes:
+        key = (o.kind, o.value, o.lo, o.hi, o.verdict, o.truth, o.truth_verdict)
+        if key not in seen:
+            seen.add(key)
+            out.append(o)
+    return out
+
+
+def exact_truths(rs: Any, probes: Any, truth_cd: NDArray
+                 ) -> dict[str, tuple[float | None, str | None]]:
+    """True value and verdict of every rule from the exact probe intensities: the rule
+    evaluation on one exact set (its intervals collapse to the value)."""
+    out: dict[str, tuple[float | None, str | None]] = {}
+    for r in evaluate(rs, probes, truth_cd[None, :]):
+        value = _quantity(r)[0]
+        out[str(r["name"])] = (None if math.isnan(value) else value, str(r["verdict"]))
+    return out
+
+
+@dataclass(frozen=True)
 class LampRun:
-    """One lamp: per-set aperture intensities and the exact answers at its points."""
+    """One lamp: per-set aperture intensities and the exact answers at its points, and
+    every rule's outcome against its exact truth."""
 
     names: tuple[str, ...]
     h_deg: NDArray
@@ -146,13 +283,12 @@ class LampRun:
     n_eff: NDArray  # (P,) photons counted in each aperture (effective number)
     truth_cd: NDArray  # (P,)
     seconds: float
+    rules: tuple[RuleOutcome, ...] = ()
 
 
 def point_apertures(ruleset: str, traffic: str, frame: Any
                     ) -> tuple[tuple[str, ...], NDArray, NDArray, NDArray]:
     """The rule set's points (plus H-V): names, H, V and their probe indices."""
-    from lightsim.luminaires.regulations import load_ruleset, probe_points
-
     rs = load_ruleset(ruleset)
     probes = probe_points(rs, traffic, frame=frame.to_dict())
     kinds = {g.name: g.kind for g in rs.geometries}
@@ -165,48 +301,96 @@ def point_apertures(ruleset: str, traffic: str, frame: Any
 
 
 def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
-             ruleset: str = "r112-b-passing", traffic: str = "right", spt: bool = False,
+             ruleset: str = DEFAULT_RULESETS, traffic: str = "right", spt: bool = False,
              seed: int = 1, quad: int = 64, config: RunConfig | None = None,
-             confidence: float = 0.95) -> LampRun:
-    """Simulate the IES file at ``path`` as a point source and measure its test points."""
-    from scipy.special import stdtrit
-
-    from lightsim.engine.server import Session
-    from lightsim.luminaires.photometric import read_ies
-    from lightsim.luminaires.regulations.check import aperture_config
-    from lightsim.report import aperture_values
-    from lightsim.scene import load_scene
-
+             confidence: float = 0.95, zone_quad: int = 16) -> LampRun:
+    """Simulate the IES file at ``path`` as a point source, measure its test points and
+    judge every rule of ``ruleset`` (one id or several, comma-separated) as
+    ``lightsim simulate --regulation`` does, next to the exact answers."""
     scene = load_scene(str(path), resolution=(160, 64))
     cfg = config or RunConfig(seed=seed, estimator="bin", frame_photons=250_000)
-    cfg = aperture_config(cfg, ruleset, traffic, scene.wall, aperture_deg, spt=spt)
-    names, h, v, idx = point_apertures(ruleset, traffic, scene.wall)
+    names_rs = split_rulesets(ruleset)
+    offsets = []
+    for rs_name in names_rs:
+        offsets.append(len(cfg.apertures))
+        cfg = aperture_config(cfg, rs_name, traffic, scene.wall, aperture_deg, spt=spt)
+    names, h, v, idx = point_apertures(names_rs[0], traffic, scene.wall)
     t0 = time.perf_counter()
     session = Session(scene, cfg)
     try:
         while sum(session.emitted_per_set().values()) < photons:
-            session.shoot()
+            session.shoot(session.frame_photons(photons))  # the last frame partial
         ap = aperture_values(session, 0.0, confidence)
         cd = ap["cd"][:, idx]
-        S = cd.shape[0]
-        mean = cd.mean(axis=0)
-        half = (stdtrit(S - 1, 0.5 + confidence / 2) * cd.std(axis=0, ddof=1) / math.sqrt(S))
-        interval = np.stack([mean - half, mean + half], axis=1)
-        count = ap["intervals_cd"][idx]
-        sparse = np.isfinite(count).all(axis=1)
-        interval[sparse] = count[sparse]  # as the regulation table does
+        interval = ap["intervals_cd"][idx]
         n_eff = ap["n_eff"][idx]
+        lux = luminous(session.final_image(probes=False).lux)
+        checks = [regulation_check(session, lux, rs_name, traffic, False, confidence, off)
+                  for rs_name, off in zip(names_rs, offsets, strict=True)]
     finally:
         session.close()
     seconds = time.perf_counter() - t0
     grid = read_ies(path)
+    rules: list[RuleOutcome] = []
+    for reg in checks:
+        probes = reg["_probes"]
+        exact = aperture_truth(grid, probes.h_deg, probes.v_deg, aperture_deg, zone_quad)
+        rs = load_ruleset(reg["ruleset"])
+        rules += rule_outcomes(reg["ruleset"], reg["results"],
+                               exact_truths(rs, probes, exact))
     return LampRun(names, h, v, cd, interval, n_eff,
-                   aperture_truth(grid, h, v, aperture_deg, quad), seconds)
+                   aperture_truth(grid, h, v, aperture_deg, quad), seconds,
+                   tuple(distinct(rules)))
+
+
+@dataclass
+class VerdictCount:
+    """Interval coverage and wrong verdicts of one kind of rule over many runs."""
+
+    evaluations: int = 0
+    with_truth: int = 0
+    covered: int = 0
+    decisive: int = 0
+    wrong: int = 0
+    uncertain: int = 0
+
+    def add(self, o: RuleOutcome) -> None:
+        self.evaluations += 1
+        if o.covered is not None:
+            self.with_truth += 1
+            self.covered += int(o.covered)
+        self.decisive += int(o.decisive)
+        self.wrong += int(o.wrong)
+        self.uncertain += int(o.verdict == "uncertain")
+
+    def nominal(self, confidence: float = 0.95) -> float:
+        """Wrong verdicts the nominal rate allows on average: α/2 per evaluation."""
+        return 0.5 * (1.0 - confidence) * self.evaluations
+
+    def allowed(self, confidence: float = 0.95, level: float = 0.999) -> int:
+        """The most wrong verdicts the nominal rate explains: the ``level`` quantile of
+        Binomial(evaluations, α/2)."""
+        return int(binom.ppf(level, self.evaluations, 0.5 * (1.0 - confidence)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"evaluations": self.evaluations, "with_truth": self.with_truth,
+                "covered": self.covered, "decisive": self.decisive, "wrong": self.wrong,
+                "uncertain": self.uncertain, "nominal_wrong": self.nominal(),
+                "coverage": self.covered / self.with_truth if self.with_truth else None}
+
+
+def count_verdicts(outcomes: list[RuleOutcome]) -> dict[str, VerdictCount]:
+    """:class:`VerdictCount` per kind of rule (``RULE_KINDS`` order)."""
+    out = {k: VerdictCount() for k in RULE_KINDS}
+    for o in outcomes:
+        out[o.kind].add(o)
+    return out
 
 
 @dataclass
 class CoverageResult:
-    """Coverage of the per-point 95 % intervals over lamps × points."""
+    """Coverage of the per-point 95 % intervals over lamps × points, and every rule's
+    coverage and wrong verdicts (``rules``, by kind)."""
 
     lamps: int
     photons: int
@@ -220,10 +404,17 @@ class CoverageResult:
     worst_mean_point: str
     seconds: float
     per_point: dict[str, dict[str, float]] = field(default_factory=dict)
+    rules: dict[str, VerdictCount] = field(default_factory=dict)
+    wrong_examples: list[RuleOutcome] = field(default_factory=list)
 
     @property
     def rate(self) -> float:
         return self.covered / self.evaluations if self.evaluations else float("nan")
+
+    @property
+    def wrong_verdicts(self) -> int:
+        """Wrong verdicts over every rule of every lamp."""
+        return sum(c.wrong for c in self.rules.values())
 
     def band(self, z: float = 3.0) -> tuple[float, float]:
         """Accepted coverage: the 93–97 % target widened to 0.95 ± z binomial standard
@@ -239,29 +430,32 @@ class CoverageResult:
                 "worst_bias_point": self.worst_bias_point,
                 "worst_mean_bias_halfwidths": self.worst_mean_bias,
                 "worst_mean_point": self.worst_mean_point, "seconds": self.seconds,
-                "per_point": self.per_point}
+                "per_point": self.per_point,
+                "rules": {k: c.to_dict() for k, c in self.rules.items()},
+                "wrong_verdicts": self.wrong_verdicts,
+                "wrong_examples": [o.to_dict() for o in self.wrong_examples]}
 
 
 def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: float = 0.15,
-                   ruleset: str = "r112-b-passing", spt: bool = False, seed: int = 1,
-                   confidence: float = 0.95, quad: int = 64,
+                   ruleset: str = DEFAULT_RULESETS, spt: bool = False, seed: int = 1,
+                   confidence: float = 0.95, quad: int = 64, zone_quad: int = 16,
                    progress: Callable[[int, LampRun], None] | None = None) -> CoverageResult:
-    """Run ``lamps`` synthetic lamps and count interval coverage (see module docstring)."""
-    from lightsim.luminaires.photometric import write_ies
-
+    """Run ``lamps`` synthetic lamps and count interval coverage and wrong verdicts (see
+    the module docstring)."""
     if lamps < 1 or photons < 1000:
         raise ValueError("coverage study needs ≥ 1 lamp and ≥ 1000 photons")
     rng = np.random.default_rng([seed, 0xC0FE])
     t0 = time.perf_counter()
     cover, bias, names_all = [], [], []
+    outcomes: list[RuleOutcome] = []
     with tempfile.TemporaryDirectory(prefix="lightsim-coverage-") as tmp:
         for n in range(lamps):
             grid, _ = synthetic_lamp(rng)
             path = Path(tmp) / f"lamp{n:03d}.ies"
             write_ies(path, grid)
             run = run_lamp(path, photons, aperture_deg=aperture_deg, ruleset=ruleset,
-                           spt=spt, seed=seed + n, quad=quad,
-                           confidence=confidence)
+                           spt=spt, seed=seed + n, quad=quad, confidence=confidence,
+                           zone_quad=zone_quad)
             mean = run.per_set_cd.mean(axis=0)
             lo, hi = run.interval_cd[:, 0], run.interval_cd[:, 1]
             err = mean - run.truth_cd
@@ -272,6 +466,7 @@ def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: f
                 b = np.where(half > 0, err / half, np.where(err == 0, 0.0, np.inf))
             bias.append(b)
             names_all.append(run.names)
+            outcomes += run.rules
             if progress is not None:
                 progress(n, run)
             path.unlink()
@@ -292,7 +487,155 @@ def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: f
     return CoverageResult(lamps, photons, aperture_deg, spt, int(cov.size),
                           int(cov.sum()), float(abs(b_all[k])), str(names[k]),
                           float(per_point[worst_pt]["mean_bias_halfwidths"]), worst_pt,
-                          time.perf_counter() - t0, per_point)
+                          time.perf_counter() - t0, per_point, count_verdicts(outcomes),
+                          [o for o in outcomes if o.wrong])
+
+
+# ---- shipped lamps against a long reference run -------------------------------------------
+REFERENCE_PHOTONS = 48_000_000
+"""Photons of a shipped lamp's reference run."""
+REFERENCE_CONFIDENCE = 0.999
+"""Level at which the reference must decide a rule for its verdict to count as the truth."""
+REFERENCE_SEED = 10_001
+"""Seed of the reference runs (apart from the studied runs' seeds 1, 2, …)."""
+SHIPPED_RESOLUTION = (320, 128)
+"""Wall pixels of the shipped-lamp runs (the apertures do not depend on them)."""
+
+
+def simulate_checks(lamp: str | Path, photons: int, *, ruleset: str = DEFAULT_RULESETS,
+                    seed: int = 1, confidence: float = 0.95,
+                    resolution: tuple[int, int] = SHIPPED_RESOLUTION,
+                    aperture_deg: float = 0.15) -> dict[str, dict[str, Any]]:
+    """``lightsim simulate LAMP --photons N --regulation RULESET --seed S`` in this
+    process, with the binning estimator (the apertures and verdicts do not depend on the
+    map's estimator): every rule set's regulation check
+    (:func:`~lightsim.luminaires.regulations.check.regulation_check`) by rule set id."""
+    opts = SimulateOptions(str(lamp), photons=int(photons), resolution=tuple(resolution),
+                           regulation=ruleset, aperture=aperture_deg,
+                           config={"seed": int(seed), "estimator": "bin"})
+    scene = load(opts)
+    config, offsets = opts.run_config(), []
+    rulesets = split_rulesets(ruleset)
+    for rs in rulesets:
+        offsets.append(len(config.apertures))
+        config = aperture_config(config, rs, opts.traffic, scene.wall, opts.aperture)
+    session = Session(scene, config, workers=0, regulation=ruleset)
+    try:
+        lux = luminous(session.run(photons=opts.photons).lux)
+        return {rs: regulation_check(session, lux, rs, opts.traffic, False, confidence, off)
+                for rs, off in zip(rulesets, offsets, strict=True)}
+    finally:
+        session.close()
+
+
+def _file_digest(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def reference_truths(lamp: str | Path, *, ruleset: str = DEFAULT_RULESETS,
+                     photons: int = REFERENCE_PHOTONS, cache_dir: str | Path,
+                     aperture_deg: float = 0.15,
+                     progress: Callable[[str], None] | None = None
+                     ) -> dict[str, dict[str, tuple[float | None, str | None]]]:
+    """True value and verdict of every rule of a shipped lamp from a long reference run,
+    by rule set id and rule name (the verdict None where the reference does not decide
+    at ``REFERENCE_CONFIDENCE``).
+
+    The run is made once; its per-set probe values and photon statistics are kept in
+    ``cache_dir`` (an ``.npz`` keyed by the lamp file's contents and the settings) and
+    evaluated by the current rules each time they are read."""
+    key = json.dumps([_file_digest(lamp), ruleset, int(photons), REFERENCE_SEED,
+                      list(SHIPPED_RESOLUTION), aperture_deg])
+    digest = hashlib.sha256(key.encode()).hexdigest()[:12]
+    path = Path(cache_dir) / f"reference-{Path(lamp).stem}-{digest}.npz"
+    rulesets = split_rulesets(ruleset)
+    if not path.exists():
+        if progress is not None:
+            progress(f"reference run of {Path(lamp).name}: {photons:,} photons "
+                     f"(kept in {path})")
+        checks = simulate_checks(lamp, photons, ruleset=ruleset, seed=REFERENCE_SEED,
+                                 aperture_deg=aperture_deg)
+        arrays: dict[str, Any] = {"key": np.asarray(key)}
+        for n, rs in enumerate(rulesets):
+            reg = checks[rs]
+            arrays[f"cd{n}"] = reg["_cd"]
+            arrays[f"count{n}"] = (np.full((4, reg["_cd"].shape[1]), np.nan)
+                                   if reg["_count_stats"] is None else reg["_count_stats"])
+            arrays[f"probes{n}"] = np.asarray(json.dumps(reg["_probes"].to_dict()))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+    data = np.load(path, allow_pickle=False)
+    out: dict[str, dict[str, tuple[float | None, str | None]]] = {}
+    for n, rs_name in enumerate(rulesets):
+        rs = load_ruleset(rs_name)
+        d = json.loads(str(data[f"probes{n}"]))
+        probes = Probes(h_deg=np.asarray(d["h_deg"]), v_deg=np.asarray(d["v_deg"]),
+                        labels=tuple(d["labels"]), ruleset_id=d["ruleset"],
+                        traffic=d["traffic"], spacing_deg=d["spacing_deg"],
+                        dropped=d["dropped"], clipped=d["clipped"])
+        results = evaluate(rs, probes, data[f"cd{n}"], confidence=REFERENCE_CONFIDENCE,
+                           count_stats=data[f"count{n}"])
+        out[rs.id] = {}
+        for r in results:
+            if r.get("kind") not in RULE_KINDS:
+                continue
+            value = _quantity(r)[0]
+            verdict = r["verdict"] if r["verdict"] in ("pass", "fail") else None
+            out[rs.id][str(r["name"])] = (None if math.isnan(value) else value, verdict)
+    return out
+
+
+@dataclass
+class ShippedStudy:
+    """Wrong verdicts and coverage of one shipped lamp at one photon count over seeds."""
+
+    lamp: str
+    photons: int
+    seeds: int
+    reference_photons: int
+    seconds: float
+    rules: dict[str, VerdictCount]
+    wrong_examples: list[RuleOutcome] = field(default_factory=list)
+
+    @property
+    def wrong_verdicts(self) -> int:
+        return sum(c.wrong for c in self.rules.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"lamp": self.lamp, "photons": self.photons, "seeds": self.seeds,
+                "reference_photons": self.reference_photons, "seconds": self.seconds,
+                "rules": {k: c.to_dict() for k, c in self.rules.items()},
+                "wrong_verdicts": self.wrong_verdicts,
+                "wrong_examples": [o.to_dict() for o in self.wrong_examples]}
+
+
+def shipped_study(lamp: str | Path, photons: int, seeds: int = 8, *,
+                  ruleset: str = DEFAULT_RULESETS,
+                  reference_photons: int = REFERENCE_PHOTONS,
+                  cache_dir: str | Path | None = None, aperture_deg: float = 0.15,
+                  progress: Callable[[str], None] | None = None) -> ShippedStudy:
+    """Run a shipped lamp ``seeds`` times at ``photons`` and judge every verdict against
+    the reference run's (see the module docstring). ``cache_dir`` keeps the reference
+    (default: a folder in the system's temporary directory)."""
+    if seeds < 1 or photons < 1000:
+        raise ValueError("a shipped-lamp study needs ≥ 1 seed and ≥ 1000 photons")
+    cache = Path(cache_dir) if cache_dir is not None else DEFAULT_CACHE
+    truths = reference_truths(lamp, ruleset=ruleset, photons=reference_photons,
+                              cache_dir=cache, aperture_deg=aperture_deg, progress=progress)
+    t0 = time.perf_counter()
+    outcomes: list[RuleOutcome] = []
+    for seed in range(1, seeds + 1):
+        res = simulate_checks(lamp, photons, ruleset=ruleset, seed=seed,
+                              aperture_deg=aperture_deg)
+        outcomes += distinct([o for rs, reg in res.items()
+                              for o in rule_outcomes(rs, reg["results"], truths.get(rs, {}))])
+        if progress is not None:
+            progress(f"{Path(lamp).name} {photons:,} photons, seed {seed}/{seeds}: "
+                     f"{sum(o.wrong for o in outcomes)} wrong verdicts so far")
+    return ShippedStudy(str(lamp), int(photons), seeds, int(reference_photons),
+                        time.perf_counter() - t0, count_verdicts(outcomes),
+                        [o for o in outcomes if o.wrong])
 
 
 GLARE_POINTS = ("B50L", "1", "2", "3", "4", "5", "6", "7", "8")
@@ -329,8 +672,6 @@ class SptGain:
 def spt_gain(lamps: int = 4, photons: int = 1_000_000, *, aperture_deg: float = 0.15,
              seed: int = 1, quad: int = 48) -> SptGain:
     """Run the same synthetic lamps with and without SPT aimed at the test points."""
-    from lightsim.luminaires.photometric import write_ies
-
     rng = np.random.default_rng([seed, 0x5B7])
     widths: dict[bool, dict[str, list[float]]] = {False: {}, True: {}}
     secs = {False: 0.0, True: 0.0}

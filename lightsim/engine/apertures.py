@@ -47,12 +47,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
+from scipy.special import gammainc
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
-"""Rec. 709 luminance weights of RGB photon power (as ``lightsim.render.frame``)."""
+from lightsim.materials import LUMA
 
-__all__ = ["ApertureCounter", "ApertureLayout", "RasterTiles", "count_interval",
-           "count_statistics", "intensities", "interval_from_counts", "raster_tiles",
+__all__ = ["ApertureCounter", "ApertureLayout", "RasterTiles", "count_bounds",
+           "count_interval", "count_statistics", "counter_from_config", "intensities",
+           "interval_from_counts", "layout_from_config", "midp_poisson", "raster_tiles",
            "rect_solid_angle"]
 
 
@@ -392,37 +393,41 @@ def counter_from_config(config, frame, channels: int) -> ApertureCounter:
     return ApertureCounter(layout_from_config(config, frame.distance_m), channels)
 
 
-__all__ += ["counter_from_config", "layout_from_config"]
-
-
 def count_interval(counts: NDArray, emitted: NDArray, emitted_power: NDArray,
                    layout: ApertureLayout, shift_deg: float = 0.0,
-                   confidence: float = 0.95) -> tuple[NDArray, NDArray, NDArray]:
+                   confidence: float = 0.95, heaviest: float = 1.0
+                   ) -> tuple[NDArray, NDArray, NDArray]:
     """Photon-count (Poisson mid-p) interval of every test-point aperture's mean intensity.
 
     With weighted photons the pooled effective count is n = (Σw)² / Σw² and one photon
-    is worth q = mean / n; an aperture that caught nothing gets q of an average emitted
-    photon (so its upper bound is 3.0 photons' worth at 95 %). The interval is
-    the mid-p Poisson interval of n (:func:`_midp_poisson`) times q, in cd. Mid-p, not the
-    exact (Garwood) interval: Garwood never covers less than 95 % and so covers 97–100 %
-    at a handful of photons; mid-p covers 95 % on average over the mean. The upper bound
-    is at least the mean plus the zero-count bound of average photons (with SPT's light
-    photons the heavy ones that missed are unseen); for equal weights nothing changes.
+    is worth q = mean / n; an aperture that caught nothing gets q of the heaviest photon
+    the run emits (``heaviest`` average emitted photons: 1 without Selective Photon
+    Tracing), so its upper bound is 3.0 such photons' worth at 95 %. The interval is
+    the mid-p Poisson interval of n (:func:`midp_poisson`) times q, in cd: the gamma
+    interval of a weighted sum of Poisson counts (Fay & Feuer 1997) with mid-p instead of
+    exact quantiles. Mid-p, not the exact (Garwood) interval: Garwood never covers less
+    than 95 % and so covers 97–100 % at a handful of photons; mid-p covers 95 % on average
+    over the mean. The upper bound is at least the mean plus the zero-count bound of the
+    heaviest photons (:func:`count_bounds`); for equal weights nothing changes.
 
     Returns
     -------
     n_eff : (P,), lo, hi : (P,) luminous cd
     """
-    n_eff, q, q0, mean = count_statistics(counts, emitted, emitted_power, layout, shift_deg)
+    n_eff, q, q0, mean = count_statistics(counts, emitted, emitted_power, layout, shift_deg,
+                                          heaviest)
     lo, hi = interval_from_counts(n_eff, q, q0, mean, confidence)
     return n_eff, lo, hi
 
 
 def count_statistics(counts: NDArray, emitted: NDArray, emitted_power: NDArray,
-                     layout: ApertureLayout, shift_deg: float = 0.0
+                     layout: ApertureLayout, shift_deg: float = 0.0, heaviest: float = 1.0
                      ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """(n_eff, q, q0, mean) per test-point aperture, the inputs of
-    :func:`interval_from_counts` (see :func:`count_interval`)."""
+    :func:`interval_from_counts` (see :func:`count_interval`).
+
+    ``q0`` is the worth (cd) of the heaviest photon the run can emit: an average emitted
+    photon's times ``heaviest``."""
     counts = np.asarray(counts, np.float64)
     emitted = np.asarray(emitted, np.float64).reshape(-1)
     S = counts.shape[0]
@@ -444,36 +449,60 @@ def count_statistics(counts: NDArray, emitted: NDArray, emitted_power: NDArray,
     ep = np.asarray(emitted_power, np.float64).reshape(S, -1)
     ep_lum = ep[:, 0] if ep.shape[1] == 1 else ep @ LUMA
     q0 = float(np.mean(ep_lum / np.maximum(emitted, 1.0) / np.maximum(emitted, 1.0))) / S
+    if heaviest != 1.0:
+        q0 *= float(heaviest)
     q = np.where(n_eff > 0, q, q0 / omega)
     return n_eff, q, q0 / omega, mean
 
 
 def interval_from_counts(n_eff: NDArray, q: NDArray, q0: NDArray, mean: NDArray,
                          confidence: float = 0.95) -> tuple[NDArray, NDArray]:
-    """The count interval (cd) from its ingredients (see :func:`count_interval`):
-    effective photons ``n_eff``, one counted photon's worth ``q`` and an average photon's
-    ``q0`` (cd), and the mean (cd) — kept in ``probes.npz`` so that ``lightsim report``
-    can recompute it at another confidence level."""
+    """The two-sided count interval (cd) from its ingredients (see :func:`count_interval`):
+    effective photons ``n_eff``, one counted photon's worth ``q`` and the heaviest
+    photon's ``q0`` (cd), and the mean (cd) — kept in ``probes.npz`` so that
+    ``lightsim report`` can recompute it at another confidence level."""
     alpha = 1.0 - confidence
+    return count_bounds(n_eff, q, q0, mean, alpha / 2, alpha / 2)
+
+
+def count_bounds(n_eff: NDArray, q: NDArray, w_max: NDArray, mean: NDArray,
+                 tail_lo: float, tail_hi: float) -> tuple[NDArray, NDArray]:
+    """One-sided photon-count bounds (cd): the truth lies below ``lo`` with probability
+    at most ``tail_lo`` and above ``hi`` with at most ``tail_hi`` (mid-p, on average).
+
+    ``lo = q · μ_lo(n)`` and ``hi = max(q · μ_hi(n), mean + μ_hi(0) · w_max)`` with
+    μ the mid-p Poisson bounds of the effective count n (:func:`midp_poisson`). The second
+    term of ``hi`` keeps room for photons as heavy as ``w_max`` that happened to miss:
+    the light ones counted say nothing about them, and seeing none of them bounds their
+    expected number by μ_hi(0) = −ln(2·tail) (3.0 at 95 %).
+
+    Parameters
+    ----------
+    n_eff : array
+        Effective photons counted, (Σw)²/Σw² of the photon contributions.
+    q : array
+        One counted photon's worth (cd): Σw² / Σw (``mean / n_eff``).
+    w_max : array
+        The heaviest photon's worth (cd).
+    mean : array
+        The estimate Σw (cd).
+    tail_lo, tail_hi : float
+        Error probability allowed below and above (α/2 each for a two-sided interval).
+    """
     n_eff = np.asarray(n_eff, np.float64)
-    lo = _midp_poisson(n_eff, alpha / 2)
-    hi = _midp_poisson(n_eff, 1.0 - alpha / 2)
-    # with weighted photons (SPT) the light ones counted say nothing about heavy ones
-    # that happened to miss: the upper bound keeps room for the zero-count bound of
-    # average photons on top of what was seen
-    up0 = float(_midp_poisson(np.zeros(1), 1.0 - alpha / 2)[0]) * np.asarray(q0)
+    lo = midp_poisson(n_eff, tail_lo)
+    hi = midp_poisson(n_eff, 1.0 - tail_hi)
+    up0 = float(midp_poisson(np.zeros(1), 1.0 - tail_hi)[0]) * np.asarray(w_max)
     return lo * q, np.maximum(hi * q, np.asarray(mean) + up0)
 
 
-def _midp_poisson(n: NDArray, level: float) -> NDArray:
+def midp_poisson(n: NDArray, level: float) -> NDArray:
     """Poisson mean μ with A(μ) = level, A(μ) = ½[P(X ≥ n) + P(X ≥ n + 1)] (Lancaster's
     mid-p; continuous in n through the regularised incomplete gamma function).
 
     ``level = α/2`` gives the lower bound, ``1 − α/2`` the upper one; for n = 0 the lower
     bound is 0 and the upper one −ln(2·(α/2)) = 3.0 at 95 %.
     """
-    from scipy.special import gammainc
-
     n = np.asarray(n, dtype=np.float64)
 
     def a_of(mu: NDArray) -> NDArray:
@@ -481,7 +510,10 @@ def _midp_poisson(n: NDArray, level: float) -> NDArray:
         return 0.5 * (ge_n + gammainc(n + 1.0, mu))
 
     lo = np.zeros_like(n)
-    hi = n + 10.0 * np.sqrt(n + 1.0) + 10.0
+    # the bracket holds the bound at any level a two-sided or union-bound interval asks
+    # for: the zero-count bound −ln(2(1 − level)) beyond 10 widens it
+    hi = n + 10.0 * np.sqrt(n + 1.0) + 10.0 + max(0.0, -math.log(2.0 * max(1.0 - level, 1e-300))
+                                                 - 10.0)
     for _ in range(80):  # bisection: A is increasing in μ
         mid = 0.5 * (lo + hi)
         below = a_of(mid) < level

@@ -51,7 +51,8 @@ from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
 from lightsim.render.cutoff import find_cutoff
 from lightsim.render.frame import luminous
-from lightsim.report import aperture_values, sparse_intervals
+from lightsim.report import IntensityEvidence, aperture_values
+from lightsim.simulate import SimulateOptions
 from lightsim.wall import WallFrame, candela_from_lux, lux_from_candela, wall_m_from_deg
 
 from .evaluate import evaluate, format_table, probe_points, unevaluated_rules
@@ -104,12 +105,13 @@ def regulation_probes(ruleset: str, traffic: str, frame: Any, lux: np.ndarray, a
 
 def evaluate_probe_values(rs: Any, probes: Any, hv: np.ndarray, values_lux: np.ndarray,
                           distance_m: float, traffic: str, confidence: float = 0.95,
-                          intervals_cd: np.ndarray | None = None
+                          count_stats: np.ndarray | None = None
                           ) -> tuple[list[dict[str, Any]], list[dict[str, str]], np.ndarray]:
-    """Per-set lux at the probes (S, P) → candela → verdicts with intervals."""
+    """Per-set lux at the probes (S, P) → candela → verdicts with intervals (with the
+    probes' photon statistics ``count_stats`` (4, P) where they were counted)."""
     cd = candela_from_lux(values_lux, hv[:, 0][None, :], hv[:, 1][None, :], distance_m)
     results = evaluate(rs, probes, cd, traffic=traffic, confidence=confidence,
-                       intervals_cd=intervals_cd)
+                       count_stats=count_stats)
     return results, unevaluated_rules(rs, probes), cd
 
 
@@ -126,8 +128,6 @@ def aperture_config(config: Any, ruleset: str, traffic: str, frame: Any,
     """
     if aperture_deg is None or aperture_deg == 0:
         return config
-    from lightsim.simulate import SimulateOptions
-
     options.lookup(SimulateOptions, "aperture").check(aperture_deg)  # the option table's range
     rs = load_ruleset(ruleset)
     fd = _frame_dict(frame)
@@ -163,17 +163,19 @@ def _own_apertures(ap: dict[str, Any], offset: int, n: int) -> dict[str, Any]:
             "count_stats": ap["count_stats"][:, cut], "n_eff": ap["n_eff"][cut]}
 
 
-def _stat_row(name: str, h: float, v: float, samples: np.ndarray, confidence: float,
-              note: str, interval: np.ndarray | None = None) -> dict[str, Any]:
-    """A reported (not limited) row: mean and Student-t interval of per-set values
-    (or ``interval`` where it is finite)."""
+def _stat_row(name: str, h: float, v: float, samples: np.ndarray, bounds: Any, note: str,
+              confidence: float) -> dict[str, Any]:
+    """A reported (not limited) row: the mean of the per-set values ``samples`` and the
+    interval of ``bounds`` (:class:`~lightsim.report.Bounds` of that one intensity)."""
     S = len(samples)
     mean = float(np.mean(samples))
-    half = (float(stdtrit(S - 1, 0.5 + confidence / 2) * np.std(samples, ddof=1) / math.sqrt(S))
-            if S > 1 else 0.0)
-    lo, hi = mean - half, mean + half
-    if interval is not None and np.all(np.isfinite(interval)):
-        lo, hi = float(interval[0]), float(interval[1])
+    if bounds.counted[0]:
+        lo, hi = float(bounds.lo[0]), float(bounds.hi[0])
+    else:  # Student-t over the sets, never below 0, room for unseen heavy photons
+        half = (float(stdtrit(S - 1, 0.5 + confidence / 2) * np.std(samples, ddof=1)
+                      / math.sqrt(S)) if S > 1 else 0.0)
+        lo = max(mean - half, 0.0)
+        hi = max(mean + half, float(bounds.unseen[0])) if S > 1 else mean
     return {"name": name, "kind": "measure", "h_deg": float(h), "v_deg": float(v),
             "value_cd": mean, "interval_cd": [lo, hi], "limit": {},
             "verdict": "info", "certainty": "sure", "note": note, "source": "lightsim",
@@ -183,18 +185,23 @@ def _stat_row(name: str, h: float, v: float, samples: np.ndarray, confidence: fl
 def measure_rows(ap: dict[str, Any], dv_deg: float, confidence: float) -> list[dict[str, Any]]:
     """HV and Imax rows (value, direction, interval) from :func:`aperture_values`.
 
-    Imax is the raster tile with the largest mean over the sets; its interval is that
-    tile's (the maximum of noisy tiles is biased upwards by about the tiles' noise).
+    HV's interval is its aperture's (the rule of :class:`~lightsim.report.
+    IntensityEvidence`). Imax is the raster tile with the largest mean over the sets;
+    its interval is that tile's Student-t one (the maximum of noisy tiles is biased
+    upwards by about the tiles' noise).
     """
-    rows = [_stat_row(MEASURE_NAMES["HV"], 0.0, 0.0, ap["cd"][:, -1], confidence,
-                      "intensity towards H-V (aperture count)", ap["intervals_cd"][-1])]
+    tail = (1.0 - confidence) / 2.0
+    hv = IntensityEvidence(ap["cd"][:, -1:], ap["count_stats"][:, -1:])
+    rows = [_stat_row(MEASURE_NAMES["HV"], 0.0, 0.0, ap["cd"][:, -1], hv.each([0], tail, tail),
+                      "intensity towards H-V (aperture count)", confidence)]
     tiles = ap["tiles"]
     if tiles.size:
         mean = tiles.mean(axis=0)
         i, k = np.unravel_index(int(np.argmax(mean)), mean.shape)
+        tile = IntensityEvidence(tiles[:, i, k][:, None]).each([0], tail, tail)
         rows.append(_stat_row(MEASURE_NAMES["Imax"], ap["tile_h_deg"][i],
-                              ap["tile_v_deg"][k] + dv_deg, tiles[:, i, k], confidence,
-                              "largest aperture-tile mean over the raster"))
+                              ap["tile_v_deg"][k] + dv_deg, tiles[:, i, k], tile,
+                              "largest aperture-tile mean over the raster", confidence))
     return rows
 
 
@@ -214,7 +221,6 @@ def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "rig
     if cfg.apertures and len(cfg.apertures) >= offset + len(probes) + 1:
         ap = _own_apertures(aperture_values(session, -aim_info["dv_deg"], confidence),
                             offset, len(probes))
-        intervals = ap["intervals_cd"][:-1]
         # the aimed value at v is the unaimed one at v − dv: apertures shift by −dv,
         # rounded to a strip bin (aperture / AIM_SUBSTEPS)
         if aim:
@@ -228,14 +234,14 @@ def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "rig
         method = {"name": "aperture", **ap["layout"].to_dict(),
                   "spt_targets": len(cfg.aperture_targets)}
     else:
-        intervals = count_stats = None
+        count_stats = None
         # probes take wall coordinates (from the wall centre), hv is from H-V
         stats = session.probe(hv + np.asarray(frame.hv_offset_m)) if len(hv) else None
         values = (luminous(stats.values) if stats is not None
                   else np.zeros((session.config.n_sets, 0)))
         method = {"name": "knn"}
     results, unevaluated, cd = evaluate_probe_values(rs, probes, hv, values, frame.distance_m,
-                                                     traffic, confidence, intervals)
+                                                     traffic, confidence, count_stats)
     return {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,
             "confidence": confidence, "aim": aim_info, "method": method,
             "results": results + extra, "unevaluated": unevaluated, "_probes": probes,
@@ -299,11 +305,11 @@ def recheck_from_probes(out: Path, summary: dict[str, Any], lux: np.ndarray,
                          f"simulate --regulation {rs.id}")
     if len(probes) != values.shape[1]:
         raise InputError(f"{PROBES_FILE} does not match rule set '{rs.id}' (changed file?)")
-    intervals = (None if count is None or not np.isfinite(count).all()
-                 else sparse_intervals(count, values.shape[0], confidence))
+    if count is not None and not np.isfinite(count).all():
+        count = None  # a kNN run's file: no photon statistics
     results, unevaluated, _ = evaluate_probe_values(
         rs, probes, hv, values, float(summary["wall"]["distance_m"]), traffic, confidence,
-        intervals)
+        count)
     prev = summary.get(regulation_key(rs.id, summary), {})
     measures = [r for r in prev.get("results", []) if r.get("kind") == "measure"]
     return {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,

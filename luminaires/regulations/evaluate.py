@@ -1,28 +1,48 @@
 """Test a beam against a rule set, with confidence intervals from independent estimates.
 
 The engine estimates the intensity towards every probe direction once per interleave set
-(M² independent photon maps), so each probe has S independent estimates. This module
+(M² independent photon maps), so each probe has S independent estimates and, with detector
+apertures, photon statistics. This module
 
 1. lists the probe directions of a rule set (:func:`probe_points`): its test points, plus
    zones sampled on a grid of ``spacing_deg`` (aligned to H-V) inside their polygons, on
    their edges and at their vertices, or along their lines;
-2. turns the ``(S, P)`` per-set estimates into means with Student-t intervals
-   ``mean ± t(1−α/2, S−1)·s/√S`` and verdicts (:func:`evaluate`):
-
-   * a limit is **pass** when the whole interval is on the allowed side, **fail** when the
-     whole interval is beyond it, **uncertain** when the interval straddles it;
-   * a zone limited on its maximum (``stat = "max"``) with a ``max`` limit fails if any
-     probe's interval lies entirely above it and passes if every probe's interval lies
-     entirely below (with a ``min`` limit on the maximum, *some* probe must be entirely
-     above: pass if one is, fail if all are entirely below); ``stat = "min"`` mirrors this;
-   * sums use the per-set sums; relations ``lhs op factor·rhs`` use the per-set margins
-     ``lhs − factor·rhs`` (every probe of a zone ``lhs`` must satisfy it); a zone ``rhs``
-     is reduced to its probe with the largest (``rhs_stat="max"``) mean;
+2. turns the ``(S, P)`` per-set estimates into values with intervals and verdicts
+   (:func:`evaluate`);
 3. prints the results as a rich table (:func:`format_table`).
 
-Each probe's interval is a per-point interval (no correction for testing many points at
-once). With a single set (S = 1) no error can be estimated: intervals collapse to the value
-and results carry ``"error_estimate": False``.
+Verdicts
+--------
+Every rule compares a quantity — a point's intensity, a sum of points, a zone's maximum
+(or minimum), a relation's ratio — with its limit through an interval on the quantity: the
+rule **passes** when the whole interval is on the allowed side, **fails** when the whole
+interval is beyond the limit, and is **uncertain** when the interval straddles it (so thin
+evidence, a wide interval, gives "uncertain"). Each side of an interval is a one-sided
+bound that is wrong with probability at most α/2 (2.5 % at 95 %), so a verdict "pass" or
+"fail" is wrong with probability at most α/2 whatever the truth.
+
+The bounds of one intensity or of a sum follow :class:`lightsim.report.IntensityEvidence`:
+Student-t over the sets where they hold a photon per set or more, the weighted photon
+count (a Fay–Feuer gamma interval with mid-p quantiles) where they are sparse, never below
+0, with room for unseen heavy photons above. Combined quantities:
+
+* **sum** ``1+2+3``: its per-set sums and the pooled photons of its points (one
+  intensity, same rule) — never the sum of the points' intervals;
+* **zone maximum** over n probes: upper bound max_i hi_i at α/2 per probe (the truth's
+  maximum sits at one probe, whose bound holds with 1 − α/2), lower bound max_i lo_i with
+  each lo_i at α/(2n) — a union (Bonferroni) bound over the zone's samples, since a
+  data-chosen probe's lower bound must hold at all of them together. So "every point
+  ≤ max" fails only when one probe is surely above at the union level, and "some point ≥
+  min" passes only when one is surely above at that level. A zone minimum mirrors this;
+* **relation** ``L op f·R`` (e.g. zone I ≤ 2·I(50R)): both sides' bounds at α/4 each
+  (their intervals at 1 − α/2), L a point or the zone's maximum (for "≤"; its minimum for
+  "≥": "every point" satisfies it), R a point or the zone's ``rhs_stat``. Then the ratio
+  L/R lies in [L_lo / R_hi, L_hi / R_lo] and the margin L − f·R in [L_lo − f·R_hi,
+  L_hi − f·R_lo], each side wrong with probability at most α/4 + α/4 = α/2 (a union
+  bound over the two sides).
+
+With a single set (S = 1) and no photon statistics no error can be estimated: intervals
+collapse to the value and results carry ``"error_estimate": False``.
 
 Parameters
 ----------
@@ -33,6 +53,7 @@ traffic       –       "right"   "right" or "left" (positions mirrored h → �
 spacing_deg   deg     0.25      zone sampling step
 values_cd     cd      –         (S, P) per-set intensity estimates, P = len(probes)
 confidence    1       0.95      two-sided confidence level of the intervals
+count_stats   –       None      (4, P) photon statistics of the probes (apertures)
 frame         –       None      wall frame: drop probes the wall does not cover
 ============  ======  ========  =====================================================
 """
@@ -45,11 +66,14 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from rich.table import Table
+from rich.text import Text
 
 from lightsim.errors import InputError
+from lightsim.report import IntensityEvidence
 from lightsim.wall import WallFrame
 
-from .ruleset import Geometry, Relation, RuleSet, SumRule, _check_traffic
+from .ruleset import Geometry, Relation, RuleSet, SumRule, check_traffic
 
 __all__ = [
     "VERDICT_STYLES",
@@ -187,7 +211,7 @@ def probe_points(ruleset: RuleSet, traffic: str = "right", spacing_deg: float = 
     Probes
         Points first (file order), then zone samples.
     """
-    traffic = _check_traffic(traffic)
+    traffic = check_traffic(traffic)
     if not (np.isfinite(spacing_deg) and spacing_deg > 0):
         raise InputError(f"spacing_deg must be > 0, got {spacing_deg!r}")
     rs = ruleset.for_traffic(traffic)
@@ -231,27 +255,34 @@ def probe_points(ruleset: RuleSet, traffic: str = "right", spacing_deg: float = 
 
 # ---- statistics -------------------------------------------------------------------------
 @dataclass(frozen=True)
-class _Stats:
-    mean: NDArray
-    lo: NDArray
-    hi: NDArray
+class _Stat:
+    """A quantity's estimate and bounds (cd), and the probe it was read at."""
+
+    mean: float
+    lo: float
+    hi: float
+    probe: int = -1
 
 
-def _t_factor(n_sets: int, confidence: float) -> float:
-    if n_sets < 2:
-        return 0.0
-    from scipy.special import stdtrit  # Student-t quantile; lighter than scipy.stats
-
-    return float(stdtrit(n_sets - 1, 0.5 + confidence / 2.0))
+def _point(ev: IntensityEvidence, i: int, tail: float) -> _Stat:
+    b = ev.each([i], tail, tail)
+    return _Stat(float(b.mean[0]), float(b.lo[0]), float(b.hi[0]), int(i))
 
 
-def _stats(samples: NDArray, tfac: float) -> _Stats:
-    """Mean and t-interval over axis 0 of (S, ...) samples."""
-    mean = samples.mean(axis=0)
-    if samples.shape[0] < 2:
-        return _Stats(mean, mean.copy(), mean.copy())
-    half = tfac * samples.std(axis=0, ddof=1) / np.sqrt(samples.shape[0])
-    return _Stats(mean, mean - half, mean + half)
+def _extreme(ev: IntensityEvidence, idx: NDArray, stat: str, tail: float) -> _Stat:
+    """Bounds of the maximum (``stat="max"``) or minimum of the intensities at probes
+    ``idx``, each side wrong with probability at most ``tail`` (module docstring: the
+    side that picks a probe by the data holds at ``tail/n`` per probe)."""
+    per = ev.each(idx, tail, tail)
+    n = len(idx)
+    union = per if n == 1 else ev.each(idx, tail / n, tail / n)
+    if stat == "max":
+        k = int(np.argmax(per.mean))
+        return _Stat(float(per.mean[k]), float(np.max(union.lo)), float(np.max(per.hi)),
+                     int(idx[k]))
+    k = int(np.argmin(per.mean))
+    return _Stat(float(per.mean[k]), float(np.min(per.lo)), float(np.min(union.hi)),
+                 int(idx[k]))
 
 
 def _limit_state(lo: float, hi: float, min_: float | None, max_: float | None
@@ -272,14 +303,6 @@ def _combine_all(states: Iterable[str]) -> str:
     return "pass" if all(x == "pass" for x in s) else "uncertain"
 
 
-def _combine_any(states: Iterable[str]) -> str:
-    """Some check must hold: pass if any passes, fail if all fail."""
-    s = list(states)
-    if "pass" in s:
-        return "pass"
-    return "fail" if s and all(x == "fail" for x in s) else "uncertain"
-
-
 def _limit_dict(min_: float | None, max_: float | None) -> dict[str, float]:
     out = {}
     if min_ is not None:
@@ -293,46 +316,42 @@ def _f(x: Any) -> float:
     return float(x)
 
 
+def _ratio(num: float, den: float) -> float | None:
+    """num / den, None where den ≤ 0 (an unbounded ratio)."""
+    return float(num / den) if den > 0 else None
+
+
 # ---- evaluation -------------------------------------------------------------------------
-def _base(name: str, kind: str, h: float | None, v: float | None, value: float,
-          lo: float, hi: float, limit: dict[str, float], verdict: str, rule: Any,
-          error_estimate: bool) -> dict[str, Any]:
+def _base(name: str, kind: str, h: float | None, v: float | None, st: _Stat,
+          limit: dict[str, float], verdict: str, rule: Any, error_estimate: bool
+          ) -> dict[str, Any]:
     return {"name": name, "h_deg": None if h is None else _f(h),
-            "v_deg": None if v is None else _f(v), "value_cd": _f(value),
-            "interval_cd": [_f(lo), _f(hi)], "limit": limit, "verdict": verdict,
+            "v_deg": None if v is None else _f(v), "value_cd": _f(st.mean),
+            "interval_cd": [_f(st.lo), _f(st.hi)], "limit": limit, "verdict": verdict,
             "kind": kind, "certainty": rule.certainty, "note": rule.note,
             "source": rule.source, "error_estimate": error_estimate}
 
 
-def _eval_point(g: Geometry, idx: NDArray, st: _Stats, h: NDArray, v: NDArray,
-                err: bool) -> dict[str, Any]:
-    i = int(idx[0])
-    verdict = _combine_all(_limit_state(st.lo[i], st.hi[i], g.min, g.max))
-    return _base(g.name, "point", h[i], v[i], st.mean[i], st.lo[i], st.hi[i],
-                 _limit_dict(g.min, g.max), verdict, g, err)
+def _eval_point(g: Geometry, idx: NDArray, ev: IntensityEvidence, tail: float,
+                h: NDArray, v: NDArray, err: bool) -> dict[str, Any]:
+    st = _point(ev, int(idx[0]), tail)
+    verdict = _combine_all(_limit_state(st.lo, st.hi, g.min, g.max))
+    return _base(g.name, "point", h[st.probe], v[st.probe], st, _limit_dict(g.min, g.max),
+                 verdict, g, err)
 
 
-def _eval_zone(g: Geometry, idx: NDArray, st: _Stats, h: NDArray, v: NDArray,
-               err: bool) -> dict[str, Any]:
-    means = st.mean[idx]
-    rep = idx[int(np.argmax(means) if g.stat == "max" else np.argmin(means))]
-    per_limit = []
-    for lim_min, lim_max in ((g.min, None), (None, g.max)):
-        if lim_min is None and lim_max is None:
-            continue
-        states = [_limit_state(st.lo[j], st.hi[j], lim_min, lim_max)[0] for j in idx]
-        # "every point" checks: a max limit on the maximum, a min limit on the minimum
-        every = (g.stat == "max") == (lim_max is not None)
-        per_limit.append(_combine_all(states) if every else _combine_any(states))
-    verdict = _combine_all(per_limit)
-    out = _base(g.name, "zone", h[rep], v[rep], st.mean[rep], st.lo[rep], st.hi[rep],
-                _limit_dict(g.min, g.max), verdict, g, err)
+def _eval_zone(g: Geometry, idx: NDArray, ev: IntensityEvidence, tail: float,
+               h: NDArray, v: NDArray, err: bool) -> dict[str, Any]:
+    st = _extreme(ev, idx, g.stat or "max", tail)
+    verdict = _combine_all(_limit_state(st.lo, st.hi, g.min, g.max))
+    out = _base(g.name, "zone", h[st.probe], v[st.probe], st, _limit_dict(g.min, g.max),
+                verdict, g, err)
     out["stat"] = g.stat
     out["n_probes"] = len(idx)
     # the zone's maximum with its direction and interval, whatever the limited statistic
-    top = idx[int(np.argmax(means))]
-    out.update({"max_cd": _f(st.mean[top]), "max_h_deg": _f(h[top]),
-                "max_v_deg": _f(v[top]), "max_interval_cd": [_f(st.lo[top]), _f(st.hi[top])]})
+    top = st if g.stat == "max" else _extreme(ev, idx, "max", tail)
+    out.update({"max_cd": _f(top.mean), "max_h_deg": _f(h[top.probe]),
+                "max_v_deg": _f(v[top.probe]), "max_interval_cd": [_f(top.lo), _f(top.hi)]})
     if g.polygon:
         out["polygon_deg"] = [[_f(a), _f(b)] for a, b in g.polygon]
     if g.line:
@@ -340,52 +359,58 @@ def _eval_zone(g: Geometry, idx: NDArray, st: _Stats, h: NDArray, v: NDArray,
     return out
 
 
-def _eval_sum(s: SumRule, probes: Probes, values: NDArray, tfac: float, err: bool
+def _eval_sum(s: SumRule, probes: Probes, ev: IntensityEvidence, tail: float, err: bool
               ) -> dict[str, Any]:
     cols = [int(probes.indices(p)[0]) for p in s.points]
-    per_set = values[:, cols].sum(axis=1)
-    st = _stats(per_set[:, None], tfac)
-    verdict = _combine_all(_limit_state(st.lo[0], st.hi[0], s.min, s.max))
-    out = _base(s.name, "sum", None, None, st.mean[0], st.lo[0], st.hi[0],
-                _limit_dict(s.min, s.max), verdict, s, err)
+    b = ev.total(cols, tail, tail)
+    st = _Stat(float(b.mean[0]), float(b.lo[0]), float(b.hi[0]))
+    verdict = _combine_all(_limit_state(st.lo, st.hi, s.min, s.max))
+    out = _base(s.name, "sum", None, None, st, _limit_dict(s.min, s.max), verdict, s, err)
     out["points"] = list(s.points)
     return out
 
 
-def _eval_relation(r: Relation, rs: RuleSet, probes: Probes, values: NDArray, tfac: float,
-                   err: bool) -> dict[str, Any]:
+def _side(ev: IntensityEvidence, rs: RuleSet, probes: Probes, name: str, stat: str,
+          tail: float) -> _Stat:
+    """A relation side: a point, or a zone reduced to its ``stat``."""
+    idx = probes.indices(name)
+    if rs.geometry(name).kind == "zone":
+        return _extreme(ev, idx, stat, tail)
+    return _point(ev, int(idx[0]), tail)
+
+
+def _eval_relation(r: Relation, rs: RuleSet, probes: Probes, ev: IntensityEvidence,
+                   tail: float, err: bool) -> dict[str, Any]:
+    # both sides at half the error each (a union bound): the verdict keeps α/2
+    side_tail = tail / 2.0
+    # a zone lhs must satisfy the relation at every point: its maximum for "≤"
+    lhs = _side(ev, rs, probes, r.lhs, "max" if r.op == "<=" else "min", side_tail)
+    rhs = _side(ev, rs, probes, r.rhs, r.rhs_stat, side_tail)
+    # each side's value: the mean of its probe's per-set values
+    lhs, rhs = (_Stat(float(ev.per_set[:, [st.probe]].mean(axis=0)[0]), st.lo, st.hi,
+                      st.probe) for st in (lhs, rhs))
+    f = r.factor
+    m_lo, m_hi = lhs.lo - f * rhs.hi, lhs.hi - f * rhs.lo
+    # the margin's estimate: the mean of the per-set margins at the lhs's worst probe
     lhs_idx = probes.indices(r.lhs)
-    rhs_idx = probes.indices(r.rhs)
-    if rs.geometry(r.rhs).kind == "zone":
-        means = values[:, rhs_idx].mean(axis=0)
-        pick = np.argmax(means) if r.rhs_stat == "max" else np.argmin(means)
-        rhs_col = int(rhs_idx[int(pick)])
-    else:
-        rhs_col = int(rhs_idx[0])
-    rhs_sets = values[:, rhs_col]
-    margin = values[:, lhs_idx] - r.factor * rhs_sets[:, None]  # (S, n_lhs)
-    mst = _stats(margin, tfac)
-    if r.op == "<=":
-        states = [_limit_state(mst.lo[k], mst.hi[k], None, 0.0)[0] for k in range(len(lhs_idx))]
-        worst = int(np.argmax(mst.mean))
-    else:
-        states = [_limit_state(mst.lo[k], mst.hi[k], 0.0, None)[0] for k in range(len(lhs_idx))]
-        worst = int(np.argmin(mst.mean))
-    verdict = _combine_all(states)
-    j = int(lhs_idx[worst])
-    lst = _stats(values[:, [j]], tfac)
-    rst = _stats(rhs_sets[:, None], tfac)
-    ref = r.factor * rst.mean[0]
+    margins = ev.per_set[:, lhs_idx] - f * ev.per_set[:, rhs.probe][:, None]
+    margin = margins.mean(axis=0)[int(np.flatnonzero(lhs_idx == lhs.probe)[0])]
+    verdict = _combine_all(_limit_state(m_lo, m_hi, *((None, 0.0) if r.op == "<="
+                                                      else (0.0, None))))
+    ref = f * rhs.mean
     limit = {"max": _f(ref)} if r.op == "<=" else {"min": _f(ref)}
-    out = _base(r.name, "relation", probes.h_deg[j], probes.v_deg[j], lst.mean[0],
-                lst.lo[0], lst.hi[0], limit, verdict, r, err)
-    out.update({"lhs": r.lhs, "op": r.op, "factor": _f(r.factor), "reference": r.rhs,
-                "reference_cd": _f(rst.mean[0]),
-                "reference_interval_cd": [_f(rst.lo[0]), _f(rst.hi[0])],
-                "reference_h_deg": _f(probes.h_deg[rhs_col]),
-                "reference_v_deg": _f(probes.v_deg[rhs_col]),
-                "margin_cd": _f(mst.mean[worst]),
-                "margin_interval_cd": [_f(mst.lo[worst]), _f(mst.hi[worst])]})
+    out = _base(r.name, "relation", probes.h_deg[lhs.probe], probes.v_deg[lhs.probe], lhs,
+                limit, verdict, r, err)
+    out.update({"lhs": r.lhs, "op": r.op, "factor": _f(f), "reference": r.rhs,
+                "reference_cd": _f(rhs.mean),
+                "reference_interval_cd": [_f(rhs.lo), _f(rhs.hi)],
+                "reference_h_deg": _f(probes.h_deg[rhs.probe]),
+                "reference_v_deg": _f(probes.v_deg[rhs.probe]),
+                "margin_cd": _f(margin),
+                "margin_interval_cd": [_f(m_lo), _f(m_hi)],
+                "ratio": _ratio(lhs.mean, rhs.mean),
+                "ratio_interval": [_ratio(lhs.lo, rhs.hi), _ratio(lhs.hi, rhs.lo)],
+                "side_confidence": _f(1.0 - 2.0 * side_tail)})
     return out
 
 
@@ -428,7 +453,8 @@ def unevaluated_rules(ruleset: RuleSet, probes: Probes) -> list[dict[str, str]]:
 
 def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
              traffic: str | None = None, confidence: float = 0.95,
-             intervals_cd: ArrayLike | None = None) -> list[dict[str, Any]]:
+             intervals_cd: ArrayLike | None = None, count_stats: ArrayLike | None = None
+             ) -> list[dict[str, Any]]:
     """Test per-set intensity estimates against a rule set.
 
     Parameters
@@ -443,12 +469,18 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
     traffic : {"right", "left"}, optional
         Must match ``probes.traffic`` if given.
     confidence : float, default 0.95
-        Two-sided confidence level of the Student-t intervals.
+        Two-sided confidence level of the intervals (module docstring).
     intervals_cd : array_like, shape (P, 2), optional
-        Probe intervals (cd) that replace the Student-t ones where both bounds are finite
-        (e.g. photon-count intervals of apertures that caught too few photons for the
-        sets' spread to mean anything); points and zones use them, sums and relations
-        keep the per-set statistics.
+        Probe intervals (cd) given by the caller (e.g. a model's expected intervals):
+        where both bounds are finite they replace the computed ones for points, zones and
+        relations, as they are (no union bound can be applied to them); sums keep the
+        per-set statistics.
+    count_stats : array_like, shape (4, P), optional
+        Photon statistics of the probes (detector apertures), as
+        :func:`~lightsim.engine.apertures.count_statistics` gives them: effective photons,
+        one photon's worth, the heaviest photon's worth and the mean (cd). With them the
+        sparse probes, sums, zones and relations get photon-count bounds
+        (:class:`lightsim.report.IntensityEvidence`).
 
     Returns
     -------
@@ -458,13 +490,15 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
         (verdict ``"pass" | "fail" | "uncertain"``; limit ``{"min": cd, "max": cd}`` with
         the present bounds) plus ``kind, certainty, note, source, error_estimate`` and
         per kind: zones ``stat, n_probes, probes_outside_wall, polygon_deg | line_deg``
-        (value at the extreme probe; a zone partly outside the wall is tested where the
-        wall covers it) and ``max_cd, max_h_deg, max_v_deg, max_interval_cd`` (the probe
-        with the largest mean: the zone's maximum, its direction and interval); sums
-        ``points`` (h/v are None); relations ``lhs, op, factor, reference,
-        reference_cd, reference_interval_cd, margin_cd, margin_interval_cd`` (value at the
-        lhs probe with the worst margin; limit = factor × reference). Rules that cannot be
-        tested are reported by :func:`unevaluated_rules`.
+        (value at the extreme probe, interval of the limited statistic; a zone partly
+        outside the wall is tested where the wall covers it) and ``max_cd, max_h_deg,
+        max_v_deg, max_interval_cd`` (the zone's maximum: the probe with the largest mean
+        and the maximum's interval); sums ``points`` (h/v are None); relations ``lhs, op,
+        factor, reference, reference_cd, reference_interval_cd, margin_cd,
+        margin_interval_cd, ratio, ratio_interval, side_confidence`` (value and interval
+        of the lhs at its worst probe, limit = factor × reference; both sides' intervals
+        at ``side_confidence``; a ratio bound is None where unbounded). Rules that cannot
+        be tested are reported by :func:`unevaluated_rules`.
 
     Raises
     ------
@@ -474,7 +508,7 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
     if probes.ruleset_id != ruleset.id:
         raise InputError(f"probes were made for rule set '{probes.ruleset_id}', "
                          f"not '{ruleset.id}'")
-    if traffic is not None and _check_traffic(traffic) != probes.traffic:
+    if traffic is not None and check_traffic(traffic) != probes.traffic:
         raise InputError(f"probes were made for {probes.traffic}-hand traffic, "
                          f"not {traffic}-hand")
     if not (0.0 < confidence < 1.0):
@@ -496,15 +530,9 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
     rs = ruleset.for_traffic(probes.traffic)
     n_sets = values.shape[0]
     err = n_sets >= 2
-    tfac = _t_factor(n_sets, confidence)
-    st = _stats(values, tfac)
-    if intervals_cd is not None:
-        ov = np.asarray(intervals_cd, dtype=float)
-        if ov.shape != (len(probes), 2):
-            raise InputError(f"intervals_cd must have shape ({len(probes)}, 2), "
-                             f"got {ov.shape}")
-        use = np.isfinite(ov).all(axis=1)
-        st = _Stats(st.mean, np.where(use, ov[:, 0], st.lo), np.where(use, ov[:, 1], st.hi))
+    ev = IntensityEvidence(values, None if count_stats is None else count_stats,
+                           None if intervals_cd is None else intervals_cd)
+    tail = (1.0 - confidence) / 2.0
     results: list[dict[str, Any]] = []
     for kind in ("point", "zone"):
         for g in rs.geometries:
@@ -512,16 +540,16 @@ def evaluate(ruleset: RuleSet, probes: Probes, values_cd: ArrayLike,
                 continue
             idx = probes.indices(g.name)
             fn = _eval_point if kind == "point" else _eval_zone
-            res = fn(g, idx, st, probes.h_deg, probes.v_deg, err)
+            res = fn(g, idx, ev, tail, probes.h_deg, probes.v_deg, err)
             if kind == "zone":
                 res["probes_outside_wall"] = int(probes.clipped.get(g.name, 0))
             results.append(res)
     for s in rs.sums:
         if not _skip_reason(rs, probes, s.points):
-            results.append(_eval_sum(s, probes, values, tfac, err))
+            results.append(_eval_sum(s, probes, ev, tail, err))
     for r in rs.relations:
         if r.complete and not _skip_reason(rs, probes, [r.lhs, r.rhs]):
-            results.append(_eval_relation(r, rs, probes, values, tfac, err))
+            results.append(_eval_relation(r, rs, probes, ev, tail, err))
     for res in results:
         res["traffic"] = probes.traffic
         res["confidence"] = float(confidence)
@@ -567,9 +595,6 @@ def format_table(results: Sequence[Mapping[str, Any]], title: str | None = None,
         Print it with a rich ``Console``. Verdict colours: pass green, fail red,
         uncertain yellow; less-sure rules are marked with ``*``.
     """
-    from rich.table import Table
-    from rich.text import Text
-
     conf = next((r.get("confidence") for r in results if "confidence" in r), 0.95)
     table = Table(title=title)
     table.add_column("rule")
@@ -580,6 +605,7 @@ def format_table(results: Sequence[Mapping[str, Any]], title: str | None = None,
     table.add_column("limit cd", justify="right")
     table.add_column("verdict")
     less = False
+    sides = None
     for r in results:
         lim = r.get("limit", {})
         parts = []
@@ -594,11 +620,16 @@ def format_table(results: Sequence[Mapping[str, Any]], title: str | None = None,
             less = True
         if r.get("kind") == "relation":
             # the limit is factor × reference (the verdict's threshold); the reference's own
-            # value follows in brackets
+            # value and interval follow in brackets: the verdict compares both intervals
             op = r["op"].replace("<=", "≤").replace(">=", "≥")
+            ref_lo, ref_hi = r.get("reference_interval_cd") or (r["reference_cd"],) * 2
             parts = [f"{op} {r['factor']:g}·{r['reference']} = "
                      f"{_fmt_cd(r['factor'] * r['reference_cd'])} "
-                     f"({r['reference']} {_fmt_cd(r['reference_cd'])})"]
+                     f"({r['reference']} {_fmt_cd(r['reference_cd'])}, "
+                     f"{_fmt_cd(ref_lo)} – {_fmt_cd(ref_hi)})"]
+            side = r.get("side_confidence")
+            if side is not None and r.get("error_estimate", True):
+                sides = side
         verdict = str(r["verdict"])
         table.add_row(name, str(r.get("kind", "")), format_position(r["h_deg"], r["v_deg"]),
                       _fmt_cd(r["value_cd"]), f"{_fmt_cd(lo)} – {_fmt_cd(hi)}",
@@ -606,6 +637,9 @@ def format_table(results: Sequence[Mapping[str, Any]], title: str | None = None,
     caption = []
     if less:
         caption.append("* less-sure data: verify against the regulation text")
+    if sides is not None:
+        caption.append(f"relations: both sides' intervals at {sides:.1%}, so that the "
+                       f"verdict holds at {conf:.0%}")
     for u in unevaluated or ():
         caption.append(f"not tested: {u['name']} ({u['reason']})")
     if caption:

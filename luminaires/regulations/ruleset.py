@@ -49,6 +49,7 @@ __all__ = [
     "Relation",
     "RuleSet",
     "SumRule",
+    "check_traffic",
     "list_rulesets",
     "load_ruleset",
 ]
@@ -169,14 +170,21 @@ class RuleSet:
 
     def for_traffic(self, traffic: str) -> RuleSet:
         """This rule set with positions for ``traffic`` ("right"/"left"), mirrored if needed."""
-        traffic = _check_traffic(traffic)
+        traffic = check_traffic(traffic)
         if traffic == self.traffic:
             return self
         return replace(self, traffic=traffic,
                        geometries=tuple(g.mirrored() for g in self.geometries))
 
 
-def _check_traffic(traffic: str) -> Traffic:
+def check_traffic(traffic: str) -> Traffic:
+    """``traffic`` as "right" or "left" (any case).
+
+    Raises
+    ------
+    InputError
+        Anything else.
+    """
     t = str(traffic).lower()
     if t not in ("right", "left"):
         raise InputError(f"traffic must be 'right' or 'left', got {traffic!r}")
