@@ -144,6 +144,14 @@ class SimulateOptions:
         "auto", "Photometric type of --ies: A (vehicle lamps: H right, V up), C; auto = A "
         "for lamp models and Type A inputs, else C.", flag=("--ies-type",),
         choices=("auto", "A", "C"))
+    ies_step: float | None = option(
+        None, "Angle step of --ies, in H and V (Type A) or C and γ (Type C); auto = uneven "
+        "angles, fine where the beam changes fast (cut-off, hot spot), coarse elsewhere.",
+        unit="deg", flag=("--ies-step",), low=0.1, high=90, default_text="auto")
+    ldt_step: float | None = option(
+        None, "Angle step of --ldt in C and γ (EULUMDAT: at most 721 C-planes and 361 γ "
+        "angles); auto = uneven angles, fine where the beam changes fast.", unit="deg",
+        flag=("--ldt-step",), low=0.5, high=90, default_text="auto")
     lamp_set: int | None = option(
         None, "EULUMDAT scene file: which lamp set (1-based) scales the intensities.",
         flag=("--lamp-set",), low=1, metavar="N",

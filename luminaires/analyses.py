@@ -32,8 +32,13 @@ def for_options(opts: Any) -> list[Analysis]:
     raise :class:`~lightsim.errors.InputError` before any work).
     """
     from .photometric import resolve_ies_type
+    from .photometric.gridding import check_step
 
     resolve_ies_type(opts.ies_type, None)  # a misspelt --ies-type fails even without --ies
+    for step, kind, flag in ((opts.ies_step, "ies", "--ies-step"),
+                             (opts.ldt_step, "ldt", "--ldt-step")):
+        if step is not None:
+            check_step(step, kind, flag)
     out: list[Analysis] = []
     if opts.regulation is not None:  # imported only when asked (scipy: start-up time)
         from .regulations.check import RegulationAnalysis, split_rulesets
@@ -46,5 +51,6 @@ def for_options(opts: Any) -> list[Analysis]:
     if opts.ies or opts.ldt:
         from .photometric.analysis import FarfieldAnalysis
 
-        out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons))
+        out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
+                                    opts.ies_step, opts.ldt_step))
     return out
