@@ -177,5 +177,5 @@ def test_a_coarse_file_is_flagged_in_one_line():
     coarse = regrid(field, "A", *step_axes("A", 1.0))
     note = reproduction(coarse, "coarse.ies", session, bins, "use a finer step").warning
     assert note is not None and "\n" not in note
-    assert note.startswith("coarse.ies does not reproduce the run: peak")
+    assert note.startswith("coarse.ies does not reproduce the run: peak ")
     assert note.endswith("; use a finer step")

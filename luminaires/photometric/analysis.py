@@ -174,8 +174,8 @@ class FarfieldAnalysis:
                     if note:
                         notes.append(note)
             files.append(write_photometric(path, grid))
-            hint = (f"{flag} {step:g}° is too coarse for this beam (leave it out for "
-                    "angles fine where the beam changes fast)" if step is not None else "")
+            hint = (f"{flag} {step:g}° is too coarse (auto angles keep the beam)"
+                    if step is not None else "")
             check = reproduction(grid, Path(path).name, session, bins, hint)
             if check.warning:
                 notes.append(check.warning)
@@ -184,6 +184,7 @@ class FarfieldAnalysis:
                 "type": kind, "step_deg": step, "angles": [len(planes), len(polar)],
                 "max_cd": float(np.max(grid.candela)), "flux_lm": float(grid.total_flux()),
                 **check.to_dict()}
-        if notes:
+        if notes:  # one line for the command line, each note for scripts
+            summary["warnings"] = notes
             summary["warning"] = "; ".join(notes)
         return AnalysisReport(summary, files=files)

@@ -156,8 +156,7 @@ def reproduction(grid: Any, name: str, session: Any, bins: BeamBins | None,
         peak = float(((csum[:, m:] - csum[:, :-m]) / m).max())
         out.peak_cd, out.run_imax_cd, out.run_imax_interval_cd = peak, run, [lo, hi]
         if not lo - SLACK * run <= peak <= hi + SLACK * run:
-            problems.append(f"peak {peak:,.0f} cd, the run's Imax {run:,.0f} cd "
-                            f"({lo:,.0f}–{hi:,.0f})")
+            problems.append(f"peak {peak:,.0f} cd vs Imax {run:,.0f} ({lo:,.0f}–{hi:,.0f})")
     if cfg.apertures and cfg.aperture_deg:
         ap = aperture_values(session, 0.0, confidence)
         layout = layout_from_config(cfg, frame.distance_m)
@@ -181,9 +180,9 @@ def reproduction(grid: Any, name: str, session: Any, bins: BeamBins | None,
                          "file_cd": float(file_cd[j]), "run_cd": float(mean[j]),
                          "interval_cd": [float(lo[j]), float(hi[j])]}
             w = out.worst
-            problems.append(f"{len(bad)} of {out.points} test points outside the run's "
-                            f"intervals (worst {w['position']}: {w['file_cd']:,.0f} cd, the "
-                            f"run {w['run_cd']:,.0f} cd, {lo[j]:,.0f}–{hi[j]:,.0f})")
+            problems.append(f"{len(bad)} of {out.points} points outside their intervals "
+                            f"(worst {w['position']}: {w['file_cd']:,.0f} vs "
+                            f"{lo[j]:,.0f}–{hi[j]:,.0f} cd)")
     if problems:
         out.warning = (f"{name} does not reproduce the run: " + "; ".join(problems)
                        + (f"; {hint}" if hint else ""))
