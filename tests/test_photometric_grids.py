@@ -66,20 +66,24 @@ def test_select_nodes_refines_the_cut_off_only():
     profile = 0.5 * (1.0 - np.tanh((v + 0.57) / 0.08))     # a cut-off at 0.57° D
     values = np.vstack([profile, 0.5 * profile]) * 1e4 + 10.0
     tol = np.maximum(0.01 * values, 1.0)
-    keep = select_nodes(v, values, tol, np.isin(v, (-10.0, 10.0)), budget=500, max_gap=5.0)
+    keep, left = select_nodes(v, values, tol, np.isin(v, (-10.0, 10.0)), budget=500,
+                              max_gap=5.0)
+    assert left <= 1.0
     kv = v[keep]
     assert kv[0] == -10.0 and kv[-1] == 10.0 and np.diff(kv).max() <= 5.0 + 1e-9
     near = np.abs(kv + 0.57) < 0.3
     assert near.sum() >= 10 and (~near).sum() <= 12   # dense at the edge, sparse elsewhere
     line = np.interp(v, kv, values[0][keep])
     assert np.all(np.abs(line - values[0]) <= tol[0] * (1 + 1e-9))
-    few = select_nodes(v, values, tol, np.isin(v, (-10.0, 10.0)), budget=8, max_gap=5.0)
-    assert len(few) == 8
+    few, left = select_nodes(v, values, tol, np.isin(v, (-10.0, 10.0)), budget=8,
+                             max_gap=5.0)
+    assert len(few) == 8 and left > 1.0
 
 
 def test_auto_axes_keep_the_beam_within_eulumdat_limits(tmp_path):
     field = cutoff_field()
-    c, g = auto_axes(field, "C", (LDT_MAX_PLANES, LDT_MAX_GAMMA))
+    c, g, converged = auto_axes(field, "C", (LDT_MAX_PLANES, LDT_MAX_GAMMA))
+    assert converged
     assert len(c) <= LDT_MAX_PLANES and len(g) <= LDT_MAX_GAMMA
     assert {0.0, 90.0, 180.0, 270.0} <= set(np.round(c, 9)) and g[0] == 0 and g[-1] == 180
     assert np.diff(g).min() < 0.1 < 2.0 < np.diff(g).max()   # uneven: fine at the cut-off
@@ -105,7 +109,7 @@ def test_auto_axes_keep_the_beam_within_eulumdat_limits(tmp_path):
 
 def test_type_a_auto_file_and_its_outside_flux(tmp_path):
     field = cutoff_field()
-    h, v = auto_axes(field, "A", (1441, 721))
+    h, v, _ = auto_axes(field, "A", (1441, 721))
     assert h[0] == -90.0 and h[-1] == 90.0 and v[0] == -90.0 and v[-1] == 90.0
     grid = regrid(field, "A", h, v, lamp_lumens=1000.0, metadata={"luminaire": "beam"},
                   sample=True)
@@ -172,7 +176,7 @@ def test_a_coarse_file_is_flagged_in_one_line():
                            width_deg=0.15, height_deg=0.15)
     session = SimpleNamespace(scene=SimpleNamespace(wall=frame),
                               config=SimpleNamespace(apertures=(), aperture_deg=0.15))
-    fine = regrid(field, "A", *auto_axes(field, "A", (1441, 721)), sample=True)
+    fine = regrid(field, "A", *auto_axes(field, "A", (1441, 721))[:2], sample=True)
     assert reproduction(fine, "fine.ies", session, bins).warning is None
     coarse = regrid(field, "A", *step_axes("A", 1.0))
     note = reproduction(coarse, "coarse.ies", session, bins, "use a finer step").warning

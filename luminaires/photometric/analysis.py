@@ -162,9 +162,9 @@ class FarfieldAnalysis:
                            "--ldt-step"))
         notes, files = [], []
         for path, kind, step, budget, flag in wanted:
-            planes, polar = file_axes(field, kind, step, budget)
+            planes, polar, sample = file_axes(field, kind, step, budget)
             grid = regrid(field, kind, planes, polar, lamp_lumens=light.lamp_lumens,
-                          metadata=meta, sample=step is None)
+                          metadata=meta, sample=sample)
             if kind == "A":
                 out_a = float(grid.metadata.get("flux_outside_lm", 0.0))
                 summary["type_a_flux_lm"] = float(grid.total_flux())

@@ -15,9 +15,9 @@ A file holds the run's intensity (:class:`~.runfield.RunField`) on a table of an
 
 With equal steps the intensities are the field's flux handed to the file's nodes with
 bilinear weights (:func:`regrid`, the deposit of :func:`~.farfield.farfield_from_photons`);
-auto files take the field's values at their nodes, and the flux the straight lines between
-them gain or lose goes to the nodes next to a left-out angle. Either way the file's
-interpolant integrates to the field's flux exactly.
+auto files that met the tolerance take the field's values at their nodes, and the flux the
+straight lines between them gain or lose goes to the nodes next to a left-out angle. Either
+way the file's interpolant integrates to the field's flux exactly.
 
 Parameters
 ----------
@@ -94,8 +94,10 @@ def select_nodes(x: NDArray, values: NDArray, tol: NDArray, required: NDArray, b
 
     Returns
     -------
-    ndarray of int
+    keep : ndarray of int
         Kept indices, increasing.
+    residual : float
+        The largest deviation left, in units of ``tol`` (≤ 1 unless the budget ran out).
     """
     x = np.asarray(x, dtype=np.float64)
     chosen = set(np.flatnonzero(required).tolist()) | {0, len(x) - 1}
@@ -120,22 +122,26 @@ def select_nodes(x: NDArray, values: NDArray, tol: NDArray, required: NDArray, b
     while heap and len(chosen) < budget:
         e, a, b, k = heapq.heappop(heap)
         if -e <= 1.0 or k < 0:
+            heapq.heappush(heap, (e, a, b, k))
             break
         chosen.add(k)
         for lo, hi in ((a, k), (k, b)):
             e2, k2 = worst(lo, hi)
             heapq.heappush(heap, (-e2, lo, hi, k2))
-    return np.array(sorted(chosen), dtype=np.int64)
+    residual = -heap[0][0] if heap else 0.0
+    return np.array(sorted(chosen), dtype=np.int64), float(residual)
 
 
 def _tolerance(values: NDArray, peak: float) -> NDArray:
     return np.maximum(REL_TOL * np.abs(values), max(ABS_TOL * peak, 1e-12))
 
 
-def auto_axes(field: RunField, kind: str, budget: tuple[int, int]) -> tuple[NDArray, NDArray]:
+def auto_axes(field: RunField, kind: str, budget: tuple[int, int]
+              ) -> tuple[NDArray, NDArray, bool]:
     """Uneven angle lists of a Type A (H, V) or Type C (C, γ) file (module docstring).
 
-    ``budget`` is the largest (horizontal/C, vertical/γ) count.
+    ``budget`` is the largest (horizontal/C, vertical/γ) count. The flag says whether both
+    lists meet the tolerance (False: a count ran out first).
     """
     g = field.grid
     cd = g.candela
@@ -145,8 +151,8 @@ def auto_axes(field: RunField, kind: str, budget: tuple[int, int]) -> tuple[NDAr
         c = np.concatenate([g.c_deg, [360.0]])  # the 0° plane closes the circle
         plane_values = np.vstack([cd, cd[:1]]).T
         required = np.isin(np.round(c, 9), (0.0, 90.0, 180.0, 270.0, 360.0))
-        keep = select_nodes(c, plane_values, _tolerance(plane_values, peak), required,
-                            budget[0] + 1)
+        keep, left = select_nodes(c, plane_values, _tolerance(plane_values, peak), required,
+                                  budget[0] + 1)
         planes = c[keep][:-1]
         rows = slice(None)
         polar = gamma
@@ -157,8 +163,8 @@ def auto_axes(field: RunField, kind: str, budget: tuple[int, int]) -> tuple[NDAr
         hx = h[order]
         plane_values = cd[order].T
         required = np.isin(np.round(hx, 9), (-90.0, 0.0, 90.0))
-        keep = select_nodes(hx, plane_values, _tolerance(plane_values, peak), required,
-                            budget[0])
+        keep, left = select_nodes(hx, plane_values, _tolerance(plane_values, peak), required,
+                                  budget[0])
         planes = hx[keep]
         rows = order
         polar = gamma - 90.0
@@ -166,8 +172,9 @@ def auto_axes(field: RunField, kind: str, budget: tuple[int, int]) -> tuple[NDAr
         raise InputError(f"far-field file type must be 'A' or 'C', got {kind!r}")
     values = cd[rows]
     required = np.isin(np.round(gamma, 9), (0.0, 90.0, 180.0))
-    keep = select_nodes(polar, values, _tolerance(values, peak), required, budget[1])
-    return planes, polar[keep]
+    keep, left_polar = select_nodes(polar, values, _tolerance(values, peak), required,
+                                    budget[1])
+    return planes, polar[keep], max(left, left_polar) <= 1.0
 
 
 def check_step(step: float, kind: str, what: str) -> None:
@@ -187,11 +194,13 @@ def step_axes(kind: str, step: float) -> tuple[NDArray, NDArray]:
 
 
 def file_axes(field: RunField, kind: str, step: float | None, budget: tuple[int, int]
-              ) -> tuple[NDArray, NDArray]:
-    """The angle lists of a file: auto (``step`` None) or equal steps."""
+              ) -> tuple[NDArray, NDArray, bool]:
+    """The angle lists of a file — auto (``step`` None) or equal steps — and whether the
+    file should take the field's values at its nodes (auto lists that met the tolerance:
+    see :func:`regrid`)."""
     if step is None:
         return auto_axes(field, kind, budget)
-    return step_axes(kind, step)
+    return (*step_axes(kind, step), False)
 
 
 def regrid(field: RunField, kind: str, planes: NDArray, polar: NDArray, *,
