@@ -20,7 +20,11 @@ from lightsim.luminaires.photometric.gridding import (
     select_nodes,
     step_axes,
 )
-from lightsim.luminaires.photometric.reproduce import aperture_means, position_text
+from lightsim.luminaires.photometric.reproduce import (
+    aperture_means,
+    position_text,
+    reproduction,
+)
 from lightsim.luminaires.photometric.runfield import RunField, bin_averages, histopolate
 from lightsim.simulate import SimulateOptions
 from lightsim.wall import WallFrame
@@ -160,8 +164,6 @@ def test_aperture_means_of_a_constant_and_a_ramp():
 
 
 def test_a_coarse_file_is_flagged_in_one_line():
-    from lightsim.luminaires.photometric.reproduce import reproduction
-
     frame = WallFrame.from_any({"distance_m": 25.0, "h_range_m": [-15, 15],
                                 "v_range_m": [-6, 6], "resolution": [64, 32]})
     field = cutoff_field()
