@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -114,8 +115,6 @@ def test_lamp_that_lights_no_road_still_finishes(tmp_path, capsys):
 def test_a_coarse_far_field_file_warns_in_one_line(tmp_path, capsys):
     """``--ies-step 5``: the file cannot hold the headlamp's peak; one warning line says so
     and names the option; the run's outputs are written as always."""
-    from pathlib import Path
-
     lamp = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
     out = tmp_path / "run"
     code, _, err = _run(["simulate", str(lamp), "--photons", "300000", "--resolution",
