@@ -34,21 +34,27 @@ import platform
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import MISSING, dataclass, field
+from dataclasses import MISSING, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from lightsim import __version__, options
+from lightsim import __version__, options, report
 from lightsim.analysis import Analysis, FinishedRun
 from lightsim.engine.config import RunConfig
 from lightsim.engine.memory import check_fits
-from lightsim.errors import InputError
+from lightsim.engine.server import Session
+from lightsim.errors import InputError, LightsimError
+from lightsim.io.atomic import STAGING_PREFIX, OutputSet, clean_stale, unfinished_set
+from lightsim.io.cad import Tessellation
+from lightsim.io.exr import wall_metadata, write_exr
+from lightsim.io.plot_worker import InProcess
+from lightsim.io.summary import read_json, write_json
 from lightsim.options import option
-
-if TYPE_CHECKING:
-    from lightsim.scene import Scene
+from lightsim.render.cutoff import cutoff_interval, find_cutoff, scan_sample_points
+from lightsim.render.frame import luminous
+from lightsim.scene import Scene, load_scene
 
 CHECKPOINT = "checkpoint.json"
 
@@ -62,7 +68,6 @@ class SimulateOptions:
     checkpoint come from these declarations and :class:`~lightsim.engine.config.RunConfig`'s
     (``config`` holds RunConfig settings by name, ``{}`` = all defaults).
     """
-
     scene_path: str = option(MISSING, "GLB/glTF/OBJ/STL/PLY, STEP/IGES or a photometric or ray "
                              "file to simulate.", internal="the SCENE_FILE argument")
     photons: int | None = option(None, "Photons to shoot in total.", flag=("--photons", "-n"),
@@ -139,6 +144,14 @@ class SimulateOptions:
         "auto", "Photometric type of --ies: A (vehicle lamps: H right, V up), C; auto = A "
         "for lamp models and Type A inputs, else C.", flag=("--ies-type",),
         choices=("auto", "A", "C"))
+    ies_step: float | None = option(
+        None, "Angle step of --ies, in H and V (Type A) or C and γ (Type C); auto = uneven "
+        "angles, fine where the beam changes fast (cut-off, hot spot), coarse elsewhere.",
+        unit="deg", flag=("--ies-step",), low=0.1, high=90, default_text="auto")
+    ldt_step: float | None = option(
+        None, "Angle step of --ldt in C and γ (EULUMDAT: at most 721 C-planes and 361 γ "
+        "angles); auto = uneven angles, fine where the beam changes fast.", unit="deg",
+        flag=("--ldt-step",), low=0.5, high=90, default_text="auto")
     lamp_set: int | None = option(
         None, "EULUMDAT scene file: which lamp set (1-based) scales the intensities.",
         flag=("--lamp-set",), low=1, metavar="N",
@@ -186,8 +199,6 @@ class SimulateOptions:
         """These (a checkpoint's) options with the command line's ``values`` (the options
         given explicitly) applied: budgets and workers may change; any other option that
         differs from the checkpoint is refused in one line."""
-        from dataclasses import replace
-
         sim, run = _split(values)
         stored_run = RunConfig.from_dict(self.config)
         conflicts = []
@@ -249,8 +260,6 @@ def check_out_dir(path: str | os.PathLike) -> Path:
     The test writes a staging-named empty folder (removed at once; a kill in between leaves
     only what the next run's clean-up removes).
     """
-    from lightsim.io.atomic import STAGING_PREFIX
-
     out = Path(path)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -263,8 +272,6 @@ def check_out_dir(path: str | os.PathLike) -> Path:
 
 def folder_notes(out: Path) -> list[str]:
     """Clean what killed runs left in ``out``; warnings saying what was found or done."""
-    from lightsim.io.atomic import clean_stale, unfinished_set
-
     notes = clean_stale(out)
     left = unfinished_set(out, OUTPUT_FILES)
     if left:
@@ -274,8 +281,6 @@ def folder_notes(out: Path) -> list[str]:
 
 
 def load(opts: SimulateOptions) -> Scene:
-    from lightsim.io.cad import Tessellation
-    from lightsim.scene import load_scene  # numba: not needed to parse options or --help
 
     return load_scene(opts.scene_path, flux=opts.flux, emission=opts.emission,
                       filament=opts.filament, filament_at=opts.filament_at,
@@ -302,11 +307,9 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
     ``analyses`` (:class:`~lightsim.analysis.Analysis`) prepare the run and report on it:
     what ``opts.regulation``/``ies``/``ldt`` ask for, built by
     :func:`lightsim.luminaires.analyses.for_options`. ``plots`` draws the plots
-    (:func:`lightsim.io.plot_worker.start`: a helper process started before the run;
+    (:func:`lightsim.io.plot_worker.start`: a plot process started before the run;
     default: here, after the map).
     """
-    from lightsim.errors import LightsimError
-
     analyses = list(analyses or ())
     if not analyses and (opts.regulation is not None or opts.ies or opts.ldt):
         raise LightsimError("run_simulation: the options ask for a regulation check or "
@@ -324,7 +327,6 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
 
 def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
          analyses: Sequence[Analysis], plots: Any = None) -> SimulationResult:
-    from lightsim.engine.server import Session
 
     clock = {"t0": time.perf_counter()}
     out = check_out_dir(opts.out_dir)  # the options were checked when they were made
@@ -369,7 +371,6 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
 
 
 def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
-    from lightsim.io.summary import write_json
 
     path = out / CHECKPOINT
     write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
@@ -378,7 +379,6 @@ def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
 
 
 def read_checkpoint(out_dir: str | os.PathLike) -> tuple[SimulateOptions, dict[str, Any]]:
-    from lightsim.io.summary import read_json
 
     path = Path(out_dir) / CHECKPOINT
     if not path.exists():
@@ -428,17 +428,12 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est,
     summary.json as one set (staged inside ``out``, summary.json published last); only
     the files ``opts.outputs`` names, and summary.json always. ``plots``: where the plots
     are drawn (:mod:`lightsim.io.plot_worker`; default here, one after the other)."""
-    from lightsim.io.atomic import OutputSet
-    from lightsim.io.summary import read_json
-
     previous = set(OUTPUT_FILES)
     if (out / "summary.json").is_file():  # the files an earlier run recorded as its set
         with contextlib.suppress(Exception):
             listed = read_json(out / "summary.json").get("outputs")
             if isinstance(listed, list):
                 previous |= {str(n) for n in listed if "/" not in str(n)}
-    from lightsim.io.plot_worker import InProcess
-
     plots = plots if plots is not None else InProcess()
     with OutputSet(out, "summary.json", previous) as staged:
         try:
@@ -455,12 +450,8 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
                analyses: Sequence[Analysis], clock: dict[str, float] | None,
                plots: Any) -> SimulationResult:
     """Write every output file into ``out`` (the staging folder), summary.json last; the
-    plots are handed to ``plots`` first, so a helper process draws them while the map,
+    plots are handed to ``plots`` first, so a plot process draws them while the map,
     the cut-off and the analyses are written here."""
-    from lightsim.io.exr import wall_metadata, write_exr
-    from lightsim.io.summary import write_json
-    from lightsim.render.frame import luminous
-
     scene = session.scene
     frame = scene.wall
     lux = luminous(est.lux)
@@ -563,8 +554,6 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
                          summary: dict[str, Any], analyses: Sequence[Analysis],
                          plots: Any = None) -> None:
     """Cut-off, the analyses (regulation table, far-field files), isolux and road plots."""
-    from lightsim import report
-
     frame = session.scene.wall
     summary["cutoff"] = _cutoff(lux, frame, opts.traffic, session)
     run = FinishedRun(session, lux, opts.traffic, summary["cutoff"])
@@ -582,8 +571,6 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:
-    from lightsim.render.cutoff import cutoff_interval, find_cutoff, scan_sample_points
-
     res = find_cutoff(lux, frame.to_dict(), traffic)
     out = {"found": res.found, "message": res.message, "v_cutoff_deg": res.v_cutoff_deg,
            "sharpness_g": res.sharpness_g, "linear": res.linear,
@@ -595,8 +582,6 @@ def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any
     if res.found and session is not None and session.config.n_sets > 1:
         # every set scans its own estimate: their spread is the position's interval
         hv, _, _ = scan_sample_points(frame.to_dict(), traffic)
-        from lightsim.render.frame import luminous
-
         ci = cutoff_interval(luminous(session.probe(hv).values), frame.to_dict(),
                              res.v_cutoff_deg, traffic)
         out["v_cutoff_interval_deg"] = (None if ci.interval_deg is None

@@ -12,7 +12,8 @@ option              unit   analysis
                            of the comma list (with ``traffic``, ``aim``, ``aperture``
                            deg, ``spt_points``)
 ``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
-                           ``ies_type``, ``farfield_photons``)
+                           ``ies_type``, ``farfield_photons``, ``ies_step``,
+                           ``ldt_step`` deg)
 ==================  =====  ==========================================================
 """
 
@@ -21,6 +22,11 @@ from __future__ import annotations
 from typing import Any
 
 from lightsim.analysis import Analysis
+
+from .photometric import resolve_ies_type
+from .photometric.analysis import FarfieldAnalysis
+from .photometric.gridding import check_step
+from .regulations.check import RegulationAnalysis, split_rulesets
 
 __all__ = ["for_options"]
 
@@ -31,20 +37,19 @@ def for_options(opts: Any) -> list[Analysis]:
     Building them checks their options (an unknown rule set, a misspelt ``--ies-type``
     raise :class:`~lightsim.errors.InputError` before any work).
     """
-    from .photometric import resolve_ies_type
-
     resolve_ies_type(opts.ies_type, None)  # a misspelt --ies-type fails even without --ies
+    for step, kind, flag in ((opts.ies_step, "ies", "--ies-step"),
+                             (opts.ldt_step, "ldt", "--ldt-step")):
+        if step is not None:
+            check_step(step, kind, flag)
     out: list[Analysis] = []
-    if opts.regulation is not None:  # imported only when asked (scipy: start-up time)
-        from .regulations.check import RegulationAnalysis, split_rulesets
-
+    if opts.regulation is not None:
         # `a,b`: one table per rule set, the first named "regulation"
         for i, rs in enumerate(split_rulesets(opts.regulation)):
             out.append(RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
                                           opts.spt_points,
                                           name="regulation" if i == 0 else f"regulation:{rs}"))
     if opts.ies or opts.ldt:
-        from .photometric.analysis import FarfieldAnalysis
-
-        out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons))
+        out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
+                                    opts.ies_step, opts.ldt_step))
     return out

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -109,3 +110,23 @@ def test_lamp_that_lights_no_road_still_finishes(tmp_path, capsys):
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["road"]["reach_m"] is None and (out / "road.png").exists()
+
+
+def test_a_coarse_far_field_file_warns_in_one_line(tmp_path, capsys):
+    """``--ies-step 5``: the file cannot hold the headlamp's peak; one warning line says so
+    and names the option; the run's outputs are written as always."""
+    lamp = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
+    out = tmp_path / "run"
+    code, _, err = _run(["simulate", str(lamp), "--photons", "300000", "--resolution",
+                         "160x64", "--regulation", "r112-b-passing", "--farfield-photons",
+                         "100000", "--ies", str(out / "coarse.ies"), "--ies-step", "5",
+                         "--ies-type", "C", "--out", str(out), "--quiet"], capsys)
+    assert code == 0, err
+    lines = [ln for ln in err.splitlines() if "does not reproduce" in ln]
+    assert len(lines) == 1 and lines[0].startswith("lightsim: warning: coarse.ies does not")
+    assert "--ies-step 5° is too coarse" in lines[0] and "Imax" in lines[0]
+    ff = json.loads((out / "summary.json").read_text())["farfield"]
+    check = ff["checks"][str(out / "coarse.ies")]
+    assert check["step_deg"] == 5.0 and check["angles"] == [72, 37]
+    assert check["peak_cd"] < 0.9 * check["run_imax_cd"]
+    assert ff["warnings"] == [ff["warning"]]

@@ -16,6 +16,10 @@
 * :func:`read_photometric` — either, by file suffix.
 * :func:`sample_directions` — a file as a point source: directions drawn exactly from the
   interpolated intensity.
+* ``simulate --ies/--ldt`` (module ``analysis``): the run's own wall photons and a
+  far-field trace as one table over the sphere (``runfield``), written on auto angles
+  fine where the beam changes fast or on equal steps (``gridding``: ``--ies-step``,
+  ``--ldt-step``), and compared with the run's apertures (``reproduce``).
 
 Shipped sample: ``interlight-ovni-60w-5300lm.ies`` (a measured LED high-bay, 5 300 lm; see
 ``SAMPLES.md`` for its source and licence).

@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from lightsim.emitters.polar import PolarTable
 from lightsim.errors import InputError
+from lightsim.wall import WallFrame, lux_from_candela
 
 from .checks import freeze_grid
 
@@ -254,8 +255,6 @@ class CandelaGrid:
         ndarray, shape (H, W)
             ``E = I·D / r³`` at the pixel centres.
         """
-        from lightsim.wall import WallFrame, lux_from_candela
-
         wf = WallFrame.from_any(frame)
         hm, vm = np.meshgrid(wf.h_m(), wf.v_m())
         d = np.stack([-hm, vm, np.full_like(hm, wf.distance_m)], axis=-1)

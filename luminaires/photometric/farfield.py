@@ -46,7 +46,7 @@ from lightsim.errors import InputError
 from .candela import CandelaGrid
 from .hvgrid import HVGrid
 
-__all__ = ["farfield_from_photons", "uniform_axes"]
+__all__ = ["farfield_from_photons", "symmetric_axis", "uniform_axes"]
 
 
 def uniform_axes(dc_deg: float = 1.0, dgamma_deg: float = 1.0) -> tuple[NDArray, NDArray]:
@@ -119,9 +119,9 @@ def farfield_from_photons(directions: ArrayLike, powers: ArrayLike, n_emitted: i
     if photometric_type == "A":
         step_h, step_v = dc_deg, dgamma_deg
         h_nodes = (np.asarray(c_deg, dtype=float) if c_deg is not None
-                   else _symmetric_axis(step_h, "H"))
+                   else symmetric_axis(step_h, "H"))
         v_nodes = (np.asarray(gamma_deg, dtype=float) if gamma_deg is not None
-                   else _symmetric_axis(step_v, "V"))
+                   else symmetric_axis(step_v, "V"))
         shell: CandelaGrid | HVGrid = HVGrid(h_nodes, v_nodes,
                                              np.zeros((h_nodes.size, v_nodes.size)), "A")
     else:
@@ -173,7 +173,7 @@ def farfield_from_photons(directions: ArrayLike, powers: ArrayLike, n_emitted: i
     return grid, np.sqrt(var) / omega
 
 
-def _symmetric_axis(step: float, name: str) -> NDArray:
+def symmetric_axis(step: float, name: str) -> NDArray:
     """Angles −90, −90 + step, …, 90 in degrees (step must divide 180°)."""
     if not step > 0:
         raise InputError(f"far-field {name} step must be > 0 degrees")

@@ -55,6 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from lightsim.emitters.polar import PolarTable
 from lightsim.errors import InputError
+from lightsim.wall import WallFrame, lux_from_candela
 
 from .candela import direction_from_hv
 from .checks import freeze_grid
@@ -189,8 +190,6 @@ class HVGrid:
 
     def wall_lux(self, frame: Any) -> NDArray:
         """Illuminance (lx) this lamp, at the origin, gives on a wall image (H, W)."""
-        from lightsim.wall import WallFrame, lux_from_candela
-
         wf = WallFrame.from_any(frame)
         hm, vm = np.meshgrid(wf.h_m(), wf.v_m())
         d = np.stack([-hm, vm, np.full_like(hm, wf.distance_m)], axis=-1)

@@ -70,7 +70,7 @@ from .checks import MAX_COUNT, check_angles, check_count, check_number, check_va
 from .hvgrid import HVGrid
 
 __all__ = ["IES_TYPES", "expand_type_ab_symmetry", "expand_type_c_symmetry", "format_number",
-           "read_ies", "resolve_ies_type", "write_ies"]
+           "read_ies", "read_lines", "resolve_ies_type", "write_ies"]
 
 _KEY_RE = re.compile(r"^\s*\[([^\]]+)\]\s*(.*?)\s*$")
 _SPLIT_RE = re.compile(r"[,\s]+")
@@ -94,7 +94,7 @@ def _decode(raw: bytes) -> str:
         return raw.decode("latin-1")
 
 
-def _read_lines(path: str | os.PathLike, kind: str) -> list[str]:
+def read_lines(path: str | os.PathLike, kind: str) -> list[str]:
     """Lines of a photometric text file (UTF-8, else Latin-1; any line ends).
 
     ``kind`` names the format in the error (``"IES"``, ``"LDT"``).
@@ -180,7 +180,7 @@ def read_ies(path: str | os.PathLike) -> CandelaGrid | HVGrid:
     """
     name = Path(path).name
     where = f"IES file {name}"
-    lines = _read_lines(path, "IES")
+    lines = read_lines(path, "IES")
     meta: dict[str, str] = {"format": "IES"}
     warns: list[str] = []
     i = 0

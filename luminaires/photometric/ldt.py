@@ -66,7 +66,7 @@ from lightsim.io.atomic import write_bytes
 
 from .candela import CandelaGrid
 from .checks import MAX_COUNT, check_angles, check_count, check_number, check_values
-from .ies import _read_lines, format_number
+from .ies import format_number, read_lines
 
 __all__ = ["read_ldt", "write_ldt"]
 
@@ -123,7 +123,7 @@ def read_ldt(path: str | os.PathLike, *, lamp_set: int | None = None) -> Candela
     """
     name = Path(path).name
     where = f"LDT file {name}"
-    lines = _read_lines(path, "LDT")
+    lines = read_lines(path, "LDT")
     warns: list[str] = []
     pos = 0
 
