@@ -24,6 +24,7 @@ import os
 from pathlib import Path
 
 from lightsim.errors import InputError
+from lightsim.io.atomic import atomic_path
 
 
 def _ocp():
@@ -86,8 +87,6 @@ def write_cad(path: str | os.PathLike, parts: list[tuple[str, object]]) -> Path:
     from OCP.TDataStd import TDataStd_Name
     from OCP.TDocStd import TDocStd_Document
     from OCP.XCAFDoc import XCAFDoc_DocumentTool
-
-    from lightsim.io.atomic import atomic_path
 
     p = Path(path)
     doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
