@@ -8,11 +8,15 @@ documented shapes, and the JSON output carries the rows.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from lightsim.photonmap import KdTree
 from lightsim.validation.bench import photonmap as bench
+from lightsim.validation.bench.photonmap import child_peak_rss
 
 
 def test_synthetic_sets_shapes_and_units() -> None:
@@ -90,8 +94,6 @@ def test_goal_rows_and_memory_rows_on_a_tiny_set() -> None:
 def test_incremental_tree_keeps_tight_leaf_boxes_and_exact_knn() -> None:
     """Insertion grows leaf boxes by the new photons only: the tree must be the one a
     rescan gives (same nodes, exact same kNN answers)."""
-    from lightsim.photonmap import KdTree
-
     pos, nrm, pw = bench.caustic_ring_set(30_000, seed=4)
     tree = KdTree(pos[:3000], nrm[:3000], pw[:3000])
     for a in range(3000, 30_000, 3000):
@@ -102,7 +104,6 @@ def test_incremental_tree_keeps_tight_leaf_boxes_and_exact_knn() -> None:
         p = tree._pts[tree._start[nd]:tree._end[nd]]
         np.testing.assert_array_equal(box[nd, :3], p.min(axis=0))  # tight, not just bounding
         np.testing.assert_array_equal(box[nd, 3:], p.max(axis=0))
-    from scipy.spatial import cKDTree
 
     q = pos[::97].astype(np.float64)
     d2, _ = tree.query(q, 16)
@@ -113,10 +114,6 @@ def test_incremental_tree_keeps_tight_leaf_boxes_and_exact_knn() -> None:
 def test_child_peak_rss_is_the_childs_not_the_parents():
     """A parent holding a large allocation: the peak RSS of a small child it starts is the
     child's own (Linux hands a forked child its parent's high-water mark)."""
-    import sys
-
-    from lightsim.validation.bench.photonmap import child_peak_rss
-
     big = np.ones(600 * 2**20 // 8)  # 600 MiB, touched
     kib, code, _ = child_peak_rss([sys.executable, "-c", "import numpy as np; "
                                    "a = np.ones(200 * 2**20 // 8)"])

@@ -1,4 +1,4 @@
-"""Numerical stability on stiff and extreme cases (issue 7): every case of
+"""Numerical stability on stiff and extreme cases: every case of
 :mod:`lightsim.validation.stability` as a test, plus the engine bugs they found."""
 
 from __future__ import annotations
