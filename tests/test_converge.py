@@ -14,7 +14,6 @@ import pytest
 from lightsim.cli.main import main
 from lightsim.errors import InputError
 from lightsim.validation import converge as cv
-from lightsim.validation.analytic import knn_available
 from lightsim.validation.scenes import analytic as an
 
 
@@ -64,9 +63,8 @@ def test_unknown_targets_and_estimators_are_input_errors():
 
 @pytest.fixture(scope="module")
 def small_study():
-    est = ["bin", *(["knn M=4"] if knn_available() else [])]
-    return cv.run_converge("analytic:lambertian", budgets=(0.15, 0.4), estimators=est,
-                           frame_photons=25_000)
+    return cv.run_converge("analytic:lambertian", budgets=(0.15, 0.4),
+                           estimators=["bin", "knn M=4"], frame_photons=25_000)
 
 
 def test_study_measures_error_against_the_exact_answer(small_study):
@@ -143,7 +141,6 @@ def paraboloid_by_photons():
                            estimators=["knn M=4"], frame_photons=250_000, by_photons=True)
 
 
-@pytest.mark.skipif(not knn_available(), reason="needs the photon map")
 def test_default_estimator_error_falls_with_photons(paraboloid_by_photons):
     """4× the photons: clearly lower error (deterministic seeds, no timing); the tool's
     own figure within 0.8–1.25 of the actual error at both steps (measured: 4.18 → 1.86 %,
