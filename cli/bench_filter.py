@@ -19,6 +19,8 @@ from __future__ import annotations
 import click
 
 from lightsim.errors import InputError
+from lightsim.validation.bench.filter import METHODS, run
+from lightsim.validation.bench.table import print_table, write_json
 
 
 def _sizes(text: str) -> list[int]:
@@ -47,9 +49,6 @@ def _sizes(text: str) -> list[int]:
 def command(width: int, height: int, sizes: str, repeats: int, channels: int,
             json_path: str | None) -> None:
     """Box-filter frames/s (paper 4.1): O(1) filter vs naive O(n²) and scipy."""
-    from lightsim.validation.bench.filter import METHODS, run
-    from lightsim.validation.bench.table import print_table, write_json
-
     rows, summary = run(width=width, height=height, sizes=_sizes(sizes), repeats=repeats,
                         channels=channels)
     print_table(f"Box filter, {width}×{height}×{channels} float32 "

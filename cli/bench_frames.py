@@ -6,7 +6,9 @@ import click
 
 from lightsim.engine.config import RunConfig
 from lightsim.options import click_option, lookup
+from lightsim.validation.bench.frames import RESOLUTIONS, bench_frames
 from lightsim.validation.bench.table import print_table, write_json
+from lightsim.validation.scenes import paper
 
 
 @click.command("frames")
@@ -21,9 +23,6 @@ from lightsim.validation.bench.table import print_table, write_json
 def command(scenes: str, frame_photons: int, accumulate: int, frames: int,
             max_resolution: str, json_path: str | None) -> None:
     """Frames per second at 640×480 … 1280×960 in one process (paper Table 7)."""
-    from lightsim.validation.bench.frames import RESOLUTIONS, bench_frames
-    from lightsim.validation.scenes import paper
-
     wmax = int(max_resolution.lower().split("x")[0])
     res = [r for r in RESOLUTIONS if r[0] <= wmax]
     rows = []

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import click
 
+from lightsim.errors import InputError
+from lightsim.luminaires.headlight import example_headlight
+from lightsim.simulate import SimulateOptions, load
+from lightsim.validation.bench.pipeline import bench_pipeline, load_average
 from lightsim.validation.bench.table import print_table, write_json
+from lightsim.validation.scenes.analytic import paraboloid_case
 
 
 @click.command("pipeline")
@@ -18,18 +23,12 @@ from lightsim.validation.bench.table import print_table, write_json
 def command(scene_file: str | None, paraboloid: bool, photons: int, repeats: int,
             threads: int | None, json_path: str | None) -> None:
     """Whole `simulate` runs vs the bare tracer on SCENE_FILE (default: the shipped
-    headlight), alternated REPEATS times; the ratio is issue 15's pipeline efficiency."""
-    from lightsim.cli.bench_tracer import example_headlight
-    from lightsim.errors import InputError
-    from lightsim.simulate import SimulateOptions, load
-    from lightsim.validation.bench.pipeline import bench_pipeline, load_average
-
+    headlight), alternated REPEATS times; the ratio is the pipeline's efficiency (the share
+    of a run spent tracing)."""
     if photons < 1 or repeats < 1:
         raise InputError(f"--photons and --repeats must be at least 1, got {photons}, "
                          f"{repeats}")
     if paraboloid:
-        from lightsim.validation.scenes.analytic import paraboloid_case
-
         name, scene = "analytic paraboloid", paraboloid_case().scene
         config = SimulateOptions(scene_path=name).run_config()
     else:

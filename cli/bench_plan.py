@@ -5,7 +5,10 @@ from __future__ import annotations
 import click
 
 from lightsim.engine.config import RunConfig
+from lightsim.luminaires.headlight import example_headlight
 from lightsim.options import click_option, lookup
+from lightsim.scene import load_scene
+from lightsim.validation.bench.plan import bench_plan
 from lightsim.validation.bench.table import print_table, write_json
 
 
@@ -19,10 +22,6 @@ from lightsim.validation.bench.table import print_table, write_json
 def command(scene_file: str | None, frame_photons: int, frames: int, repeats: int,
             json_path: str | None) -> None:
     """Seconds per frame with the plan's choice vs the stage forced on (same run)."""
-    from lightsim.cli.bench_tracer import example_headlight
-    from lightsim.scene import load_scene
-    from lightsim.validation.bench.plan import bench_plan
-
     path = scene_file or str(example_headlight())
     rows = bench_plan(load_scene(path), frame_photons=frame_photons, frames=frames,
                       repeats=repeats)

@@ -5,8 +5,11 @@ from __future__ import annotations
 import click
 
 from lightsim.engine.config import RunConfig
+from lightsim.luminaires.headlight import example_headlight
 from lightsim.options import click_option, lookup
+from lightsim.scene import load_scene
 from lightsim.simulate import SimulateOptions
+from lightsim.validation.bench.scaling import bench_scaling
 from lightsim.validation.bench.table import print_table, write_json
 
 
@@ -26,10 +29,6 @@ def command(scene_file: str | None, workers: str, frame_photons: int, accumulate
             frames: int, resolution: tuple[int, int], address: str | None, threads_per_worker: int,
             json_path: str | None) -> None:
     """Interaction and walkthrough frames/s per worker count, with bytes per frame."""
-    from lightsim.cli.bench_tracer import example_headlight
-    from lightsim.scene import load_scene
-    from lightsim.validation.bench.scaling import bench_scaling
-
     w, h = resolution
     path = scene_file or str(example_headlight())
     scene = load_scene(path, resolution=(w, h))

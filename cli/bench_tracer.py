@@ -4,16 +4,12 @@ from __future__ import annotations
 
 import click
 
+from lightsim.luminaires.headlight import example_headlight
+from lightsim.scene import load_scene
 from lightsim.validation.bench.table import print_table, write_json
-
-
-def example_headlight():
-    """Path of the shipped example headlight GLB."""
-    from pathlib import Path
-
-    import lightsim.luminaires
-
-    return Path(lightsim.luminaires.__file__).parent / "examples" / "headlight.glb"
+from lightsim.validation.bench.tracer import bench_tracer, stage_rows
+from lightsim.validation.bench.tracer_aim import bench_aim
+from lightsim.validation.scenes import analytic as cases
 
 
 @click.command("tracer")
@@ -34,22 +30,15 @@ def example_headlight():
 def command(scene_file: str | None, photons: int, repeats: int, threads: int | None,
             json_path: str | None, analytic: str | None, aim: bool, stages: bool) -> None:
     """Photon tracing vs raw embree on SCENE_FILE (default: the shipped headlight)."""
-    from lightsim.scene import load_scene
-    from lightsim.validation.bench.tracer import bench_tracer
-
     if analytic is not None:
         if scene_file is not None:
             raise click.UsageError("give either SCENE_FILE or --analytic, not both")
-        from lightsim.validation.scenes import analytic as cases
-
         path = f"analytic {analytic}"
         scene = getattr(cases, f"{analytic}_case")().scene
     else:
         path = scene_file or str(example_headlight())
         scene = load_scene(path)
     if aim:
-        from lightsim.validation.bench.tracer_aim import bench_aim
-
         rows = bench_aim(scene, repeats=repeats)
         print_table(f"aim: {path} ({scene.n_triangles} triangles)", rows)
         if json_path:
@@ -57,8 +46,6 @@ def command(scene_file: str | None, photons: int, repeats: int, threads: int | N
                                                        "triangles": scene.n_triangles})
         return
     if stages:
-        from lightsim.validation.bench.tracer import stage_rows
-
         rows = stage_rows(scene, photons=photons, threads=threads or 1, repeats=repeats)
         print_table(f"tracer stages: {path} ({scene.n_triangles} triangles)", rows)
         if json_path:

@@ -9,10 +9,22 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import click
+from rich.console import Console
+from rich.table import Table
 
 from lightsim.errors import InputError
+from lightsim.validation.compare import (
+    CompareOptions,
+    failed_thresholds,
+    load_transform,
+    parse_threshold,
+    run_compare,
+)
+from lightsim.validation.photo_pair import PairOptions, run_pair
+from lightsim.validation.photo_register import RegistrationOptions
 
 
 class ThresholdFailed(click.ClickException):
@@ -75,12 +87,9 @@ def _pair(text: str, name: str) -> tuple[float, float]:
                    "relative_difference.png.")
 @click.option("--credit", help="Attribution printed on the figures (e.g. a photo's licence).")
 @click.option("-q", "--quiet", is_flag=True, help="Print only failures.")
-def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
-            fit_gamma: bool, fail_below: tuple[str, ...], fail_above: tuple[str, ...],
-            transform_file: Path | None, traffic: str, max_rotation: float, scale_range: str,
-            points: str | None, markers: str, screen_distance: float | None,
-            normalise_at: str | None, lamp: str | None, against: Path | None,
-            credit: str | None, quiet: bool) -> None:
+def compare(photo: Path, sim_path: Path, out_dir: Path | None, fail_below: tuple[str, ...],
+            fail_above: tuple[str, ...], against: Path | None, quiet: bool,
+            **settings: Any) -> None:
     """Compare PHOTO (PNG/JPEG/TIFF/EXR/camera raw) with a simulation, or with --against.
 
     With screen geometry (--points or markers on the photo) the aim is measured without
@@ -88,32 +97,12 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
     report says that aim cannot be judged. Writes comparison.json, overlay.png,
     difference.png and contours.png (or pair.json and relative_difference.png) to --out.
     """
-    from lightsim.validation.compare import (
-        CompareOptions,
-        failed_thresholds,
-        load_transform,
-        parse_threshold,
-        run_compare,
-    )
-    from lightsim.validation.photo_register import RegistrationOptions
-
     if against is not None:
-        _compare_pair(photo, against, out_dir, points, markers, screen_distance, traffic,
-                      credit, quiet)
+        _compare_pair(photo, against, out_dir, settings, quiet)
         return
     below = [parse_threshold(t) for t in fail_below]
     above = [parse_threshold(t) for t in fail_above]
-    reg = RegistrationOptions(max_rotation_deg=max_rotation,
-                              scale_range=_pair(scale_range, "--scale-range"))
-    options = CompareOptions(model="homography" if homography else "similarity",
-                             fit_gamma=fit_gamma, traffic=traffic,
-                             transform=load_transform(transform_file) if transform_file else None,
-                             registration=reg, credit=credit, points=points,
-                             markers=markers, screen_distance_m=screen_distance,
-                             normalise_at=normalise_at, lamp=lamp)
-    if screen_distance is not None and not (math.isfinite(screen_distance)
-                                            and screen_distance > 0):
-        raise InputError(f"--screen-distance must be > 0 m, got {screen_distance!r}")
+    options = _options(**settings)
     out = out_dir or Path(f"compare-{photo.stem}")
     result = run_compare(photo, sim_path, out, options)
     if not quiet:
@@ -125,10 +114,26 @@ def compare(photo: Path, sim_path: Path, out_dir: Path | None, homography: bool,
         raise ThresholdFailed("; ".join(fails))
 
 
-def _report(result, out: Path) -> None:
-    from rich.console import Console
-    from rich.table import Table
+def _options(homography: bool, fit_gamma: bool, transform_file: Path | None, traffic: str,
+             max_rotation: float, scale_range: str, points: str | None, markers: str,
+             screen_distance: float | None, normalise_at: str | None, lamp: str | None,
+             credit: str | None) -> CompareOptions:
+    """The comparison settings of the command's options (input errors in option order)."""
+    reg = RegistrationOptions(max_rotation_deg=max_rotation,
+                              scale_range=_pair(scale_range, "--scale-range"))
+    options = CompareOptions(model="homography" if homography else "similarity",
+                             fit_gamma=fit_gamma, traffic=traffic,
+                             transform=load_transform(transform_file) if transform_file else None,
+                             registration=reg, credit=credit, points=points,
+                             markers=markers, screen_distance_m=screen_distance,
+                             normalise_at=normalise_at, lamp=lamp)
+    if screen_distance is not None and not (math.isfinite(screen_distance)
+                                            and screen_distance > 0):
+        raise InputError(f"--screen-distance must be > 0 m, got {screen_distance!r}")
+    return options
 
+
+def _report(result, out: Path) -> None:
     console = Console()
     _report_aim(console, result)
     t = result.transform_dict()
@@ -182,25 +187,17 @@ def _report_aim(console, result) -> None:
     console.print(f"test points relative to {n['point']}: {rows}")
 
 
-def _compare_pair(a_path: Path, b_path: Path, out_dir: Path | None, points: str | None,
-                  markers: str, screen_distance: float | None, traffic: str,
-                  credit: str | None, quiet: bool) -> None:
+def _compare_pair(a_path: Path, b_path: Path, out_dir: Path | None, settings: dict[str, Any],
+                  quiet: bool) -> None:
     """``compare A --against B``: photo against photo."""
-    from lightsim.validation.photo_io import read_photo
-    from lightsim.validation.photo_pair import PairOptions, compare_pair, write_pair
-    from lightsim.validation.screen_geometry import fit_screen, parse_points
-
-    a, b = read_photo(a_path), read_photo(b_path)
-    geometry = None
-    if points:
-        xy, hv = parse_points(points)
-        geometry = fit_screen(xy, hv, screen_distance or 25.0, source="points")
-    result = compare_pair(a, b, geometry, PairOptions(markers=markers), traffic)
     out = out_dir or Path(f"compare-{a_path.stem}-vs-{b_path.stem}")
-    write_pair(result, out, credit)
+    result, warnings = run_pair(a_path, b_path, out, settings["points"],
+                                PairOptions(markers=settings["markers"]),
+                                settings["screen_distance"], settings["traffic"],
+                                settings["credit"])
     if quiet:
         return
-    for line in a.info.get("warnings", []) + b.info.get("warnings", []):
+    for line in warnings:
         click.echo(f"lightsim: warning: {line}", err=True)
     click.echo(result.statement)
     click.echo(f"exposure: B × {result.exposure_ratio:.4g} ({result.exposure_source})")

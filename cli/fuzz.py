@@ -8,6 +8,10 @@ from __future__ import annotations
 
 import click
 
+from lightsim.cli.main import main
+from lightsim.io.summary import write_json
+from lightsim.validation.fuzz import KINDS, run_fuzz
+
 
 @click.command()
 @click.argument("n", type=click.IntRange(min=1))
@@ -29,16 +33,14 @@ def fuzz(n: int, seed: int, kinds: tuple[str, ...], photons: int, resolution: st
          timeout_s: float, headlight: bool, keep_dir: str | None, json_path: str | None,
          verbose: bool) -> None:
     """Run N mutated GLB/glTF, IES, LDT and photo inputs through the command line."""
-    from lightsim.io.summary import write_json
-    from lightsim.validation.fuzz import KINDS, run_fuzz
 
     def show(r) -> None:
         if verbose or not r.ok:
             click.echo(r.describe())
 
-    report = run_fuzz(n, seed, kinds or KINDS, photons=photons, resolution=resolution,
-                      timeout_s=timeout_s, headlight=headlight, workdir=keep_dir,
-                      progress=show)
+    report = run_fuzz(n, seed, kinds or KINDS, command=main, photons=photons,
+                      resolution=resolution, timeout_s=timeout_s, headlight=headlight,
+                      workdir=keep_dir, progress=show)
     for line in report.table():
         click.echo(line)
     if json_path:

@@ -12,6 +12,11 @@ from pathlib import Path
 import click
 
 from lightsim.errors import InputError
+from lightsim.io.rayfile import write_rayfile
+from lightsim.luminaires.bulbs import BULBS
+from lightsim.luminaires.cad_example import write_example
+from lightsim.luminaires.headlight import write_headlight
+from lightsim.luminaires.rayfiles import lambertian_square
 
 MM = 1e-3
 
@@ -57,8 +62,6 @@ def headlight(
     Axes: +Y up, the lamp shines along +Z, reflector vertex at the origin, focus at
     (0, 0, f); H on the wall (the driver's right) is world −X.
     """
-    from lightsim.luminaires.headlight import write_headlight
-
     if out.suffix.lower() != ".glb":
         raise InputError(f"output {out} must be a .glb file")
     if not out.parent.exists() and str(out.parent) != "":
@@ -93,8 +96,6 @@ def bulbs() -> None:
     Positions are relative to the reflector focus in mm (x, y up, z ahead along the beam).
     Filament sizes are assumptions (UN R37 data sheets were not available).
     """
-    from lightsim.luminaires.bulbs import BULBS
-
     header = (
         f"{'preset':<8} {'cat':<4} {'flux lm':>8} {'W':>4} {'filament L×Ø mm':>16} "
         f"{'centre x,y,z mm':>17} {'axis':<5} {'cup':<4} {'tip cap':<7} {'lamp cap':<8}"
@@ -130,17 +131,8 @@ def bulbs() -> None:
 def rayfile(out: Path, side_mm: float, rays: int, flux_lm: float, seed: int) -> None:
     """Write the ray file of a square Lambertian LED die facing +Z (TM-25 for .tm25ray,
     Zemax binary for .dat/.ray)."""
-    from lightsim.io.rayfile import TM25_SUFFIXES, ZEMAX_SUFFIXES, write_tm25, write_zemax
-    from lightsim.luminaires.rayfiles import lambertian_square
-
     pos, dirs, flux = lambertian_square(side_mm * MM, rays, flux_lm, seed)
-    suffix = out.suffix.lower()
-    if suffix in TM25_SUFFIXES:
-        write_tm25(out, pos, dirs, flux, name=f"Lambertian square {side_mm:g} mm")
-    elif suffix in ZEMAX_SUFFIXES:
-        write_zemax(out, pos, dirs, flux, description=f"Lambertian square {side_mm:g} mm")
-    else:
-        raise InputError(f"{out}: ray file name must end in .tm25ray, .dat or .ray")
+    write_rayfile(out, pos, dirs, flux, f"Lambertian square {side_mm:g} mm")
     click.echo(f"wrote {out}: {len(pos):,} rays, {flux_lm:g} lm, square {side_mm:g} mm, "
                "Lambertian along +Z")
 
@@ -156,14 +148,5 @@ def rayfile(out: Path, side_mm: float, rays: int, flux_lm: float, seed: int) -> 
 def cad_example(out: Path, focal_mm: float, aperture_mm: float, flux_lm: float) -> None:
     """Write an example headlamp as CAD (STEP or IGES by suffix: exact paraboloid
     reflector, axial filament, bulb glass, cover lens) and its material map OUT.toml."""
-    from lightsim.io.atomic import write_text
-    from lightsim.luminaires.cad_example import (
-        example_material_map,
-        headlamp_shapes,
-        write_cad,
-    )
-
-    write_cad(out, headlamp_shapes(focal_mm, aperture_mm / 2))
-    mmap = out.with_suffix(".toml")
-    write_text(mmap, example_material_map(flux_lm))
+    mmap = write_example(out, focal_mm, aperture_mm / 2, flux_lm)
     click.echo(f"wrote {out} (reflector, filament, bulb, lens; mm) and {mmap}")

@@ -7,13 +7,14 @@ goes to ``OUT``'s sidecar ``<name>.truth.json``.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import click
-import numpy as np
 
 from lightsim.errors import InputError
+from lightsim.validation.photo_io import load_simulation
+from lightsim.validation.synthetic_photo import CameraSettings, photograph_simulation
 
 
 def _numbers(text: str | None, n: int, name: str, kind: type = float) -> tuple | None:
@@ -67,47 +68,29 @@ def _numbers(text: str | None, n: int, name: str, kind: type = float) -> tuple |
               help="Room light on the wall with --markers or --wall-texture (lx).")
 @click.option("--reaim", metavar="DH,DV", help="Turn the lamp by DH right, DV up (deg) "
               "before photographing: a lamp aimed off (the truth records it).")
-def photo(sim_path: Path, out: Path, rotate: float, scale: float, shift: str, tilt: float,
-          size: str | None, blur: float, noise: float, vignetting: float, gamma: float | None,
-          exposure: float, saturate: float | None, bits: str, seed: int, markers: bool,
-          wall_texture: int | None, ambient: float, reaim: str | None) -> None:
+def photo(sim_path: Path, out: Path, markers: bool, wall_texture: int | None, ambient: float,
+          reaim: str | None, **camera: Any) -> None:
     """Photograph a simulated wall with a synthetic camera (truth in OUT's .truth.json)."""
-    from lightsim.validation.photo_io import load_simulation
-    from lightsim.validation.synthetic_photo import CameraSettings, render_photo, write_photo
-
-    dims = _numbers(size, 2, "--size", int)
-    cam = CameraSettings(rotate_deg=rotate, scale=scale,
-                         shift_px=_numbers(shift, 2, "--shift"),  # type: ignore[arg-type]
-                         tilt_deg=tilt, size=dims, blur_px=blur,  # type: ignore[arg-type]
-                         noise=noise, vignetting=vignetting, gamma=gamma,
-                         exposure_ev=exposure, saturate=saturate, bits=int(bits), seed=seed)
+    cam = _camera(**camera)
     sim = load_simulation(sim_path)
-    lux, extra = sim.lux, {"simulation": sim.source}
     aim = _numbers(reaim, 2, "--reaim")
-    if aim is not None:
-        from lightsim.render.cutoff import apply_shift
-
-        lux = apply_shift(np.nan_to_num(lux), sim.frame, aim[0], aim[1])
-        extra["reaim_deg"] = {"dh": aim[0], "dv": aim[1]}
-    to_sim = None
-    if markers or wall_texture is not None:
-        from lightsim.validation.synthetic_photo import screen_scene
-
-        lux, _, to_sim = screen_scene(lux, sim.frame, layout=None if markers else False,
-                                      ambient_lx=ambient, texture_seed=wall_texture)
-        extra["screen"] = {"markers": "default layout" if markers else None,
-                           "wall_texture_seed": wall_texture, "ambient_lx": ambient}
-        # --scale and the default size stay in simulation px on the 4× finer grid
-        cam = replace(cam, size=cam.size or (sim.lux.shape[1], sim.lux.shape[0]),
-                      scale=cam.scale / 4)
-    shot = render_photo(lux, cam)
-    if to_sim is not None:
-        m = to_sim @ shot.matrix
-        shot = replace(shot, matrix=m / m[2, 2])
-    path, side = write_photo(out, shot, extra)
+    path, side, shot = photograph_simulation(sim, out, cam, aim, markers, wall_texture,
+                                             ambient)
     truth = shot.truth()
     click.echo(f"wrote {path} ({truth['photo_size'][0]}×{truth['photo_size'][1]}, "
                f"{100 * truth['clipped_fraction']:.1f} % clipped) and {side}")
     click.echo(f"true transform photo px → simulation px: rotation {truth['rotation_deg']:+.3f}°, "
                f"scale {truth['scale']:.5g}, translation ({truth['translation_px'][0]:.2f}, "
                f"{truth['translation_px'][1]:.2f}) px")
+
+
+def _camera(rotate: float, scale: float, shift: str, tilt: float, size: str | None,
+            blur: float, noise: float, vignetting: float, gamma: float | None,
+            exposure: float, saturate: float | None, bits: str, seed: int) -> CameraSettings:
+    """The camera of the command's options."""
+    dims = _numbers(size, 2, "--size", int)
+    return CameraSettings(rotate_deg=rotate, scale=scale,
+                          shift_px=_numbers(shift, 2, "--shift"),  # type: ignore[arg-type]
+                          tilt_deg=tilt, size=dims, blur_px=blur,  # type: ignore[arg-type]
+                          noise=noise, vignetting=vignetting, gamma=gamma,
+                          exposure_ev=exposure, saturate=saturate, bits=int(bits), seed=seed)

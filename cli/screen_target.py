@@ -5,9 +5,12 @@ The board, its layout and the detection are in :mod:`lightsim.validation.screen_
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
+
+from lightsim.validation.screen_target import DEFAULT_LAYOUT, write_target
 
 
 @click.command("screen-target")
@@ -18,10 +21,6 @@ import click
               help="PNG resolution (pixels per metre of screen).")
 def screen_target(out: Path, distance: float, px_per_m: float) -> None:
     """Write a marker board (ArUco DICT_4X4_50) and OUT's .layout.json for `compare`."""
-    from dataclasses import replace
-
-    from lightsim.validation.screen_target import DEFAULT_LAYOUT, write_target
-
     layout = replace(DEFAULT_LAYOUT, distance_m=distance)
     paths = write_target(out, layout, px_per_m)
     click.echo(f"wrote {paths[0]} and {paths[1]}: {len(layout.markers)} markers, edge "

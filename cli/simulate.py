@@ -10,16 +10,16 @@ from typing import Any
 
 import click
 from click.core import ParameterSource
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
-from lightsim.options import click_options, parse_pair
-from lightsim.simulate import SimulateOptions
-
-
-def _pair(text: str | None, what: str, cast=float) -> tuple | None:
-    """``AxB`` → two positive numbers (other commands' options use it too)."""
-    return parse_pair(text, what, cast)
+from lightsim.io import plot_worker
+from lightsim.luminaires.analyses import for_options
+from lightsim.luminaires.regulations.check import format_regulation, regulation_tables
+from lightsim.options import click_options
+from lightsim.simulate import SimulateOptions, read_checkpoint, run_simulation
 
 
 class _Progress:
@@ -36,8 +36,6 @@ class _Progress:
 
     def __enter__(self) -> _Progress:
         if not self.quiet:
-            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
             self.progress = Progress(TextColumn("[bold]simulate"), BarColumn(),
                                      TextColumn("{task.fields[info]}"), TimeElapsedColumn(),
                                      transient=False)
@@ -85,8 +83,6 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
              **values: Any) -> None:
     """Simulate SCENE_FILE (GLB/glTF/OBJ/STL/PLY, STEP/IGES, a .tm25ray ray file) and write
     the wall illuminance in lux."""
-    from lightsim.simulate import read_checkpoint, run_simulation
-
     resume = None
     if resume_dir is not None:
         if scene_file is not None:
@@ -101,8 +97,6 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
     else:
         opts = SimulateOptions.from_command_line(scene_file, values)
         opts.run_config()  # validate the settings before any work
-    from lightsim.luminaires.analyses import for_options
-
     analyses = for_options(opts)  # regulation table, far-field files (checked here)
 
     stop = {"signal": None}
@@ -124,10 +118,8 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
             for line in session.plan.explain():
                 click.echo(f"  {line}")
 
-    from lightsim.io import plot_worker
-
-    # the plots' helper process starts now: matplotlib is imported and warmed up while
-    # the scene loads and the run goes on (lightsim/io/plot_worker.py)
+    # the plot process starts now: matplotlib is imported and warmed up while the scene
+    # loads and the run goes on (lightsim/io/plot_worker.py)
     plots = plot_worker.start(any(n in opts.outputs for n in plot_worker.PLOT_OUTPUTS))
     try:
         with _Progress(quiet, opts.photons, opts.seconds, opts.target_error) as prog:
@@ -165,13 +157,6 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
             click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
                        f"{s['road']['text']}")
         if any(k == "regulation" or k.startswith("regulation:") for k in s):
-            from rich.console import Console
-
-            from lightsim.luminaires.regulations.check import (
-                format_regulation,
-                regulation_tables,
-            )
-
             console = Console(width=None if sys.stdout.isatty() else 160)
             for table in regulation_tables(s):
                 console.print(format_regulation(table))

@@ -6,19 +6,47 @@ from __future__ import annotations
 import math
 import os
 import time
+from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import click
+from rich.console import Console
+from rich.table import Table
 
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
-from lightsim.options import click_option, lookup
-from lightsim.simulate import SimulateOptions
+from lightsim.luminaires.regulations import load_ruleset
+from lightsim.luminaires.regulations.check import split_rulesets
+from lightsim.options import click_option, lookup, parse_pair
+from lightsim.simulate import SimulateOptions, check_out_dir, load
+from lightsim.validation.tolerance import (
+    MM,
+    ToleranceBox,
+    ToleranceStudy,
+    box_for_scene,
+    run_tolerance,
+    write_study,
+)
+
+
+@dataclass(frozen=True)
+class _Study:
+    """The study's own options (those of the run every sample repeats go to
+    :class:`~lightsim.simulate.SimulateOptions`)."""
+
+    samples: int
+    design_seed: int
+    tilt: bool
+    box_mm: str | None
+    tilt_deg: float | None
+    bulb: str | None
+    centre_mm: str | None
+    workers: int
+    address: str | None
 
 
 def _box(text: str | None, tilt_deg: float | None):
     """``DX,DY,DZ`` half-widths in mm → a ToleranceBox (None: the bulb's)."""
-    from lightsim.validation.tolerance import MM, ToleranceBox
-
     if text is None:
         return None
     try:
@@ -74,42 +102,32 @@ def _centre(text: str | None) -> tuple[float, float, float]:
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="tolerance-out",
               show_default=True)
 @click.option("--quiet", "-q", is_flag=True)
-def tolerance(scene_file: str, regulation: str, samples: int, photons: int, seed: int,
-              design_seed: int, tilt: bool, box_mm: str | None, tilt_deg: float | None,
-              bulb: str | None, resolution: str, frame_photons: int, traffic: str, aim: bool,
-              aperture: float, centre_mm: str | None, workers: int, address: str | None,
-              out_dir: str,
-              quiet: bool) -> None:
+def tolerance(scene_file: str, regulation: str, photons: int, out_dir: str, quiet: bool,
+              **values: Any) -> None:
     """Move the filament of SCENE_FILE within its bulb's tolerance box, simulate every
     sample with common random numbers and report regulation pass rates."""
-    from lightsim.cli.simulate import _pair
-    from lightsim.luminaires.regulations import load_ruleset
-    from lightsim.simulate import SimulateOptions, check_out_dir, load
-    from lightsim.validation.tolerance import box_for_scene, run_tolerance, write_study
-
-    if samples < 1:
-        raise InputError(f"--samples must be ≥ 1, got {samples}")
+    study = _Study(**{f.name: values.pop(f.name) for f in fields(_Study)})
+    if study.samples < 1:
+        raise InputError(f"--samples must be ≥ 1, got {study.samples}")
     if photons < 1:
         raise InputError(f"--photons must be ≥ 1, got {photons}")
-    if workers < 0:
-        raise InputError(f"--workers must be ≥ 0, got {workers}")
+    if study.workers < 0:
+        raise InputError(f"--workers must be ≥ 0, got {study.workers}")
+    tilt_deg = study.tilt_deg
     if tilt_deg is not None and not (math.isfinite(tilt_deg) and tilt_deg >= 0):
         raise InputError(f"--tilt-deg must be ≥ 0, got {tilt_deg}")
-    from lightsim.luminaires.regulations.check import split_rulesets
-
     for rs in split_rulesets(regulation):
         load_ruleset(rs)
     opts = SimulateOptions(scene_path=scene_file, out_dir=out_dir, photons=photons,
-                           resolution=_pair(resolution, "--resolution", int),
-                           config={"seed": seed, "frame_photons": frame_photons},
-                           regulation=regulation, traffic=traffic, aim=aim,
-                           aperture=aperture)
+                           resolution=parse_pair(values["resolution"], "--resolution", int),
+                           config={"seed": values["seed"],
+                                   "frame_photons": values["frame_photons"]},
+                           regulation=regulation, traffic=values["traffic"], aim=values["aim"],
+                           aperture=values["aperture"])
     opts.run_config()
-    box = _box(box_mm, tilt_deg)
+    box = _box(study.box_mm, tilt_deg)
     if box is None:
-        from dataclasses import replace
-
-        box = box_for_scene(load(opts), bulb)
+        box = box_for_scene(load(opts), study.bulb)
         if tilt_deg is not None:
             box = replace(box, tilt_deg=tilt_deg)
     out = check_out_dir(out_dir)
@@ -123,21 +141,19 @@ def tolerance(scene_file: str, regulation: str, samples: int, photons: int, seed
                        f"{o[2] * 1e3:+.3f}) mm tilt=({o[3]:+.2f}, {o[4]:+.2f})°  "
                        f"{s.seconds:5.1f} s  fails: {', '.join(fails) or '-'}", err=True)
 
-    study = run_tolerance(opts, samples=samples, seed=design_seed, tilt=tilt, box=box,
-                          centre_m=_centre(centre_mm),
-                          workers=workers, address=address or os.environ.get("RAY_ADDRESS"),
-                          progress=progress)
-    files = write_study(study, out)
-    _print(study)
-    click.echo(f"{len(study.samples) - 1} samples + nominal, {photons:,} photons each, in "
+    result = run_tolerance(opts, samples=study.samples, seed=study.design_seed,
+                           tilt=study.tilt, box=box, centre_m=_centre(study.centre_mm),
+                           workers=study.workers,
+                           address=study.address or os.environ.get("RAY_ADDRESS"),
+                           progress=progress)
+    files = write_study(result, out)
+    _print(result)
+    click.echo(f"{len(result.samples) - 1} samples + nominal, {photons:,} photons each, in "
                f"{time.perf_counter() - t0:.1f} s; wrote "
                + ", ".join(str(f.name) for f in files) + f" in {out}")
 
 
-def _print(study) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
+def _print(study: ToleranceStudy) -> None:
     b = study.box
     rate, ci = study.all_pass_rate()
     how = (f"{study.aperture_deg:g}° apertures" if study.aperture_deg else "kNN at the points")
@@ -164,10 +180,8 @@ def _print(study) -> None:
     click.echo(f"box source: {b.source}")
 
 
-def _sensitivity_table(study):
+def _sensitivity_table(study: ToleranceStudy) -> Table:
     """Slopes (cd per 0.1 mm, ± standard error) and the single-axis shift to the limit."""
-    from rich.table import Table
-
     axes = ["dx", "dy", "dz"] + (["tilt_x", "tilt_y"] if study.tilt else [])
     table = Table(title="sensitivity: least-squares plane over the samples, cd per 0.1 mm"
                   + (" (tilts: per 0.1°)" if study.tilt else "")

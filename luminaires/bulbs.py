@@ -8,13 +8,13 @@ Axes and units follow ``docs/conventions.md``: metres, lumens; lamp axes with +Y
 lamp shining along +Z, the reflector focus at the origin of the offsets. "Ahead of the focus"
 is +Z (further from the reflector vertex).
 
-Flux sources (see ``shared/data/headlamp-facts.md``, table "Filament bulbs (UN R37)"):
+Flux sources (UN R37 and published bulb ratings):
 
 * H1: UN R37, 1 550 lm ±15 % at the 13.2 V test voltage (US rating 1 410 lm at 12.8 V).
 * H3: UN R37, 1 450 lm ±15 % at 13.2 V.
 * H4: 1 650 lm (driving beam) / 1 000 lm (passing beam) at 13.2 V are the *commonly cited*
   values; not verified against the R37 data sheet.
-* H7: 1 500 lm as set in issue 2; published figures disagree (1 350–1 500 lm).
+* H7: 1 500 lm, the upper end of the published figures (1 350–1 500 lm), which disagree.
 
 Filament dimensions — ASSUMPTIONS. The R37 data sheets (which define the distance e from the
 reference plane to the filament centre, the filament length f and a lateral position box)
@@ -299,7 +299,7 @@ BULBS: dict[str, BulbSpec] = {
                   (0.0, _H4_PASSING_Y, _H4_PASSING_Z)),
     "H7": _single(
         "H7", 1500.0,
-        "1 500 lm at 13.2 V as set in issue 2; published values disagree (1 350–1 500 lm)",
+        "1 500 lm at 13.2 V, the upper end of published values (1 350–1 500 lm)",
         4.1, 1.3, _AXIAL, tip_cap=True, cap="PX26d",
     ),
 }  # fmt: skip

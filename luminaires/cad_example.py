@@ -24,6 +24,7 @@ import os
 from pathlib import Path
 
 from lightsim.errors import InputError
+from lightsim.io.atomic import atomic_path, write_text
 
 
 def _ocp():
@@ -87,8 +88,6 @@ def write_cad(path: str | os.PathLike, parts: list[tuple[str, object]]) -> Path:
     from OCP.TDocStd import TDocStd_Document
     from OCP.XCAFDoc import XCAFDoc_DocumentTool
 
-    from lightsim.io.atomic import atomic_path
-
     p = Path(path)
     doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
     tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
@@ -139,3 +138,15 @@ match = "lens*"
 kind = "glass"
 ior = 1.59
 '''
+
+
+def write_example(path: str | os.PathLike, focal_mm: float = 25.0, rim_mm: float = 80.0,
+                  flux_lm: float = 1000.0) -> Path:
+    """Write the example headlamp (:func:`headlamp_shapes`) as CAD to ``path`` (STEP or
+    IGES by suffix, mm) and its material map (:func:`example_material_map`) beside it as
+    ``<path>.toml``; returns the material map's path."""
+    p = Path(path)
+    write_cad(p, headlamp_shapes(focal_mm, rim_mm))
+    mmap = p.with_suffix(".toml")
+    write_text(mmap, example_material_map(flux_lm))
+    return mmap

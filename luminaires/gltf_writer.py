@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pygltflib
 
+from lightsim import __version__
 from lightsim.errors import InputError
 from lightsim.io.atomic import write_bytes
 
@@ -293,8 +294,6 @@ def glb_bytes(
     InputError
         Malformed geometry, out-of-range material factors, non-JSON extras.
     """
-    from lightsim import __version__
-
     if not parts:
         raise InputError("cannot write a glTF file without parts")
     names = [p.name for p in parts]

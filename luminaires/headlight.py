@@ -77,6 +77,7 @@ import itertools
 import math
 import os
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -94,12 +95,22 @@ __all__ = [
     "SHIELD_BLACK",
     "HeadlightParams",
     "build_headlight",
+    "example_headlight",
     "flute_slope_for_spread",
     "paraboloid_normals",
     "write_headlight",
 ]
 
 MM = 1e-3
+#: the shipped example lamps (``luminaires/examples/README.md`` gives each one's command)
+EXAMPLES_DIR = Path(__file__).parent / "examples"
+
+
+def example_headlight() -> Path:
+    """Path of the shipped example headlight (``examples/headlight.glb``, made by
+    :func:`write_headlight` with the defaults of ``lightsim luminaire headlight``)."""
+    return EXAMPLES_DIR / "headlight.glb"
+
 
 #: Quartz envelope: clear dielectric n = 1.46 (fused silica, visible).
 BULB_GLASS = GltfMaterial(

@@ -17,6 +17,7 @@ pytest.importorskip("cascadio", reason="STEP/IGES import needs cascadio (the 'ca
 pytest.importorskip("OCP", reason="making STEP files needs cadquery-ocp (the 'cad' extra)")
 
 from lightsim.errors import InputError
+from lightsim.io import cad
 from lightsim.io.cad import Tessellation, read_cad
 from lightsim.luminaires.cad_example import (
     example_material_map,
@@ -96,8 +97,6 @@ def test_iges_import_keeps_names_and_units(tmp_path):
 
 def test_iges_unit_flag_without_ocp(tmp_path, monkeypatch):
     """With cascadio alone the IGES unit comes from the global section."""
-    from lightsim.io import cad
-
     igs = write_cad(tmp_path / "lamp.igs", headlamp_shapes(lens=False))
     assert cad.iges_unit_m(igs.read_bytes()) == 1e-3
     monkeypatch.setattr(cad, "iges_as_step", lambda path: None)

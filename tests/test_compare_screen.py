@@ -10,16 +10,22 @@ lamp), so the true aim error is known exactly.
 from __future__ import annotations
 
 import json
+import math
+from dataclasses import replace
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
 from helpers import run_cli as _run
+from scipy.ndimage import map_coordinates
+from skimage.transform import ProjectiveTransform, warp
 
 from lightsim.errors import InputError
+from lightsim.luminaires.regulations.ruleset import load_ruleset
 from lightsim.render.cutoff import apply_shift
 from lightsim.validation.compare import CompareOptions, compare_images
-from lightsim.validation.photo_io import load_simulation, read_photo
+from lightsim.validation.photo_io import load_simulation, read_photo, srgb_decode, srgb_encode
 from lightsim.validation.photo_register import apply_matrix
 from lightsim.validation.screen_geometry import fit_screen, parse_points, sim_matrix
 from lightsim.validation.screen_target import (
@@ -35,9 +41,11 @@ from lightsim.validation.synthetic_photo import (
     render_photo,
     screen_scene,
     wall_frame,
+    write_dng,
     write_photo,
     write_result,
 )
+from lightsim.wall import WallFrame
 
 FRAME = wall_frame((400, 160))
 CAMERA = dict(rotate_deg=5, scale=0.9, size=(1300, 560), tilt_deg=8, blur_px=1.0,
@@ -72,8 +80,6 @@ def aimed_up(tmp_path_factory, lux):
 def _max_error(found, truth, shape, frame=FRAME):
     """Largest displacement (simulation px) over the screen the markers span, |H| ≤ 10°,
     −6° ≤ V ≤ 4° (outside it a homography extrapolates)."""
-    from lightsim.wall import WallFrame
-
     wall = WallFrame.from_any(frame)
     hp, wp = shape
     yy, xx = np.mgrid[0:hp:4, 0:wp:4].astype(float)
@@ -191,7 +197,6 @@ def test_screen_target_png_is_found_exactly_and_pdf_has_a_page_per_marker(tmp_pa
     assert code == 0, err
     layout = load_layout(tmp_path / "board.layout.json")
     assert layout == DEFAULT_LAYOUT
-    import imageio.v3 as iio
 
     img = iio.imread(tmp_path / "board.png").astype(float) / 255
     geo = detect_markers(img ** 2.2, layout)
@@ -222,8 +227,6 @@ def test_write_target_rejects_a_bad_resolution(tmp_path):
 
 def _deflected(lux):
     """A deflector that dims everything left of H = −2° by 40 % (soft edge)."""
-    from lightsim.wall import WallFrame
-
     h = WallFrame.from_any(FRAME).h_deg()[None, :]
     return lux * (1 - 0.4 / (1 + np.exp((h + 2.0) / 0.2)))
 
@@ -247,7 +250,6 @@ def _pair(lux, folder, layout, texture, ambient, moved=True):
 
 def _points_text(truth):
     hv = np.array([(h, v) for _, h, v in DEFAULT_LAYOUT.markers])[[0, 4, 5, 9, 2, 7]]
-    from lightsim.wall import WallFrame
 
     wall = WallFrame.from_any(FRAME)
     rows, cols = wall.pixel_of(25 * np.tan(np.radians(hv[:, 0])),
@@ -258,11 +260,6 @@ def _points_text(truth):
 
 def _true_change(lux, name, ambient):
     """(E_B + ambient)/(E_A + ambient) − 1 at a test point: what the camera sees change."""
-    from scipy.ndimage import map_coordinates
-
-    from lightsim.luminaires.regulations.ruleset import load_ruleset
-    from lightsim.wall import WallFrame
-
     g = load_ruleset("r112-b-passing").geometry(name)
     wall = WallFrame.from_any(FRAME)
     r, c = wall.pixel_of(25 * np.tan(np.radians(g.h)), 25 * np.tan(np.radians(g.v)))
@@ -277,8 +274,6 @@ def _check_pair(doc, shots, truth_change):
     m = np.array(doc["alignment"]["matrix"])
     a_to_b = np.linalg.inv(b.matrix) @ a.matrix
     # compare B→A maps at A pixels x_a: truth is x_a itself, found is m·(a_to_b·x_a)
-    from lightsim.wall import WallFrame
-
     wall = WallFrame.from_any(FRAME)
     yy, xx = np.mgrid[0:560:8, 0:1300:8].astype(float)
     sx, sy = apply_matrix(to_sim @ a.matrix, xx, yy)
@@ -354,8 +349,6 @@ def test_cli_photo_of_a_marker_screen_with_the_lamp_aimed_half_a_degree_up(sim, 
 def test_photo_against_photo_uses_exif_exposure(lux, sim, tmp_path, capsys):
     """Two raw DNGs of one marker screen, B exposed twice as long (EXIF 1/25 s vs 1/50 s)
     and twice as bright: the exposure ratio comes from EXIF and nothing else changed."""
-    from lightsim.validation.synthetic_photo import write_dng
-
     scene, _, _ = screen_scene(lux, FRAME)
     shot = render_photo(scene, CameraSettings(**{**CAMERA, "noise": 0.0}))
     a = write_dng(tmp_path / "a.dng", 0.45 * shot.linear)
@@ -380,13 +373,6 @@ def test_real_photograph_against_a_moved_darker_copy_aligns_by_the_door(tmp_path
     """The shipped real photograph (CC BY 4.0, tests/data/README.md) against itself turned
     1°, moved (7, −4) px and 0.7× as bright, re-encoded as JPEG: the garage door outside
     the beams aligns B onto A within 0.5 px and the exposure ratio is found."""
-    import math
-
-    import imageio.v3 as iio
-    from skimage.transform import ProjectiveTransform, warp
-
-    from lightsim.validation.photo_io import srgb_decode, srgb_encode
-
     real = Path(__file__).parent / "data" / "zoe-lowbeam-garage-door.jpg"
     img = srgb_decode(iio.imread(real).astype(float) / 255)
     h, w = img.shape[:2]
@@ -413,8 +399,6 @@ def test_real_photograph_against_a_moved_darker_copy_aligns_by_the_door(tmp_path
 
 def test_a_single_marker_is_not_trusted(lux, sim, tmp_path):
     """One marker's four corners fix a homography with nothing to check it: not used."""
-    from dataclasses import replace
-
     one = replace(DEFAULT_LAYOUT, markers=DEFAULT_LAYOUT.markers[2:3])
     scene, _, _ = screen_scene(lux, FRAME, layout=one)
     shot = render_photo(scene, CameraSettings(**CAMERA))

@@ -1,4 +1,4 @@
-"""Error against run time (issue 7): interpolation, metrics, outputs, and the command."""
+"""Error against run time: interpolation, metrics, outputs, and the command."""
 
 from __future__ import annotations
 
@@ -6,13 +6,14 @@ import csv
 import itertools
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lightsim.cli.main import main
+from lightsim.errors import InputError
 from lightsim.validation import converge as cv
-from lightsim.validation.analytic import knn_available
 from lightsim.validation.scenes import analytic as an
 
 
@@ -53,8 +54,6 @@ def test_error_metrics_and_reference_noise_correction():
 
 
 def test_unknown_targets_and_estimators_are_input_errors():
-    from lightsim.errors import InputError
-
     with pytest.raises(InputError):
         cv.analytic_target("ring")
     with pytest.raises(InputError):
@@ -64,9 +63,8 @@ def test_unknown_targets_and_estimators_are_input_errors():
 
 @pytest.fixture(scope="module")
 def small_study():
-    est = ["bin", *(["knn M=4"] if knn_available() else [])]
-    return cv.run_converge("analytic:lambertian", budgets=(0.15, 0.4), estimators=est,
-                           frame_photons=25_000)
+    return cv.run_converge("analytic:lambertian", budgets=(0.15, 0.4),
+                           estimators=["bin", "knn M=4"], frame_photons=25_000)
 
 
 def test_study_measures_error_against_the_exact_answer(small_study):
@@ -135,7 +133,7 @@ def test_full_study(target, tmp_path):
     assert bins[-1].metrics["rel_rmse"] < 0.3 * bins[0].metrics["rel_rmse"]
 
 
-# -- issue 12: the default written map converges, and its error figure stays honest ------
+# -- the default written map converges, and its error figure stays honest ----------------
 
 @pytest.fixture(scope="module")
 def paraboloid_by_photons():
@@ -143,7 +141,6 @@ def paraboloid_by_photons():
                            estimators=["knn M=4"], frame_photons=250_000, by_photons=True)
 
 
-@pytest.mark.skipif(not knn_available(), reason="needs the photon map")
 def test_default_estimator_error_falls_with_photons(paraboloid_by_photons):
     """4× the photons: clearly lower error (deterministic seeds, no timing); the tool's
     own figure within 0.8–1.25 of the actual error at both steps (measured: 4.18 → 1.86 %,
@@ -190,7 +187,7 @@ def _print_steps(r) -> None:
 @pytest.mark.timeout(3600)  # ~15 min each on a loaded 2-core machine
 @pytest.mark.parametrize("target", ["analytic:paraboloid", "analytic:shield"])
 def test_consistent_estimation_study(target, tmp_path):
-    """Error against photons without a floor, honest at every step (issue 12)."""
+    """Error against photons without a floor, honest at every step."""
     r = cv.run_converge(target, budgets=(250_000, 1_000_000, 4_000_000, 16_000_000),
                         estimators=["knn M=4", "bin"], frame_photons=250_000,
                         by_photons=True)
@@ -207,8 +204,6 @@ def test_consistent_estimation_study(target, tmp_path):
 @pytest.mark.timeout(3600)
 def test_consistent_estimation_on_the_shipped_headlight(tmp_path):
     """Against a long bin reference (10 × the photons, 40 M): error falls, estimate honest."""
-    from pathlib import Path
-
     glb = Path(__file__).resolve().parents[1] / "luminaires" / "examples" / "headlight.glb"
     r = cv.run_converge(str(glb), budgets=(250_000, 1_000_000, 4_000_000),
                         estimators=["knn M=4"], frame_photons=250_000, by_photons=True,

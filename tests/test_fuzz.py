@@ -15,9 +15,13 @@ import json
 import pytest
 from helpers import run_cli
 
+from lightsim.cli.main import main
 from lightsim.validation.fuzz import (
     SIM_OUTPUTS,
+    FuzzCase,
+    build_corpus,
     inspect_output,
+    judge,
     kill_during_write,
     kill_study,
     run_fuzz,
@@ -34,8 +38,8 @@ def _failures(report, kinds):
 
 @pytest.fixture(scope="module")
 def default_report(tmp_path_factory):
-    return run_fuzz(24, seed=13, kinds=DEFAULT_KINDS, photons=5000, resolution="32x16",
-                    timeout_s=120, workdir=tmp_path_factory.mktemp("fuzz"))
+    return run_fuzz(24, seed=13, kinds=DEFAULT_KINDS, command=main, photons=5000,
+                    resolution="32x16", timeout_s=120, workdir=tmp_path_factory.mktemp("fuzz"))
 
 
 def test_fuzz_meshes_keep_the_promise(default_report):
@@ -54,8 +58,6 @@ def test_fuzz_photometric_and_photos_keep_the_promise(default_report):
 
 
 def test_fuzz_corpus_is_reproducible(tmp_path):
-    from lightsim.validation.fuzz import build_corpus
-
     a, _ = build_corpus(8, 5, tmp_path / "a", kinds=("glb", "ies"))
     b, _ = build_corpus(8, 5, tmp_path / "b", kinds=("glb", "ies"))
     assert [c.data for c in a] == [c.data for c in b]
@@ -66,8 +68,6 @@ def test_fuzz_corpus_is_reproducible(tmp_path):
 
 def test_fuzz_judge_catches_broken_promises(tmp_path):
     """The judge is not a rubber stamp: each broken promise gets its class."""
-    from lightsim.validation.fuzz import FuzzCase, judge
-
     case = FuzzCase(0, "glb", "test", "x.glb", b"")
     out = tmp_path / "out"
     out.mkdir()
@@ -129,8 +129,8 @@ def test_sigkill_in_the_write_phase_leaves_a_complete_or_unfinished_set(tmp_path
 
 @pytest.mark.slow
 def test_fuzz_study(tmp_path):
-    """The 300-case study of the closing note (all kinds, the shipped headlight too)."""
-    report = run_fuzz(300, seed=1, headlight=True, workdir=tmp_path)
+    """The 300-case study: all kinds, the shipped headlight too."""
+    report = run_fuzz(300, seed=1, command=main, headlight=True, workdir=tmp_path)
     print("\n".join(report.table()))
     assert not report.failures, "\n".join(r.describe() for r in report.failures)
 

@@ -10,6 +10,7 @@ import contourpy
 import numpy as np
 import pytest
 from helpers import run_cli
+from scipy import ndimage
 
 from lightsim.io.plots import isolux_levels, isolux_noise_floor, isolux_plot
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
@@ -34,8 +35,6 @@ def test_levels_above_the_floor_have_little_speckle():
     """A Gaussian beam from Poisson photons, averaged over a disk as a fixed-radius
     estimate does: below the floor the contours break into dozens of islands; from the
     floor up each level is a handful of lines."""
-    from scipy import ndimage
-
     rng = np.random.default_rng(7)
     y, x = np.mgrid[-1:1:128j, -1:1:256j]
     beam = 20.0 * np.exp(-(x**2 / 0.15 + y**2 / 0.05))  # lx

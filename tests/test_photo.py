@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import json
+import struct
 
+import imageio.v3 as iio
 import numpy as np
 import pytest
+import tifffile
 from helpers import run_cli as _run
+from PIL import Image
 
+from lightsim.cli.main import main
 from lightsim.errors import InputError
+from lightsim.io.exr import write_exr
 from lightsim.render.cutoff import find_cutoff
 from lightsim.validation.photo_io import (
     load_simulation,
@@ -17,8 +23,11 @@ from lightsim.validation.photo_io import (
     srgb_decode,
     srgb_encode,
 )
+from lightsim.validation.photo_png16 import is_png16, read_png16, write_png16
 from lightsim.validation.photo_register import apply_matrix, decompose
 from lightsim.validation.synthetic_photo import (
+    DNG_BLACK,
+    DNG_WHITE,
     CameraSettings,
     LowBeam,
     camera_matrix,
@@ -26,6 +35,7 @@ from lightsim.validation.synthetic_photo import (
     render_photo,
     truth_path,
     wall_frame,
+    write_dng,
     write_photo,
     write_result,
 )
@@ -161,10 +171,6 @@ def test_jpeg_is_8_bit_only(lux, tmp_path):
 
 
 def test_png16_reader_matches_pillow_and_round_trips_colour(tmp_path):
-    import imageio.v3 as iio
-
-    from lightsim.validation.photo_png16 import is_png16, read_png16, write_png16
-
     rng = np.random.default_rng(0)
     yy, xx = np.mgrid[0:37, 0:53]
     grey = (30000 + 20000 * np.sin(xx / 5.0) * np.cos(yy / 7.0)
@@ -182,8 +188,6 @@ def test_png16_reader_matches_pillow_and_round_trips_colour(tmp_path):
 # --- reading errors ----------------------------------------------------------------------
 
 def test_unreadable_missing_black_and_tiny_photos(tmp_path):
-    import imageio.v3 as iio
-
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"\x89PNG not really")
     with pytest.raises(InputError, match="cannot read photo"):
@@ -218,7 +222,6 @@ def test_simulation_loading_and_its_errors(result_dir, tmp_path, lux):
     (tmp_path / "junk.exr").write_bytes(b"junk")
     with pytest.raises(InputError, match="not an OpenEXR"):
         load_simulation(tmp_path / "junk.exr")
-    from lightsim.io.exr import write_exr
 
     write_exr(tmp_path / "noframe.exr", {"Y": lux.astype(np.float32)}, {})
     with pytest.raises(InputError, match="no wall frame"):
@@ -259,8 +262,6 @@ def test_cli_photo_rejects_bad_options(result_dir, tmp_path, capsys, args, messa
 
 def test_dng_reads_as_linear_sensor_data_with_black_white_levels_and_exif(lux, tmp_path):
     """A DNG written by tifffile, decoded by LibRaw (rawpy): values back to 1 code in 3839."""
-    from lightsim.validation.synthetic_photo import DNG_BLACK, DNG_WHITE, write_dng
-
     shot = render_photo(lux, CameraSettings(rotate_deg=4, saturate=0.7, noise=0.004, seed=3))
     path = write_dng(tmp_path / "beam.dng", shot.linear)
     photo = read_photo(path)
@@ -280,8 +281,6 @@ def test_dng_reads_as_linear_sensor_data_with_black_white_levels_and_exif(lux, t
 
 
 def test_jpeg_exif_exposure_is_read(tmp_path):
-    from PIL import Image
-
     img = Image.fromarray(np.full((32, 48, 3), 120, np.uint8))
     exif = Image.Exif()
     exif.get_ifd(0x8769).update({33434: 0.004, 33437: 4.0, 34855: 400})
@@ -294,8 +293,6 @@ def test_jpeg_exif_exposure_is_read(tmp_path):
 
 @pytest.mark.parametrize("cut", [0.5, 0.05])
 def test_truncated_raw_is_one_input_error(lux, tmp_path, cut):
-    from lightsim.validation.synthetic_photo import write_dng
-
     good = write_dng(tmp_path / "g.dng", render_photo(lux).linear).read_bytes()
     bad = tmp_path / "bad.dng"
     bad.write_bytes(good[: int(len(good) * cut)])
@@ -306,10 +303,6 @@ def test_truncated_raw_is_one_input_error(lux, tmp_path, cut):
 
 def _tiff_with_bad_tag(path, codes):
     """A TIFF whose private tag 65000 points beyond the end of the file."""
-    import struct
-
-    import tifffile
-
     tifffile.imwrite(path, codes, photometric="rgb", extratags=[(65000, "I", 8, tuple(range(8)))])
     data = bytearray(path.read_bytes())
     i = data.find(struct.pack("<HHI", 65000, 4, 8))
@@ -376,7 +369,7 @@ def _mutations(data: bytes, n: int, rng) -> list[bytes]:
 @pytest.mark.parametrize("suffix", [".jpg", ".png", ".tif", ".dng"])
 def test_corrupt_photos_give_one_line_or_a_finite_photo_and_print_nothing(lux, tmp_path,
                                                                           capfd, suffix):
-    """Issue 13: a seeded mutation corpus of each photo format (8 cases here, hundreds
+    """A seeded mutation corpus of each photo format (8 cases here, hundreds
     in the study): InputError with one line, or a photo with finite values — and nothing
     written to the terminal by the libraries (checked at the file-descriptor level, so
     LibRaw's C messages count too)."""
@@ -398,8 +391,6 @@ def test_corrupt_photos_give_one_line_or_a_finite_photo_and_print_nothing(lux, t
 
 
 def test_corrupt_photo_through_the_cli_is_one_line_exit_2(result_dir, lux, tmp_path, capfd):
-    from lightsim.cli.main import main
-
     shot = render_photo(lux)
     for suffix in (".jpg", ".dng"):
         path, _ = write_photo(tmp_path / f"g{suffix}", shot)
@@ -416,8 +407,6 @@ def test_corrupt_photo_through_the_cli_is_one_line_exit_2(result_dir, lux, tmp_p
 def test_raw_without_decodable_data_falls_back_to_its_preview_with_a_warning(tmp_path):
     """A DNG whose raw sub-image LibRaw cannot decode (deflate-compressed CFA here) but
     whose first image is an RGB preview: read as the 8-bit preview, with one warning."""
-    import tifffile
-
     rng = np.random.default_rng(0)
     thumb = (40 + 200 * rng.random((64, 96, 3))).astype(np.uint8)
     dng = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),

@@ -1,6 +1,6 @@
-"""The plots' helper process (lightsim/io/plot_worker.py): the same files, byte for byte, as
-drawing them in-process; errors raised where the caller asks; a helper that dies or is
-given up costs no plot; ``lightsim simulate`` starts and stops it."""
+"""The plot process (lightsim/io/plot_worker.py): the same files, byte for byte, as drawing
+them in-process; errors raised where the caller asks; a plot process that dies or is given
+up costs no plot; ``lightsim simulate`` starts and stops it."""
 
 from __future__ import annotations
 
@@ -16,6 +16,8 @@ from helpers import run_cli, write_point_lamp
 from lightsim.errors import InputError
 from lightsim.io import plot_worker
 from lightsim.io.plot_worker import InProcess, PlotProcess
+from lightsim.options import lookup
+from lightsim.simulate import SimulateOptions
 from lightsim.wall import WallFrame
 
 
@@ -45,37 +47,37 @@ def _draw_all(plots, out, lux, frame):
     ]
 
 
-#: patience where a test checks that the helper drew a plot: the nice-10 helper may get
+#: patience where a test checks that the plot process drew a plot: at nice 10 it may get
 #: little of a loaded CI machine, where the 5 s default would (rightly) draw it here
 SLOW = 300.0
 
 
 def _ready(h: PlotProcess, limit: float = 60.0) -> None:
-    """Wait (bounded) until the helper has warmed up and asked for a plot."""
+    """Wait (bounded) until the plot process has warmed up and asked for a plot."""
     t0 = time.monotonic()
     while not h._idle:
-        assert h.alive and time.monotonic() - t0 < limit, "the helper never asked for work"
+        assert h.alive and time.monotonic() - t0 < limit, "the plot process never asked for work"
         time.sleep(0.02)
 
 
 @pytest.fixture()
-def helper():
+def plots():
     h = PlotProcess()
     assert h.alive
     yield h
     h.close()
 
 
-def test_same_files_byte_for_byte(helper, tmp_path):
+def test_same_files_byte_for_byte(plots, tmp_path):
     lux, frame = _beam()
     here, there = tmp_path / "here", tmp_path / "there"
     here.mkdir()
     there.mkdir()
     local = [p.result() for p in _draw_all(InProcess(), here, lux, frame)]
-    _ready(helper)
-    pend = _draw_all(helper, there, lux, frame)
+    _ready(plots)
+    pend = _draw_all(plots, there, lux, frame)
     remote = [p.result(patience=SLOW) for p in pend]
-    assert all(p.remote for p in pend)  # the helper drew every one
+    assert all(p.remote for p in pend)  # the plot process drew every one
     for name in ("wall_lux.png", "error_vs_time.png", "isolux.png", "road.png"):
         assert (here / name).read_bytes() == (there / name).read_bytes(), name
     # the road illuminance comes back with the plot (the summary's reach reads it)
@@ -83,52 +85,52 @@ def test_same_files_byte_for_byte(helper, tmp_path):
     assert np.array_equal(a.lux, b.lux, equal_nan=True) and a.reach_m(1.0) == b.reach_m(1.0)
 
 
-def test_error_is_raised_by_result(helper, tmp_path):
+def test_error_is_raised_by_result(plots, tmp_path):
     lux, frame = _beam()
-    _ready(helper)
-    p = helper.draw("isolux", tmp_path / "isolux.png", lux, frame, levels=[-1.0])
+    _ready(plots)
+    p = plots.draw("isolux", tmp_path / "isolux.png", lux, frame, levels=[-1.0])
     with pytest.raises(InputError, match="iso-lux levels must be positive"):
         p.result(patience=SLOW)
     assert p.remote
-    # the helper goes on after a failed plot
-    q = helper.draw("road", tmp_path / "road.png", lux, frame)
+    # the plot process goes on after a failed plot
+    q = plots.draw("road", tmp_path / "road.png", lux, frame)
     assert q.result(patience=SLOW) is not None and q.remote and (tmp_path / "road.png").is_file()
 
 
-def test_dead_helper_costs_no_plot(helper, tmp_path):
+def test_dead_plot_process_costs_no_plot(plots, tmp_path):
     lux, frame = _beam()
-    helper._proc.kill()
-    helper._proc.wait()
-    p = helper.draw("lux_png", tmp_path / "a.png", lux, frame)
+    plots._proc.kill()
+    plots._proc.wait()
+    p = plots.draw("lux_png", tmp_path / "a.png", lux, frame)
     assert p.result() is None and not p.remote
     assert (tmp_path / "a.png").is_file()
 
 
-def test_abandoned_helper_leaves_its_plots_to_the_caller(helper, tmp_path):
+def test_abandoned_plot_process_leaves_its_plots_to_the_caller(plots, tmp_path):
     lux, frame = _beam()
-    pend = [helper.draw("isolux", tmp_path / f"{k}.png", lux, frame) for k in range(3)]
-    helper.abandon()  # e.g. the output set is given up
-    assert helper._proc.poll() is not None and not helper.alive
+    pend = [plots.draw("isolux", tmp_path / f"{k}.png", lux, frame) for k in range(3)]
+    plots.abandon()  # e.g. the output set is given up
+    assert plots._proc.poll() is not None and not plots.alive
     for k, p in enumerate(pend):
         p.result()
         assert (tmp_path / f"{k}.png").is_file() and not p.remote
 
 
 @pytest.mark.skipif(not hasattr(signal, "SIGSTOP"), reason="needs POSIX job control")
-def test_a_stalled_helper_is_ended_and_the_plot_drawn_here(helper, tmp_path):
+def test_a_stalled_plot_process_is_ended_and_the_plot_drawn_here(plots, tmp_path):
     lux, frame = _beam()
-    _ready(helper)
-    p = helper.draw("road", tmp_path / "road.png", lux, frame)  # taken at once
-    os.kill(helper._proc.pid, signal.SIGSTOP)  # as if it got no core
+    _ready(plots)
+    p = plots.draw("road", tmp_path / "road.png", lux, frame)  # taken at once
+    os.kill(plots._proc.pid, signal.SIGSTOP)  # as if it got no core
     t0 = time.monotonic()
     assert p.result(patience=0.3) is not None and not p.remote
     assert time.monotonic() - t0 < 20
-    assert helper._proc.poll() is not None and not helper.alive  # killed: no late file
+    assert plots._proc.poll() is not None and not plots.alive  # killed: no late file
 
 
 @pytest.mark.skipif(not hasattr(signal, "SIGSTOP"), reason="needs POSIX job control")
-def test_plots_a_busy_helper_has_not_taken_are_drawn_here_at_once(tmp_path):
-    """On a loaded machine the low-priority helper may still be starting when the outputs
+def test_plots_a_busy_plot_process_has_not_taken_are_drawn_here_at_once(tmp_path):
+    """On a loaded machine the low-priority plot process may still be starting when the outputs
     ask for their plots: the run draws them itself instead of waiting."""
     lux, frame = _beam()
     h = PlotProcess()
@@ -139,14 +141,14 @@ def test_plots_a_busy_helper_has_not_taken_are_drawn_here_at_once(tmp_path):
         for p in pend:
             p.result(patience=60.0)
             assert not p.remote
-        assert time.monotonic() - t0 < 30  # no wait for the helper's patience
-        assert h.alive  # the helper was not needed, not ended
+        assert time.monotonic() - t0 < 30  # no wait for the plot process's patience
+        assert h.alive  # the plot process was not needed, not ended
     finally:
         h.close()
     assert h._proc.poll() is not None
 
 
-def test_helper_of_another_lightsim_draws_nothing(monkeypatch):
+def test_plot_process_of_another_lightsim_draws_nothing(monkeypatch):
     """main() returns at once where the lightsim it imported is not the caller's."""
     touched = []
     monkeypatch.setattr(plot_worker, "_serve", lambda *a: touched.append(a))
@@ -154,10 +156,10 @@ def test_helper_of_another_lightsim_draws_nothing(monkeypatch):
     assert touched == []
 
 
-def test_unknown_plot_and_start_policy(monkeypatch, helper):
+def test_unknown_plot_and_start_policy(monkeypatch, plots):
     monkeypatch.setattr(plot_worker, "_cores", lambda: 2)
     with pytest.raises(ValueError, match="unknown plot"):
-        helper.draw("pie_chart")
+        plots.draw("pie_chart")
     assert isinstance(plot_worker.start(wanted=False), InProcess)
     monkeypatch.setenv("LIGHTSIM_PLOT_PROCESS", "0")
     assert isinstance(plot_worker.start(), InProcess)
@@ -166,8 +168,8 @@ def test_unknown_plot_and_start_policy(monkeypatch, helper):
     assert isinstance(plot_worker.start(), InProcess)  # one core: nothing to overlap
 
 
-def test_simulate_draws_with_the_helper(monkeypatch, tmp_path, capsys):
-    """The command's plots come from the helper (started with the command, stopped at its
+def test_simulate_draws_with_the_plot_process(monkeypatch, tmp_path, capsys):
+    """The command's plots come from the plot process (started with the command, stopped at its
     end) and are the files an in-process run writes."""
     lamp = write_point_lamp(tmp_path / "point.glb")
     args = ["--photons", "40000", "--wall-distance", "2", "--wall-size", "4x4",
@@ -198,7 +200,7 @@ def test_simulate_draws_with_the_helper(monkeypatch, tmp_path, capsys):
     s = json.loads((tmp_path / "a" / "summary.json").read_text())
     assert "error_vs_time.png" in s["outputs"] and s["road"] == json.loads(
         (tmp_path / "b" / "summary.json").read_text())["road"]
-    # a run that asks for no plot starts no helper
+    # a run that asks for no plot starts no plot process
     code, _, err = run_cli(["simulate", str(lamp), *args, "--out", str(tmp_path / "c"),
                             "--outputs", "exr,json"], capsys)
     assert code == 0, err
@@ -206,9 +208,6 @@ def test_simulate_draws_with_the_helper(monkeypatch, tmp_path, capsys):
 
 
 def test_plot_outputs_are_the_option_s_plots():
-    from lightsim.options import lookup
-    from lightsim.simulate import SimulateOptions
-
     choices = lookup(SimulateOptions, "outputs").choices
     assert set(plot_worker.PLOT_OUTPUTS) == set(choices) - {"exr", "json"}
 
@@ -232,7 +231,7 @@ def test_prestart_reads_the_command_line(monkeypatch, argv, started):
     early = plot_worker._early
     try:
         assert (early is not None) == started
-        if started:  # start() hands the very helper over; not wanted, it is stopped
+        if started:  # start() hands the very plot process over; not wanted, it is stopped
             assert plot_worker.start(wanted=True) is early and plot_worker._early is None
     finally:
         if early is not None:
@@ -243,8 +242,8 @@ def test_prestart_reads_the_command_line(monkeypatch, argv, started):
     assert early._proc.poll() is not None
 
 
-def test_report_draws_with_the_helper(monkeypatch, tmp_path, capsys):
-    """``lightsim report`` redraws a run's plots with the helper: the same files as the
+def test_report_draws_with_the_plot_process(monkeypatch, tmp_path, capsys):
+    """``lightsim report`` redraws a run's plots with the plot process: the same files as the
     run's own; a bad rule set stops it with one line and leaves the plots whole."""
     lamp = write_point_lamp(tmp_path / "point.glb")
     run = tmp_path / "run"

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from matplotlib.image import imread
 
 from lightsim.errors import InputError
+from lightsim.io.errorplot import error_vs_time_plot
+from lightsim.io.placeholder import image_problem
 from lightsim.io.plots import auto_levels, isolux_plot, road_view_plot
+from lightsim.io.png import write_lux_png
 from lightsim.luminaires.photometric import CandelaGrid
 from lightsim.luminaires.regulations import evaluate, load_ruleset, probe_points, sample_wall
 from lightsim.render.road import road_illuminance, road_illuminance_from
@@ -118,13 +123,6 @@ def test_road_from_an_intensity_function_and_mirror_symmetry():
 
 @pytest.mark.parametrize("kind", ["zero", "constant", "one_pixel_lit", "nan", "negative"])
 def test_plots_survive_degenerate_data(tmp_path, kind):
-    import warnings
-
-    from lightsim.io.errorplot import error_vs_time_plot
-    from lightsim.io.placeholder import image_problem
-    from lightsim.io.plots import road_view_plot
-    from lightsim.io.png import write_lux_png
-
     h, w = 110, 300
     lux = {"zero": np.zeros((h, w)), "constant": np.full((h, w), 3.0),
            "one_pixel_lit": np.zeros((h, w)), "nan": np.full((h, w), np.nan),
@@ -155,8 +153,6 @@ def test_plots_survive_degenerate_data(tmp_path, kind):
 
 
 def test_placeholder_names_the_reason(tmp_path):
-    from lightsim.io.placeholder import image_problem
-
     assert "zero everywhere" in image_problem(np.zeros((4, 4)))
     assert "constant" in image_problem(np.ones((4, 4)), contours=True)
     assert image_problem(np.ones((4, 4))) is None  # a flat map can still be coloured

@@ -1,4 +1,4 @@
-"""Numerical stability on stiff and extreme cases (issue 7): every case of
+"""Numerical stability on stiff and extreme cases: every case of
 :mod:`lightsim.validation.stability` as a test, plus the engine bugs they found."""
 
 from __future__ import annotations
@@ -10,8 +10,13 @@ import pytest
 
 from lightsim.cli.main import main
 from lightsim.engine.config import RunConfig
+from lightsim.sampling import photon_keys
+from lightsim.scene import Scene, make_wall
+from lightsim.tracer import LEDGER, PhotonTracer
 from lightsim.validation import stability as st
-from lightsim.validation.analytic import knn_available, run_session
+from lightsim.validation.analytic import SessionRun, run_session
+from lightsim.validation.scenes import analytic as an
+from lightsim.validation.scenes import primitives as prim
 
 SETTINGS = st.StabilitySettings(photons=100_000)
 # see test_knn_session_without_wall_photons and test_photons_hitting_box_edges_stay_inside
@@ -29,7 +34,7 @@ def test_stability_case(name):
     assert not _failures(checks), _failures(checks)
     # every Session case reports finiteness and a closed budget
     quantities = {c.quantity for c in checks}
-    if name != "coincident-photons" and (name != "k-greater-than-n" or knn_available()):
+    if name != "coincident-photons":
         assert "energy budget Σ parts" in quantities
         assert any(q.startswith("outputs finite") for q in quantities)
 
@@ -40,17 +45,11 @@ def test_no_photon_on_wall_with_bins():
     assert len(checks) == 5 and not _failures(checks), _failures(checks)
 
 
-@pytest.mark.skipif(not knn_available(), reason="photon map not installed")
 @pytest.mark.parametrize("photons", [0, 32])
 def test_knn_session_without_wall_photons(photons):
     """kNN with no photon on the wall (emitter facing away), and with 32 photons per frame
     over 16 sets (some sets see no wall photon in the first frame): zeros, not a crash."""
-    from lightsim.validation.scenes import analytic as an
-    from lightsim.validation.scenes import primitives as prim
-
     if photons == 0:
-        from lightsim.scene import Scene, make_wall
-
         wall, frame = make_wall(1.0, (1.0, 1.0), resolution=(16, 16))
         scene = Scene([prim.disk_source(100.0, 0.05, normal=(0.0, 0.0, -1.0)), wall], frame)
         run = run_session(scene, RunConfig(estimator="knn", spt=False), 20_000)
@@ -63,10 +62,6 @@ def test_knn_session_without_wall_photons(photons):
 
 @pytest.mark.parametrize("corners", [False, True])
 def test_photons_hitting_box_edges_stay_inside(corners):
-    from lightsim.sampling import photon_keys
-    from lightsim.tracer import LEDGER, PhotonTracer
-    from lightsim.validation.scenes import analytic as an
-
     tracer = PhotonTracer(an.closed_box(10.0, 0.7), max_depth=64, record="all")
     n = 5000
     o, d = st.edge_aimed_photons(n, 3, corners)
@@ -98,8 +93,6 @@ def test_stability_suite_reports_a_crash_as_a_failed_row(monkeypatch):
 
 
 def test_finite_check_catches_nan():
-    from lightsim.validation.analytic import SessionRun
-
     lux = np.ones((2, 2))
     lux[0, 1] = math.nan
     run = SessionRun(lux, None, np.zeros((1, 0)), np.zeros(0),

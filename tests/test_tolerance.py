@@ -10,7 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
+from scipy.stats import binomtest
 
+import lightsim.validation.tolerance as tolerance_mod
 from lightsim.errors import InputError
 from lightsim.luminaires.analyses import for_options
 from lightsim.simulate import SimulateOptions, load, run_simulation
@@ -19,8 +22,11 @@ from lightsim.validation.tolerance import (
     TOLERANCE_BOXES,
     clopper_pearson,
     displace_emitters,
+    fit_sensitivity,
+    run_sample,
     run_tolerance,
     sample_design,
+    study_from_dict,
     write_study,
 )
 
@@ -59,8 +65,6 @@ def test_design_is_a_seeded_latin_hypercube_inside_the_box():
 
 
 def test_clopper_pearson_matches_scipy_binomtest():
-    from scipy.stats import binomtest
-
     for k, n in ((0, 10), (3, 10), (10, 10), (17, 50), (1, 1)):
         ci = binomtest(k, n).proportion_ci(0.95, method="exact")
         assert clopper_pearson(k, n) == pytest.approx((ci.low, ci.high), abs=1e-12)
@@ -128,8 +132,6 @@ def test_misplaced_filament_is_flagged_as_failing(nominal_study, misplaced_study
 
 
 def test_study_files_read_back(nominal_study, tmp_path):
-    from PIL import Image
-
     files = write_study(nominal_study, tmp_path)
     doc = json.loads((tmp_path / "tolerance.json").read_text())
     assert len(doc["samples"]) == 3 and doc["box"]["category"] == "H4"
@@ -179,24 +181,21 @@ def test_ray_workers_give_the_same_samples(nominal_study, tmp_path):
 
 
 def test_a_sample_that_cannot_be_aimed_fails_every_point(monkeypatch, tmp_path):
-    import lightsim.luminaires.regulations.check as report
-    from lightsim.validation.tolerance import run_sample
-
-    real = report.regulation_check
+    real = tolerance_mod.regulation_check
 
     def no_cutoff(session, lux, ruleset, traffic="right", aim=False, **kw):
         if aim:
             raise InputError("--aim: no cut-off found")
         return real(session, lux, ruleset, traffic, aim, **kw)
 
-    monkeypatch.setattr(report, "regulation_check", no_cutoff)
+    monkeypatch.setattr(tolerance_mod, "regulation_check", no_cutoff)
     opts = SimulateOptions(str(LAMP), out_dir=str(tmp_path), photons=20_000,
                            resolution=(80, 32), regulation=RULES, aperture=0.0, aim=True)
     s = run_sample(opts, np.zeros(5))
     assert s.names and not any(s.value_pass) and not any(s.sure_pass)
     assert all(v.startswith("not aimable") for v in s.verdicts)
     with pytest.raises(InputError):  # without --aim the same error is the user's problem
-        monkeypatch.setattr(report, "regulation_check",
+        monkeypatch.setattr(tolerance_mod, "regulation_check",
                             lambda *a, **k: (_ for _ in ()).throw(InputError("bad")))
         run_sample(SimulateOptions(str(LAMP), out_dir=str(tmp_path), photons=20_000,
                                    resolution=(80, 32), regulation=RULES, aperture=0.0),
@@ -218,8 +217,6 @@ def test_cli_study_writes_its_files_and_table(tmp_path):
 
 
 def test_sensitivity_fit_recovers_a_known_plane():
-    from lightsim.validation.tolerance import fit_sensitivity
-
     box = TOLERANCE_BOXES["H4"]
     off = sample_design(box, 40, seed=2)
     # 10 000 cd at the centre, +500 cd per 0.1 mm of dx, −2 000 per 0.1 mm of dy, none in dz
@@ -248,8 +245,6 @@ def test_sensitivity_fit_recovers_a_known_plane():
 
 
 def test_study_reads_back_from_its_json(nominal_study, tmp_path):
-    from lightsim.validation.tolerance import study_from_dict
-
     write_study(nominal_study, tmp_path)
     back = study_from_dict(json.loads((tmp_path / "tolerance.json").read_text()))
     assert back.box == nominal_study.box and back.aperture_deg is None

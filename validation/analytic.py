@@ -61,7 +61,6 @@ parameter                 unit   default     meaning
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -69,24 +68,26 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import binary_dilation
+from scipy.stats import t as student_t
 
 from lightsim.engine.config import RunConfig
+from lightsim.engine.estimator import effective_radii, set_k
+from lightsim.engine.server import Session
+from lightsim.errors import InputError
+from lightsim.render.boxfilter import box_filter
 from lightsim.render.frame import luminous
+from lightsim.render.interleave import InterleavePattern
+from lightsim.sampling import digit_permutations, halton_points, photon_keys
+from lightsim.tracer import LEDGER, PhotonTracer
 from lightsim.validation.scenes import analytic as an
 
 GAUSS_4SIGMA_TAIL = 6.334248366623973e-05  # two-sided P(|Z| > 4) of a normal law
 BUDGET_RTOL = 1e-6
 
 
-def knn_available() -> bool:
-    """True when the kNN photon map (``lightsim.photonmap.density``) is installed."""
-    return importlib.util.find_spec("lightsim.photonmap.density") is not None
-
-
 def student_q(n_sets: int, tail: float = GAUSS_4SIGMA_TAIL) -> float:
     """Quantile q with P(|t_{S−1}| > q) = ``tail``: the "4σ" multiplier for S sets."""
-    from scipy.stats import t as student_t
-
     if n_sets < 2:
         return math.inf
     return float(student_t.ppf(1.0 - tail / 2.0, n_sets - 1))
@@ -302,7 +303,6 @@ def estimator_radius(case: an.AnalyticScene, config: RunConfig, photons_per_set:
     diag = math.hypot(np.ptp(frame.h_range_m), np.ptp(frame.v_range_m))
     ladder = base * 2.0 ** (np.arange(-8, 64) / 2.0)
     ladder = ladder[ladder <= 2 * diag]
-    from lightsim.engine.estimator import set_k
 
     k = float(set_k(config))
     rows = []
@@ -336,8 +336,6 @@ def expected_image(case: an.AnalyticScene, config: RunConfig, photons_per_set: f
     box-filtered like the image. For ``bin`` it is the exact pixel mean. ``radii`` are
     the Session's (min_radius, max_radius) in m.
     """
-    from lightsim.render.boxfilter import box_filter
-
     frame = case.frame
     assert case.exact is not None
     if config.estimator == "bin":
@@ -402,8 +400,6 @@ class SessionRun:
 def run_session(scene: Any, config: RunConfig, photons: int,
                 probes_hv: np.ndarray | None = None) -> SessionRun:
     """Shoot ``photons`` in one frame through a :class:`Session` and collect its outputs."""
-    from lightsim.engine.server import Session
-
     probes = np.zeros((0, 2)) if probes_hv is None else np.asarray(probes_hv, float)
     cfg = config.with_(frame_photons=max(int(photons), config.n_sets))
     t0 = time.perf_counter()
@@ -436,8 +432,6 @@ def run_image_case(case: an.AnalyticScene, config: RunConfig, photons: int,
         union |= m
     if config.estimator != "bin" and config.final == "interleaved" and config.interleave > 1:
         # the image's box filter reaches filter_n pixels around a region: probe those too
-        from scipy.ndimage import binary_dilation
-
         n = config.filter_n
         union = binary_dilation(union, np.ones((2 * n + 1, 2 * n + 1), bool))
     probe_index = np.full(hh.shape, -1, np.int64)
@@ -462,9 +456,6 @@ def interleaved_sigma(run: ImageRun, mask: np.ndarray) -> float:
     copies of the noise the image gets from that lattice, and
     σ² = Σ_t Σ_s Y_{s,t}² / (S − 1) (the Y_{s,t} sum to zero over s).
     """
-    from lightsim.render.boxfilter import box_filter
-    from lightsim.render.interleave import InterleavePattern
-
     cfg = run.config
     H, W = run.lux.shape
     pattern = InterleavePattern(cfg.interleave, W, H)
@@ -493,8 +484,6 @@ def interleaved_sigma(run: ImageRun, mask: np.ndarray) -> float:
 
 def budget_check(name: str, energy: dict[str, float]) -> Check:
     """Σ ledger parts = emitted within 1e-6 relative."""
-    from lightsim.tracer import LEDGER
-
     parts = sum(energy[k] for k in LEDGER)
     emitted = energy["emitted"]
     return Check(name, "energy budget Σ parts", emitted, parts, "lm",
@@ -569,8 +558,6 @@ def _regions(case: an.AnalyticScene, config: RunConfig, photons: int,
 
 def session_radii(case: an.AnalyticScene, config: RunConfig) -> tuple[float, float]:
     """(min_radius, max_radius) in m a Session on ``case`` will use (its defaults)."""
-    from lightsim.engine.estimator import effective_radii
-
     return effective_radii(config, case.frame)
 
 
@@ -675,9 +662,6 @@ def check_box(photons: int, albedo: float = 0.7, seed: int = 1, max_depth: int =
               groups: int = 64) -> list[Check]:
     """Point source in a closed diffuse box: nothing escapes, bookkeeping closes, and the
     flux arriving at the walls over all bounces is Φ (1 − ρᴰ)/(1 − ρ)."""
-    from lightsim.sampling import digit_permutations, halton_points, photon_keys
-    from lightsim.tracer import LEDGER, PhotonTracer
-
     flux = 10.0
     scene = an.closed_box(flux, albedo)
     tracer = PhotonTracer(scene, max_depth=max_depth, record="all")
@@ -772,15 +756,9 @@ def run_suite(settings: SuiteSettings | None = None, cases: Sequence[str] | None
     wanted = list(cases) if cases else [*builders, "box"]
     unknown = [c for c in wanted if c not in CASE_NAMES]
     if unknown:
-        from lightsim.errors import InputError
-
         raise InputError(f"unknown validation case(s): {', '.join(unknown)} "
                          f"(known: {', '.join(CASE_NAMES)})")
     estimators = list(settings.estimators)
-    skipped = []
-    if "knn" in estimators and not knn_available():
-        estimators.remove("knn")
-        skipped.append("knn: lightsim.photonmap.density is not installed yet")
     checks: list[Check] = []
     for name in wanted:
         if name == "box":
@@ -804,4 +782,4 @@ def run_suite(settings: SuiteSettings | None = None, cases: Sequence[str] | None
                 checks.extend(check_ring(case, cfg, settings.photons)[0])
             else:
                 checks.extend(check_image_case(case, cfg, settings.photons)[0])
-    return SuiteResult(checks, time.perf_counter() - t0, settings, skipped)
+    return SuiteResult(checks, time.perf_counter() - t0, settings)

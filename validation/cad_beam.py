@@ -28,8 +28,15 @@ import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
+
+from lightsim.io.cad import Tessellation, read_cad
+from lightsim.luminaires.cad_example import paraboloid_face, write_cad
+from lightsim.materials import MIRROR, Material
+from lightsim.scene import Part, Scene, load_scene
+from lightsim.tracer import PhotonTracer
 
 TOLS = ((0.5, 20.0), (0.1, 10.0), (0.03, 5.0), (0.01, 2.0), (0.003, 1.0))
 
@@ -53,8 +60,6 @@ class BeamError:
 
 
 def write_paraboloid_step(path: Path, focal_mm: float, rim_mm: float, hole_mm: float) -> Path:
-    from lightsim.luminaires.cad_example import paraboloid_face, write_cad
-
     return write_cad(path, [("reflector", paraboloid_face(focal_mm, rim_mm, hole_mm))])
 
 
@@ -66,13 +71,6 @@ def beam_error(step: Path, focal_mm: float, rim_mm: float, hole_mm: float,
     ``backend`` is the CAD reader of :func:`lightsim.io.cad.read_cad` ("auto", "xcaf",
     "cascadio"); "auto" goes through :func:`lightsim.scene.load_scene` as a user's file.
     """
-    from types import SimpleNamespace
-
-    from lightsim.io.cad import Tessellation, read_cad
-    from lightsim.materials import MIRROR, Material
-    from lightsim.scene import Part, Scene, load_scene
-    from lightsim.tracer import PhotonTracer
-
     tess = Tessellation(linear_tol_mm, angular_tol_deg)
     if backend == "auto":
         scene = load_scene(step, part_materials={"reflector": "mirror:1.0"},

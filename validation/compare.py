@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import gaussian_filter
 from skimage.transform import ProjectiveTransform, warp
 
 from lightsim import __version__
@@ -61,6 +62,7 @@ from lightsim.errors import InputError
 from lightsim.io.summary import read_json, write_json
 from lightsim.validation.photo_aim import AimResult, AngleSampler, cutoff_offset, test_points
 from lightsim.validation.photo_io import PhotoImage, Simulation, load_simulation, read_photo
+from lightsim.validation.photo_lamps import find_lamps, keep_lamp
 from lightsim.validation.photo_metrics import (
     HIGHER_IS_BETTER,
     LOWER_IS_BETTER,
@@ -81,6 +83,7 @@ from lightsim.validation.photo_register import (
     registration_dict,
 )
 from lightsim.validation.screen_geometry import ScreenGeometry, fit_screen, parse_points, sim_matrix
+from lightsim.validation.screen_target import detect_markers, load_layout, marker_mask
 
 __all__ = [
     "OUTPUTS",
@@ -297,8 +300,6 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
     photo, lamps = _one_lamp(photo, opts.lamp)
     geometry = screen_geometry(photo, sim, opts)
     if geometry is not None and geometry.source == "markers":
-        from lightsim.validation.screen_target import marker_mask
-
         # marker pixels are paper and ink, not beam: they take no part in the comparison
         photo = replace(photo, clipped=photo.clipped | marker_mask(geometry, photo.shape))
     if geometry is not None:
@@ -339,8 +340,6 @@ def compare_images(photo: PhotoImage, sim: Simulation, options: CompareOptions |
 
 def _one_lamp(photo: PhotoImage, lamp: str | None) -> tuple[PhotoImage, Any]:
     """Find the lamps on the photo; keep one (``--lamp``) or warn that there are several."""
-    from lightsim.validation.photo_lamps import find_lamps, keep_lamp
-
     lamps = find_lamps(photo)
     if lamp is not None:
         return keep_lamp(photo, lamp, lamps), lamps
@@ -370,7 +369,6 @@ def screen_geometry(photo: PhotoImage, sim: Simulation, opts: CompareOptions
         return fit_screen(xy, hv, distance, source="points")
     if opts.markers == "off" or opts.transform is not None:
         return None
-    from lightsim.validation.screen_target import detect_markers, load_layout
 
     layout = None if opts.markers == "auto" else load_layout(opts.markers)
     geo = detect_markers(photo.luminance, layout, distance)
@@ -450,8 +448,6 @@ def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray,
     centroid of the top 10 % is not). Returns the offset and the photo's hot spot (the
     simulation's core centroid moved by it).
     """
-    from scipy.ndimage import gaussian_filter
-
     values, clip_w = warp_to_sim(photo.luminance, photo.clipped, matrix, sim.lux.shape)
     good = np.isfinite(values) & ~clip_w
     s = gaussian_filter(np.nan_to_num(sim.lux), 1.0)

@@ -54,10 +54,13 @@ from typing import Any
 import numpy as np
 
 from lightsim.engine.config import RunConfig
+from lightsim.engine.server import Session
 from lightsim.errors import InputError
+from lightsim.io.atomic import atomic_path, write_text
+from lightsim.io.summary import write_json
+from lightsim.materials import DIFFUSE
 from lightsim.render.frame import luminous
-from lightsim.scene import Scene
-from lightsim.validation.analytic import knn_available
+from lightsim.scene import Scene, load_scene
 from lightsim.validation.scenes import analytic as an
 
 QUICK_BUDGETS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
@@ -72,21 +75,17 @@ class EstimatorSpec:
     label: str
     settings: dict[str, Any]
     needs_specular: bool = False
-    needs_photonmap: bool = False
 
 
 SPECS: tuple[EstimatorSpec, ...] = (
-    EstimatorSpec("knn M=4", {"estimator": "knn", "interleave": 4, "spt": False},
-                  needs_photonmap=True),
+    EstimatorSpec("knn M=4", {"estimator": "knn", "interleave": 4, "spt": False}),
     EstimatorSpec("knn M=4 rk", {"estimator": "knn", "interleave": 4, "spt": False,
-                                 "bandwidth": "knn"}, needs_photonmap=True),
-    EstimatorSpec("knn M=1", {"estimator": "knn", "interleave": 1, "spt": False},
-                  needs_photonmap=True),
+                                 "bandwidth": "knn"}),
+    EstimatorSpec("knn M=1", {"estimator": "knn", "interleave": 1, "spt": False}),
     EstimatorSpec("bin", {"estimator": "bin", "interleave": 4, "spt": False}),
-    EstimatorSpec("radius", {"estimator": "radius", "interleave": 4, "spt": False},
-                  needs_photonmap=True),
+    EstimatorSpec("radius", {"estimator": "radius", "interleave": 4, "spt": False}),
     EstimatorSpec("knn M=4 SPT", {"estimator": "knn", "interleave": 4, "spt": True},
-                  needs_specular=True, needs_photonmap=True),
+                  needs_specular=True),
 )
 
 
@@ -121,8 +120,6 @@ class Target:
 
     @property
     def specular(self) -> bool:
-        from lightsim.materials import DIFFUSE
-
         return any(p.material.kind != DIFFUSE for p in self.scene.surfaces if p.role != "wall")
 
 
@@ -164,8 +161,6 @@ def reference_run(target: Target, seconds: float | None, seed: int, frame_photon
                   photons: int | None = None) -> None:
     """Fill ``target.ref_px``/``ref_se`` with a long ``bin`` run (probes at every pixel):
     ``seconds`` long, or ``photons`` photons when given."""
-    from lightsim.engine.server import Session
-
     frame = target.scene.wall
     assert frame is not None
     W, H = frame.resolution
@@ -187,8 +182,6 @@ def reference_run(target: Target, seconds: float | None, seed: int, frame_photon
 
 
 def scene_target(path: str, resolution: tuple[int, int] = (160, 64), **load_kw: Any) -> Target:
-    from lightsim.scene import load_scene
-
     scene = load_scene(path, resolution=resolution, **load_kw)
     return Target(str(path), scene)
 
@@ -287,8 +280,6 @@ def warm_up(scene: Scene, config: RunConfig) -> float:
     Runs the same configuration (same frame size: some kernels have size-dependent
     paths) for two frames (build, then incremental insertion) and a final image.
     """
-    from lightsim.engine.server import Session
-
     t0 = time.perf_counter()
     with Session(scene, config) as s:
         s.run(photons=2 * config.frame_photons)
@@ -302,8 +293,6 @@ def sweep(target: Target, spec: EstimatorSpec, budgets: Sequence[float], seed: i
     """Run one estimator through all budgets in one accumulating Session (``budgets`` in
     s, or photons with ``by_photons``: the same photons for every estimator and machine
     load, so the errors are reproducible to the bit)."""
-    from lightsim.engine.server import Session
-
     cfg = RunConfig(seed=seed, frame_photons=frame_photons, **spec.settings)
     warm = warm_up(target.scene, cfg)
     truth = target.truth
@@ -447,9 +436,7 @@ def run_converge(target_spec: str, budgets: Sequence[float] = QUICK_BUDGETS,
     skipped = []
     runnable = []
     for s in specs:
-        if s.needs_photonmap and not knn_available():
-            skipped.append(f"{s.label}: lightsim.photonmap.density is not installed yet")
-        elif s.needs_specular and not target.specular:
+        if s.needs_specular and not target.specular:
             skipped.append(f"{s.label}: no mirror or glass, SPT does not apply")
         else:
             runnable.append(s)
@@ -504,8 +491,6 @@ def plot(result: ConvergeResult, path: str | Path) -> None:
 
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
-
-    from lightsim.io.atomic import atomic_path
 
     key = "rel_rmse_corrected" if result.mode == "reference" else "rel_rmse"
     fig = Figure(figsize=(15.0, 4.2))
@@ -571,9 +556,6 @@ def plot(result: ConvergeResult, path: str | Path) -> None:
 
 def write_outputs(result: ConvergeResult, out_dir: str | Path) -> dict[str, Path]:
     """converge.csv, converge.json and converge.png in ``out_dir`` (written atomically)."""
-    from lightsim.io.atomic import write_text
-    from lightsim.io.summary import write_json
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out / "converge.csv", "json": out / "converge.json",

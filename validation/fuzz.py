@@ -35,6 +35,8 @@ parameter                     unit   default     meaning
 ``resolution``                px     64x32       ``simulate --resolution``
 ``timeout_s``                 s      180         per case; the worker is restarted after it
 ``headlight``                 –      False       also mutate the shipped headlight GLB (slow)
+``command``                   –      –           the command line's entry point, run in the
+                                                 worker process (:data:`Command`)
 ============================  =====  ==========  ===========================================
 
 Command line: ``lightsim fuzz N [--seed S] [--kind glb] [--json FILE]``; the test suite
@@ -46,16 +48,22 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import io
 import json
+import logging
 import math
 import multiprocessing as mp
 import os
 import re
 import shutil
+import signal
 import struct
+import subprocess
+import sys
 import tempfile
 import time
 import traceback
+import warnings
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -63,6 +71,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tifffile
+import trimesh
+
+from lightsim.errors import InputError
+from lightsim.io.atomic import STAGING_PREFIX, TEMP_RE
+from lightsim.io.exr import read_exr
+from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, glb_bytes
+from lightsim.luminaires.headlight import example_headlight
+from lightsim.luminaires.photometric import SAMPLE_IES, read_ies, write_ldt
+from lightsim.simulate import folder_notes
+from lightsim.validation.synthetic_photo import (
+    CameraSettings,
+    lowbeam_lux,
+    render_photo,
+    wall_frame,
+    write_photo,
+    write_result,
+)
 
 KINDS = ("glb", "ies", "ldt", "photo")
 SIM_OUTPUTS = frozenset({"summary.json", "wall_lux.exr", "wall_lux.png", "error_vs_time.png",
@@ -70,6 +96,9 @@ SIM_OUTPUTS = frozenset({"summary.json", "wall_lux.exr", "wall_lux.png", "error_
 COMPARE_OUTPUTS = frozenset({"comparison.json", "overlay.png", "difference.png",
                              "contours.png"})
 CLOSURE_TOL = 1e-6
+#: the command line's in-process entry point, ``command(argv)`` running ``lightsim argv`` and
+#: ending in ``SystemExit`` (:func:`lightsim.cli.main.main`; ``lightsim fuzz`` hands it over)
+Command = Callable[[list[str]], object]
 
 # values a corrupt writer might put in a field
 _PALETTE: tuple[Any, ...] = (None, "red", "", -1, 0, 1, 2**31, 2**53, 1e30, -1e30, 1e-30,
@@ -164,10 +193,6 @@ class FuzzReport:
 def small_scene_glb() -> bytes:
     """A small valid luminaire: a 1000 lm emitter, a glass plate (with volume absorption
     and normals) and a mirror, as a GLB (m, lm)."""
-    import trimesh
-
-    from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, glb_bytes
-
     ico = trimesh.creation.icosphere(1, radius=1e-3)
     plate = trimesh.creation.box((0.2, 0.2, 0.01))
     plate.apply_translation((0.0, 0.0, 0.1))
@@ -190,10 +215,7 @@ def small_scene_glb() -> bytes:
 
 def headlight_glb() -> bytes:
     """The shipped example headlight (``luminaires/examples/headlight.glb``)."""
-    from lightsim import luminaires
-
-    return (Path(luminaires.__file__).resolve().parent / "examples" / "headlight.glb"
-            ).read_bytes()
+    return example_headlight().read_bytes()
 
 
 def split_glb(raw: bytes) -> tuple[dict[str, Any], bytes]:
@@ -227,15 +249,11 @@ def to_gltf_text(doc: dict[str, Any], blob: bytes) -> bytes:
 
 def sample_ies() -> bytes:
     """The shipped, published IES sample (see ``luminaires/photometric/SAMPLES.md``)."""
-    from lightsim.luminaires.photometric import SAMPLE_IES
-
     return SAMPLE_IES.read_bytes()
 
 
 def sample_ldt(workdir: Path) -> bytes:
     """The IES sample rewritten as EULUMDAT by lightsim's writer."""
-    from lightsim.luminaires.photometric import SAMPLE_IES, read_ies, write_ldt
-
     path = workdir / "seed.ldt"
     write_ldt(path, read_ies(SAMPLE_IES))
     return path.read_bytes()
@@ -243,15 +261,6 @@ def sample_ldt(workdir: Path) -> bytes:
 
 def photo_seeds(workdir: Path) -> tuple[Path, dict[str, bytes]]:
     """A synthetic result folder and photos of it (JPEG, 8-bit PNG, 16-bit TIFF)."""
-    from lightsim.validation.synthetic_photo import (
-        CameraSettings,
-        lowbeam_lux,
-        render_photo,
-        wall_frame,
-        write_photo,
-        write_result,
-    )
-
     frame = wall_frame((96, 40))
     lux = lowbeam_lux(frame)
     sim = write_result(workdir / "sim", lux, frame)
@@ -541,10 +550,6 @@ def _mutate_photometric(data: bytes, kind: str, rng: np.random.Generator
 
 def _mutate_photo(data: bytes, suffix: str, rng: np.random.Generator) -> tuple[bytes, str]:
     if suffix == ".tif" and rng.random() < 0.4:
-        import io
-
-        import tifffile
-
         with tifffile.TiffFile(io.BytesIO(data)) as tf:
             tags = [(t.name, t.offset) for t in tf.pages[0].tags]
         name, off = _pick(rng, tags)
@@ -563,8 +568,6 @@ def build_corpus(n: int, seed: int, workdir: Path, kinds: Sequence[str] = KINDS,
     """
     for k in kinds:
         if k not in KINDS:
-            from lightsim.errors import InputError
-
             raise InputError(f"fuzz kind must be one of {', '.join(KINDS)}, got '{k}'")
     glb_seeds = [split_glb(small_scene_glb())]
     if headlight:
@@ -640,7 +643,6 @@ def judge(case: FuzzCase, code: int | None, stderr: list[str], out: Path) -> tup
     if case.kind == "photo":
         doc = json.loads((out / "comparison.json").read_text())
         return ("ran", "") if _all_finite(doc) else ("nonfinite", "comparison.json")
-    from lightsim.io.exr import read_exr
 
     chans, _ = read_exr(out / "wall_lux.exr")
     if not all(np.all(np.isfinite(c)) for c in chans.values()):
@@ -661,8 +663,6 @@ def judge(case: FuzzCase, code: int | None, stderr: list[str], out: Path) -> tup
 @contextlib.contextmanager
 def _captured_fds() -> Iterator[list[str]]:
     """Capture fd 1 and fd 2 (Python and C writes alike); yields the stderr lines after."""
-    import sys
-
     lines: list[str] = []
     sys.stdout.flush()
     sys.stderr.flush()
@@ -684,13 +684,9 @@ def _captured_fds() -> Iterator[list[str]]:
             lines.extend(ln for ln in text.splitlines() if ln.strip())
 
 
-def run_in_process(argv: list[str]) -> tuple[int, list[str]]:
-    """Run ``lightsim argv`` here as a fresh process would; (exit code, stderr lines)."""
-    import logging
-    import warnings
-
-    from lightsim.cli.main import main
-
+def run_in_process(command: Command, argv: list[str]) -> tuple[int, list[str]]:
+    """Run ``lightsim argv`` here through ``command`` (:data:`Command`) as a fresh process
+    would; (exit code, stderr lines)."""
     code = 1
     with _captured_fds() as lines, warnings.catch_warnings():
         # a fresh process shows each warning once; resetting the filters makes every case
@@ -699,25 +695,21 @@ def run_in_process(argv: list[str]) -> tuple[int, list[str]]:
         warnings.simplefilter("default")
         logging.captureWarnings(False)
         try:
-            main(argv)
+            command(argv)
         except SystemExit as exc:
             c = exc.code
             code = 0 if c is None else c if isinstance(c, int) else 1
             if not isinstance(c, int | None):
-                print(c, file=__import__("sys").stderr)
+                print(c, file=sys.stderr)
         except BaseException:  # what an uncaught exception would print
             traceback.print_exc()
             code = 1
     return code, lines
 
 
-def _worker(conn: Any) -> None:
+def _worker(conn: Any, command: Command) -> None:
     """Worker process: run the argv lists it receives, send back (code, stderr lines)."""
-    import sys
-
     sys.stdin = open(os.devnull)  # commands never read input
-    import lightsim.simulate  # noqa: F401 - pay the import once, not in the first case
-
     while True:
         try:
             msg = conn.recv()
@@ -725,14 +717,15 @@ def _worker(conn: Any) -> None:
             return
         if msg is None:
             return
-        conn.send(run_in_process(msg))
+        conn.send(run_in_process(command, msg))
 
 
 class _Worker:
-    def __init__(self) -> None:
+    def __init__(self, command: Command) -> None:
         ctx = mp.get_context("spawn")
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker, args=(child,), daemon=True)
+        # the command goes by reference (its module and name): the worker imports it
+        self.proc = ctx.Process(target=_worker, args=(child, command), daemon=True)
         self.proc.start()
         child.close()
 
@@ -763,9 +756,9 @@ class _Worker:
             self.proc.join(5)
 
 
-def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, photons: int = 20_000,
-             resolution: str = "64x32", timeout_s: float = 180.0, headlight: bool = False,
-             workdir: str | os.PathLike | None = None,
+def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, command: Command,
+             photons: int = 20_000, resolution: str = "64x32", timeout_s: float = 180.0,
+             headlight: bool = False, workdir: str | os.PathLike | None = None,
              progress: Callable[[CaseResult], None] | None = None) -> FuzzReport:
     """Build the corpus, run every case in a worker process and judge it.
 
@@ -777,6 +770,8 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, photons: in
         Corpus seed.
     kinds : sequence of str
         Input kinds (``glb``, ``ies``, ``ldt``, ``photo``), taken in turn.
+    command : callable
+        The command line's entry point (:data:`Command`), run in the worker process.
     photons : int
         Photons per simulated case.
     resolution : str
@@ -797,7 +792,7 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, photons: in
     worker = None
     try:
         cases, sim = build_corpus(n, seed, root, tuple(kinds), headlight)
-        worker = _Worker()
+        worker = _Worker(command)
         for case in cases:
             case_dir = root / f"case{case.index}"
             case_dir.mkdir(exist_ok=True)
@@ -812,7 +807,7 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, photons: in
                 verdict, detail = failure, f"after {dt:.0f} s"
                 worker.proc.kill()
                 worker.proc.join(5)
-                worker = _Worker()
+                worker = _Worker(command)
             else:
                 verdict, detail = judge(case, code, lines, out)
             result = CaseResult(case, code, lines, dt, verdict, detail)
@@ -856,16 +851,12 @@ class KillResult:
 
 def _simulate_argv(scene: Path, out: Path, photons: int, resolution: str, seed: int = 1
                    ) -> list[str]:
-    import sys
-
-    return [sys.executable, "-c", "from lightsim.cli.main import main; main()", "simulate",
-            str(scene), "--photons", str(photons), "--frame-photons", str(photons),
-            "--resolution", resolution, "--seed", str(seed), "--quiet", "--out", str(out)]
+    return [sys.executable, "-m", "lightsim.cli", "simulate", str(scene), "--photons",
+            str(photons), "--frame-photons", str(photons), "--resolution", resolution,
+            "--seed", str(seed), "--quiet", "--out", str(out)]
 
 
 def _write_started(out: Path) -> bool:
-    from lightsim.io.atomic import STAGING_PREFIX
-
     with contextlib.suppress(OSError):
         for p in out.glob(STAGING_PREFIX + "*"):
             if p.is_dir() and any(True for _ in p.iterdir()):
@@ -875,11 +866,9 @@ def _write_started(out: Path) -> bool:
 
 def inspect_output(out: Path) -> tuple[str, list[str], list[str]]:
     """(state, top-level files, problems) of a simulate output folder after a kill."""
-    from lightsim.io.atomic import _TEMP_RE
-
     top = sorted(p.name for p in out.iterdir() if p.is_file()) if out.is_dir() else []
     problems = [f"empty file {n}" for n in top if (out / n).stat().st_size == 0]
-    problems += [f"temporary file {n} in the folder" for n in top if _TEMP_RE.match(n)]
+    problems += [f"temporary file {n} in the folder" for n in top if TEMP_RE.match(n)]
     if "summary.json" not in top:
         return "unfinished", top, problems
     try:
@@ -889,7 +878,6 @@ def inspect_output(out: Path) -> tuple[str, list[str], list[str]]:
     missing = sorted((set(listed) | SIM_OUTPUTS) - set(top))
     if missing:
         return "broken", top, [*problems, "summary.json without " + ", ".join(missing)]
-    from lightsim.io.exr import read_exr
 
     seed = json.loads((out / "summary.json").read_text()).get("seed")
     exr_seed = read_exr(out / "wall_lux.exr")[1].get("seed")
@@ -905,12 +893,6 @@ def kill_during_write(scene: Path, out: Path, delay_s: float, *, photons: int = 
     appears, and judge the folder before and after the clean-up the next run does
     (:func:`lightsim.simulate.folder_notes`). A folder holding an earlier run of another
     seed shows whether old and new files mixed."""
-    import signal
-    import subprocess
-
-    from lightsim.io.atomic import STAGING_PREFIX
-    from lightsim.simulate import folder_notes
-
     proc = subprocess.Popen(_simulate_argv(scene, out, photons, resolution, seed=2),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     t0 = time.monotonic()
@@ -939,8 +921,6 @@ def write_phase_seconds(scene: Path, out: Path, *, photons: int = 20_000,
                         resolution: str = "64x32", timeout_s: float = 180.0) -> float:
     """Seconds from the first staged file to the appearance of ``summary.json`` in an
     uninterrupted run into the fresh folder ``out`` (the window the kills are spread over)."""
-    import subprocess
-
     proc = subprocess.Popen(_simulate_argv(scene, out, photons, resolution),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     t0 = time.monotonic()

@@ -53,6 +53,8 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter, gaussian_filter1d, map_coordinates
 
 from lightsim.errors import InputError
+from lightsim.luminaires.regulations.ruleset import load_ruleset
+from lightsim.render.cutoff import find_cutoff
 from lightsim.validation.photo_register import apply_matrix
 from lightsim.wall import WallFrame, wall_m_from_deg
 
@@ -185,8 +187,6 @@ def _band(sampler: AngleSampler, h: float, v: NDArray, band_deg: float = 0.1
 def _scan_offset(sampler: AngleSampler, h: float, step: float, window: float,
                  max_offset: float, max_blur: float) -> tuple[float, float, bool] | None:
     """(dv, blur σ, blur at cap) of one scan, or None when the scan shows no cut-off."""
-    from lightsim.render.cutoff import find_cutoff
-
     n_pad = round((max_offset + window + 3 * max_blur) / step) + 2
     v = np.arange(-3.0, 1.5 + step / 2, step)
     v_wide = -3.0 + step * np.arange(-n_pad, len(v) + n_pad)
@@ -329,8 +329,6 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
 
 def parse_normalise_at(text: str | None, traffic: str = "right") -> tuple[str, float, float]:
     """A test-point name of the R112 passing-beam rule set or ``"H,V"`` (deg)."""
-    from lightsim.luminaires.regulations.ruleset import load_ruleset
-
     text = (text or DEFAULT_NORMALISE_AT).strip()
     if "," in text:
         try:
@@ -366,8 +364,6 @@ def test_points(sampler: AngleSampler, traffic: str = "right",
                 normalise_at: str | None = None, radius_deg: float = 0.1
                 ) -> tuple[dict[str, Any], list[PointReading]]:
     """75R, 50V, B50L relative to the normalisation point, photo beside simulation."""
-    from lightsim.luminaires.regulations.ruleset import load_ruleset
-
     rules = load_ruleset("r112-b-passing").for_traffic(traffic)
     name, hn, vn = parse_normalise_at(normalise_at, traffic)
     pn, cn, sn = _disc(sampler, hn, vn, radius_deg)

@@ -38,21 +38,28 @@ black_level    1     2/255      a photo whose brightest pixels (99.9th percentil
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
 
 from lightsim.errors import InputError
+from lightsim.io.exr import read_exr
+from lightsim.io.summary import read_json
+from lightsim.materials import LUMA
+from lightsim.validation.photo_png16 import is_png16, read_png16
+from lightsim.validation.photo_raw import RAW_SUFFIXES, exposure_info, read_raw
 from lightsim.wall import WallFrame
 
 __all__ = [
-    "REC709",
     "PhotoImage",
     "Simulation",
     "load_simulation",
@@ -61,9 +68,6 @@ __all__ = [
     "srgb_decode",
     "srgb_encode",
 ]
-
-#: Rec. 709 / sRGB luminance weights of linear R, G, B.
-REC709 = (0.2126, 0.7152, 0.0722)
 
 _RASTER_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff"}
 
@@ -108,7 +112,8 @@ def srgb_encode(x: NDArray) -> NDArray:
 
 
 def luminance(rgb: NDArray) -> NDArray:
-    """Relative luminance of linear RGB with the Rec. 709 weights.
+    """Relative luminance of linear RGB with the Rec. 709 weights
+    (:data:`lightsim.materials.LUMA`).
 
     Parameters
     ----------
@@ -123,7 +128,8 @@ def luminance(rgb: NDArray) -> NDArray:
     rgb = np.asarray(rgb, dtype=np.float64)
     if rgb.ndim == 2:
         return rgb
-    return rgb[..., 0] * REC709[0] + rgb[..., 1] * REC709[1] + rgb[..., 2] * REC709[2]
+    r, g, b = LUMA.tolist()
+    return rgb[..., 0] * r + rgb[..., 1] * g + rgb[..., 2] * b
 
 
 # ---------------------------------------------------------------------------------------
@@ -161,10 +167,6 @@ class PhotoImage:
 
 
 def _read_raster(path: Path) -> NDArray:
-    import imageio.v3 as iio  # a dependency of scikit-image
-
-    from lightsim.validation.photo_png16 import is_png16, read_png16
-
     if is_png16(path):      # Pillow would cut 16-bit colour PNGs to 8 bits
         return read_png16(path)
     plugin = "tifffile" if path.suffix.lower() in (".tif", ".tiff") else "pillow"
@@ -181,8 +183,6 @@ def _read_raster(path: Path) -> NDArray:
 
 
 def _read_exr_rgb(path: Path) -> NDArray:
-    from lightsim.io.exr import read_exr
-
     chans, _ = read_exr(path)
     names = {k.split(".")[-1]: v for k, v in chans.items()}
     if "Y" in names:
@@ -235,7 +235,6 @@ def read_photo(path: str | os.PathLike, clip_code: float = 0.98,
         photo (one line each).
     """
     p = Path(path)
-    from lightsim.validation.photo_raw import exposure_info
 
     with _library_messages() as messages:
         photo = _read_photo(p, clip_code, black_level)
@@ -251,9 +250,6 @@ def read_photo(path: str | os.PathLike, clip_code: float = 0.98,
 def _library_messages() -> Iterator[list[str]]:
     """Collect what image libraries print or warn (tifffile logs bad tags, Pillow and numpy
     warn) as one-line messages instead of letting them reach the terminal."""
-    import logging
-    import warnings
-
     messages: list[str] = []
 
     class _Collect(logging.Handler):
@@ -287,8 +283,6 @@ def _one_line(text: str) -> str:
 
 
 def _read_photo(p: Path, clip_code: float, black_level: float) -> PhotoImage:
-    from lightsim.validation.photo_raw import RAW_SUFFIXES, read_raw
-
     suffix = p.suffix.lower()
     extra: dict[str, Any] = {}
     if suffix in RAW_SUFFIXES:
@@ -396,8 +390,6 @@ def _lux_channel(chans: dict[str, NDArray], path: Path) -> NDArray:
 
 
 def _frame_from_summary(folder: Path) -> dict[str, Any] | None:
-    from lightsim.io.summary import read_json
-
     summary = folder / "summary.json"
     if not summary.is_file():
         return None
@@ -424,8 +416,6 @@ def load_simulation(path: str | os.PathLike) -> Simulation:
     InputError
         Missing folder/file, unreadable EXR, no wall frame, inconsistent frame or no light.
     """
-    from lightsim.io.exr import read_exr
-
     p = Path(path)
     if p.is_dir():
         exr = p / "wall_lux.exr"

@@ -26,7 +26,7 @@ min_separation  1     0.1      least distance of two lamps, fraction of the widt
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
@@ -88,8 +88,6 @@ def keep_lamp(photo: PhotoImage, side: str, split: LampSplit) -> PhotoImage:
     InputError
         ``side`` is not "left"/"right", or the photo shows one lamp only.
     """
-    from dataclasses import replace
-
     if side not in ("left", "right"):
         raise InputError(f"--lamp must be 'left' or 'right', got {side!r}")
     if split.split_px is None:

@@ -75,6 +75,7 @@ from skimage.metrics import (
 )
 
 from lightsim.errors import InputError
+from lightsim.render.cutoff import find_cutoff
 from lightsim.wall import WallFrame, wall_m_from_deg
 
 __all__ = [
@@ -257,8 +258,6 @@ def _scan_covered(overlap: NDArray, wall: WallFrame, traffic: str) -> bool:
 
 def _cutoffs(photo: NDArray, sim: NDArray, overlap: NDArray, wall: WallFrame, frame: dict,
              traffic: str, sim_blur_px: float) -> dict[str, Any]:
-    from lightsim.render.cutoff import find_cutoff
-
     def position(img: NDArray) -> tuple[float | None, str]:
         res = find_cutoff(img, frame, traffic=traffic)
         return (res.v_cutoff_deg if res.found else None), res.message

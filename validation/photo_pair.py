@@ -55,10 +55,16 @@ from numpy.typing import NDArray
 from scipy.ndimage import binary_dilation, gaussian_filter, map_coordinates
 
 from lightsim.errors import InputError
-from lightsim.validation.photo_io import PhotoImage, srgb_encode
-from lightsim.validation.screen_geometry import ScreenGeometry
+from lightsim.io.summary import write_json
+from lightsim.luminaires.regulations.ruleset import load_ruleset
+from lightsim.validation.photo_io import PhotoImage, read_photo, srgb_encode
+from lightsim.validation.photo_plots import plot_pair_difference
+from lightsim.validation.photo_register import apply_matrix
+from lightsim.validation.screen_geometry import ScreenGeometry, fit_screen, parse_points
+from lightsim.validation.screen_target import detect_markers, load_layout, marker_mask
 
-__all__ = ["PairComparison", "PairOptions", "align_pair", "compare_pair", "write_pair"]
+__all__ = ["PairComparison", "PairOptions", "align_pair", "compare_pair", "run_pair",
+           "write_pair"]
 
 
 @dataclass(frozen=True)
@@ -176,8 +182,6 @@ def _by_markers(a: PhotoImage, b: PhotoImage, ga: ScreenGeometry | None,
 
 
 def _rms(m: NDArray, src: NDArray, dst: NDArray) -> float:
-    from lightsim.validation.photo_register import apply_matrix
-
     x, y = apply_matrix(m, src[:, 0], src[:, 1])
     return float(np.sqrt(np.mean((x - dst[:, 0]) ** 2 + (y - dst[:, 1]) ** 2)))
 
@@ -242,8 +246,6 @@ def _refine_ecc(a: PhotoImage, b: PhotoImage, m: NDArray, beam_a: NDArray, beam_
     corner by more than ``max_move_px`` (it then left the feature fit's basin)."""
     import cv2
 
-    from lightsim.validation.photo_register import apply_matrix
-
     ia = _static_image(a, beam_a).astype(np.float32)
     ib = _static_image(b, beam_b).astype(np.float32)
     warp0 = np.linalg.inv(m).astype(np.float32)            # ECC's warp maps A → B
@@ -264,8 +266,6 @@ def _refine_ecc(a: PhotoImage, b: PhotoImage, m: NDArray, beam_a: NDArray, beam_
 
 
 def _warp_b(b: NDArray, matrix: NDArray, shape: tuple[int, int], order: int = 1) -> NDArray:
-    from lightsim.validation.photo_register import apply_matrix
-
     h, w = shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     x, y = apply_matrix(np.linalg.inv(matrix), xx, yy)
@@ -297,8 +297,6 @@ def compare_pair(a: PhotoImage, b: PhotoImage, geometry: ScreenGeometry | None =
     InputError
         The photos cannot be aligned, or they share no lit pixels.
     """
-    from lightsim.validation.screen_target import detect_markers, load_layout, marker_mask
-
     o = opts or PairOptions()
     layout = None if o.markers in ("auto", "off") else load_layout(o.markers)
     use_markers = o.markers != "off"
@@ -343,8 +341,6 @@ def compare_pair(a: PhotoImage, b: PhotoImage, geometry: ScreenGeometry | None =
 
 def _point_changes(a: NDArray, b: NDArray, bad: NDArray, geometry: ScreenGeometry,
                    traffic: str, radius: float) -> list[dict[str, Any]]:
-    from lightsim.luminaires.regulations.ruleset import load_ruleset
-
     rules = load_ruleset("r112-b-passing").for_traffic(traffic)
     out = []
     h, w = a.shape
@@ -370,9 +366,6 @@ def _point_changes(a: NDArray, b: NDArray, bad: NDArray, geometry: ScreenGeometr
 def write_pair(result: PairComparison, out_dir: str | os.PathLike, credit: str | None = None
                ) -> dict[str, Path]:
     """Write ``pair.json`` and ``relative_difference.png`` into ``out_dir``."""
-    from lightsim.io.summary import write_json
-    from lightsim.validation.photo_plots import plot_pair_difference
-
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -384,3 +377,44 @@ def write_pair(result: PairComparison, out_dir: str | os.PathLike, credit: str |
                                credit)
     write_json(out / "pair.json", result.to_json())
     return {"pair.json": out / "pair.json", "relative_difference.png": png}
+
+
+def run_pair(a_path: str | os.PathLike, b_path: str | os.PathLike, out_dir: str | os.PathLike,
+             points: str | None = None, opts: PairOptions | None = None,
+             screen_distance_m: float | None = None, traffic: str = "right",
+             credit: str | None = None) -> tuple[PairComparison, list[str]]:
+    """Read photos A and B, compare them (:func:`compare_pair`) and write the outputs
+    (:func:`write_pair`).
+
+    Parameters
+    ----------
+    a_path, b_path : path-like
+        The reference photo and the changed one.
+    out_dir : path-like
+        Output folder.
+    points : str, optional
+        Control points of A, ``"x,y=H,V; …"`` (photo px = screen degrees): A's screen
+        geometry (else markers on A, as ``opts.markers`` allows).
+    opts : PairOptions, optional
+        Settings (module table).
+    screen_distance_m : float, optional
+        Lamp → screen distance of the photos in m (default 25).
+    traffic : {"right", "left"}
+        Side of the test points.
+    credit : str, optional
+        Attribution printed on the figure.
+
+    Returns
+    -------
+    result : PairComparison
+    warnings : list of str
+        What reading A, then B, warned about (one line each).
+    """
+    a, b = read_photo(a_path), read_photo(b_path)
+    geometry = None
+    if points:
+        xy, hv = parse_points(points)
+        geometry = fit_screen(xy, hv, screen_distance_m or 25.0, source="points")
+    result = compare_pair(a, b, geometry, opts, traffic)
+    write_pair(result, out_dir, credit)
+    return result, a.info.get("warnings", []) + b.info.get("warnings", [])

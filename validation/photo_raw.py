@@ -34,6 +34,7 @@ clip_code   1     0.98     fraction of (white − black) at which a sample count
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import sys
@@ -43,9 +44,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tifffile
 from numpy.typing import NDArray
+from PIL import Image
 
 from lightsim.errors import InputError
+from lightsim.materials import LUMA
 
 __all__ = ["RAW_SUFFIXES", "exposure_info", "read_raw"]
 
@@ -53,7 +57,7 @@ __all__ = ["RAW_SUFFIXES", "exposure_info", "read_raw"]
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".nrw", ".arw", ".orf", ".rw2", ".raf",
                 ".pef", ".srw", ".raw", ".rwl", ".3fr", ".iiq", ".erf", ".kdc", ".mos")
 
-_WEIGHTS = {"R": 0.2126, "G": 0.7152, "B": 0.0722}
+_WEIGHTS = dict(zip("RGB", LUMA.tolist()))  # Rec. 709 luminance weight of each CFA colour
 
 
 def _flip(img: NDArray, flip: int) -> NDArray:
@@ -167,7 +171,7 @@ def _decode(p: Path, clip_code: float, warnings: list[str]
                     rgb = raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=16,
                                           use_camera_wb=True, user_flip=0)
                     lin = rgb.astype(np.float64) / 65535.0
-                    lum = lin @ np.array([0.2126, 0.7152, 0.0722])
+                    lum = lin @ LUMA
                     clip = (lin >= clip_code).any(axis=-1)
                     info = {"demosaiced": "LibRaw, linear curve"}
                 flip = int(raw.sizes.flip)
@@ -195,10 +199,6 @@ def _preview(path: Path) -> NDArray | None:
     except rawpy.LibRawError:
         return None
     if thumb.format == rawpy.ThumbFormat.JPEG:
-        import io
-
-        from PIL import Image
-
         return np.asarray(Image.open(io.BytesIO(thumb.data)).convert("RGB"))
     if thumb.format == rawpy.ThumbFormat.BITMAP:
         return np.asarray(thumb.data)
@@ -233,16 +233,12 @@ def exposure_info(path: str | os.PathLike) -> dict[str, Any] | None:
     tags: dict[str, Any] = {}
     try:
         if p.suffix.lower() in (".jpg", ".jpeg", ".png"):
-            from PIL import Image
-
             with Image.open(p) as im:
                 exif = im.getexif()
                 sub = exif.get_ifd(0x8769)
                 tags = {"t": sub.get(33434), "n": sub.get(33437),
                         "iso": sub.get(34855)}
         else:
-            import tifffile
-
             with tifffile.TiffFile(p) as tif:
                 page = tif.pages[0]
                 found: dict[int, Any] = {t.code: t.value for t in page.tags.values()}

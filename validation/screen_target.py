@@ -45,10 +45,16 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import binary_dilation, map_coordinates
+from skimage.draw import polygon
 
 from lightsim.errors import InputError
+from lightsim.io.atomic import atomic_path
+from lightsim.io.summary import read_json, write_json
+from lightsim.validation.photo_io import srgb_encode
 from lightsim.validation.screen_geometry import ScreenGeometry, fit_screen
 from lightsim.wall import WallFrame, deg_from_wall_m, wall_m_from_deg
 
@@ -119,8 +125,6 @@ def load_layout(path: str | os.PathLike) -> ScreenLayout:
     InputError
         Missing file or malformed layout.
     """
-    from lightsim.io.summary import read_json
-
     doc = read_json(path)
     try:
         markers = tuple((int(m["id"]), float(m["h_deg"]), float(m["v_deg"]))
@@ -178,8 +182,6 @@ def board_reflectance(layout: ScreenLayout, frame: Any, white: float = 0.9,
     ndarray, shape (H, W)
         Reflectance per pixel (area-weighted: each pixel averages 4×4 sub-samples).
     """
-    from scipy.ndimage import map_coordinates
-
     wf = WallFrame.from_any(frame)
     out = np.full((wf.height, wf.width), white, np.float64)
     corners = marker_corners_m(layout, wf.distance_m)
@@ -235,8 +237,6 @@ def detect_markers(photo: NDArray, layout: ScreenLayout | None = None,
         quadrilaterals in the photo (px).
     """
     import cv2
-
-    from lightsim.validation.photo_io import srgb_encode
 
     lay = layout or DEFAULT_LAYOUT
     d = distance_m or lay.distance_m
@@ -306,8 +306,6 @@ def _refine_linear(img: NDArray, quad: NDArray) -> NDArray:
 def marker_mask(geometry: ScreenGeometry, shape: tuple[int, int], grow: float = 0.15
                 ) -> NDArray:
     """Photo pixels covered by the markers found (each quad grown by ``grow`` of its size)."""
-    from skimage.draw import polygon
-
     mask = np.zeros(shape, bool)
     for q in geometry.details.get("marker_quads_px", {}).values():
         q = np.asarray(q, np.float64)
@@ -349,9 +347,6 @@ def write_target(path: str | os.PathLike, layout: ScreenLayout | None = None,
     InputError
         Unknown suffix, bad layout or resolution.
     """
-    from lightsim.io.atomic import atomic_path
-    from lightsim.io.summary import write_json
-
     lay = layout or DEFAULT_LAYOUT
     lay.check()
     p = Path(path)
@@ -364,15 +359,11 @@ def write_target(path: str | os.PathLike, layout: ScreenLayout | None = None,
         raise InputError(f"output folder {p.parent} does not exist")
     frame = _screen_frame(lay, px_per_m)
     if suffix == ".png":
-        import imageio.v3 as iio
-
         refl = board_reflectance(lay, frame, white=1.0, black=0.0)
         wf = WallFrame.from_any(frame)
         row, col = wf.pixel_of(0.0, 0.0)
         img = np.round(refl * 255).astype(np.uint8)
         # H-H and V-V as thin grey lines, kept off the markers (and their quiet zone)
-        from scipy.ndimage import binary_dilation
-
         clear = ~binary_dilation(refl < 1.0, iterations=max(2, round(0.2 * lay.size_m()
                                                                      * px_per_m)))
         r, c = round(float(row)), round(float(col))

@@ -32,6 +32,11 @@ from typing import Any
 
 import numpy as np
 
+from lightsim.engine.config import RunConfig
+from lightsim.io.exr import read_exr
+from lightsim.validation.analytic import run_image_case
+from lightsim.validation.scenes import analytic as an
+
 TIMING_KEYS = frozenset({"seconds", "machine", "photons_per_second", "rate", "elapsed_s",
                          "time_s", "wall_seconds", "eta_s", "rays_per_second"})
 """summary.json keys whose values are timings (differ between identical runs)."""
@@ -41,10 +46,6 @@ CASES = (("paraboloid", "bin"), ("paraboloid", "knn"), ("isotropic", "knn"))
 
 def analytic_snapshot(out: Path, photons: int = 100_000, seed: int = 1) -> Path:
     """Run :data:`CASES` at ``seed`` and write their lux maps to ``out/analytic.npz``."""
-    from lightsim.engine.config import RunConfig
-    from lightsim.validation.analytic import run_image_case
-    from lightsim.validation.scenes import analytic as an
-
     builders = {"paraboloid": an.paraboloid_case, "isotropic": an.isotropic_case}
     arrays: dict[str, np.ndarray] = {}
     for name, est in CASES:
@@ -98,8 +99,6 @@ def compare(before: Path, after: Path, roots: tuple[str, str] | None = None) -> 
     without :data:`TIMING_KEYS`, other files (IES, LDT) byte for byte. PNG figures are not
     compared (matplotlib embeds nothing run-specific, but they are renderings of the maps).
     """
-    from lightsim.io.exr import read_exr
-
     roots = roots or (str(before), str(after))
     diffs: list[str] = []
     names = sorted({p.name for p in before.iterdir()} | {p.name for p in after.iterdir()})

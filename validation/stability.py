@@ -65,17 +65,23 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import trimesh
 
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
+from lightsim.io.exr import read_exr, wall_metadata, write_exr
+from lightsim.luminaires.filament import filament_mesh
+from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, Material, slab_transmittance
-from lightsim.scene import WALL, Part, Scene, WallFrame, make_wall
-from lightsim.tracer import LEDGER
+from lightsim.photonmap.density import PhotonMap
+from lightsim.photonmap.kdtree import KdTree
+from lightsim.sampling import photon_keys
+from lightsim.scene import WALL, Part, Scene, WallFrame, load_scene, make_wall
+from lightsim.tracer import LEDGER, PhotonTracer
 from lightsim.validation.analytic import (
     BUDGET_RTOL,
     Check,
     SessionRun,
-    knn_available,
     run_session,
     student_q,
 )
@@ -343,32 +349,29 @@ def case_point_focus(settings: StabilitySettings) -> list[Check]:
                     tolerance=1e-3 * R * flux,
                     note="every reflected ray passes through the focus (0.1 % for the "
                          "faceted mirror)")]
-    if knn_available():
-        for min_r in (None, 0.0):
-            # min_radius = 0 with the paper's unlimited kNN radius: r_k → 0 at the focus
-            cfg = RunConfig(seed=settings.seed, interleave=4, estimator="knn", spt=False,
-                            min_radius=min_r, max_radius=None if min_r is None else math.inf)
-            label = f"{name}/knn" + (" min_radius=0" if min_r == 0.0 else "")
-            run = run_session(scene, cfg, min(settings.photons, 50_000))
-            checks.extend(standard(label, run))
-            peak = float(run.lux.max())
-            if min_r is None:
-                cap = R * flux / (math.pi * run.min_radius**2)
-                checks.append(Check(label, "peak ≤ R Φ / (π r_min²)", f"≤ {cap:.4g}", peak,
-                                    "lx", ok=bool(0 < peak <= cap * (1 + 1e-6)),
-                                    note=f"all flux inside r_min = {run.min_radius * 1e3:.3g}"
-                                         " mm: the estimate is capped, not infinite"))
-            else:
-                checks.append(Check(label, "peak finite and positive", "finite > 0", peak,
-                                    "lx", ok=bool(math.isfinite(peak) and peak > 0),
-                                    note="r → the float32 resolution floor, not 0"))
+    for min_r in (None, 0.0):
+        # min_radius = 0 with the paper's unlimited kNN radius: r_k → 0 at the focus
+        cfg = RunConfig(seed=settings.seed, interleave=4, estimator="knn", spt=False,
+                        min_radius=min_r, max_radius=None if min_r is None else math.inf)
+        label = f"{name}/knn" + (" min_radius=0" if min_r == 0.0 else "")
+        run = run_session(scene, cfg, min(settings.photons, 50_000))
+        checks.extend(standard(label, run))
+        peak = float(run.lux.max())
+        if min_r is None:
+            cap = R * flux / (math.pi * run.min_radius**2)
+            checks.append(Check(label, "peak ≤ R Φ / (π r_min²)", f"≤ {cap:.4g}", peak,
+                                "lx", ok=bool(0 < peak <= cap * (1 + 1e-6)),
+                                note=f"all flux inside r_min = {run.min_radius * 1e3:.3g}"
+                                     " mm: the estimate is capped, not infinite"))
+        else:
+            checks.append(Check(label, "peak finite and positive", "finite > 0", peak,
+                                "lx", ok=bool(math.isfinite(peak) and peak > 0),
+                                note="r → the float32 resolution floor, not 0"))
     return checks
 
 
 def case_dynamic_range(settings: StabilitySettings) -> list[Check]:
     """A point-focus lux map (peak ~1e9 lx) over a 0.1 lx floor: 1e9 range in one EXR."""
-    from lightsim.io.exr import read_exr, wall_metadata, write_exr
-
     name = "dynamic-range-exr"
     scene, frame = _focus_scene(1000.0, 0.9, resolution=(41, 41), wall_size=0.04)
     run = run_session(scene, _bin(settings), settings.photons)
@@ -400,8 +403,6 @@ def case_filament_1km(settings: StabilitySettings) -> list[Check]:
     Everything reflected arrives: R Φ (1 − cos ψ_rim)/2, plus the direct light on the
     40 m square; float32 positions at 1 km (ulp 61 µm) and 0.1 mm geometry in one scene.
     """
-    from lightsim.luminaires.filament import filament_mesh
-
     name, flux, R, f, rim, D = "filament-1km", 1000.0, 0.88, 0.025, 0.06, 1000.0
     verts, faces = filament_mesh(1e-4, 1e-4, (0.0, 0.0, f), (0.0, 1.0, 0.0))
     fil = Part("filament", "emitter", np.asarray(verts, float), np.asarray(faces, np.int64),
@@ -433,14 +434,8 @@ def case_filament_1km(settings: StabilitySettings) -> list[Check]:
 
 
 def _photonmap(channels: int = 1):
-    """The production photon map if installed, else the kd-tree it wraps."""
-    if knn_available():
-        from lightsim.photonmap.density import PhotonMap
-
-        return PhotonMap(structure="middle", channels=channels), "PhotonMap(middle)"
-    from lightsim.photonmap.kdtree import KdTree
-
-    return KdTree(channels=channels), "KdTree"
+    """The production photon map (middle-split kd-tree) and its label."""
+    return PhotonMap(structure="middle", channels=channels), "PhotonMap(middle)"
 
 
 def case_coincident(settings: StabilitySettings) -> list[Check]:
@@ -470,8 +465,6 @@ def case_coincident(settings: StabilitySettings) -> list[Check]:
     per_photon = peak / n
     # Work is judged by the tree's shape, not by seconds: coincident points must not split
     # into a chain of empty nodes (a balanced tree has at most 2 n / leaf nodes).
-    from lightsim.photonmap.kdtree import KdTree
-
     tree = KdTree(channels=1)
     tree.add(pos[: min(n, 100_000)], nrm[: min(n, 100_000)], pw[: min(n, 100_000)])
     nodes = int(tree.n_nodes)
@@ -522,11 +515,10 @@ def case_k_greater_than_n(settings: StabilitySettings) -> list[Check]:
                              "r is the farthest photon found"))
     checks.append(Check(name, f"{kind}: E = 10 / (π r²)", 10 / (math.pi * far**2), e,
                         "lm/m²", tolerance=1e-5 * 10 / (math.pi * far**2)))
-    if knn_available():
-        case = an.isotropic_case(resolution=(32, 32))
-        cfg = RunConfig(seed=settings.seed, interleave=4, estimator="knn", k=5000, spt=False)
-        run = run_session(case.scene, cfg, 3200)
-        checks.extend(standard(f"{name}/session", run))
+    case = an.isotropic_case(resolution=(32, 32))
+    cfg = RunConfig(seed=settings.seed, interleave=4, estimator="knn", k=5000, spt=False)
+    run = run_session(case.scene, cfg, 3200)
+    checks.extend(standard(f"{name}/session", run))
     return checks
 
 
@@ -537,7 +529,7 @@ def case_no_photon(settings: StabilitySettings) -> list[Check]:
     wall, frame = make_wall(1.0, (1.0, 1.0), resolution=(16, 16))
     scene = Scene([src, wall], frame)
     out: list[Check] = []
-    for est in ["bin", *(["knn"] if knn_available() else [])]:
+    for est in ("bin", "knn"):
         label = f"{name}/{est}"
         try:
             run = run_session(scene, RunConfig(seed=settings.seed, estimator=est, spt=False),
@@ -583,9 +575,6 @@ def case_box_edges(settings: StabilitySettings) -> list[Check]:
     the box, or it meets the adjacent face from behind and the diffuse bounce sends it
     out. Nothing may escape a closed box.
     """
-    from lightsim.sampling import photon_keys
-    from lightsim.tracer import PhotonTracer
-
     name = "closed-box-edges"
     scene = an.closed_box(10.0, 0.7)
     tracer = PhotonTracer(scene, max_depth=64, record="all")
@@ -607,8 +596,6 @@ def case_box_edges(settings: StabilitySettings) -> list[Check]:
 # -- file-based cases (through the loader) ----------------------------------------------
 
 def _glb(path: Path, parts: Sequence[tuple[str, np.ndarray, np.ndarray, dict, dict]]) -> None:
-    from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
-
     gparts = []
     for name, verts, faces, mat, extras in parts:
         gparts.append(GltfPart(name, np.asarray(verts, float), np.asarray(faces, np.int64), None,
@@ -623,8 +610,6 @@ def _sun_part(flux: float, centre, direction, size: float):
 
 
 def _glass_box(lo, hi, inverted: bool = False, open_sides: bool = False):
-    import trimesh
-
     m = trimesh.creation.box(bounds=np.array([lo, hi], dtype=np.float64))
     faces = np.asarray(m.faces, np.int64)
     verts = np.asarray(m.vertices, np.float64)
@@ -639,8 +624,6 @@ def _glass_box(lo, hi, inverted: bool = False, open_sides: bool = False):
 
 
 def _load(path: Path, **kw: Any) -> Scene:
-    from lightsim.scene import load_scene
-
     return load_scene(path, **kw)
 
 

@@ -2,7 +2,8 @@
 
 :func:`render_photo` looks at the wall as a camera would and :func:`write_photo` saves the
 picture with a sidecar ``<name>.truth.json`` holding the true 3×3 transform from photo
-pixels to simulation pixels, so a registration can be checked against the truth.
+pixels to simulation pixels, so a registration can be checked against the truth;
+:func:`photograph_simulation` does both for a simulation's result (``lightsim photo``).
 :func:`lowbeam_lux` makes a realistic synthetic passing-beam pattern (for tests and
 examples until a simulation is at hand) and :func:`write_result` saves any lux map as a
 result folder that ``lightsim compare`` and ``lightsim photo`` read.
@@ -59,20 +60,25 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import imageio.v3 as iio
 import numpy as np
+import tifffile
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter, map_coordinates
 
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.io.exr import wall_metadata, write_exr
 from lightsim.io.summary import write_json
-from lightsim.validation.photo_io import srgb_encode
+from lightsim.render.cutoff import apply_shift
+from lightsim.validation.photo_io import Simulation, srgb_encode
 from lightsim.validation.photo_png16 import write_png16
-from lightsim.validation.photo_register import apply_matrix, decompose
+from lightsim.validation.photo_register import apply_matrix, decompose, level_matrix
+from lightsim.validation.screen_target import DEFAULT_LAYOUT, board_reflectance
 from lightsim.wall import WallFrame, wall_m_from_deg
 
 __all__ = [
@@ -81,6 +87,7 @@ __all__ = [
     "SyntheticPhoto",
     "camera_matrix",
     "lowbeam_lux",
+    "photograph_simulation",
     "render_photo",
     "ring_caustic_lux",
     "screen_scene",
@@ -239,8 +246,6 @@ def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
     Path
         The folder.
     """
-    from lightsim.io.exr import wall_metadata, write_exr
-
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     meta = wall_metadata(frame, units="lx", quantity="illuminance", source=description)
@@ -290,9 +295,6 @@ def screen_scene(lux: NDArray, frame: dict[str, Any], layout: Any = None, upsamp
         Fine-grid px → ``frame`` px; a photo's true photo → simulation matrix is
         ``to_sim @ shot.matrix``.
     """
-    from lightsim.validation.photo_register import level_matrix
-    from lightsim.validation.screen_target import DEFAULT_LAYOUT, board_reflectance
-
     u = int(upsample)
     if u < 1 or not math.isfinite(ambient_lx) or ambient_lx < 0:
         raise InputError("upsample must be ≥ 1 and ambient light ≥ 0 lx")
@@ -522,8 +524,6 @@ def _quantise(encoded: NDArray, bits: int) -> NDArray:
 
 
 def _write_raster(path: Path, codes: NDArray, suffix: str) -> None:
-    import imageio.v3 as iio  # a dependency of scikit-image
-
     with atomic_path(path) as tmp:
         if suffix in (".jpg", ".jpeg"):
             iio.imwrite(tmp, codes, extension=suffix, quality=95)
@@ -556,8 +556,6 @@ def write_dng(path: str | os.PathLike, linear: NDArray, black: int = DNG_BLACK,
     exposure : dict, optional
         ``exposure_time_s``, ``f_number``, ``iso`` (default :data:`DNG_EXPOSURE`).
     """
-    import tifffile
-
     ex = {**DNG_EXPOSURE, **(exposure or {})}
     x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
     codes = np.round(black + x * (white - black)).astype(np.uint16)
@@ -622,8 +620,6 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     if suffix == ".dng":
         write_dng(p, photo.linear)
     elif suffix == ".exr":
-        from lightsim.io.exr import write_exr
-
         lin = photo.linear.astype(np.float32)
         write_exr(p, {"R": lin, "G": lin, "B": lin}, {"units": "relative (1 = full scale)"})
     else:
@@ -638,3 +634,56 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     side = truth_path(p)
     write_json(side, truth)
     return p, side
+
+
+def photograph_simulation(sim: Simulation, path: str | os.PathLike, cam: CameraSettings,
+                          reaim_deg: tuple[float, float] | None = None, markers: bool = False,
+                          wall_texture: int | None = None, ambient_lx: float = 0.5
+                          ) -> tuple[Path, Path, SyntheticPhoto]:
+    """Photograph a simulation's wall (:func:`render_photo`) and write the photo and its
+    truth (:func:`write_photo`).
+
+    Parameters
+    ----------
+    sim : Simulation
+        The simulated wall (:func:`lightsim.validation.photo_io.load_simulation`).
+    path : path-like
+        The photo (format from the suffix).
+    cam : CameraSettings
+        The camera (module table).
+    reaim_deg : (float, float), optional
+        Turn the lamp by (ΔH right, ΔV up) degrees first: a lamp aimed off.
+    markers : bool
+        Put the default screen-target marker board on the wall (:func:`screen_scene`, a
+        4× finer wall grid; the camera's ``scale`` stays in simulation px).
+    wall_texture : int, optional
+        Seed of a static wall texture (random grey rectangles).
+    ambient_lx : float
+        Room light on the wall with markers or a texture, in lx.
+
+    Returns
+    -------
+    photo, sidecar : Path
+        The files written.
+    shot : SyntheticPhoto
+        The photo; ``shot.matrix`` maps photo px to the simulation's px.
+    """
+    lux, extra = sim.lux, {"simulation": sim.source}
+    if reaim_deg is not None:
+        lux = apply_shift(np.nan_to_num(lux), sim.frame, reaim_deg[0], reaim_deg[1])
+        extra["reaim_deg"] = {"dh": reaim_deg[0], "dv": reaim_deg[1]}
+    to_sim = None
+    if markers or wall_texture is not None:
+        lux, _, to_sim = screen_scene(lux, sim.frame, layout=None if markers else False,
+                                      ambient_lx=ambient_lx, texture_seed=wall_texture)
+        extra["screen"] = {"markers": "default layout" if markers else None,
+                           "wall_texture_seed": wall_texture, "ambient_lx": ambient_lx}
+        # the camera's scale and default size stay in simulation px on the 4× finer grid
+        cam = replace(cam, size=cam.size or (sim.lux.shape[1], sim.lux.shape[0]),
+                      scale=cam.scale / 4)
+    shot = render_photo(lux, cam)
+    if to_sim is not None:
+        m = to_sim @ shot.matrix
+        shot = replace(shot, matrix=m / m[2, 2])
+    photo, side = write_photo(path, shot, extra)
+    return photo, side, shot

@@ -52,13 +52,11 @@ out of the slopes as far as the estimator allows; the residual RMS says how far 
 Tolerance boxes (:data:`TOLERANCE_BOXES`) — ASSUMPTIONS. The UN R37 category sheets (H1/…,
 H4/…, H7/…) define the filament position by the distance e of the filament from the
 reference plane, the lateral offsets of the filament axis from the reference axis and
-their production tolerances. Looked for on 2026-12-02 (this session's ``search`` tool:
-pages, docs and code corpora; ``find_string`` over public repositories for "Sheet H4/",
-"Sheet H7/", "28.5 + 0.35", "P43t-38"): the corpora hold the full R37 texts (EUR-Lex OJ
-L 297 of 13.11.2010, R37 up to Supplement 34 to the 03 series; E/ECE/324/Rev.1/Add.36/
-Rev.8, 2015) but return only their opening pages, not the H1, H4 or H7 sheets. The only
-sheet figures reached were those of category H17 (sheet H17/2, Supplement 39 to the 03
-series, E/ECE/324/Rev.1/Add.36/Rev.7/Amend.2): e = 28.5 +0.35/−0.15 mm for lamps of normal
+their production tolerances. The published R37 texts (EUR-Lex OJ L 297 of 13.11.2010, R37
+up to Supplement 34 to the 03 series; E/ECE/324/Rev.1/Add.36/Rev.8, 2015) were available
+only in part, without the H1, H4 and H7 sheets. The only sheet figures at hand are those
+of category H17 (sheet H17/2, Supplement 39 to the 03 series,
+E/ECE/324/Rev.1/Add.36/Rev.7/Amend.2): e = 28.5 +0.35/−0.15 mm for lamps of normal
 production (+0.20/−0.0 for the standard lamp) — a different category, quoted only to show
 that the assumed axial ±0.35 mm is of the right size. The half-widths below are engineering
 estimates; replace them with the sheet values when at hand — ``--box DX,DY,DZ`` does so
@@ -67,16 +65,28 @@ without code changes.
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 import os
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.stats import beta, qmc
 
+from lightsim.engine.server import Session
 from lightsim.errors import InputError
+from lightsim.io.atomic import write_bytes
+from lightsim.io.summary import write_json
+from lightsim.luminaires.regulations import load_ruleset
+from lightsim.luminaires.regulations.check import aperture_config, regulation_check, split_rulesets
+from lightsim.render.frame import luminous
+from lightsim.scene import EMITTER, Scene
+from lightsim.simulate import load
 
 __all__ = [
     "TOLERANCE_BOXES",
@@ -123,7 +133,7 @@ class ToleranceBox:
 
 
 _ASSUMED = ("ASSUMPTION: engineering estimate of the UN R37 category-sheet production "
-            "tolerance; the H1/H4/H7 sheets were not reachable (where we looked: "
+            "tolerance; the H1/H4/H7 sheets were not at hand (see "
             "lightsim.validation.tolerance, docs/tolerance.md)")
 
 #: Assumed boxes by bulb category (see the module docstring).
@@ -165,8 +175,6 @@ def sample_design(box: ToleranceBox, samples: int, seed: int = 1,
     ndarray, shape (samples + 1, 5)
         Columns dx, dy, dz (m) and tilt about X, about Y (degrees; zero without ``tilt``).
     """
-    from scipy.stats import qmc
-
     if not isinstance(samples, int | np.integer) or samples < 1:
         raise InputError(f"--samples must be a whole number ≥ 1, got {samples!r}")
     d = 5 if tilt else 3
@@ -191,8 +199,6 @@ def _rotation(ax_deg: float, ay_deg: float) -> np.ndarray:
 def displace_emitters(scene: Any, offset: np.ndarray) -> Any:
     """A new scene whose emitter parts are tilted about their own centre (bounding-box
     centre) by ``offset[3:5]`` degrees (about X, then Y) and moved by ``offset[:3]`` m."""
-    from lightsim.scene import EMITTER, Scene
-
     off = np.asarray(offset, float)
     if off.shape != (5,) or not np.all(np.isfinite(off)):
         raise InputError(f"a filament offset needs 5 finite numbers, got {offset!r}")
@@ -253,17 +259,6 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
     The session is built exactly as :func:`lightsim.simulate.run_simulation` builds it
     (same configuration, apertures and seed), so the nominal sample reproduces a plain run.
     """
-    import time
-
-    from lightsim.engine.server import Session
-    from lightsim.luminaires.regulations.check import (
-        aperture_config,
-        regulation_check,
-        split_rulesets,
-    )
-    from lightsim.render.frame import luminous
-    from lightsim.simulate import load
-
     t0 = time.perf_counter()
     base = scene if scene is not None else load(opts)
     moved = displace_emitters(base, offset)
@@ -322,8 +317,6 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
 
 def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
     """Exact binomial interval of a pass probability: k passes out of n samples."""
-    from scipy.stats import beta
-
     if n <= 0:
         return (0.0, 1.0)
     a = 1.0 - confidence
@@ -640,12 +633,6 @@ def run_tolerance(opts: Any, *, samples: int = 50, seed: int = 1, tilt: bool = F
     centre_m : tuple of 3 float
         Offset of the box centre from the scene's filament position, in m (default none).
     """
-    import time
-
-    from lightsim.luminaires.regulations import load_ruleset
-    from lightsim.luminaires.regulations.check import split_rulesets
-    from lightsim.simulate import load
-
     if opts.regulation is None:
         raise InputError("a tolerance study needs --regulation RULESET")
     for rs in split_rulesets(opts.regulation):
@@ -692,12 +679,6 @@ def write_study(study: ToleranceStudy, out_dir: str | os.PathLike) -> list[Path]
     """Write ``tolerance.json``, ``tolerance.csv`` (one row per sample and point) and
     ``tolerance.png`` (value against each offset, one panel row per test point), atomically.
     """
-    import csv
-    import io
-
-    from lightsim.io.atomic import write_bytes
-    from lightsim.io.summary import write_json
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "tolerance.json", study.to_dict())
@@ -722,8 +703,6 @@ def _plot(study: ToleranceStudy, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from lightsim.io.atomic import write_bytes
 
     axes_used = [0, 1, 2] + ([3, 4] if study.tilt else [])
     labels = ["dx (mm)", "dy (mm)", "dz (mm)", "tilt X (°)", "tilt Y (°)"]
@@ -766,7 +745,7 @@ def _plot(study: ToleranceStudy, path: Path) -> None:
                              "grey: 95 % interval; blue: least-squares slope)",
                              fontsize=7, loc="left")
     fig.tight_layout()
-    buf = __import__("io").BytesIO()
+    buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
     write_bytes(path, buf.getvalue())

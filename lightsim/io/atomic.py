@@ -21,7 +21,9 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import tempfile
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -75,7 +77,8 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 STAGING_PREFIX = ".lightsim-staging-"
 """Name prefix of staging folders inside an output folder (followed by the writer's pid)."""
 
-_TEMP_RE = re.compile(r"^\..+\.tmp\.[A-Za-z0-9]+$|^\..+\.tmp$")
+TEMP_RE = re.compile(r"^\..+\.tmp\.[A-Za-z0-9]+$|^\..+\.tmp$")
+"""Names of :func:`atomic_path`'s temporary files (``.<name>.<random>.tmp<suffix>``)."""
 
 
 def _pid_alive(pid: int) -> bool:
@@ -115,9 +118,6 @@ def clean_stale(out: str | os.PathLike, marker: str = "summary.json") -> list[st
     list of str
         Messages for the user (already phrased as warnings).
     """
-    import shutil
-    import time
-
     out = Path(out)
     notes: list[str] = []
     if not out.is_dir():
@@ -131,7 +131,7 @@ def clean_stale(out: str | os.PathLike, marker: str = "summary.json") -> list[st
                     shutil.rmtree(p, ignore_errors=True)
                     notes.append(f"{out}: removed the staging folder {p.name} of a run that "
                                  "was killed while writing its outputs")
-            elif p.is_file() and _TEMP_RE.match(p.name) and now - p.stat().st_mtime > 60:
+            elif p.is_file() and TEMP_RE.match(p.name) and now - p.stat().st_mtime > 60:
                 p.unlink()
                 notes.append(f"{out}: removed the temporary file {p.name} of an interrupted "
                              "write")
@@ -188,14 +188,12 @@ class OutputSet:
 
     def discard(self) -> None:
         """Remove the staging folder and everything in it."""
-        import shutil
-
         shutil.rmtree(self.dir, ignore_errors=True)
 
     def commit(self) -> list[str]:
         """Publish the staged files (``marker`` last); returns their names."""
         staged = sorted(p.name for p in self.dir.iterdir() if p.is_file()
-                        and not _TEMP_RE.match(p.name))
+                        and not TEMP_RE.match(p.name))
         with contextlib.suppress(FileNotFoundError):
             (self.out / self.marker).unlink()
         for name in staged:

@@ -39,7 +39,11 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from lightsim.errors import InputError
+from lightsim.io.cad_xcaf import have_ocp, read_xcaf
+from lightsim.io.gltf import read_gltf
 
 STEP_SUFFIXES = (".step", ".stp")
 IGES_SUFFIXES = (".iges", ".igs")
@@ -177,8 +181,6 @@ def tessellate(path: str | os.PathLike, tess: Tessellation | None = None) -> Pat
 
 
 def _has_ocp() -> bool:
-    from lightsim.io.cad_xcaf import have_ocp
-
     return have_ocp()
 
 
@@ -205,10 +207,6 @@ def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
         The XCAF reader adds ``extras["cad_faces"]``
         (:class:`lightsim.io.cad_xcaf.FaceLabels`).
     """
-    import numpy as np
-
-    from lightsim.io.gltf import read_gltf
-
     tess = tess or Tessellation()
     if backend not in BACKENDS:
         raise InputError(f"CAD backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
@@ -222,8 +220,6 @@ def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
         raise InputError("the XCAF CAD reader needs OpenCASCADE's Python binding: pip "
                          "install 'lightsim[cad-names]' (cadquery-ocp)")
     if backend == "xcaf" or (backend == "auto" and ocp):
-        from lightsim.io.cad_xcaf import read_xcaf
-
         return read_xcaf(p, tess)
     glb = tessellate(p, tess)
     try:

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from lightsim.errors import InputError
+from lightsim.io.gltf import GltfPrimitive
 
 FACE_PREFIX = "face-"
 FACE_SEP = "/"
@@ -309,7 +310,6 @@ def read_xcaf(path: str | os.PathLike, tess: Any) -> list:
     from OCP.TopoDS import TopoDS
 
     to_face = getattr(TopoDS, "Face_s", None) or TopoDS.Face  # OCP 7.x / 8
-    from lightsim.io.gltf import GltfPrimitive
 
     p = Path(path)
     kind = "step" if p.suffix.lower() in (".step", ".stp") else "iges"

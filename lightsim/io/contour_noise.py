@@ -29,6 +29,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
 FLOOR_PHOTONS = 16.0
 TARGET_PHOTONS = 256.0
@@ -72,8 +73,6 @@ def smoothed_for_levels(img: np.ndarray, levels: Sequence[float], noise_floor_lx
     sigmas : list of float
         The Gaussian width (px) used per level.
     """
-    from scipy.ndimage import gaussian_filter
-
     img = np.asarray(img, dtype=np.float64)
     images, sigmas = [], []
     band = np.full(img.shape, -1.0)

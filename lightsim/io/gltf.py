@@ -33,6 +33,7 @@ parameter           unit   default  meaning
 from __future__ import annotations
 
 import base64
+import json
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,8 +84,6 @@ class GltfPrimitive:
 
 def _load_json_and_buffers(path: Path) -> tuple[dict[str, Any], list[bytes]]:
     """Parse a .glb or .gltf file into its JSON document and the raw buffers."""
-    import json
-
     raw = path.read_bytes()
     if raw[:4] == b"glTF":
         if len(raw) < 20:

@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lightsim.io.atomic import atomic_path
+
 __all__ = ["image_problem", "placeholder_png"]
 
 
@@ -62,8 +64,6 @@ def placeholder_png(path: str | os.PathLike, message: str, *, title: str | None 
     """Write an image that says ``message`` instead of a plot (atomically)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-
-    from lightsim.io.atomic import atomic_path
 
     fig = Figure(figsize=figsize, dpi=dpi)
     FigureCanvasAgg(fig)

@@ -6,24 +6,26 @@ the map they took 1.9–2.6 s of the shipped headlight's ~4.3 s command (matplot
 0.4–0.6 s, its fonts and first contour ~0.4 s, then ~0.9 s of drawing), on one core: the
 drawing is Python holding the GIL, so a thread would not overlap it with anything.
 
-:class:`PlotProcess` starts a helper, ``python -m lightsim.io.plot_worker``, when the
-command starts (:func:`prestart`, before the command's own imports). The helper lowers its
-priority (nice :data:`NICE`: it takes a core only where the run leaves one idle, e.g. while
-the scene loads), imports matplotlib, draws a small warm-up plot and then asks for work.
+:class:`PlotProcess` starts the plot process, ``python -m lightsim.io.plot_worker``, when
+the command starts (:func:`prestart`, before the command's own imports). The plot process
+lowers its priority (nice :data:`NICE`: it takes a core only where the run leaves one idle,
+e.g. while the scene loads), imports matplotlib, draws a small warm-up plot and then asks
+for work.
 The run's outputs hand over the plots by name (:data:`JOBS`, the same functions with the
 same arguments) and write the OpenEXR map, the cut-off and the regulation analyses in the
 meantime. The files are the ones the functions write in-process, byte for byte (tested).
 
-The helper *pulls* its plots, one at a time, so a plot is drawn by exactly one process:
+The plot process *pulls* its plots, one at a time, so a plot is drawn by exactly one
+process:
 
-* a plot the helper has not taken when the caller asks for it (:meth:`Pending.result`) is
-  drawn by the caller — on the shipped headlight the helper draws ``wall_lux.png``,
-  ``error_vs_time.png`` and ``road.png`` while the run draws ``isolux.png`` (which waits
-  for the regulation analyses); on a loaded machine, where the low-priority helper is
-  still starting, the run draws its plots itself as before;
-* a plot the helper took but has not answered within :data:`PATIENCE_S`, or a helper that
-  died or sent something unreadable, ends the helper (killed, so no file lands later) and
-  the caller draws that plot and every other one left.
+* a plot the plot process has not taken when the caller asks for it
+  (:meth:`Pending.result`) is drawn by the caller — on the shipped headlight the plot
+  process draws ``wall_lux.png``, ``error_vs_time.png`` and ``road.png`` while the run
+  draws ``isolux.png`` (which waits for the regulation analyses); on a loaded machine,
+  where the low-priority plot process is still starting, the run draws its plots itself;
+* a plot the plot process took but has not answered within :data:`PATIENCE_S`, or a plot
+  process that died or sent something unreadable, ends the plot process (killed, so no
+  file lands later) and the caller draws that plot and every other one left.
 
 :class:`InProcess` is the same interface drawing at once (library callers, a one-core
 machine, ``LIGHTSIM_PLOT_PROCESS=0``).
@@ -31,8 +33,8 @@ machine, ``LIGHTSIM_PLOT_PROCESS=0``).
 =========================  =====  =======  ==============================================
 parameter                  unit   default  meaning
 =========================  =====  =======  ==============================================
-``NICE``                   –      10       the helper's niceness increment (POSIX)
-``PATIENCE_S``             s      5        longest wait for a plot the helper took (one
+``NICE``                   –      10       the plot process's niceness increment (POSIX)
+``PATIENCE_S``             s      5        longest wait for a plot the plot process took (one
                                            takes 0.15–0.6 s on the shipped headlight)
 ``LIGHTSIM_PLOT_PROCESS``  –      1        environment: 0 draws every plot in-process
 =========================  =====  =======  ==============================================
@@ -40,11 +42,14 @@ parameter                  unit   default  meaning
 
 from __future__ import annotations
 
+import atexit
 import collections
+import ctypes
 import importlib
 import os
 import pickle
 import queue
+import signal
 import struct
 import subprocess
 import sys
@@ -53,31 +58,40 @@ import time
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import lightsim
+
 NICE = 10
 PATIENCE_S = 5.0
-#: the plots a helper may draw: name → "module:function" (the first argument is the path
-#: of the file written)
+#: the plots the plot process may draw: name → "module:function" (the first argument is
+#: the path of the file written)
 JOBS = {
     "lux_png": "lightsim.io.png:write_lux_png",
     "error_vs_time": "lightsim.io.errorplot:error_vs_time_plot",
     "isolux": "lightsim.io.plots:isolux_plot",
     "road": "lightsim.io.plots:road_view_plot",
 }
+#: what the plot process draws into memory before its first plot ("module:function")
+WARM_UP = "lightsim.io.plots:warm_up"
 #: the ``simulate --outputs`` names that are plots
 PLOT_OUTPUTS = ("png", "error_vs_time", "isolux", "road")
 _HEADER = struct.Struct("<Q")
-_READY = "ready"  # the helper's request for its next plot
+_READY = "ready"  # the plot process's request for its next plot
+
+
+def _function(target: str):
+    """The function named ``"module:function"`` (its module imported by name)."""
+    mod, fn = target.split(":")
+    return getattr(importlib.import_module(mod), fn)
 
 
 def _job(name: str):
-    mod, fn = JOBS[name].split(":")
-    return getattr(importlib.import_module(mod), fn)
+    return _function(JOBS[name])
 
 
 class Pending:
     """One plot: :meth:`result` gives what its function returned, or raises what it
-    raised; a plot the helper has not taken (or could not finish) is drawn there, in the
-    calling thread."""
+    raised; a plot the plot process has not taken (or could not finish) is drawn there, in
+    the calling thread."""
 
     def __init__(self, name: str, args: tuple, kwargs: dict[str, Any],
                  owner: PlotProcess | None = None) -> None:
@@ -87,7 +101,7 @@ class Pending:
         self._done = threading.Event()
         self._ok = False
         self._value: Any = None
-        self.remote = False  # drawn by the helper process
+        self.remote = False  # drawn by the plot process
 
     def _set(self, ok: bool, value: Any, remote: bool) -> bool:
         """Record the outcome once (the first one wins); False if it was already set."""
@@ -110,17 +124,17 @@ class Pending:
             owner = self._owner
             if owner is None or owner._claim(self):
                 if not self._done.is_set():
-                    self._run_here()  # not taken by the helper: drawn here
+                    self._run_here()  # not taken by the plot process: drawn here
             elif not self._wait(patience):
-                owner.abandon()  # taken but not answered: the helper ends, drawn here
+                owner.abandon()  # taken but not answered: the plot process ends, drawn here
                 self._run_here()
         if not self._ok:
             raise self._value
         return self._value
 
     def _wait(self, patience: float) -> bool:
-        """Wait for the helper's answer; False after ``patience`` s or as soon as the
-        helper is gone (its plots are then left to their callers)."""
+        """Wait for the plot process's answer; False after ``patience`` s or as soon as
+        the plot process is gone (its plots are then left to their callers)."""
         step = 0.05
         waited = 0.0
         while not self._done.wait(step):
@@ -149,14 +163,14 @@ class InProcess:
 
 
 class PlotProcess:
-    """A helper process drawing plots (see the module docstring); every plot it does not
+    """The plot process drawing plots (see the module docstring); every plot it does not
     draw is drawn in this process."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._queue: collections.deque[tuple[int, Pending]] = collections.deque()
-        self._taken: dict[int, Pending] = {}  # sent to the helper, not answered
-        self._idle = False  # the helper asked for a plot and got none
+        self._taken: dict[int, Pending] = {}  # sent to the plot process, not answered
+        self._idle = False  # the plot process asked for a plot and got none
         self._next = 0
         self._out: queue.Queue[bytes | None] = queue.Queue()
         self.alive = False
@@ -165,21 +179,21 @@ class PlotProcess:
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
                    MKL_NUM_THREADS="1")
         try:
-            # -P: no current folder on the helper's path; the package is checked there
+            # -P: no current folder on the plot process's path; the package is checked there
             self._proc = subprocess.Popen(
                 [sys.executable, "-P", "-c", _BOOT, str(package.parent), str(package),
                  str(os.getpid())],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                 env=env)
-        except Exception:  # no helper: every plot is drawn here
+        except Exception:  # no plot process: every plot is drawn here
             return
         self.alive = True
         threading.Thread(target=self._read, daemon=True, name="lightsim-plots-in").start()
         threading.Thread(target=self._write, daemon=True, name="lightsim-plots-out").start()
 
     def draw(self, name: str, *args: Any, **kwargs: Any) -> Pending:
-        """Queue a plot for the helper (its path made absolute: the helper's folder is
-        not the caller's to change)."""
+        """Queue a plot for the plot process (its path made absolute: the plot process's
+        folder is not the caller's to change)."""
         if name not in JOBS:
             raise ValueError(f"unknown plot {name!r}")
         if args:
@@ -196,7 +210,7 @@ class PlotProcess:
         return p
 
     def _send_next(self) -> None:
-        """Hand the helper its next plot (the lock held): pickled here, written by the
+        """Hand the plot process its next plot (the lock held): pickled here, written by the
         writer thread; one that cannot be pickled is left to the caller."""
         while self._queue:
             key, p = self._queue.popleft()
@@ -213,7 +227,8 @@ class PlotProcess:
         self._idle = True
 
     def _claim(self, p: Pending) -> bool:
-        """Take ``p`` back if the helper has not taken it; True when the caller draws it."""
+        """Take ``p`` back if the plot process has not taken it; True when the caller draws
+        it."""
         with self._lock:
             for i, (_, q) in enumerate(self._queue):
                 if q is p:
@@ -233,7 +248,7 @@ class PlotProcess:
                 self.abandon()
                 return
         try:
-            stdin.close()  # EOF: the helper exits
+            stdin.close()  # EOF: the plot process exits
         except (OSError, ValueError):
             pass
 
@@ -257,8 +272,9 @@ class PlotProcess:
                 self._send_next()
 
     def abandon(self) -> None:
-        """End the helper at once (killed: an output set being given up must not receive
-        a file afterwards); every plot it has not answered is drawn by its caller."""
+        """End the plot process at once (killed: an output set being given up must not
+        receive a file afterwards); every plot it has not answered is drawn by its
+        caller."""
         with self._lock:
             self.alive = False
             left = [p for _, p in self._queue] + list(self._taken.values())
@@ -274,8 +290,8 @@ class PlotProcess:
             self._proc.wait()
 
     def settle(self, patience: float = PATIENCE_S) -> None:
-        """Hand out no more plots and wait (at most ``patience`` s) for the one the helper
-        is drawing: where the caller gives up in a folder that is kept (``lightsim
+        """Hand out no more plots and wait (at most ``patience`` s) for the one the plot
+        process is drawing: where the caller gives up in a folder that is kept (``lightsim
         report``), no file is cut short there by :meth:`close`."""
         with self._lock:
             for _, p in self._queue:
@@ -289,8 +305,9 @@ class PlotProcess:
             time.sleep(0.02)
 
     def close(self) -> None:
-        """Kill the helper. A finished run's outputs have their plots by then (they wait
-        for them), so nothing is cut short; an idle or warming helper just ends."""
+        """Kill the plot process. A finished run's outputs have their plots by then (they
+        wait for them), so nothing is cut short; an idle or warming plot process just
+        ends."""
         if self._proc is None:
             return
         self._out.put(None)
@@ -317,10 +334,10 @@ _early: PlotProcess | None = None  # started by prestart, taken by start
 
 
 def prestart(argv: list[str]) -> None:
-    """Start the helper before the command's own imports, for ``lightsim report`` and for
-    ``lightsim simulate`` with plots among its outputs (read from ``argv``: ``--outputs``
-    absent or naming a plot or ``all``); :func:`start` then takes it. A helper nobody takes
-    ends with this process."""
+    """Start the plot process before the command's own imports, for ``lightsim report`` and
+    for ``lightsim simulate`` with plots among its outputs (read from ``argv``:
+    ``--outputs`` absent or naming a plot or ``all``); :func:`start` then takes it. A plot
+    process nobody takes ends with this process."""
     global _early
     if _early is not None or not argv or not _can_help():
         return
@@ -336,17 +353,15 @@ def prestart(argv: list[str]) -> None:
             names = {n.strip() for n in value.split(",")}
             if not names & {*PLOT_OUTPUTS, "all"}:
                 return
-    helper = PlotProcess()
-    if helper.alive:
-        import atexit
-
-        atexit.register(helper.close)
-        _early = helper
+    plots = PlotProcess()
+    if plots.alive:
+        atexit.register(plots.close)
+        _early = plots
 
 
 def start(wanted: bool = True) -> PlotProcess | InProcess:
     """A :class:`PlotProcess` where it can help (plots are wanted, at least two cores,
-    ``LIGHTSIM_PLOT_PROCESS`` not 0), else :class:`InProcess`; the helper
+    ``LIGHTSIM_PLOT_PROCESS`` not 0), else :class:`InProcess`; the plot process
     :func:`prestart` started, if any."""
     global _early
     early, _early = _early, None
@@ -355,8 +370,8 @@ def start(wanted: bool = True) -> PlotProcess | InProcess:
         early = None
     if not wanted or not _can_help():
         return InProcess()
-    helper = early if early is not None else PlotProcess()
-    return helper if helper.alive else InProcess()
+    plots = early if early is not None else PlotProcess()
+    return plots if plots.alive else InProcess()
 
 
 def _read_message(f: BinaryIO) -> bytes | None:
@@ -375,36 +390,19 @@ def _write_message(f: BinaryIO, data: bytes) -> None:
 
 
 def _warm_up() -> None:
-    """Import the plot modules and draw a small contour plot with text into memory: the
-    fonts, the text layout and the contouring are loaded before the first real plot (a
-    fuller warm-up, every plot once, cost more than the idle core gives: docs/peer.md)."""
-    import io
-
-    import numpy as np
-
-    from lightsim.io.plots import _new_figure
-
+    """Import the plot modules (by name, as :data:`JOBS` lists them) and draw the warm-up
+    plot (:data:`WARM_UP`) before the first real plot."""
     for name in JOBS:
         _job(name)
-    fig = _new_figure((3.0, 2.0))
-    ax = fig.add_subplot(1, 1, 1)
-    z = np.outer(np.hanning(16), np.hanning(16))
-    cs = ax.contour(z, levels=[0.25, 0.5])
-    ax.clabel(cs, fmt="%g lx", fontsize=7)
-    ax.set_title("warm-up")
-    fig.colorbar(ax.contourf(z, levels=[0.1, 0.5, 1.0]), ax=ax, location="bottom")
-    fig.savefig(io.BytesIO(), format="png", dpi=50)
+    _function(WARM_UP)()
 
 
 def _die_with_parent() -> None:
-    """Linux: the helper is killed when the process that started it dies (a killed run
-    must not get a plot into its folder afterwards)."""
+    """Linux: the plot process is killed when the process that started it dies (a killed
+    run must not get a plot into its folder afterwards)."""
     if not sys.platform.startswith("linux"):
         return
     try:
-        import ctypes
-        import signal
-
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
     except Exception:
@@ -412,14 +410,12 @@ def _die_with_parent() -> None:
 
 
 def _serve(inp: BinaryIO, out: BinaryIO, parent: int | None = None) -> None:
-    """The helper's loop: ask for a plot, draw it, send back (key, ok, value)."""
-    import signal
-
+    """The plot process's loop: ask for a plot, draw it, send back (key, ok, value)."""
     _die_with_parent()
     if parent is not None and os.getppid() != parent:
         return  # the parent died before the line above took effect
     # Ctrl-C reaches the whole process group: the run stops at its frame's end and ends
-    # this helper itself
+    # the plot process itself
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(os, "nice"):
         try:
@@ -448,11 +444,9 @@ def _serve(inp: BinaryIO, out: BinaryIO, parent: int | None = None) -> None:
 
 
 def main(package: str, parent: int | None = None) -> None:
-    """The helper process (see :data:`_BOOT`) of the process ``parent``: replies on a copy
+    """The plot process (see :data:`_BOOT`) of the process ``parent``: replies on a copy
     of file descriptor 1, which itself is pointed at standard error, so nothing else can
     write into the pipe."""
-    import lightsim
-
     if Path(lightsim.__file__).resolve().parent != Path(package):
         return  # another lightsim came first on this path: the caller draws its plots
     out = os.fdopen(os.dup(1), "wb")
@@ -461,7 +455,7 @@ def main(package: str, parent: int | None = None) -> None:
     _serve(sys.stdin.buffer, out, parent)
 
 
-#: the helper's start: this very lightsim first on the path (``argv``: its parent folder,
+#: the plot process's start: this very lightsim first on the path (``argv``: its parent folder,
 #: the package folder, the parent's process id), unless that folder is on the path
 #: already (an installed package: the path keeps Python's own order)
 _BOOT = (

@@ -36,6 +36,7 @@ dpi             1/in   120                        output resolution
 
 from __future__ import annotations
 
+import io
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -46,11 +47,13 @@ from numpy.typing import ArrayLike
 
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.io.contour_noise import smoothed_for_levels
 from lightsim.io.placeholder import image_problem, placeholder_png
+from lightsim.render.road import road_illuminance
 from lightsim.wall import WallFrame
 
 __all__ = ["VERDICT_COLOURS", "auto_levels", "isolux_levels", "isolux_noise_floor",
-           "isolux_plot", "road_view_plot"]
+           "isolux_plot", "road_view_plot", "warm_up"]
 
 VERDICT_COLOURS = {"pass": "#1a9850", "fail": "#d73027", "uncertain": "#f39c12"}
 """Marker colours of the three verdicts (green, red, amber)."""
@@ -127,6 +130,21 @@ def _new_figure(size: tuple[float, float]) -> Any:
     fig = Figure(figsize=size, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
+
+
+def warm_up() -> None:
+    """Draw a small contour plot with text into memory: matplotlib's fonts, text layout
+    and contouring are loaded before the first real plot (the plot process runs it
+    while the run goes on; a fuller warm-up, every plot once, cost more than an idle core
+    gives)."""
+    fig = _new_figure((3.0, 2.0))
+    ax = fig.add_subplot(1, 1, 1)
+    z = np.outer(np.hanning(16), np.hanning(16))
+    cs = ax.contour(z, levels=[0.25, 0.5])
+    ax.clabel(cs, fmt="%g lx", fontsize=7)
+    ax.set_title("warm-up")
+    fig.colorbar(ax.contourf(z, levels=[0.1, 0.5, 1.0]), ax=ax, location="bottom")
+    fig.savefig(io.BytesIO(), format="png", dpi=50)
 
 
 def _save(fig: Any, path: str | os.PathLike, dpi: int) -> Path:
@@ -214,8 +232,6 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
         fill_lv = [*lv, vmax * 1.0001]
         fill_img, line_imgs, sigmas = np.maximum(img, lv[0] * 1e-3), [img] * len(lv), []
         if floor is not None and estimate_area_px is not None:
-            from lightsim.io.contour_noise import smoothed_for_levels
-
             line_imgs, band, sigmas = smoothed_for_levels(img, lv, floor, estimate_area_px)
             # the fill shows the same bands as the lines: a value inside each band
             mids = [*(np.sqrt(a * b) for a, b in zip(lv, fill_lv[1:], strict=True))]
@@ -310,8 +326,6 @@ def road_view_data(lux: ArrayLike | None, frame: Any, *, mount_height_m: float =
                    ) -> Any:
     """The road illuminance :func:`road_view_plot` draws (same defaults), without drawing:
     None where the wall map cannot be shown (the plot would say why instead)."""
-    from lightsim.render.road import road_illuminance
-
     if lux is None or frame is None:
         raise InputError("road_view_plot needs a wall lux map and its frame, or road=")
     if image_problem(lux, contours=True) is not None:

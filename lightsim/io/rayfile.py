@@ -349,3 +349,17 @@ def write_zemax(path: str | os.PathLike, positions_m: np.ndarray, directions: np
         f.write(head)
         block.tofile(f)
     return p
+
+
+def write_rayfile(path: str | os.PathLike, positions_m: np.ndarray, directions: np.ndarray,
+                  flux_lm: np.ndarray, title: str = "lightsim ray file") -> Path:
+    """Write a ray file in the format its suffix names: TM-25 (:data:`TM25_SUFFIXES`,
+    :func:`write_tm25`, ``title`` as its name) or Zemax binary (:data:`ZEMAX_SUFFIXES`,
+    :func:`write_zemax`, ``title`` as its description). Atomic; another suffix raises
+    :class:`~lightsim.errors.InputError`."""
+    suffix = Path(path).suffix.lower()
+    if suffix in TM25_SUFFIXES:
+        return write_tm25(path, positions_m, directions, flux_lm, name=title)
+    if suffix in ZEMAX_SUFFIXES:
+        return write_zemax(path, positions_m, directions, flux_lm, description=title)
+    raise InputError(f"{path}: ray file name must end in .tm25ray, .dat or .ray")

@@ -340,7 +340,7 @@ def _range(a2: np.ndarray, what: str = "image") -> tuple[float, float]:
 
 def _run(a2, out2, W, C, n, q, exact, normalize, clamp0, parallel):
     H = a2.shape[0]
-    nbands = min(_n_workers(), H // max(4 * n, 16)) if parallel else 1
+    nbands = min(n_workers(), H // max(4 * n, 16)) if parallel else 1
     if nbands <= 1:
         _rows(a2, out2, W, C, n, 0, H, q, exact, normalize, clamp0)
         return
@@ -355,7 +355,9 @@ def _run(a2, out2, W, C, n, q, exact, normalize, clamp0, parallel):
 _POOL: ThreadPoolExecutor | None = None
 
 
-def _n_workers() -> int:
+def n_workers() -> int:
+    """Bands a ``parallel=True`` filter splits an image into at most: the CPUs this process
+    may run on (at least 1)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not on Linux
@@ -366,7 +368,7 @@ def _pool() -> ThreadPoolExecutor:
     """Threads for ``parallel=True`` (the numba kernel releases the GIL)."""
     global _POOL
     if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=max(1, _n_workers() - 1),
+        _POOL = ThreadPoolExecutor(max_workers=max(1, n_workers() - 1),
                                    thread_name_prefix="lightsim-boxfilter")
     return _POOL
 

@@ -32,8 +32,9 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import uniform_filter
 
-from lightsim.render.boxfilter import _n_workers, box_filter, box_filter_naive
+from lightsim.render.boxfilter import box_filter, box_filter_naive, n_workers
 
 __all__ = ["METHODS", "make_image", "run"]
 
@@ -111,8 +112,6 @@ def run(width: int = 640, height: int = 480, sizes: Sequence[int] = (3, 4, 5, 6)
         (``size_spread`` from medians, ``size_spread_best`` from best times; target
         ≤ 1.2) and the worst fps (from medians and from best times).
     """
-    from scipy.ndimage import uniform_filter
-
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     img = make_image(width, height, channels, seed)
     out = np.empty_like(img)
@@ -143,7 +142,7 @@ def run(width: int = 640, height: int = 480, sizes: Sequence[int] = (3, 4, 5, 6)
             })
     summary: dict[str, Any] = {"width": width, "height": height, "channels": channels,
                                "repeats": repeats, "sizes": [int(n) for n in sizes],
-                               "threads": _n_workers(), "load_average_1min": load}
+                               "threads": n_workers(), "load_average_1min": load}
     for name in METHODS[:3]:
         meds = [timings[name, n][0] for n in sizes]
         bests = [timings[name, n][1] for n in sizes]

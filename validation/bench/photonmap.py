@@ -36,7 +36,11 @@ field                           unit  meaning
 from __future__ import annotations
 
 import itertools
+import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -45,6 +49,8 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lightsim.engine.config import RunConfig
+from lightsim.engine.memory import bytes_per_photon, estimate_run, index_bytes
 from lightsim.photonmap import (
     GRID_PRESETS,
     HashGrid,
@@ -53,6 +59,9 @@ from lightsim.photonmap import (
     UniformGrid,
 )
 from lightsim.photonmap.kdtree import DEFAULT_LEAF_SIZE
+from lightsim.raycast import RayCaster
+from lightsim.sampling import digit_permutations, halton_points, photon_keys
+from lightsim.tracer import PhotonTracer
 from lightsim.validation.bench.table import print_table, write_json
 
 PhotonSet = tuple[np.ndarray, np.ndarray, np.ndarray]  # positions (m), normals, powers (lm)
@@ -392,7 +401,62 @@ def run(sets: Mapping[str, PhotonSet] | None = None, *, k: int = 64, width: int 
     return {"table5": rows, "insert_vs_rebuild": incr}
 
 
-# =========================================================================== memory (goal 5)
+# =========================================================================== photons of a scene
+def traced_wall_photons(scene: Any, n_photons: int, seed: int = 11) -> PhotonSet:
+    """(positions in m, normals, powers in lm) of the photons a scene puts on its wall,
+    from ``n_photons`` emitted (Halton points, 500 000 at a time)."""
+    tracer = PhotonTracer(scene, record="wall")
+    pos, nrm, pw = [], [], []
+    for lo in range(0, n_photons, 500_000):
+        idx = np.arange(lo, min(n_photons, lo + 500_000), dtype=np.int64)
+        res = tracer.trace_points(halton_points(idx, digit_permutations(seed, 0, None)),
+                                  photon_keys(seed, 0, 0, idx))
+        pos.append(res.records.position)
+        nrm.append(res.records.normal)
+        pw.append(res.records.power[:, :1] / n_photons)
+    tracer.caster.close()
+    return np.concatenate(pos), np.concatenate(nrm), np.concatenate(pw).astype(np.float32)
+
+
+def embree_rate(scene: Any, rays: int = 1_000_000, seed: int = 5) -> float:
+    """Raw embree rays/s (best of 3) of random rays from inside the luminaire's bounding
+    box."""
+    lamp = np.concatenate([p.vertices for p in scene.parts if p.role != "wall"])
+    lo, hi = lamp.min(axis=0), lamp.max(axis=0)
+    rng = np.random.default_rng(seed)
+    o = (lo + (hi - lo) * rng.random((rays, 3))).astype(np.float32)
+    d = rng.normal(size=(rays, 3))
+    d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    caster = RayCaster(scene.triangles)
+    caster.intersect(o[:1000], d[:1000])
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        caster.intersect(o, d)
+        best = min(best, time.perf_counter() - t0)
+    caster.close()
+    return rays / best
+
+
+def table1(scenes: Mapping[str, Any], table5_rows: Sequence[dict[str, Any]]
+           ) -> list[dict[str, Any]]:
+    """Paper Table 1: the kNN queries/s of the ``middle`` and ``ckdtree`` rows of
+    :func:`table5` (sets named ``<scene>-…``) next to raw embree rays/s in the same scene
+    (:func:`embree_rate`)."""
+    rows = []
+    for name, scene in scenes.items():
+        rays = embree_rate(scene)
+        for r in table5_rows:
+            if r["set"].startswith(name) and r["method"] in ("middle", "ckdtree"):
+                rows.append({"scene": name, "set": r["set"], "photons": r["photons"],
+                             "k": r["k"], "method": r["method"],
+                             "knn_queries_per_s": r["queries_per_s"],
+                             "embree_rays_per_s": rays,
+                             "rays_per_knn_query": rays / r["queries_per_s"]})
+    return rows
+
+
+# =========================================================================== memory
 MEMORY_COLUMNS = ["what", "photons", "bytes_per_photon", "model_bytes_per_photon",
                   "peak_rss_mb", "estimate_mb", "estimate_over_rss", "seconds"]
 
@@ -401,8 +465,6 @@ def stored_bytes(positions: np.ndarray, normals: np.ndarray | None, powers: np.n
                  batches: int = 25) -> list[dict[str, Any]]:
     """Bytes per stored photon of real kd-trees (their arrays' ``nbytes``), built at once
     and by ``batches`` insertions, next to :func:`lightsim.engine.memory.bytes_per_photon`."""
-    from lightsim.engine.memory import bytes_per_photon, index_bytes
-
     n = int(positions.shape[0])
     cuts = np.linspace(0, n, batches + 1).astype(np.int64)
     built = KdTree(positions, normals, powers, channels=powers.shape[1])
@@ -433,9 +495,6 @@ def child_peak_rss(cmd: Sequence[str]) -> tuple[float, int, str]:
     was forked (or vfork-ed) from, so a ``simulate`` started by this bench — which holds
     gigabytes of trees by then — reported the bench's own peak (10 GB for a run whose
     peak was 1.3 GB); the spawner's child starts from the spawner's few MB."""
-    import subprocess
-    import sys
-
     proc = subprocess.run([sys.executable, "-c", _SPAWN_MAXRSS, *cmd], capture_output=True,
                           check=False)
     out = proc.stdout.decode().split()
@@ -448,15 +507,9 @@ def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
                       extra_args: Sequence[str] = ()) -> dict[str, Any]:
     """Peak RSS (``wait4`` rusage of the child) of ``lightsim simulate SCENE --photons N``
     next to the pre-flight estimate of the same run."""
-    import sys
-    import tempfile
-
-    from lightsim.engine.config import RunConfig
-    from lightsim.engine.memory import estimate_run
-
     W, H = resolution
     with tempfile.TemporaryDirectory(prefix="lightsim-rss-") as tmp:
-        cmd = [sys.executable, "-m", "lightsim.cli.main", "simulate", str(scene_path),
+        cmd = [sys.executable, "-m", "lightsim.cli", "simulate", str(scene_path),
                "--photons", str(int(photons)), "--resolution", f"{W}x{H}", "--quiet",
                "--frame-photons", str(int(frame_photons)), "--out", tmp, *extra_args]
         t0 = time.perf_counter()
@@ -464,8 +517,6 @@ def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
         dt = time.perf_counter() - t0
         summary = {}
         if returncode == 0:
-            import json
-
             with open(os.path.join(tmp, "summary.json")) as fh:
                 summary = json.load(fh)
     cfg = RunConfig()
@@ -481,14 +532,25 @@ def simulate_peak_rss(scene_path: str | os.PathLike, photons: int,
             if returncode else ""}
 
 
-# =========================================================================== the issue's ratios
+def memory_rows(rss_photons: int, scene_path: str | os.PathLike) -> list[dict[str, Any]]:
+    """Bytes per stored photon (1 M ring-caustic photons, :func:`stored_bytes`) and, unless
+    ``rss_photons`` is 0, the peak RSS of a ``simulate`` run of ``scene_path``
+    (:func:`simulate_peak_rss`); columns :data:`MEMORY_COLUMNS`."""
+    pos, nrm, pw = caustic_ring_set(1_000_000)
+    rows = stored_bytes(pos, nrm, pw)
+    if rss_photons:
+        rows.append(simulate_peak_rss(scene_path, rss_photons))
+    return rows
+
+
+# =========================================================================== headline ratios
 GOAL_COLUMNS = ["what", "photons", "k", "ours_ms", "baseline_ms", "ratio", "goal"]
 
 
 def goal_rows(n: int = 1_000_000, *, k: int = 64, width: int = 640, height: int = 480,
               batches: int = 25, repeats: int = 3, threads: int | None = None,
               leaf_size: int = DEFAULT_LEAF_SIZE, seed: int = 0) -> list[dict[str, Any]]:
-    """The two photon-map ratios of issue 15 on the ``n``-photon ring caustic, each
+    """The two headline photon-map ratios on the ``n``-photon ring caustic, each
     measured against its baseline in the same run (best of ``repeats``, A/B alternated so
     that a load change hits both): kNN queries of the middle-split tree vs
     ``cKDTree.query`` (goal ≥ 1.5×) and 25 insertions vs rebuilding after every batch

@@ -1,6 +1,6 @@
 """Pipeline efficiency: ``simulate``'s photons/s against ``bench tracer``'s on one scene.
 
-Issue 15 goal 2: a run should spend its time tracing. For one scene and thread count the
+A run should spend its time tracing. For one scene and thread count the
 benchmark alternates, ``repeats`` times, (a) the tracer alone — exactly what ``lightsim
 bench tracer`` times: :meth:`PhotonTracer.trace_points` on pre-generated Halton points —
 and (b) a whole :meth:`Session.run` with the CLI's default run configuration, from the

@@ -13,7 +13,9 @@ import time
 from typing import Any
 
 from lightsim.engine.config import RunConfig
+from lightsim.engine.plan import make_plan
 from lightsim.engine.server import Session
+from lightsim.render.camera import PinholeCamera
 
 
 def _per_frame(scene, cfg: RunConfig, frames: int, camera=None) -> float:
@@ -32,9 +34,6 @@ def bench_plan(scene, frame_photons: int = 100_000, frames: int = 3, repeats: in
     Planned and forced runs alternate ``repeats`` times and the best of each counts, so a
     change in the machine's load does not favour one side.
     """
-    from lightsim.engine.plan import make_plan
-    from lightsim.render.camera import PinholeCamera
-
     base = RunConfig(frame_photons=frame_photons, interleave=4)
     plan = make_plan(scene, base)
     planned_cfg = base.with_(spt=plan.spt)

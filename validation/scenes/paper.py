@@ -21,8 +21,10 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from lightsim.errors import InputError
+from lightsim.luminaires.headlight import example_headlight
 from lightsim.materials import DIELECTRIC, Material
-from lightsim.scene import SURFACE, Part, Scene, WallFrame
+from lightsim.scene import SURFACE, Part, Scene, WallFrame, load_scene
 from lightsim.validation.scenes import primitives as prim
 
 SCENES = ("ring", "egg", "glass", "headlight")
@@ -99,19 +101,11 @@ def glass(resolution: tuple[int, int] = (256, 256)) -> Scene:
 
 def headlight(resolution: tuple[int, int] = (640, 256)) -> Scene:
     """The shipped example headlight with the default 25 m wall."""
-    from pathlib import Path
-
-    import lightsim.luminaires
-    from lightsim.scene import load_scene
-
-    path = Path(lightsim.luminaires.__file__).parent / "examples" / "headlight.glb"
-    return load_scene(path, resolution=resolution)
+    return load_scene(example_headlight(), resolution=resolution)
 
 
 def build(name: str, resolution: tuple[int, int] | None = None) -> Scene:
     """Scene by name (``ring``, ``egg``, ``glass``, ``headlight``)."""
-    from lightsim.errors import InputError
-
     builders = {"ring": ring, "egg": egg, "glass": glass, "headlight": headlight}
     if name not in builders:
         raise InputError(f"unknown scene '{name}' (choose from {', '.join(SCENES)})")

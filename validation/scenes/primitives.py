@@ -11,7 +11,7 @@ import numpy as np
 import trimesh
 
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, Material
-from lightsim.scene import EMITTER, SURFACE, Part
+from lightsim.scene import EMITTER, SURFACE, WALL, Part
 
 
 def point_source(flux_lm: float, radius: float = 1e-4, centre=(0.0, 0.0, 0.0),
@@ -164,8 +164,6 @@ def cylinder_ring(radius: float, height: float, thickness: float, reflectance: f
 def floor(size: float, y: float = 0.0, albedo: float = 0.8, name: str = "floor",
           as_wall: bool = False) -> Part:
     """A square horizontal plane at height ``y`` facing +Y (optionally the detector)."""
-    from lightsim.scene import WALL
-
     h = size / 2
     verts = np.array([[-h, y, -h], [h, y, -h], [h, y, h], [-h, y, h]], dtype=np.float64)
     faces = np.array([[0, 2, 1], [0, 3, 2]])  # counter-clockwise seen from +Y
