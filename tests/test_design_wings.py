@@ -82,7 +82,7 @@ def test_road_extent_of_a_uniform_lamp_is_the_circle_of_one_lux():
 def test_shipped_lamp_fails_no_rule(tmp_path):
     """The shipped example at 2 M photons (the README demo's wall, unaimed): no rule of
     R112 or R149 class B fails (its interval wholly beyond the limit), the bright points
-    pass with their interval, and it is the lamp with wings of ``docs/design.md``."""
+    pass with their interval, and it is the lamp with wings of ``docs/guides/design.md``."""
     _x, lay, rec = read_design(LOWBEAM)
     assert rec["command"] == "lightsim design"
     assert lay.wing_facets == (0, 8, 14, 15, 16, 24) and lay.sign_share == 0.05
