@@ -10,7 +10,9 @@ script's process is tuned for a run by the engine
 
 from __future__ import annotations
 
+import ast
 import importlib
+import importlib.util
 import sys
 from contextlib import nullcontext
 
@@ -65,6 +67,34 @@ class LazyGroup(click.Group):
                 return None  # command not built yet
             raise
         return getattr(module, attr)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The command list of ``--help`` from each command's docstring, read from its
+        source without importing it (importing every command would load the engine)."""
+        rows = []
+        width = formatter.width - 6 - max((len(n) for n in self.lazy_commands), default=0)
+        for name in self.list_commands(ctx):
+            text = command_docstring(self.lazy_commands[name])
+            if text is not None:
+                rows.append((name, click.utils.make_default_short_help(text, width)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+def command_docstring(target: str) -> str | None:
+    """The docstring of the function ``"module:attribute"`` (module relative to
+    ``lightsim.cli``) as the source has it, or None where there is no such module."""
+    module_name, attr = target.split(":")
+    spec = importlib.util.find_spec(f"lightsim.cli.{module_name}")
+    if spec is None or spec.origin is None:
+        return None
+    with open(spec.origin, encoding="utf-8") as f:
+        tree = ast.parse(f.read(), filename=spec.origin)
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.name == attr:
+            return ast.get_docstring(node) or ""
+    return ""
 
 
 @click.group(cls=LazyGroup, lazy_commands=COMMANDS,

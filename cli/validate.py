@@ -65,6 +65,11 @@ from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
 from lightsim.io.summary import write_json
 from lightsim.options import click_option, lookup
+from lightsim.validation import analytic
+from lightsim.validation import converge as cv
+from lightsim.validation import stability as stab
+from lightsim.validation.analytic import TABLE_COLUMNS, SuiteSettings, table_rows
+from lightsim.validation.converge import FULL_BUDGETS, QUICK_BUDGETS
 from lightsim.validation.coverage import (
     COVERAGE_BAND,
     DEFAULT_CACHE,
@@ -137,10 +142,6 @@ def validate(full: bool, stability: bool, run_all: bool, cases: tuple[str, ...],
     if coverage:  # ``study``: the coverage study's options (CoverageSettings)
         _coverage(CoverageSettings.from_options(photons, seed, **study), json_path, quiet)
         return
-    from lightsim.validation import analytic
-    from lightsim.validation import stability as stab
-    from lightsim.validation.analytic import TABLE_COLUMNS, SuiteSettings, table_rows
-
     if photons is not None and photons < 1000:
         raise InputError(f"--photons must be at least 1000, got {photons}")
     do_analytic = run_all or not stability
@@ -194,8 +195,6 @@ def validate(full: bool, stability: bool, run_all: bool, cases: tuple[str, ...],
         for c in failed:
             click.echo(f"  {c.case}: {c.quantity}: {c.note}")
     if json_path:
-        from lightsim.io.summary import write_json
-
         doc.update({"passed": not failed, "seconds": seconds, "n_checks": len(checks),
                     "n_failed": len(failed)})
         write_json(json_path, doc)
@@ -206,8 +205,6 @@ def validate(full: bool, stability: bool, run_all: bool, cases: tuple[str, ...],
 
 
 def _budgets(text: str | None, full: bool) -> list[float]:
-    from lightsim.validation.converge import FULL_BUDGETS, QUICK_BUDGETS
-
     if text is None:
         return list(FULL_BUDGETS if full else QUICK_BUDGETS)
     try:
@@ -293,8 +290,6 @@ def converge(scene: str, budgets: str | None, full: bool, photon_budgets: str | 
     compared with the exact answer) or a scene file (compared with a bin reference run
     --reference-factor times longer than the longest budget).
     """
-    from lightsim.validation import converge as cv
-
     if frame_photons < 16:
         raise InputError(f"--frame-photons must be at least 16, got {frame_photons}")
     if not (reference_factor >= 1 and math.isfinite(reference_factor)):

@@ -32,7 +32,7 @@ from lightsim.sampling import (
     halton_points,
     halton_points_grouped,
 )
-from lightsim.validation.bench.pipeline import _Recorder, _run, bench_pipeline
+from lightsim.validation.bench.pipeline import StageRecorder, bench_pipeline, timed_run
 from lightsim.validation.scenes.analytic import isotropic_case
 
 
@@ -216,11 +216,11 @@ def test_bench_pipeline_rows(point):
 
 def test_pipeline_recorder_keeps_the_runs_photons(point):
     cfg = RunConfig(frame_photons=10_000, interleave=2, seed=2)
-    rec = _Recorder()
-    a = _run(point, cfg, 30_000, rec)
+    rec = StageRecorder()
+    a = timed_run(point, cfg, 30_000, rec)
     pts, keys, w = rec.photons()
     assert len(pts) == len(keys) == len(w) == a["photons"] == 30_000
-    b = _run(point, cfg, 30_000)  # recording does not change the run
+    b = timed_run(point, cfg, 30_000)  # recording does not change the run
     assert (a["photons"], a["rays"]) == (b["photons"], b["rays"])
 
 

@@ -78,6 +78,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import beta, qmc
 
+from lightsim.engine.ray_backend import import_ray, init_ray
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.io.atomic import write_bytes
@@ -593,11 +594,8 @@ def _ray_map(fn: Callable[..., SampleResult], opts: Any, offsets: np.ndarray, wo
              address: str | None, progress: Callable[[int, SampleResult], None] | None
              ) -> list[SampleResult]:
     """Run the samples as independent Ray tasks, at most ``workers`` at a time."""
-    from lightsim.engine.ray_backend import import_ray as _ray
-    from lightsim.engine.ray_backend import init_ray as _init_ray
-
-    ray = _ray()
-    started = _init_ray(address, workers)
+    ray = import_ray()
+    started = init_ray(address, workers)
     try:
         task = ray.remote(num_cpus=1)(fn)
         opts_ref = ray.put(opts)

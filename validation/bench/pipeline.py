@@ -60,7 +60,7 @@ def _trace_rate(tracer: PhotonTracer, pts: np.ndarray, keys: np.ndarray
     return len(pts) / dt, res.rays / dt
 
 
-class _Recorder:
+class StageRecorder:
     """Wraps the run's tracers' ``trace_points`` to keep what each frame traced (the run
     is unchanged: the call goes through)."""
 
@@ -86,8 +86,8 @@ class _Recorder:
         return pts, keys, w
 
 
-def _run(scene, config: RunConfig, photons: int, record: _Recorder | None = None
-         ) -> dict[str, Any]:
+def timed_run(scene, config: RunConfig, photons: int, record: StageRecorder | None = None
+              ) -> dict[str, Any]:
     """One timed Session.run (the session's own clock: first shot to final map);
     ``record`` keeps the photons its frames traced."""
     render = 0.0
@@ -125,10 +125,10 @@ def bench_pipeline(scene, config: RunConfig | None = None, photons: int = 1_000_
     pts = halton_points(idx, digit_permutations(seed, 0, None))
     keys = photon_keys(seed, 0, 0, idx)
     tracer.trace_points(pts[:1000], keys[:1000])  # compile / warm up
-    _run(scene, config.with_(frame_photons=max(config.n_sets, 20_000)), 40_000)  # warm up
+    timed_run(scene, config.with_(frame_photons=max(config.n_sets, 20_000)), 40_000)  # warm up
     # the run's own photons (SPT's refined cells included), for a like-with-like baseline
-    rec = _Recorder()
-    _run(scene, config, photons, rec)
+    rec = StageRecorder()
+    timed_run(scene, config, photons, rec)
     same_pts, same_keys, same_w = rec.photons()
     rows: list[dict[str, Any]] = []
     for r in range(repeats):
@@ -138,7 +138,7 @@ def bench_pipeline(scene, config: RunConfig | None = None, photons: int = 1_000_
         same_rate = len(same_pts) / (time.perf_counter() - t0)
         same_cpu = time.process_time() - c0
         del same
-        run = _run(scene, config, photons)
+        run = timed_run(scene, config, photons)
         run_cpu = run["cpu_s"]
         rate = run["photons"] / run["seconds"]
         rays = run["rays"] / run["seconds"]
