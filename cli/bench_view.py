@@ -65,7 +65,8 @@ def command(scene_file: str | None, resolution: tuple[int, int], frame_photons: 
     if parts:
         print_table("change → image drawn: where the time went (ms, median)",
                     [{"part": k, "ms": v} for k, v in parts.items()])
-    print_table("model for Ray workers from the measured costs (docs/scaling.md)", res["model"])
+    print_table("model for Ray workers from the measured costs "
+                "(docs/explanation/benchmarks.md)", res["model"])
     if json_path:
         write_json(json_path, "view", res["rows"] + res["model"],
                    {k: v for k, v in res.items() if k not in ("rows", "model")})

@@ -1,6 +1,6 @@
 """Materials: the table the tracer reads, and the numba kernels of surface optics.
 
-Three kinds of surface, as glTF materials map onto them (see docs/conventions.md):
+Three kinds of surface, as glTF materials map onto them (see docs/reference/conventions.md):
 
 =============  =======================================  =========  ===========================
 kind           parameter                                unit       default

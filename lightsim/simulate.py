@@ -533,8 +533,8 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
 
 
 def _timings(session, est, clock: dict[str, float] | None) -> dict[str, float] | None:
-    """Where this process's run time went (s, wall clock; see docs/peer.md): loading the
-    scene, the session (plan, pilot, embree, numba), the frames' sample points, tracing
+    """Where this process's run time went (s, wall clock; see docs/explanation/benchmarks.md):
+    loading the scene, the session (plan, pilot, embree, numba), the frames' sample points, tracing
     and insertion, the error estimates, the final map, and the outputs up to summary.json.
     ``clock``: perf_counter stamps t0, load, session, run of :func:`_run`; None when the
     run was not timed (outputs written by a script)."""

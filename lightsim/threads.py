@@ -23,7 +23,7 @@ from concurrent.futures import ThreadPoolExecutor
 _POOL: ThreadPoolExecutor | None = None
 
 
-def helper_thread() -> ThreadPoolExecutor:
+def second_thread() -> ThreadPoolExecutor:
     """The process's second thread (an executor of one worker)."""
     global _POOL
     if _POOL is None:

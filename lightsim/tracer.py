@@ -88,7 +88,7 @@ F_DIFFUSE = np.uint8(2)   # the path had at least one diffuse bounce (indirect l
 
 
 # ------------------------------------------------------------------------------------------
-# Surface interaction: what the kernels read, the ledger helper, the per-ray dispatch
+# Surface interaction: what the kernels read, the ledger, the per-ray dispatch
 # ------------------------------------------------------------------------------------------
 
 class Geometry(NamedTuple):

@@ -2,7 +2,7 @@
 
 One frame class, :class:`WallFrame`, answers every "which pixel, which place, which
 direction" question of the engine, the plots and the regulation checks. Conventions
-(``docs/conventions.md``): the lamp sits at the origin and shines along +Z; the wall is a
+(``docs/reference/conventions.md``): the lamp sits at the origin and shines along +Z; the wall is a
 plane facing it, by default z = D (D = 25 m, the UN regulations' measuring distance);
 **H** runs to the driver's right (world −X), **V** up (+Y).
 

@@ -3,7 +3,7 @@
 Modules (imported lazily, so ``lightsim.luminaires.photometric`` and friends stay cheap):
 
 * :mod:`~lightsim.luminaires.gltf_writer` — :class:`GltfMaterial`, :class:`GltfPart`,
-  :func:`write_glb`: a small binary glTF 2.0 writer following ``docs/conventions.md``;
+  :func:`write_glb`: a small binary glTF 2.0 writer following ``docs/reference/conventions.md``;
 * :mod:`~lightsim.luminaires.bulbs` — :data:`BULBS`, :func:`get_bulb`: H1, H3, H4 (driving
   and passing filament), H7 presets with flux sources and stated dimension assumptions;
 * :mod:`~lightsim.luminaires.filament` — :func:`filament_mesh`, :func:`filament_part`;

@@ -4,9 +4,9 @@ Each preset gives the luminous flux with its source, the filament (coil envelope
 filament position relative to the reflector focus, the filament axis, the glass envelope and
 whether the bulb carries a shield cup (H4 passing beam) or an opaque tip cap.
 
-Axes and units follow ``docs/conventions.md``: metres, lumens; lamp axes with +Y up and the
-lamp shining along +Z, the reflector focus at the origin of the offsets. "Ahead of the focus"
-is +Z (further from the reflector vertex).
+Axes and units follow ``docs/reference/conventions.md``: metres, lumens; lamp axes with +Y up
+and the lamp shining along +Z, the reflector focus at the origin of the offsets. "Ahead of the
+focus" is +Z (further from the reflector vertex).
 
 Flux sources (UN R37 and published bulb ratings):
 

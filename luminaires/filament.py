@@ -8,8 +8,9 @@ normals), in metres, in glTF axes.
 
 :func:`filament_mesh` is also used by the scene loader to place a preset filament into a
 plain CAD reflector (``simulate --filament H7 --filament-at X,Y,Z --filament-axis ...``);
-:func:`filament_part` wraps it into an emitting glTF part following ``docs/conventions.md``
-(non-zero ``emissiveFactor``; node ``extras.lightsim.flux_lm``, ``emission``, ``bulb``).
+:func:`filament_part` wraps it into an emitting glTF part following
+``docs/reference/conventions.md`` (non-zero ``emissiveFactor``; node
+``extras.lightsim.flux_lm``, ``emission``, ``bulb``).
 """
 
 from __future__ import annotations
@@ -71,10 +72,10 @@ def orthonormal_basis(axis: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np
     if norm < 1e-12:
         raise InputError("filament axis must be a non-zero vector")
     w = w / norm
-    # helper: the world axis least aligned with w, so the cross product is well conditioned
-    helper = np.zeros(3)
-    helper[int(np.argmin(np.abs(w)))] = 1.0
-    u = np.cross(helper, w)
+    # aux: the world axis least aligned with w, so the cross product is well conditioned
+    aux = np.zeros(3)
+    aux[int(np.argmin(np.abs(w)))] = 1.0
+    u = np.cross(aux, w)
     u /= np.linalg.norm(u)
     v = np.cross(w, u)
     return u, v, w

@@ -1,7 +1,7 @@
 """A small, general binary glTF 2.0 (GLB) writer for triangle meshes, built on pygltflib.
 
 Used by the parametric headlight (:mod:`lightsim.luminaires.headlight`) and by validation
-scenes. It writes exactly what the scene loader reads (``docs/conventions.md``): one node
+scenes. It writes exactly what the scene loader reads (``docs/reference/conventions.md``): one node
 per part, named after the part, with the part's ``extras``; one mesh with one triangle
 primitive per node; PBR materials with ``emissiveFactor`` and the extensions
 ``KHR_materials_transmission``, ``KHR_materials_ior`` and ``KHR_materials_volume``.

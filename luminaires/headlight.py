@@ -1,8 +1,8 @@
 """Parametric filament headlight → glTF parts / GLB (the paper's HEADLIGHT scene, §6.3).
 
 A paraboloid reflector with a halogen bulb at its focus and a clear or fluted cover lens.
-Axes and units follow ``docs/conventions.md``: metres, +Y up, the lamp shines along +Z, the
-reflector vertex at the origin and its focus at ``(0, 0, f)``. Wall coordinate H (the
+Axes and units follow ``docs/reference/conventions.md``: metres, +Y up, the lamp shines along
++Z, the reflector vertex at the origin and its focus at ``(0, 0, f)``. Wall coordinate H (the
 driver's right) is world −X.
 
 Parts (glTF nodes, in this order)

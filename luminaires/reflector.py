@@ -26,7 +26,7 @@ rings          –      rings per facet (evenly spaced in base radius)
 columns        –      vertices per ring and facet
 =============  =====  ============================================================
 
-Wall directions follow ``docs/conventions.md``: H is to the driver's right, which is
+Wall directions follow ``docs/reference/conventions.md``: H is to the driver's right, which is
 world −X; V is up (+Y); the lamp shines along +Z.
 """
 

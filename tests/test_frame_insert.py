@@ -131,7 +131,7 @@ def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit(mon
     detector apertures' counts and their SPT triggers) as the per-set path and as one
     thread."""
     handed = []
-    helper = photonset.helper_thread
+    helper = photonset.second_thread
 
     class Counting:
         def submit(self, fn, *args):
@@ -139,7 +139,7 @@ def test_frame_insertion_on_two_threads_is_the_per_set_insertion_bit_for_bit(mon
                 handed.append(args)  # (not the lattice's pages: _prefault_lattice)
             return helper().submit(fn, *args)
 
-    monkeypatch.setattr(photonset, "helper_thread", Counting)
+    monkeypatch.setattr(photonset, "second_thread", Counting)
     scene = paraboloid_case(resolution=(48, 40)).scene
     config = RunConfig(frame_photons=4 * SPLIT_RECORDS, interleave=4, seed=5,
                        probe_grid=(16, 8), apertures=((0.0, 0.0), (3.0, -2.0), (-6.0, 4.0)),

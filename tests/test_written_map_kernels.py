@@ -19,7 +19,7 @@ from lightsim.render.ici import (
     raster_queries,
     window_sums,
 )
-from lightsim.threads import helper_thread
+from lightsim.threads import second_thread
 
 
 def _reference(rungs, emitted, q, areas, gamma, groups=None, blas=False):
@@ -152,11 +152,11 @@ def test_pixel_sat_matches_numpys_two_cumsums(shape):
 
 
 def _on_branch_thread(x):
-    return helper_thread().submit(lambda: x + 1).result(timeout=30)
+    return second_thread().submit(lambda: x + 1).result(timeout=30)
 
 
 def test_the_branch_thread_in_a_forked_child_after_the_parent_used_it():
-    assert helper_thread().submit(lambda: 1).result(timeout=30) == 1  # parent's thread
+    assert second_thread().submit(lambda: 1).result(timeout=30) == 1  # parent's thread
     with mp.get_context("fork").Pool(1) as pool:  # the child makes its own thread
         assert pool.apply_async(_on_branch_thread, (41,)).get(timeout=60) == 42
 

@@ -556,7 +556,7 @@ def run_compare(photo_path: str | os.PathLike, sim_path: str | os.PathLike,
 
 
 # ---------------------------------------------------------------------------------------
-# helpers for scripts
+# functions for scripts
 # ---------------------------------------------------------------------------------------
 
 def load_transform(path: str | os.PathLike) -> NDArray:

@@ -19,7 +19,7 @@ Photographs (:func:`read_photo`)
 Simulations (:func:`load_simulation`)
     A result folder holding ``wall_lux.exr`` (channel ``Y`` in lx, or ``R``/``G``/``B`` or a
     single channel) and ``summary.json``, or a ``wall_lux.exr`` file directly. The wall
-    frame (``docs/conventions.md``) comes from the EXR metadata ``wall`` or, failing that,
+    frame (``docs/reference/conventions.md``) comes from the EXR metadata ``wall`` or, failing that,
     from ``summary.json["wall"]`` beside the EXR.
 
 Parameters
@@ -349,7 +349,7 @@ class Simulation:
     lux : ndarray, shape (H, W)
         Illuminance in lx (row 0 on top = largest V); NaN where not computed.
     frame : dict
-        The wall frame as in ``docs/conventions.md``.
+        The wall frame as in ``docs/reference/conventions.md``.
     wall : WallFrame
         The parsed frame (pixel ↔ H/V degrees).
     source : str

@@ -293,7 +293,7 @@ def compute_metrics(photo_lux: NDArray, sim: NDArray, overlap: NDArray, clipped:
     clipped : ndarray of bool
         Overlap pixels that are clipped in the photo.
     frame : dict
-        Wall frame (``docs/conventions.md``).
+        Wall frame (``docs/reference/conventions.md``).
     clip_lx : float, default inf
         Illuminance (lx) at which the photo clips.
     traffic : {"right", "left"}

@@ -25,7 +25,7 @@ name       unit  default   meaning
 =========  ====  ========  =================================================================
 photo_lux  lx    required  registered photo on the simulation grid (NaN outside the photo)
 sim        lx    required  simulated illuminance
-frame      –     required  wall frame (``docs/conventions.md``)
+frame      –     required  wall frame (``docs/reference/conventions.md``)
 credit     –     None      attribution line printed under every figure (e.g. a photo's
                            licence)
 dpi        px/in 110       resolution

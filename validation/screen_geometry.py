@@ -5,7 +5,7 @@ A photo of a measuring screen is a view of a **plane**, so photo pixels and wall
 (``--points "x,y=H,V; …"``: photo pixel ↔ screen angle in degrees) or from fiducial
 markers found on the photo (:mod:`~lightsim.validation.screen_target`). Angles are turned
 into wall metres with the conventions' ``h = D·tan(H)``, ``v = D·tan(V)`` (H right, V up
-of H-V, ``docs/conventions.md``), so a homography holds exactly for a pinhole camera.
+of H-V, ``docs/reference/conventions.md``), so a homography holds exactly for a pinhole camera.
 
 With four points the homography is exact (no residual to check it); with more it is the
 least-squares fit (direct linear transform on normalised coordinates, OpenCV

@@ -107,7 +107,8 @@ PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".dng")
 
 def wall_frame(resolution: tuple[int, int] = (400, 160), size_m: tuple[float, float] = (30.0, 12.0),
                distance_m: float = 25.0) -> dict[str, Any]:
-    """A wall frame (``docs/conventions.md``) centred on H-V, like ``lightsim simulate``'s.
+    """A wall frame (``docs/reference/conventions.md``) centred on H-V, like
+    ``lightsim simulate``'s.
 
     Parameters
     ----------
@@ -235,7 +236,7 @@ def write_result(folder: str | os.PathLike, lux: NDArray, frame: dict[str, Any],
     lux : ndarray, shape (H, W)
         Illuminance in lx.
     frame : dict
-        Wall frame (``docs/conventions.md``).
+        Wall frame (``docs/reference/conventions.md``).
     description : str
         Stored as ``source`` in the EXR and ``scene.source`` in the summary.
     extra : dict, optional

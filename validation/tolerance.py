@@ -135,7 +135,7 @@ class ToleranceBox:
 
 _ASSUMED = ("ASSUMPTION: engineering estimate of the UN R37 category-sheet production "
             "tolerance; the H1/H4/H7 sheets were not at hand (see "
-            "lightsim.validation.tolerance, docs/tolerance.md)")
+            "lightsim.validation.tolerance, docs/guides/tolerance.md)")
 
 #: Assumed boxes by bulb category (see the module docstring).
 TOLERANCE_BOXES: dict[str, ToleranceBox] = {

@@ -26,7 +26,7 @@ from lightsim.engine.results import ClientFrame, RenderRequest, ShootResult
 from lightsim.errors import InputError
 from lightsim.raycast import WALL_MAX_TRIANGLES
 from lightsim.scene import Scene
-from lightsim.threads import helper_thread
+from lightsim.threads import second_thread
 
 
 def apply_changes(scene: Scene, changes: list[tuple]) -> tuple[Scene, bool]:
@@ -154,7 +154,7 @@ class Client:
             # the second half of the sets on a second thread (no pool to start per
             # frame: on a small wall a set's probe sums take ~0.1 ms)
             half = n // 2
-            pending = helper_thread().submit(lambda: [sums(s) for s in self.set_indices[half:]])
+            pending = second_thread().submit(lambda: [sums(s) for s in self.set_indices[half:]])
             try:
                 first = [sums(s) for s in self.set_indices[:half]]
             finally:

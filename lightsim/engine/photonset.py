@@ -52,7 +52,7 @@ from lightsim.sampling import (
     photon_keys,
 )
 from lightsim.scene import Scene
-from lightsim.threads import helper_thread
+from lightsim.threads import second_thread
 from lightsim.tracer import LEDGER, PhotonRecords, PhotonTracer
 
 
@@ -323,7 +323,7 @@ class PhotonSets:
             return None
         block = np.zeros((len(self.set_indices), 4 * H * W, self.channels))  # lazy pages
         self._blocks["lattice"] = block
-        return helper_thread().submit(write_pages, block)
+        return second_thread().submit(write_pages, block)
 
     def _new_set(self, s: int) -> SetState:
         st = SetState(s, self.channels)
@@ -513,7 +513,7 @@ class PhotonSets:
         if len(sets) > 1 and len(rec) >= SPLIT_RECORDS and self._frames_inserted and (
                 self.config.threads or os.cpu_count() or 1) > 1:
             split = int(np.clip(np.searchsorted(bounds, 0.5 * bounds[-1]), 1, len(sets) - 1))
-        pending = (helper_thread().submit(insert, split, len(sets), "b")
+        pending = (second_thread().submit(insert, split, len(sets), "b")
                    if split < len(sets) else None)
         try:
             halves = [insert(0, split, "a")]

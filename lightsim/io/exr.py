@@ -22,7 +22,7 @@ anything else (dicts, bools,    ``string`` holding JSON under ``json:<key>``  th
 None, other lists, big ints)
 ==============================  ============================================  ==============
 
-So nested dicts such as the wall frame (``docs/conventions.md``) are stored as JSON text
+So nested dicts such as the wall frame (``docs/reference/conventions.md``) are stored as JSON text
 under ``json:wall``. Tuples and 1-D arrays are treated as lists (and read back as lists);
 a list mixing ints and floats is stored and read back as floats. Inside JSON values NaN
 and ±inf become ``null`` (:mod:`lightsim.io.summary`). Keys must be non-empty strings,
@@ -337,7 +337,7 @@ def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
 def wall_metadata(wall: Mapping[str, Any], **extra: Any) -> dict[str, Any]:
     """Metadata for a lux map: the wall frame as ``json:wall`` plus native attributes.
 
-    The wall frame (``docs/conventions.md``) is kept whole under ``wall``; its
+    The wall frame (``docs/reference/conventions.md``) is kept whole under ``wall``; its
     ``distance_m`` (double) and ``resolution`` (v2i) are repeated as ``wall_distance_m``
     and ``wall_resolution`` for tools that only show native attributes. ``extra``
     (e.g. ``units="lx"``) is added as is.

@@ -2,7 +2,7 @@
 
 :func:`write_lux_png` draws an illuminance map (lx) with a colour bar labelled
 "illuminance E (lx)" and axes in degrees — H left→right, V bottom→top — computed from the
-wall frame (``docs/conventions.md``): pixel edges at ``h = h_min + c·dh`` and
+wall frame (``docs/reference/conventions.md``): pixel edges at ``h = h_min + c·dh`` and
 ``v = v_max − r·dv`` (row 0 = top) are drawn at ``atan(h / D)`` and ``atan(v / D)`` (D =
 ``distance_m``), so every pixel sits at its true angular position even where the angle is
 not linear in h. Optional iso-lux contours and marked test points (e.g. the regulation's

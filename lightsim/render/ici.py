@@ -37,7 +37,7 @@ This module holds the primitives: the ladder (:func:`rung_sides`, :func:`shrink_
 the windows (:class:`WindowGeometry`, :func:`window_sums`, :func:`raster_lux`,
 :func:`window_cells`, :func:`raster_shape`), the ICI choice (:func:`choose`,
 :func:`ici_rungs`, :class:`IciChoice`), the held-out blur (:func:`held_out_blur`) and the
-per-set helpers the maps share (:func:`stack_sets`, :func:`set_weights`, :func:`halves`,
+per-set functions the maps share (:func:`stack_sets`, :func:`set_weights`, :func:`halves`,
 :func:`chosen_per_set`, :func:`add_scaled`). The map the run writes and its error figure
 are :mod:`lightsim.render.written_map`'s; the directional windows are
 :mod:`lightsim.render.directional`'s.

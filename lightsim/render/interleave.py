@@ -30,7 +30,7 @@ name            unit    default   meaning
 
 Set s has the sub-image ``full[b::M, a::M]`` of shape
 ``(ceil((H − b)/M), ceil((W − a)/M))``; its pixel (i, j) is image pixel
-(row b + i·M, column a + j·M). Wall coordinates follow ``docs/conventions.md``: column 0
+(row b + i·M, column a + j·M). Wall coordinates follow ``docs/reference/conventions.md``: column 0
 is the smallest H, row 0 the largest V, pixel centres at ``h_min + (c + 0.5)·dh`` and
 ``v_max − (r + 0.5)·dv`` with ``dh = (h_max − h_min)/W``, ``dv = (v_max − v_min)/H``.
 """

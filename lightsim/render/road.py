@@ -1,6 +1,6 @@
 """Illuminance on the road (lx) from a lamp's wall pattern: the bird's-eye "road view".
 
-The lamp sits at the origin shining along +Z (``docs/conventions.md``), mounted
+The lamp sits at the origin shining along +Z (``docs/reference/conventions.md``), mounted
 ``mount_height_m`` above a flat road, the plane y = −height. Its intensity towards
 direction (h_deg, v_deg) is derived from the wall lux map: ``I = E·r²/cos θ = E·r³/D`` at
 every pixel centre (bilinear between them; :func:`~lightsim.wall.sample_wall`). A road

@@ -67,7 +67,7 @@ from lightsim.render.ici import (
     window_cells,
 )
 from lightsim.render.region import Restrict, restriction
-from lightsim.threads import helper_thread
+from lightsim.threads import second_thread
 from lightsim.wall import WallFrame
 
 CERTIFY = 0.25  # largest standard error of the blur estimate, × the squared error it certifies
@@ -389,7 +389,7 @@ def written_map(rungs: dict[int, np.ndarray], emitted: dict[int, int], q: float,
         # every set's rung 0: one on a second thread while the other runs here (their
         # NumPy passes and compiled kernels run without the GIL; the same values either
         # way)
-        pending = helper_thread().submit(fused_branch)
+        pending = second_thread().submit(fused_branch)
     try:
         centred, blur, lits = _centred(rungs, emitted, q, areas, gamma, choice,
                                        lit_fraction, win)

@@ -1,7 +1,7 @@
 """Type C goniometer grids of luminous intensity (cd): the far field of a lamp.
 
 Axes (binding for every photometric file lightsim reads or writes). The lamp shines along
-world **+Z** with **+Y** up (glTF axes, ``docs/conventions.md``). Type C angles are:
+world **+Z** with **+Y** up (glTF axes, ``docs/reference/conventions.md``). Type C angles are:
 
 * **γ** (gamma, 0…180°): the polar angle from the **nadir −Y**; γ = 90° is horizontal,
   γ = 180° the zenith +Y;

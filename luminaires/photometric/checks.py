@@ -1,6 +1,6 @@
 """Header numbers of photometric files, checked before they are used.
 
-Every number a reader takes from a file header passes through these helpers, so a mutated
+Every number a reader takes from a file header passes through these checks, so a mutated
 or corrupt header (``inf``, ``nan``, ``1e400``, ``-3`` lamps, a count larger than the file)
 becomes one :class:`~lightsim.errors.InputError` line naming the file and the field, never an
 ``OverflowError``/``ValueError`` traceback or a huge allocation.

@@ -9,7 +9,7 @@ LM-63-2002 (§3, definitions) fixes the two systems; both list horizontal angles
   plane, V the elevation within it: in lightsim's axes (+Z ahead, +Y up, the driver's right
   −X) ``d = (−cos V sin H, sin V, cos V cos H)`` — **H > 0 to the right, V > 0 up**, and
   dΩ = cos V dV dH. Type A (H, V) is Type C with C = −H mod 360°, γ = 90° + V (a project
-  measurement on a real low-beam file agrees, see docs/conventions.md).
+  measurement on a real low-beam file agrees, see docs/reference/conventions.md).
 * **Type B** (floodlights): "the planes share a common horizontal axis"; photometric zero
   (straight down) is H = 0°, V = 0° and photometric horizontal H = 0°, V = 90°. So V is the
   angle of the plane about the horizontal (lateral) axis, from the nadir towards ahead, and

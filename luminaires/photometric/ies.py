@@ -5,7 +5,7 @@ vehicle lamps; both → :class:`HVGrid`). Axes: :mod:`~lightsim.luminaires.photo
 (Type C: C = 0°, γ = 90° straight ahead, γ = 0° the nadir −Y) and
 :mod:`~lightsim.luminaires.photometric.hvgrid` (Type A: H = V = 0° straight ahead, H > 0
 right, V > 0 up; Type B: H = V = 0° down, H = 0°, V = 90° ahead), from LM-63-2002's
-definitions (see ``docs/conventions.md``).
+definitions (see ``docs/reference/conventions.md``).
 
 Reading
     * text decoded as UTF-8, else Latin-1; keyword lines ``[KEY] value`` (``[MORE]``

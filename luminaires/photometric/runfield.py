@@ -20,7 +20,7 @@ run has them and from a far-field trace (the lamp without its wall) elsewhere:
 The three are sampled on the union of their own node angles, as a Type C
 :class:`~.candela.CandelaGrid` over the whole sphere (:class:`RunField`); files are made
 from it by :mod:`~.gridding`. Angles: Type A H (right), V (up) of a direction are the Type
-C plane and elevation, C = −H mod 360°, γ = 90° + V (``docs/conventions.md``).
+C plane and elevation, C = −H mod 360°, γ = 90° + V (``docs/reference/conventions.md``).
 
 Parameters
 ----------

@@ -13,7 +13,7 @@ Typical use (the engine supplies one intensity estimate per interleave set and p
 
 Rule sets are TOML/JSON files (format in ``README.md`` here); built-in ids:
 ``r112-a-passing``, ``r112-b-passing``, ``r112-b-driving``, ``sae-j1383-low``; more are
-found in the folders of ``$LIGHTSIM_RULESETS``. Unit helpers (H/V degrees ↔ wall metres,
+found in the folders of ``$LIGHTSIM_RULESETS``. Unit conversions (H/V degrees ↔ wall metres,
 lux ↔ candela on a flat wall) are the engine's :mod:`lightsim.wall` (named in :mod:`.units`);
 running a check on a finished run: :mod:`.check`.
 

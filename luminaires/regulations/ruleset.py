@@ -6,8 +6,8 @@ reported as one-line :class:`~lightsim.errors.InputError`). New rule sets need n
 file into a folder named by ``LIGHTSIM_RULESETS`` (``os.pathsep``-separated) or pass its path.
 
 Positions are angular wall positions in degrees (``h`` > 0 right, ``v`` > 0 up of H-V, see
-``docs/conventions.md``), limits are luminous intensities in candela. A rule set states the
-traffic side its positions are written for; :meth:`RuleSet.for_traffic` mirrors it
+``docs/reference/conventions.md``), limits are luminous intensities in candela. A rule set
+states the traffic side its positions are written for; :meth:`RuleSet.for_traffic` mirrors it
 (h → −h) for the other side.
 
 Parameters

@@ -172,7 +172,7 @@ def query_image(positions: np.ndarray, normals: np.ndarray | None, width: int = 
     return pts, np.tile(normal, (width * height, 1))
 
 
-# =========================================================================== timing helpers
+# ====================================================================== timing functions
 def _best(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:
     """Best wall time (s) of ``repeats`` calls and the last result."""
     best = np.inf

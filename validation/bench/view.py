@@ -10,7 +10,7 @@ Headless Chromium (Debian's ``/usr/bin/chromium``, driven by Playwright) opens t
 3. **convergence**: after the last change, the time until the page shows the written
    map's own error figure (a pooled map's, not the grid probes') ≤ 5 % and ≤ 2 %;
 4. **model for 16/64 Ray workers** from the measured per-frame costs, with the scaling
-   bench's model (``docs/scaling.md``):
+   bench's model (``docs/explanation/benchmarks.md``):
    T(N) = (t_shoot + t_render)·cores / N + t_rpc + B / bandwidth + t_server + N·t_result.
 
 The baseline, measured in the same run without browser or web server, is the engine
@@ -26,8 +26,8 @@ parameter              unit    default   meaning
 ``changes``            –       5         latency samples
 ``drag_seconds``       s       6         length of the continuous drag
 ``converge_timeout``   s       40        give up waiting for 2 % after this
-``t_rpc``              s       1.5 ms    Ray actor round trip (design card, docs/scaling.md)
-``t_result``           s       0.2 ms    driver receives one actor's reply (docs/scaling.md)
+``t_rpc``              s       1.5 ms    Ray actor round trip (measured on Ray 2.60)
+``t_result``           s       0.2 ms    driver receives one actor's reply (measured)
 ``bandwidth``          B/s     1.17·10⁸  server link (1 Gbit/s)
 =====================  ======  ========  ==================================================
 """
@@ -156,7 +156,8 @@ def error_law(scene_path: str, resolution: tuple[int, int] = (640, 256),
 
 def frame_model(t_clients: float, t_server: float, nbytes: float, workers: int
                 ) -> dict[str, float]:
-    """The scaling bench's per-frame model (docs/scaling.md) for ``workers`` one-core workers.
+    """The scaling bench's per-frame model (docs/explanation/benchmarks.md) for ``workers``
+    one-core workers.
 
     ``t_clients``: one core's shoot + render seconds of a frame; ``t_server``: the
     server's seconds (assemble, encode for the page); ``nbytes``: bytes from the actors.
@@ -379,7 +380,7 @@ def bench_view(scene_path: str, resolution: tuple[int, int] = (640, 256),
     models = []
     for n, m in ((16, 4), (64, 8)):
         # one core's cost (the view's frames use its numba threads); sub-images W·H float32,
-        # probes and pixel windows 2 × S × 2048 float32 (docs/scaling.md)
+        # probes and pixel windows 2 × S × 2048 float32 (docs/explanation/benchmarks.md)
         nbytes = W * H * 4 + 2 * m * m * 2048 * 4
         t_clients = (t_shoot + t_render) * min(cores, out["costs"]["numba_threads"])
         mod = frame_model(t_clients, t_encode, nbytes, n)

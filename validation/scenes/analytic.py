@@ -3,7 +3,7 @@
 Every builder returns an :class:`AnalyticScene`: the in-memory :class:`~lightsim.scene.Scene`
 (parts from :mod:`lightsim.validation.scenes.primitives` plus a measurement wall) and the
 exact illuminance E(h, v) on that wall in lux, as a function of the wall coordinates
-(h, v in m, see ``docs/conventions.md``). :func:`pixel_average` turns it into the exact
+(h, v in m, see ``docs/reference/conventions.md``). :func:`pixel_average` turns it into the exact
 mean over every wall pixel, which is what an unbiased estimate of a pixel measures.
 
 ========================  =====  =========  ===============================================
@@ -296,7 +296,7 @@ class SlabExact:
 
 
 # ------------------------------------------------------------------------------------------
-# Scene containers and helpers
+# Scene containers and their functions
 # ------------------------------------------------------------------------------------------
 
 @dataclass
