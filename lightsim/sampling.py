@@ -280,7 +280,7 @@ def _radical_inverse_in(d: int):
     table entry ``tab[d, m, v]`` (:func:`_digit_tables`); once the index is spent, the
     zero digits left add ``tail[d, m]``, their sum. The same terms as the definition,
     summed in another order: the points agree with it to a few units in the last place
-    (``tests/test_halton_kernel.py``).
+    (``tests/core/test_sampling.py``).
     """
     base, digits = int(PRIMES[d]), int(DIGITS[d])
 

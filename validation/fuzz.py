@@ -41,7 +41,7 @@ parameter                     unit   default     meaning
 
 Command line: ``lightsim fuzz N [--seed S] [--kind glb] [--json FILE]``; the test suite
 runs a few dozen cases by default and a few hundred in the ``slow`` study
-(``tests/test_fuzz.py``).
+(``tests/validation/test_fuzz.py``).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ per-cell sums instead of ``argsort`` / ``np.unique`` / one ``bincount`` per wind
 
 Every kernel reproduces the NumPy definition it replaces bit for bit (the same float64
 operations in the same order, each cell's photons summed from 0 in photon order and then
-added to the store once), so the stores do not change: ``tests/test_frame_insert.py``
+added to the store once), so the stores do not change: ``tests/engine/test_frame_insert.py``
 compares them with the per-set NumPy path (:meth:`PhotonSets.insert`).
 
 =======================  =====================================================

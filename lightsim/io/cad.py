@@ -21,7 +21,7 @@ A reflector's facet error is a beam error: the mesher's tolerances are therefore
 default. The linear tolerance bounds the distance between facet and surface, the
 angular one the angle between neighbouring facet normals; both are given in CAD terms
 (mm, degrees). The beam error they leave on an exact paraboloid is measured by
-``tests/test_cad.py`` and tabulated in ``docs/guides/cad-lamp.md``.
+``tests/io/test_cad.py`` and tabulated in ``docs/guides/cad-lamp.md``.
 
 =================  =====  =======  =====================================================
 parameter          unit   default  meaning

@@ -254,7 +254,7 @@ def _half_parts(v_l: np.ndarray, w_l: np.ndarray, S: int, blur: np.ndarray | Non
     interior of the peer bench's two scenes (20 seeds each, 0.39–0.8 M photons): the
     formula read 1.05–1.8 × the seed-to-seed spread of the blur estimate, the batch-means
     error 0.91–1.33 ×; with counts correlated over 3 × 3 pixels the formula reads about
-    half the spread (tests/test_error_region.py). A blur that varies over the region only
+    half the spread (tests/render/test_region.py). A blur that varies over the region only
     adds to it (conservative)."""
     s_h, n = v_l.shape
     if n == 0 or s_h < 2:
