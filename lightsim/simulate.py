@@ -458,6 +458,7 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
     rgb = est.lux if est.lux.shape[-1] == 3 else None
     energy = session.energy()
     parts = {k: v for k, v in energy.items() if k != "emitted"}
+    placement = getattr(session.backend, "placement", None)  # Ray runs: where actors ran
     closure = (abs(sum(parts.values()) - energy["emitted"]) / energy["emitted"]
                if energy["emitted"] else 0.0)
     cfg = session.config
@@ -502,6 +503,7 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         "plan": session.plan.to_dict(),
         "config": cfg.to_dict(),
         "workers": opts.workers,
+        **({"cluster": placement()} if placement is not None else {}),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
     meta = wall_metadata(wall, units="lx", quantity="illuminance",
