@@ -43,7 +43,6 @@ import math
 import os
 import pickle
 import socket
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -146,7 +145,7 @@ def _check_token(address: str) -> None:
             why = (f"the Ray cluster at {address} requires an authentication token and this "
                    f"machine has none: {fix}")
         raise ClusterError(why) from None
-    except Exception:  # noqa: BLE001 - anything else: ray.init names it
+    except Exception:  # anything else: ray.init names it
         return
 
 
@@ -441,7 +440,6 @@ class RayBackend:
 
     def replay(self, counters: dict[int, int], partial: dict[int, int] | None = None) -> None:
         counters = {int(k): int(v) for k, v in counters.items()}
-        ray = import_ray()
         refs = []
         self.partial = {int(k): int(v) for k, v in (partial or {}).items()}
         for i, (actor, sets) in enumerate(zip(self.actors, self.assignment, strict=True)):
