@@ -39,11 +39,13 @@ here (:meth:`RayBackend.counters`), so the run can be checkpointed and resumed.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import pickle
 import socket
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -129,8 +131,9 @@ def _check_token(address: str) -> None:
     if _host_port(address) is None:
         return
     try:
-        GcsClient(address=address).internal_kv_get(b"lightsim-probe", None,
-                                                    timeout=PROBE_TIMEOUT_S)
+        with _quiet_stderr():  # Ray's C++ client logs the refusal too: one line is ours
+            GcsClient(address=address).internal_kv_get(b"lightsim-probe", None,
+                                                        timeout=PROBE_TIMEOUT_S)
     except AuthenticationError:
         mode = os.environ.get(AUTH_MODE_ENV, "")
         has = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
@@ -147,6 +150,20 @@ def _check_token(address: str) -> None:
         raise ClusterError(why) from None
     except Exception:  # anything else: ray.init names it
         return
+
+
+@contextlib.contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """File descriptor 2 to /dev/null for the block (C++ logging bypasses Python's)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 @dataclass
@@ -288,6 +305,14 @@ def _actor_class():
     return ClientActor
 
 
+def _per_node(nodes: list[str]) -> list[int]:
+    """Actors per node, most first."""
+    counts: dict[str, int] = {}
+    for node in nodes:
+        counts[node] = counts.get(node, 0) + 1
+    return sorted(counts.values(), reverse=True)
+
+
 class RayBackend:
     """Clients as Ray actors (a :class:`~lightsim.engine.backend.Backend`), with static
     set assignment and exact replay on faults.
@@ -322,6 +347,7 @@ class RayBackend:
         self.restarts = 0
         self.head_lost = False
         self.nodes = self._call_all(lambda a: a.node.remote())  # where each actor runs
+        self.start_per_node = _per_node(self.nodes)
 
     def _spawn(self, sets: list[int], cpus: float):
         return self._cls.options(num_cpus=cpus, scheduling_strategy="SPREAD").remote(
@@ -329,12 +355,10 @@ class RayBackend:
 
     def placement(self) -> dict[str, Any]:
         """Where the run's actors are: nodes and CPUs of the cluster, actors per node."""
-        per_node: dict[str, int] = {}
-        for node in self.nodes:
-            per_node[node] = per_node.get(node, 0) + 1
         return {"address": self.cluster.address or "local", "nodes": self.cluster.nodes,
                 "cpus": self.cluster.cpus, "actors": len(self.actors),
-                "actors_per_node": sorted(per_node.values(), reverse=True),
+                "actors_per_node": _per_node(self.nodes),
+                "actors_per_node_at_start": self.start_per_node,
                 "restarts": self.restarts}
 
     # -- calls with fault recovery --------------------------------------------------------
