@@ -200,6 +200,9 @@ def connect(address: str | None, n_actors: int) -> RayCluster:
     (one line, within seconds)."""
     ray = import_ray()
     started = False
+    # Ray's C++ side logs warnings to this terminal (e.g. no route to the internet);
+    # lightsim's own lines say what matters (RAY_BACKEND_LOG_LEVEL set by the user wins)
+    os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")
     if not ray.is_initialized():
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                   "configure_logging": False}
@@ -346,6 +349,7 @@ class RayBackend:
         self.bytes_last_frame = 0
         self.restarts = 0
         self.head_lost = False
+        self.nodes: list[str] = []
         self.nodes = self._call_all(lambda a: a.node.remote())  # where each actor runs
         self.start_per_node = _per_node(self.nodes)
 
@@ -383,29 +387,50 @@ class RayBackend:
                                    f"{self.cluster.gcs_address})")
 
     def _get(self, i: int, ref, call: Callable[[Any], Any]) -> Any:
+        """The answer of client i's call ``ref``; a client lost meanwhile (its process or
+        its node) is replaced, replayed and asked again, up to ``max_retries`` times."""
         ray = import_ray()
-        for attempt in range(self.max_retries + 1):
+        lost = (ray.exceptions.RayActorError, ray.exceptions.WorkerCrashedError,
+                ray.exceptions.ObjectLostError, ray.exceptions.NodeDiedError)
+        last = ""
+        for _attempt in range(self.max_retries + 1):
             try:
+                if ref is None:
+                    self._replace(i)
+                    ref = call(self.actors[i])
                 return self._wait(ref)
-            except (ray.exceptions.RayActorError, ray.exceptions.WorkerCrashedError,
-                    ray.exceptions.ObjectLostError, ray.exceptions.NodeDiedError) as exc:
-                if attempt == self.max_retries:
-                    raise ClusterError(f"client {i} (sets {self.assignment[i]}) died "
-                                       f"{attempt + 1} times: {type(exc).__name__}") from None
-                self._replace(i)
-                ref = call(self.actors[i])
-        raise AssertionError("unreachable")
+            except lost as exc:
+                last, ref = type(exc).__name__, None
+        raise ClusterError(f"client {i} (sets {self.assignment[i]}) was lost "
+                           f"{self.max_retries + 1} times (last: {last})")
 
     def _replace(self, i: int) -> None:
-        """A new actor for client i, replayed to the frames it had completed."""
+        """A new actor for client i, replayed to the frames it had completed.
+
+        It is placed away from the node the lost one ran on (that node may be dying
+        without Ray knowing yet): on this process's node if it can, and it reserves no
+        CPU (a lost node took its CPUs with it)."""
+        ray = import_ray()
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
         self.restarts += 1
-        actor = self._spawn(self.assignment[i], 0)  # its node may be gone with its CPUs
+        with contextlib.suppress(Exception):  # it may be alive but unreachable
+            ray.kill(self.actors[i], no_restart=True)
+        avoid = self.nodes[i] if i < len(self.nodes) else None
+        here = ray.get_runtime_context().get_node_id()
+        alive = [n["NodeID"] for n in ray.nodes() if n.get("Alive") and n["NodeID"] != avoid]
+        target = here if here in alive else (alive[0] if alive else None)
+        strategy = (NodeAffinitySchedulingStrategy(target, soft=True) if target
+                    else "DEFAULT")
+        actor = self._cls.options(num_cpus=0, scheduling_strategy=strategy).remote(
+            self.base_ref, self.config, self.plan, self.assignment[i], self.probes_hv,
+            self.threads)
+        self.actors[i] = actor
         for sent in self.changes_log:  # bring the newcomer to the current scene
             self._wait(actor.apply_refs.remote(sent))
         frames = {s: self.frames_shot[i] for s in self.assignment[i]}
         self._wait(actor.replay.remote(frames, dict(self.partial)))
-        self.actors[i] = actor
-        if i < len(getattr(self, "nodes", ())):
+        if i < len(self.nodes):
             self.nodes[i] = self._wait(actor.node.remote())
 
     # -- backend interface --------------------------------------------------------------

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import shutil
 import sys
+import tempfile
 import textwrap
 from pathlib import Path
 
@@ -28,12 +29,12 @@ COMMON = ("--photons 160000 --frame-photons 20000 -M 2 --wall-distance 2 --wall-
 RAY = (shutil.which("ray", path=str(Path(sys.executable).parent))
        or f'{sys.executable} -c "from ray.scripts.scripts import main; main()"')
 HEAD = (f"{RAY} start --head --port={PORT} --num-cpus=1 --include-dashboard=false "
-        "--disable-usage-stats >> $T/ray.log 2>&1")
+        "--disable-usage-stats >> $T/ray.log 2>&1 || exit 20")
 # the worker node's processes are those `ray start` leaves running as daemons; they and
 # everything they start are the node (the head's workers are the head raylet's children)
 WORKER = f"""
 before=$(ps -eo pid= | sort)
-{RAY} start --address=127.0.0.1:{PORT} --num-cpus=1 >> $T/ray.log 2>&1
+{RAY} start --address=127.0.0.1:{PORT} --num-cpus=1 >> $T/ray.log 2>&1 || exit 21
 for p in $(comm -13 <(echo "$before") <(ps -eo pid= | sort)); do
     [ "$(ps -o ppid= -p $p 2>/dev/null | tr -d ' ')" = 1 ] && echo $p
 done > "$T/node_pids"
@@ -104,12 +105,19 @@ def _lux(out: Path) -> np.ndarray:
     return read_exr(out / "wall_lux.exr")[0]["Y"]
 
 
-def _setup(tmp_path: Path) -> tuple[str, str]:
+@pytest.fixture
+def ray_tmp():
+    """A private, short RAY_TMPDIR (Ray's socket paths must stay under 108 bytes)."""
+    path = Path(tempfile.mkdtemp(prefix="lsray", dir="/tmp"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def _setup(tmp_path: Path, ray_tmp: Path) -> tuple[str, str]:
     """(environment lines, simulate command) for a namespace script."""
     lamp = _lamp(tmp_path / "lamp.glb")
     (tmp_path / "home").mkdir()
-    (tmp_path / "rt").mkdir()
-    env = (f"set -u\nT={tmp_path}\nexport HOME=$T/home RAY_TMPDIR=$T/rt\n{STOP}\n")
+    env = (f"set -u\nT={tmp_path}\nexport HOME=$T/home RAY_TMPDIR={ray_tmp}\n{STOP}\n")
     return env, f"{sys.executable} -m lightsim.cli.main simulate {lamp} {COMMON}"
 
 
@@ -117,10 +125,10 @@ def _lines(text: str) -> list[str]:
     return [ln for ln in text.splitlines() if ln.strip()]
 
 
-def test_token_cluster_wrong_token_and_address_fail_fast(tmp_path):
+def test_token_cluster_wrong_token_and_address_fail_fast(tmp_path, ray_tmp):
     """A head started the default way with a token on the machine has token
     authentication on; a wrong token, no token, a wrong address: one line each, named."""
-    env, sim = _setup(tmp_path)
+    env, sim = _setup(tmp_path, ray_tmp)
     fast = sim.replace("--photons 160000", "--photons 20000")
     script = env + f"""
         {RAY} get-auth-token --generate >/dev/null 2>&1
@@ -130,7 +138,7 @@ def test_token_cluster_wrong_token_and_address_fail_fast(tmp_path):
             case $case in
               wrong) RAY_AUTH_TOKEN=0123456789abcdef0123456789abcdef \
                      {fast} --address 127.0.0.1:{PORT} --out $T/o 2> $T/err_$case ;;
-              none) HOME=$T/rt {fast} --address 127.0.0.1:{PORT} --out $T/o 2> $T/err_$case ;;
+              none) HOME=$T {fast} --address 127.0.0.1:{PORT} --out $T/o 2> $T/err_$case ;;
               address) {fast} --address 127.0.0.1:{PORT + 1} --out $T/o 2> $T/err_$case ;;
             esac
             echo "RC $case $? $(echo "$(date +%s.%N) - $t0" | bc)"
@@ -156,11 +164,11 @@ def test_token_cluster_wrong_token_and_address_fail_fast(tmp_path):
 
 
 @pytest.mark.slow
-def test_token_cluster_two_nodes_every_cpu(tmp_path):
+def test_token_cluster_two_nodes_every_cpu(tmp_path, ray_tmp):
     """Token authentication on (Ray's default once a token exists), two nodes; `--address`
     alone runs one actor per CPU, spread over both nodes, and the map is bit for bit the
     local one at the same -M; with more CPUs than sets a note says how to raise -M."""
-    env, sim = _setup(tmp_path)
+    env, sim = _setup(tmp_path, ray_tmp)
     script = env + f"""
         {RAY} get-auth-token --generate >/dev/null 2>&1
         {HEAD}
@@ -186,10 +194,10 @@ def test_token_cluster_two_nodes_every_cpu(tmp_path):
 
 
 @pytest.mark.slow
-def test_workers_beside_a_running_cluster(tmp_path):
+def test_workers_beside_a_running_cluster(tmp_path, ray_tmp):
     """`ray start --head` on the machine, then `--workers 2`: a private Ray instance runs
     the actors (`ray.init()` would join the head and refuse the CPU count)."""
-    env, sim = _setup(tmp_path)
+    env, sim = _setup(tmp_path, ray_tmp)
     script = env + f"""
         {HEAD}
         {sim} --workers 2 --out $T/w 2> $T/err_w || exit 11
@@ -205,10 +213,10 @@ def test_workers_beside_a_running_cluster(tmp_path):
 
 
 @pytest.mark.slow
-def test_lost_worker_node_mid_run(tmp_path):
+def test_lost_worker_node_mid_run(tmp_path, ray_tmp):
     """SIGKILL every process of the worker node after the second of eight frames: the
     run finishes on the head, its actor's sets replayed, bit for bit the fault-free map."""
-    env, sim = _setup(tmp_path)
+    env, sim = _setup(tmp_path, ray_tmp)
     fault = tmp_path / "fault.py"
     fault.write_text(FAULT_SCRIPT)
     sim_args = sim.split(" -m lightsim.cli.main ", 1)[1]
@@ -231,10 +239,10 @@ def test_lost_worker_node_mid_run(tmp_path):
 
 
 @pytest.mark.slow
-def test_lost_head_checkpoint_and_resume(tmp_path):
+def test_lost_head_checkpoint_and_resume(tmp_path, ray_tmp):
     """SIGKILL the head node's processes after the second frame: one line naming it and
     a checkpoint; `--resume` with the head back ends with the fault-free map."""
-    env, sim = _setup(tmp_path)
+    env, sim = _setup(tmp_path, ray_tmp)
     fault = tmp_path / "fault.py"
     fault.write_text(FAULT_SCRIPT)
     sim_args = sim.split(" -m lightsim.cli.main ", 1)[1]
