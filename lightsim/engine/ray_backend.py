@@ -200,9 +200,6 @@ def connect(address: str | None, n_actors: int) -> RayCluster:
     (one line, within seconds)."""
     ray = import_ray()
     started = False
-    # Ray's C++ side logs warnings to this terminal (e.g. no route to the internet);
-    # lightsim's own lines say what matters (RAY_BACKEND_LOG_LEVEL set by the user wins)
-    os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")
     if not ray.is_initialized():
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                   "configure_logging": False}
@@ -210,12 +207,13 @@ def connect(address: str | None, n_actors: int) -> RayCluster:
             _probe_address(address)
             pick_up_token()
             _check_token(address)
-        try:
-            if address:
-                ray.init(address=address, **kwargs)
-            else:
-                ray.init(address="local", num_cpus=max(n_actors, os.cpu_count() or 1),
-                         **kwargs)
+        try:  # Ray's C++ side logs start-up warnings here; failures are raised too
+            with _quiet_stderr():
+                if address:
+                    ray.init(address=address, **kwargs)
+                else:
+                    ray.init(address="local", num_cpus=max(n_actors, os.cpu_count() or 1),
+                             **kwargs)
         except (ConnectionError, TimeoutError, RuntimeError, ValueError) as exc:
             text = str(exc).strip()
             msg = text.splitlines()[0] if text else type(exc).__name__
@@ -380,11 +378,17 @@ class RayBackend:
             ready, _ = ray.wait([ref], timeout=HEAD_POLL_S)
             if ready:
                 return ray.get(ready[0])
-            if not self.cluster.head_alive():
-                self.head_lost = True
-                where = self.cluster.address or "on this machine"
-                raise ClusterError(f"lost the Ray cluster's head node ({where}, GCS at "
-                                   f"{self.cluster.gcs_address})")
+            self._check_head()
+
+    def _check_head(self) -> None:
+        """Raise :class:`~lightsim.errors.ClusterError` (one line) if the head node is
+        gone: every call into Ray would then hang until Ray ends this process."""
+        if not self.cluster.head_alive():
+            self.head_lost = True
+            where = self.cluster.address or "on this machine"
+            if self.cluster.gcs_address != where:
+                where += f", GCS at {self.cluster.gcs_address}"
+            raise ClusterError(f"lost the Ray cluster's head node ({where})")
 
     def _get(self, i: int, ref, call: Callable[[Any], Any]) -> Any:
         """The answer of client i's call ``ref``; a client lost meanwhile (its process or
@@ -400,6 +404,7 @@ class RayBackend:
                     ref = call(self.actors[i])
                 return self._wait(ref)
             except lost as exc:
+                self._check_head()  # a lost head takes its actors with it: no replacing
                 last, ref = type(exc).__name__, None
         raise ClusterError(f"client {i} (sets {self.assignment[i]}) was lost "
                            f"{self.max_retries + 1} times (last: {last})")
