@@ -34,7 +34,10 @@ HEAD = (f"{RAY} start --head --port={PORT} --num-cpus=1 --include-dashboard=fals
 # everything they start are the node (the head's workers are the head raylet's children)
 WORKER = f"""
 before=$(ps -eo pid= | sort)
-{RAY} start --address=127.0.0.1:{PORT} --num-cpus=1 >> $T/ray.log 2>&1 || exit 21
+# a joining node does not pick up the token by itself: Ray wants the mode said (the head
+# turns it on where a token exists; the driver, lightsim, picks it up as address="auto")
+[ -f "$HOME/.ray/auth_token" ] && export_mode="RAY_AUTH_MODE=token" || export_mode=
+env $export_mode {RAY} start --address=127.0.0.1:{PORT} --num-cpus=1 >> $T/ray.log 2>&1 || exit 21
 for p in $(comm -13 <(echo "$before") <(ps -eo pid= | sort)); do
     [ "$(ps -o ppid= -p $p 2>/dev/null | tr -d ' ')" = 1 ] && echo $p
 done > "$T/node_pids"
