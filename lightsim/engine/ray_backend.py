@@ -246,8 +246,9 @@ def actor_count(cluster: RayCluster, workers: int, n_sets: int) -> tuple[int, li
         wanted = f"--workers {workers}" if workers else f"its {cluster.cpus} CPUs"
         where = f"the Ray cluster at {cluster.address}" if cluster.address else "this run"
         k = math.isqrt(n - 1) + 1
-        notes.append(f"{where} could run {n} actors ({wanted}) but -M {m} gives {n_sets} "
-                     f"interleave sets: {n_sets} actors run; -M {k} ({k * k} sets) would use "
+        sets = f"{n_sets} interleave set{'s' if n_sets > 1 else ''}"
+        notes.append(f"{where} could run {n} actors ({wanted}) but -M {m} gives {sets}, "
+                     f"one actor each at most: {n_sets} run; -M {k} ({k * k} sets) would use "
                      "them all (a different -M is a different, equally valid run)")
         n = n_sets
     return n, notes

@@ -190,7 +190,8 @@ def test_token_cluster_two_nodes_every_cpu(tmp_path, ray_tmp):
     assert a.max() > 0 and np.array_equal(a, b)
     assert _lines((tmp_path / "err_a").read_text()) == []
     note = _lines((tmp_path / "err_m1").read_text())
-    assert len(note) == 1 and "-M 1 gives 1 interleave sets" in note[0], note
+    assert len(note) == 1, note
+    assert "-M 1 gives 1 interleave set, one actor each at most: 1 run" in note[0], note
     assert "-M 2 (4 sets) would use them all" in note[0], note
     m1 = json.loads((tmp_path / "m1" / "summary.json").read_text())
     assert m1["cluster"]["actors"] == 1 and m1["config"]["interleave"] == 1
