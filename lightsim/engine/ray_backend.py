@@ -13,8 +13,12 @@ and the frame is computed again; the run ends with the same result as without th
 parameter              unit   default     meaning
 =====================  =====  ==========  ===============================================
 ``address``            –      none        existing cluster (``HOST:PORT``, ``auto``);
-                                          none starts a local Ray runtime
-``threads per actor``  –      cores / N   ray-casting and numba threads of each actor
+                                          none starts a private local Ray instance
+``actors``             –      CPUs        ``--workers N``, else one per CPU of the
+                                          cluster; at most one per interleave set
+``CPUs per actor``     –      1           reserved on the cluster (an equal share where
+                                          N exceeds its CPUs; 0 for replacements)
+``threads per actor``  –      CPUs / N    ray-casting and numba threads of each actor
                                           (``RunConfig.threads`` when set)
 ``max_retries``        –      3           replacements of a dead actor within one call
 ``PROBE_TIMEOUT_S``    s      5           an address, token check or head must answer
