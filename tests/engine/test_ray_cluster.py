@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lightsim.engine.ray_backend import RayCluster, actor_count
 from lightsim.io.exr import read_exr
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.validation.scenes import primitives as prim
@@ -274,3 +275,16 @@ def test_lost_head_checkpoint_and_resume(tmp_path, ray_tmp):
     assert "CHECKPOINTED" in res.stdout
     assert np.array_equal(_lux(tmp_path / "h"), _lux(tmp_path / "b"))
     assert not (tmp_path / "h" / "checkpoint.json").exists()
+
+
+def test_actor_count_uses_every_cpu_up_to_the_sets():
+    cluster = RayCluster("head:6379", cpus=20, nodes=3, started=False)
+    n, notes = actor_count(cluster, 0, 16)
+    assert n == 16 and len(notes) == 1
+    assert "its 20 CPUs" in notes[0] and "-M 4 gives 16 interleave sets" in notes[0]
+    assert "-M 5 (25 sets) would use them all" in notes[0]
+    assert actor_count(RayCluster("h:1", 8, 2, False), 0, 16) == (8, [])
+    assert actor_count(RayCluster("h:1", 8, 2, False), 3, 16) == (3, [])
+    n, notes = actor_count(RayCluster(None, 2, 1, True), 5, 4)
+    assert n == 4 and "--workers 5" in notes[0] and "this run" in notes[0]
+    assert actor_count(RayCluster("h:1", 0, 1, False), 0, 16) == (1, [])
