@@ -383,10 +383,16 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
 
 
 def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
-
+    """Write ``checkpoint.json`` into ``out`` (atomically); a disk that cannot take it
+    is one line (:class:`~lightsim.errors.LightsimError`), any earlier checkpoint kept."""
     path = out / CHECKPOINT
-    write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
-                      "session": session.checkpoint()})
+    try:
+        write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
+                          "session": session.checkpoint()})
+    except OSError as exc:
+        why = write_failure(out, exc, had_set=False).split(";", 1)[0]
+        raise LightsimError(f"{why.replace('the outputs', 'the checkpoint')}: the run "
+                            "cannot be resumed (free space and run again)") from None
     return path
 
 

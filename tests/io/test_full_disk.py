@@ -17,7 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from lightsim.simulate import write_failure
+from lightsim import simulate
+from lightsim.errors import LightsimError
+from lightsim.simulate import SimulateOptions, write_failure
 
 from support import write_point_lamp
 
@@ -135,3 +137,19 @@ def test_write_failure_names_what_is_left(tmp_path):
     (tmp_path / "summary.json").unlink()
     assert "incomplete" in write_failure(tmp_path, OSError(errno.EROFS, "x"), had_set=True)
     assert Path(tmp_path).is_dir()
+
+
+def test_checkpoint_on_a_full_disk_is_one_line(tmp_path, monkeypatch):
+    def full(path, obj, **kw):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    class Session:
+        def checkpoint(self):
+            return {"frames": 1}
+
+    monkeypatch.setattr(simulate, "write_json", full)
+    with pytest.raises(LightsimError) as exc:
+        simulate.write_checkpoint(tmp_path, SimulateOptions(scene_path="lamp.glb"), Session())
+    msg = str(exc.value)
+    assert msg == (f"could not write the checkpoint to {tmp_path}: no space left on the "
+                   "device: the run cannot be resumed (free space and run again)"), msg
