@@ -153,6 +153,11 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
         click.echo(f"energy (lm): emitted {e['emitted']:.6g} = wall {e['wall']:.6g} + "
                    f"absorbed {absorbed:.6g} + escaped {e['escaped']:.6g} + "
                    f"roulette {e['roulette']:.3g} + max depth {e['max_depth']:.3g}")
+        if "cluster" in s:  # where a Ray run's actors ran
+            c = s["cluster"]
+            click.echo(f"Ray ({c['address']}): {c['actors']} actors on {c['nodes']} node(s), "
+                       f"{c['cpus']} CPUs; {c['restarts']} replaced after a lost process "
+                       "or node")
         if "road" in s:
             click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
                        f"{s['road']['text']}")

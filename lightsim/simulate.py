@@ -28,6 +28,7 @@ file                   content
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import os
 import platform
@@ -45,7 +46,7 @@ from lightsim.analysis import Analysis, FinishedRun
 from lightsim.engine.config import RunConfig
 from lightsim.engine.memory import check_fits
 from lightsim.engine.server import Session
-from lightsim.errors import InputError, LightsimError
+from lightsim.errors import ClusterError, InputError, LightsimError
 from lightsim.io.atomic import STAGING_PREFIX, OutputSet, clean_stale, unfinished_set
 from lightsim.io.cad import Tessellation
 from lightsim.io.exr import wall_metadata, write_exr
@@ -354,14 +355,25 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
             stopped["flag"] = bool(should_stop and should_stop())
             return stopped["flag"]
 
-        est = session.run(photons=opts.photons, seconds=opts.seconds,
-                          target_error=opts.target_error, callback=progress, should_stop=stop,
-                          probes=False)  # the outputs read the map and the apertures
-        if stopped["flag"]:
+        try:
+            est = session.run(photons=opts.photons, seconds=opts.seconds,
+                              target_error=opts.target_error, callback=progress,
+                              should_stop=stop,
+                              probes=False)  # the outputs read the map and the apertures
+            if stopped["flag"]:
+                write_checkpoint(out, opts, session)
+                return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
+            clock["run"] = time.perf_counter()
+            result = write_outputs(out, opts, session, est, analyses, clock=clock,
+                                   plots=plots)
+        except ClusterError as exc:
+            if not getattr(session.backend, "head_lost", False):
+                raise
+            # the frames shot so far are known here: the run continues from them
             write_checkpoint(out, opts, session)
-            return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
-        clock["run"] = time.perf_counter()
-        result = write_outputs(out, opts, session, est, analyses, clock=clock, plots=plots)
+            raise ClusterError(f"{exc}: checkpoint written to {out / CHECKPOINT} — continue "
+                               f"with: lightsim simulate --resume {out} (with the cluster "
+                               "back, or --address/--workers anew)") from None
         ckpt = out / CHECKPOINT
         if ckpt.exists():
             ckpt.unlink()
@@ -371,10 +383,16 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
 
 
 def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
-
+    """Write ``checkpoint.json`` into ``out`` (atomically); a disk that cannot take it
+    is one line (:class:`~lightsim.errors.LightsimError`), any earlier checkpoint kept."""
     path = out / CHECKPOINT
-    write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
-                      "session": session.checkpoint()})
+    try:
+        write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
+                          "session": session.checkpoint()})
+    except OSError as exc:
+        why = write_failure(out, exc, had_set=False).split(";", 1)[0]
+        raise LightsimError(f"{why.replace('the outputs', 'the checkpoint')}: the run "
+                            "cannot be resumed (free space and run again)") from None
     return path
 
 
@@ -435,15 +453,36 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est,
             if isinstance(listed, list):
                 previous |= {str(n) for n in listed if "/" not in str(n)}
     plots = plots if plots is not None else InProcess()
-    with OutputSet(out, "summary.json", previous) as staged:
-        try:
-            result = _write_set(staged.dir, opts, session, est, analyses, clock, plots)
-        except BaseException:
-            plots.abandon()  # no plot may land in the set being given up
-            raise
-        staged.commit()
+    had_set = (out / "summary.json").is_file()
+    try:
+        with OutputSet(out, "summary.json", previous) as staged:
+            try:
+                result = _write_set(staged.dir, opts, session, est, analyses, clock, plots)
+            except BaseException:
+                plots.abandon()  # no plot may land in the set being given up
+                raise
+            staged.commit()
+    except OSError as exc:  # a full disk, a quota, a folder gone read-only
+        raise LightsimError(write_failure(out, exc, had_set)) from None
     result.out_dir = out
     return result
+
+
+def write_failure(out: Path, exc: OSError, had_set: bool) -> str:
+    """One line for outputs that could not be written: why, and what the folder holds
+    now (the staged set was dropped, so an earlier complete set is untouched)."""
+    why = {errno.ENOSPC: "no space left on the device",
+           errno.EDQUOT: "the disk quota is exceeded",
+           errno.EROFS: "the file system is read-only"}.get(exc.errno or 0,
+                                                          exc.strerror or str(exc))
+    if had_set and (out / "summary.json").is_file():
+        kept = "the previous complete set of outputs there is kept, unchanged"
+    elif had_set:
+        kept = "the previous set there is incomplete (no summary.json)"
+    else:
+        kept = "nothing was written there"
+    return (f"could not write the outputs to {out}: {why}; {kept} (free space and run "
+            "again)")
 
 
 def _write_set(out: Path, opts: SimulateOptions, session, est,
@@ -458,6 +497,7 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
     rgb = est.lux if est.lux.shape[-1] == 3 else None
     energy = session.energy()
     parts = {k: v for k, v in energy.items() if k != "emitted"}
+    placement = getattr(session.backend, "placement", None)  # Ray runs: where actors ran
     closure = (abs(sum(parts.values()) - energy["emitted"]) / energy["emitted"]
                if energy["emitted"] else 0.0)
     cfg = session.config
@@ -502,6 +542,7 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         "plan": session.plan.to_dict(),
         "config": cfg.to_dict(),
         "workers": opts.workers,
+        **({"cluster": placement()} if placement is not None else {}),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
     meta = wall_metadata(wall, units="lx", quantity="illuminance",
