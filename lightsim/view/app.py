@@ -179,8 +179,8 @@ def check_glb_header(head: bytes, limit: int) -> int:
     if version != 2:
         raise InputError(f"the upload is glTF version {version}; only version 2 is supported")
     if length > limit:
-        raise InputError(f"the upload declares {length / 1e6:.1f} MB; at most "
-                         f"{limit / 1e6:g} MB are accepted (--max-upload)")
+        raise InputError(f"the upload declares {length:,} bytes; at most {limit:,} bytes "
+                         f"({limit / 1e6:g} MB) are accepted (--max-upload)")
     return length
 
 
@@ -189,7 +189,7 @@ def check_glb(data: bytes, limit: int | None = None) -> None:
     most ``limit`` bytes)."""
     if len(data) < 20:
         raise InputError("the upload is not a GLB file (binary glTF starts with 'glTF')")
-    length = check_glb_header(data[:12], len(data) if limit is None else limit)
+    length = check_glb_header(data[:12], 1 << 32 if limit is None else limit)
     if length != len(data):
         raise InputError(f"the upload is truncated: header says {length} bytes, got {len(data)}")
 

@@ -269,11 +269,6 @@ class LiveSession:
                 self._warm()
             elif self.threads.fixed is not None:
                 self._choose_threads()
-        except Exception as exc:  # the page and the command say so instead of waiting
-            self.error = f"the warm-up failed: {type(exc).__name__}: {exc}"
-            self._message("error", self.error)
-            traceback.print_exc()
-            return
         finally:
             self.ready.set()
         self._autosave({"start": True})
@@ -339,9 +334,7 @@ class LiveSession:
                 times.append(t1 - t0)
                 s.update(light_transform=np.eye(4))
             frame_times[n], batch_times[n] = min(times), min(acc)
-        # a whole frame (always with Selective Photon Tracing) is the config's photons
-        choice.timed(frame_times, batch_times,
-                     s.config.frame_photons if batch is None else batch)
+        choice.timed(frame_times, batch_times, batch)
         numba.set_num_threads(choice.frame)
 
     def _threads_for(self, accumulating: bool, n: int | None = None) -> None:
