@@ -163,8 +163,9 @@ def judge_state(scene: Path, state: Path, folder: Path) -> tuple[int | None, lis
     if any("Traceback" in ln for ln in lines):
         return code, lines, "traceback", lines[-1][:120]
     if started:
-        stray = [ln for ln in _error_lines(lines) if not ln.startswith("lightsim: warning: ")
-                 and ln not in ("lightsim: aborted", "lightsim: interrupted")]
+        # Ctrl-C's own lines: a blank line after the terminal's ^C, then "aborted"
+        stray = [ln for ln in _error_lines(lines) if ln.strip() and not ln.startswith(
+            "lightsim: warning: ") and ln not in ("lightsim: aborted", "lightsim: interrupted")]
         if code not in (0, 130):
             return code, lines, "exit", f"exit code {code} after Ctrl-C"
         if stray:

@@ -142,7 +142,7 @@ class RaySource:
         pos = rows[:, :3] * self.file.unit_m
         k = rows[:, 3:6]
         norm = np.linalg.norm(k, axis=1, keepdims=True)
-        if np.any(~(norm > 0)) or not np.all(np.isfinite(pos)):
+        if np.any(~((norm > 0) & np.isfinite(norm))) or not np.all(np.isfinite(pos)):
             raise InputError(f"{self.path}: a drawn ray has a zero or invalid direction")
         k = k / norm
         if not np.array_equal(self.rotation, np.eye(3)):
