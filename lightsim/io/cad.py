@@ -33,11 +33,14 @@ parameter          unit   default  meaning
 
 from __future__ import annotations
 
+import faulthandler
 import math
+import multiprocessing as mp
 import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -187,6 +190,44 @@ def _has_ocp() -> bool:
 BACKENDS = ("auto", "xcaf", "cascadio")
 
 
+def _read_in_child(conn: Any, path: Path, tess: Tessellation) -> None:
+    faulthandler.disable()  # a crash is reported by the parent, in one line
+    try:
+        conn.send((True, read_xcaf(path, tess)))
+    except InputError as exc:
+        conn.send((False, str(exc)))
+    except Exception as exc:  # the parent reports it in one line
+        conn.send((False, f"{path}: OpenCASCADE cannot read the file "
+                          f"({type(exc).__name__}: {exc})"))
+    finally:
+        conn.close()
+
+
+def read_isolated(path: Path, tess: Tessellation) -> list:
+    """:func:`~lightsim.io.cad_xcaf.read_xcaf` in a forked child process: OpenCASCADE's
+    readers can crash the process on a damaged file (a segmentation fault in the STEP or
+    IGES parser), which becomes one line here. Where fork is not available, in process."""
+    if "fork" not in mp.get_all_start_methods():
+        return read_xcaf(path, tess)
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_read_in_child, args=(child, path, tess), daemon=True)
+    proc.start()
+    child.close()
+    try:
+        ok, value = parent.recv()
+    except EOFError:  # the child died before it answered
+        proc.join()
+        raise InputError(f"{path}: OpenCASCADE crashed reading the file (exit "
+                         f"{proc.exitcode}): the file is damaged") from None
+    finally:
+        parent.close()
+    proc.join()
+    if not ok:
+        raise InputError(value)
+    return value
+
+
 def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
              backend: str = "auto") -> list:
     """Parts of a STEP/IGES file as :class:`lightsim.io.gltf.GltfPrimitive` records.
@@ -220,7 +261,7 @@ def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
         raise InputError("the XCAF CAD reader needs OpenCASCADE's Python binding: pip "
                          "install 'lightsim[cad-names]' (cadquery-ocp)")
     if backend == "xcaf" or (backend == "auto" and ocp):
-        return read_xcaf(p, tess)
+        return read_isolated(p, tess)
     glb = tessellate(p, tess)
     try:
         parts = read_gltf(glb)
