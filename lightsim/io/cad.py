@@ -35,8 +35,8 @@ from __future__ import annotations
 
 import faulthandler
 import math
-import multiprocessing as mp
 import os
+import pickle
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -190,39 +190,46 @@ def _has_ocp() -> bool:
 BACKENDS = ("auto", "xcaf", "cascadio")
 
 
-def _read_in_child(conn: Any, path: Path, tess: Tessellation) -> None:
-    faulthandler.disable()  # a crash is reported by the parent, in one line
+def _read_in_child(path: Path, tess: Tessellation) -> tuple[bool, Any]:
     try:
-        conn.send((True, read_xcaf(path, tess)))
+        return True, read_xcaf(path, tess)
     except InputError as exc:
-        conn.send((False, str(exc)))
+        return False, str(exc)
     except Exception as exc:  # the parent reports it in one line
-        conn.send((False, f"{path}: OpenCASCADE cannot read the file "
-                          f"({type(exc).__name__}: {exc})"))
-    finally:
-        conn.close()
+        return False, (f"{path}: OpenCASCADE cannot read the file "
+                       f"({type(exc).__name__}: {exc})")
 
 
 def read_isolated(path: Path, tess: Tessellation) -> list:
     """:func:`~lightsim.io.cad_xcaf.read_xcaf` in a forked child process: OpenCASCADE's
     readers can crash the process on a damaged file (a segmentation fault in the STEP or
     IGES parser), which becomes one line here. Where fork is not available, in process."""
-    if "fork" not in mp.get_all_start_methods():
+    if not hasattr(os, "fork"):
         return read_xcaf(path, tess)
-    ctx = mp.get_context("fork")
-    parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_read_in_child, args=(child, path, tess), daemon=True)
-    proc.start()
-    child.close()
-    try:
-        ok, value = parent.recv()
-    except EOFError:  # the child died before it answered
-        proc.join()
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: read, send the parts, leave without the parent's clean-up
+        code = 1
+        try:
+            os.close(r)
+            faulthandler.disable()  # a crash is reported by the parent, in one line
+            data = pickle.dumps(_read_in_child(path, tess), pickle.HIGHEST_PROTOCOL)
+            view = memoryview(data)
+            while view:
+                view = view[os.write(w, view):]
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(w)
+    chunks = []
+    with os.fdopen(r, "rb") as fh:
+        while block := fh.read(1 << 20):
+            chunks.append(block)
+    _, status = os.waitpid(pid, 0)
+    if not chunks or os.waitstatus_to_exitcode(status) != 0:
         raise InputError(f"{path}: OpenCASCADE crashed reading the file (exit "
-                         f"{proc.exitcode}): the file is damaged") from None
-    finally:
-        parent.close()
-    proc.join()
+                         f"{os.waitstatus_to_exitcode(status)}): the file is damaged")
+    ok, value = pickle.loads(b"".join(chunks))
     if not ok:
         raise InputError(value)
     return value
