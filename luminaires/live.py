@@ -205,12 +205,12 @@ def build_live(scene_path: str, settings: ViewSettings | None = None, *,
 def start_view(scene_path: str, settings: ViewSettings | None = None, *,
                folder: Path | None = None, state: dict[str, Any] | None = None
                ) -> tuple[LiveSession, ViewServer]:
-    """Start the live session and the web server on ``settings.port``; returns
-    (live, server)."""
+    """Start the live session and the web server on ``settings.host``:``settings.port``
+    behind a new access token (``server.url`` carries it); returns (live, server)."""
     settings = settings if settings is not None else ViewSettings()
     hub = Hub()
     live = build_live(scene_path, settings, folder=folder, state=state, publish=hub.publish)
     res = tuple(settings.resolution)
     server = serve(live, hub, lambda path: load_scene(path, SceneSettings(resolution=res)),
-                   settings.port)
+                   settings)
     return live, server
