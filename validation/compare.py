@@ -404,9 +404,9 @@ def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
     of the photo onto the beam when the geometry comes from the screen)."""
     sampler = AngleSampler(photo.luminance, photo.clipped, matrix, sim.lux, sim.frame)
     sigma = geometry.sigma_deg if geometry is not None else None
-    cut = cutoff_offset(sampler, opts.traffic, sigma, geometry)
-    norm, points = test_points(sampler, opts.traffic, opts.normalise_at)
     spots, spot_deg = _hotspot_offset(photo, sim, matrix)
+    cut = cutoff_offset(sampler, opts.traffic, sigma, geometry, dh_deg=spots[0] or 0.0)
+    norm, points = test_points(sampler, opts.traffic, opts.normalise_at)
     if geometry is not None and spot_deg is not None:
         x, y = geometry.deg_to_photo(np.array([spot_deg[0]]), np.array([spot_deg[1]]))
         sig = geometry.sigma_at(x, y)

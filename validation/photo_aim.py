@@ -175,23 +175,23 @@ class AimResult:
         return asdict(self)
 
 
-def _band(sampler: AngleSampler, h: float, v: NDArray, band_deg: float = 0.1
-          ) -> tuple[NDArray, NDArray, NDArray]:
+def _band(sampler: AngleSampler, h: float, v: NDArray, band_deg: float = 0.1,
+          sim_dh: float = 0.0) -> tuple[NDArray, NDArray, NDArray]:
     hs = h + band_deg * np.linspace(-0.5, 0.5, 5)
     hh, vv = np.meshgrid(hs, v, indexing="ij")
     p, c = sampler.photo_at(hh, vv)
-    s = sampler.sim_at(hh, vv)
+    s = sampler.sim_at(hh - sim_dh, vv)
     return np.mean(p, axis=0), np.any(c, axis=0), np.mean(s, axis=0)
 
 
 def _scan_offset(sampler: AngleSampler, h: float, step: float, window: float,
-                 max_offset: float, max_blur: float) -> tuple[float, float, bool] | None:
+                 max_offset: float, max_blur: float, dh: float = 0.0) -> tuple[float, float, bool] | None:
     """(dv, blur σ, blur at cap) of one scan, or None when the scan shows no cut-off."""
     n_pad = round((max_offset + window + 3 * max_blur) / step) + 2
     v = np.arange(-3.0, 1.5 + step / 2, step)
     v_wide = -3.0 + step * np.arange(-n_pad, len(v) + n_pad)
     p, clip, _ = _band(sampler, h, v)
-    _, _, s_wide = _band(sampler, h, v_wide)
+    _, _, s_wide = _band(sampler, h, v_wide, sim_dh=dh)
     usable = np.isfinite(p) & ~clip
     if usable.sum() < 20 or not np.any(np.isfinite(s_wide)):
         return None
@@ -285,7 +285,7 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
                   sigma_geometry_deg: float | None = None, geometry: Any = None,
                   step_deg: float = 0.01,
                   window_deg: float = 1.0, max_offset_deg: float = 2.0,
-                  max_blur_deg: float = 1.0) -> CutoffOffset:
+                  max_blur_deg: float = 1.0, dh_deg: float = 0.0) -> CutoffOffset:
     """Vertical offset of the photo's cut-off from the simulation's (module docstring).
 
     Returns
@@ -296,7 +296,7 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
     """
     sign = -1.0 if traffic == "right" else 1.0
     found = [_scan_offset(sampler, sign * h, step_deg, window_deg, max_offset_deg,
-                          max_blur_deg) for h in SCANS_DEG]
+                          max_blur_deg, dh_deg) for h in SCANS_DEG]
     scans = [f[0] if f else None for f in found]
     good = [f for f in found if f]
     if not good:
