@@ -26,8 +26,9 @@ def _loggable(*values: object) -> bool:
 
 
 def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
-                       title: str | None = None) -> None:
-    """Write the error-vs-time plot from ``summary.json["error_vs_time"]`` entries."""
+                       title: str | None = None, caption: str | None = None) -> None:
+    """Write the error-vs-time plot from ``summary.json["error_vs_time"]`` entries;
+    ``caption`` (the run's, :class:`lightsim.io.plots.PlotCaption` text) goes under it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -79,7 +80,12 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
         fig.suptitle(title)
     # fixed margins for this fixed size and these labels: tight_layout would draw the
     # figure once more only to measure them
-    fig.subplots_adjust(left=0.062, right=0.988, bottom=0.14, top=0.86 if title else 0.955,
-                        wspace=0.19)
+    bottom = 0.14
+    if caption:
+        fig.set_figheight(fig.get_figheight() + 0.4)  # room for two caption lines
+        fig.text(0.01, 0.01, caption, fontsize=7, color="0.3", ha="left", va="bottom")
+        bottom = 0.24
+    fig.subplots_adjust(left=0.062, right=0.988, bottom=bottom,
+                        top=0.86 if title else 0.955, wspace=0.19)
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, format="png", dpi=100)
