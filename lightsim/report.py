@@ -339,11 +339,10 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
         pending.append((Path(out) / "wall_lux.png", plots.draw(
             "wall_lux", Path(out) / "wall_lux.png", lux, fd, results=sets[0][2], log=log,
             caption=caps[0])))
-    iso_files = []
+    iso_files = [isolux_file(i, rid) for i, (rid, _, _) in enumerate(sets)]
     if "isolux" in which:
         for i, (rid, title, marks) in enumerate(sets):
-            name = isolux_file(i, rid)
-            iso_files.append(name)
+            name = iso_files[i]
             pending.append((Path(out) / name, plots.draw(
                 "isolux", Path(out) / name, lux, fd, results=marks,
                 title=f"iso-lux on the screen — {rid}: {title}" if rid else
@@ -367,8 +366,9 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
                              "noise_floor_rule": "levels where an estimate holds < 16 "
                                                  "photons (relative noise > 25 %) are "
                                                  "not drawn",
+                             # the file of each rule set's plot (drawn or not)
                              "files": {rid or "none": name for (rid, _, _), name
-                                       in zip(sets, iso_files, strict=False)}}
+                                       in zip(sets, iso_files, strict=True)}}
         if road is None:  # nothing to show (the plot says why): no reach either
             summary["road"] = {"mount_height_m": mount_height_m, "reach_m": None,
                                "text": "no road illuminance to show (see road.png)"}

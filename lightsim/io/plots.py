@@ -75,6 +75,7 @@ VERDICT_COLOURS = {"pass": "#1a9850", "fail": "#d73027", "uncertain": "#f39c12"}
 
 LOG_FLOOR = 1e-3
 FIT_MARGIN = 0.15
+RINGS = 16  # rings of candidate label places around a point, 9 pt apart
 
 
 @dataclass(frozen=True)
@@ -181,7 +182,7 @@ def place_labels(ax: Any, items: Sequence[tuple[str, float, float, Any]], *,
         bb = t.get_window_extent(renderer)
         w, h = bb.width, bb.height
         best = None
-        for ring in range(8):
+        for ring in range(RINGS):
             r = (5.0 + 9.0 * ring) * fig.dpi / 72.0
             for ang in np.deg2rad(np.arange(0.0, 360.0, 30.0 if ring < 2 else 15.0) + 45.0):
                 cx, cy = pts[i][0] + r * np.cos(ang), pts[i][1] + r * np.sin(ang)
@@ -189,14 +190,16 @@ def place_labels(ax: Any, items: Sequence[tuple[str, float, float, Any]], *,
                 x0 = cx if np.cos(ang) > 0.3 else cx - w if np.cos(ang) < -0.3 else cx - w / 2
                 y0 = cy if np.sin(ang) > 0.3 else cy - h if np.sin(ang) < -0.3 else cy - h / 2
                 box = _box(x0, y0, x0 + w, y0 + h)
-                inside = (box.x0 >= axbox.x0 and box.x1 <= axbox.x1 and box.y0 >= axbox.y0
-                          and box.y1 <= axbox.y1)
+                # inside the axes while the nearer rings last, then anywhere
+                inside = ring >= RINGS // 2 or (
+                    box.x0 >= axbox.x0 and box.x1 <= axbox.x1 and box.y0 >= axbox.y0
+                    and box.y1 <= axbox.y1)
                 if inside and not any(box.overlaps(o) for o in taken):
                     best = (ring, box)
                     break
             if best is not None:
                 break
-        if best is None:  # nowhere free inside the axes: the first place, drawn anyway
+        if best is None:  # nowhere free (very crowded): the first place, drawn anyway
             best = (0, _box(pts[i][0] + 4, pts[i][1] + 4, pts[i][0] + 4 + w, pts[i][1] + 4 + h))
         ring, box = best
         off = ((box.x0 - pts[i][0]) * 72.0 / fig.dpi, (box.y0 - pts[i][1]) * 72.0 / fig.dpi)
