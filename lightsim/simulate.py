@@ -15,7 +15,10 @@ file                   content
 ``wall_lux.exr``       float32 OpenEXR, channel ``Y`` = illuminance (lx); ``R``, ``G``,
                        ``B`` too for coloured scenes; metadata: units, wall frame, photons,
                        seed, estimator, lightsim version
-``wall_lux.png``       false colour with a lux colour bar, axes H/V in degrees
+``wall_lux.png``       false colour (log scale unless ``--linear``), axes H/V in degrees,
+                       lx and cd scales, H-V lines, the first rule set's test points
+``isolux.png``         iso-lux plot of the first rule set (``isolux-ID.png`` for each
+                       further one); ``road.png`` the road view; every plot captioned
 ``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings,
                        ``timings_s``: where the run's time went (load, session, sample,
                        trace, insert, estimate, final_map, outputs; s, wall clock),
