@@ -705,10 +705,10 @@ def wall_lux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     ax.set_aspect("equal")
     ax.set_xlabel("H (deg, right +)")
     ax.set_ylabel("V (deg, up +)")
-    verdicts = ", ".join(f"{k}" for k in ("pass", "fail", "uncertain") if k in used)
+    names = {"pass": "green pass", "fail": "red fail", "uncertain": "amber uncertain"}
+    verdicts = ", ".join(names[k] for k in names if k in used)
     ax.set_title(title or "illuminance on the wall"
-                 + (f" — test points by verdict ({verdicts}: green, red, amber)"
-                    if used else ""), fontsize=10)
+                 + (f" — test points: {verdicts}" if verdicts else ""), fontsize=10)
     _caption(fig, caption)
     _freeze_layout(fig)
     place_labels(ax, labels, halo=halo)
