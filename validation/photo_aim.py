@@ -169,10 +169,66 @@ class AimResult:
     hotspot_interval_deg: float | None
     normalised_at: dict[str, Any]
     points: list[PointReading] = field(default_factory=list)
+    markers: dict[str, Any] | None = None
+    refused: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return asdict(self)
+
+
+MIN_AIM_MARKERS = 4
+"""Markers (or control points) the aim is read through at the least."""
+COLLINEAR_DEG = 0.5
+"""Markers whose centres all lie within this of one line (deg) do not fix the screen
+across that line: the aim is not read through them."""
+FAR_FROM_CUTOFF_DEG = 6.0
+"""When every marker is farther than this from the cut-off (deg), the cut-off is read by
+extrapolating the screen geometry: the aim is not read through them."""
+
+
+def marker_search(found: list[int], layout_ids: list[int]) -> dict[str, Any]:
+    """What a marker search on a photo found: ``found``/``missing`` ids of the layout's
+    ``of`` markers, and one line saying so."""
+    found = sorted(int(i) for i in found)
+    missing = sorted(int(i) for i in layout_ids if int(i) not in found)
+    n = len(layout_ids)
+    text = (f"markers: {len(found)} of {n} found"
+            + (f" (ids {', '.join(map(str, found))})" if found else "")
+            + (f"; missing {', '.join(map(str, missing))}" if missing else ""))
+    return {"of": n, "found": found, "missing": missing, "text": text}
+
+
+def aim_geometry_problem(geometry: Any, cutoff_v_deg: float | None) -> str | None:
+    """Why a screen geometry does not constrain the aim, or None when it does.
+
+    The aim is not read through fewer than :data:`MIN_AIM_MARKERS` markers (control
+    points), through markers that lie nearly on one line (:data:`COLLINEAR_DEG`), or
+    through markers all farther than :data:`FAR_FROM_CUTOFF_DEG` from the cut-off at
+    ``cutoff_v_deg`` (deg; None: not checked).
+    """
+    pts = np.asarray(geometry.screen_deg, np.float64).reshape(-1, 2)
+    if geometry.source == "markers":
+        ids = list(geometry.details.get("marker_ids", []))
+        centres = pts.reshape(-1, 4, 2).mean(axis=1) if len(pts) % 4 == 0 else pts
+        what = f"{len(centres)} marker(s) (ids {', '.join(map(str, ids))})"
+    else:
+        centres = pts
+        what = f"{len(centres)} control point(s)"
+    if len(centres) < MIN_AIM_MARKERS:
+        return f"only {what}; at least {MIN_AIM_MARKERS} are needed to read the aim"
+    d = centres - centres.mean(axis=0)
+    _, sv, vt = np.linalg.svd(d, full_matrices=False)
+    off_line = np.abs(d @ vt[-1]) if len(sv) > 1 else np.zeros(len(d))
+    if off_line.max() < COLLINEAR_DEG:
+        return (f"the {what} lie nearly on one line (within {off_line.max():.2f}° of it): "
+                "they do not fix the screen across it")
+    if cutoff_v_deg is not None and np.isfinite(cutoff_v_deg):
+        near = float(np.min(np.abs(centres[:, 1] - cutoff_v_deg)))
+        if near > FAR_FROM_CUTOFF_DEG:
+            return (f"the {what} are all more than {FAR_FROM_CUTOFF_DEG:g}° from the cut-off "
+                    f"(nearest {near:.1f}°): reading it would extrapolate the screen")
+    return None
 
 
 def _band(sampler: AngleSampler, h: float, v: NDArray, band_deg: float = 0.1,
@@ -185,7 +241,8 @@ def _band(sampler: AngleSampler, h: float, v: NDArray, band_deg: float = 0.1,
 
 
 def _scan_offset(sampler: AngleSampler, h: float, step: float, window: float,
-                 max_offset: float, max_blur: float, dh: float = 0.0) -> tuple[float, float, bool] | None:
+                 max_offset: float, max_blur: float, dh: float = 0.0
+                 ) -> tuple[float, float, bool] | None:
     """(dv, blur σ, blur at cap) of one scan, or None when the scan shows no cut-off."""
     n_pad = round((max_offset + window + 3 * max_blur) / step) + 2
     v = np.arange(-3.0, 1.5 + step / 2, step)
