@@ -15,10 +15,13 @@ Cut-off offset (:func:`cutoff_offset`)
     fit that ends at that cap is reported (``blur_at_cap``), as the offset then depends on
     the cap. Photo samples that are clipped or outside the photo take no part. The offset is
     the mean over the scans found; its **interval** (≈95 %) is ``±1.96·√(σ_scan² +
-    σ_geometry²)`` with ``σ_scan`` the standard error of the scans' mean (at least half a
-    resampling step) and ``σ_geometry`` the screen geometry's uncertainty in V **at the
-    cut-off** (the homography's covariance carried there, so a cut-off far from the
-    markers — an extrapolation — gets a wider interval).
+    σ_geometry² + σ_resolution²)`` with ``σ_scan`` the standard error of the scans' mean
+    (at least half a resampling step), ``σ_geometry`` the screen geometry's uncertainty in
+    V **at the cut-off** (the homography's covariance carried there, so a cut-off far from
+    the markers — an extrapolation — gets a wider interval) and ``σ_resolution`` a
+    quarter of the simulation's pixel in V (``RESOLUTION_SHARE``): the profile match
+    compares the photo with a resampled map and resolves no finer (the re-aim study,
+    :mod:`lightsim.validation.photo_aim_study`, finds errors of ~0.15 px without it).
 
 Test points (:func:`test_points`)
     75R, 50V and B50L (UN R112, mirrored for left-hand traffic) read off the photo as
@@ -141,6 +144,7 @@ class CutoffOffset:
     sigma_scan_deg: float | None
     sigma_geometry_deg: float | None
     message: str
+    sigma_resolution_deg: float | None = None
 
 
 @dataclass
@@ -177,6 +181,8 @@ class AimResult:
         return asdict(self)
 
 
+RESOLUTION_SHARE = 0.25
+"""σ of the cut-off match, in simulation pixels (V)."""
 MIN_AIM_MARKERS = 4
 """Markers (or control points) the aim is read through at the least."""
 COLLINEAR_DEG = 0.5
@@ -374,14 +380,16 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
     s_scan = float(np.std(dvs, ddof=1) / math.sqrt(len(dvs))) if len(dvs) > 1 else 0.0
     s_scan = max(s_scan, 0.5 * step_deg)
     s_geo = sigma_geometry_deg or 0.0
-    interval = 1.96 * math.hypot(s_scan, s_geo)
+    v = sampler.wall.v_deg()
+    s_res = RESOLUTION_SHARE * (float(np.mean(np.abs(np.diff(v)))) if len(v) > 1 else 0.0)
+    interval = 1.96 * math.sqrt(s_scan ** 2 + s_geo ** 2 + s_res ** 2)
     msg = f"{len(good)} of {len(SCANS_DEG)} scans"
     if at_cap:
         msg += f"; fitted blur reached its cap of {max_blur_deg:g}° (offset depends on it)"
     if sigma_geometry_deg is None:
         msg += "; screen geometry residual unknown (exactly 4 points), not in the interval"
     return CutoffOffset(float(dvs.mean()), interval, scans, blur, at_cap, s_scan,
-                        sigma_geometry_deg, msg)
+                        sigma_geometry_deg, msg, s_res)
 
 
 def parse_normalise_at(text: str | None, traffic: str = "right") -> tuple[str, float, float]:

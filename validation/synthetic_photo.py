@@ -641,9 +641,10 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     return p, side
 
 
-MARKER_MIN_PX = 28.0
+MARKER_MIN_PX = 44.0
 """Marker edge (photo px) from which OpenCV's ArUco detector finds every marker of the
-default board on a synthetic photo (4×4 cells plus the border: about 4 px a cell)."""
+default board on a synthetic photo blurred by σ = 1 px with 0.5 % noise (4×4 cells plus
+the border: about 7 px a cell)."""
 
 
 def marker_scale(frame: Any, size_deg: float = DEFAULT_LAYOUT.size_deg,

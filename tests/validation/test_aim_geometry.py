@@ -70,8 +70,8 @@ def test_two_rows_around_the_cutoff_constrain_the_aim():
     assert "one line" in aim_geometry_problem(line, -0.5)
 
 
-@pytest.mark.parametrize("width, expected", [(320, 4.0), (640, 2.0), (1280, 1.0),
-                                             (160, 8.0)])
+@pytest.mark.parametrize("width, expected", [(320, 6.0), (640, 3.0), (1280, 2.0),
+                                             (160, 12.0)])
 def test_marker_scale_makes_markers_big_enough(width, expected):
     frame = wall_frame((width, width * 2 // 5))
     scale = marker_scale(frame)
