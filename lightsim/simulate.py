@@ -517,14 +517,14 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
             channels[ch] = rgb[..., i].astype(np.float32)
     wanted = set(opts.outputs)
     drawn = []  # matplotlib is imported only where a plot is asked
-    if "error_vs_time" in wanted:
+    if "exr" in wanted:
+        write_exr(out / "wall_lux.exr", channels, meta)
+    _engineering_outputs(out, opts, session, lux, summary, analyses, plots)
+    if "error_vs_time" in wanted:  # after the analyses: its caption names the rule sets
         caption = report.plot_caption(summary)
         drawn.append(plots.draw("error_vs_time", out / "error_vs_time.png",
                                 summary["error_vs_time"],
                                 caption=None if caption is None else caption.text()))
-    if "exr" in wanted:
-        write_exr(out / "wall_lux.exr", channels, meta)
-    _engineering_outputs(out, opts, session, lux, summary, analyses, plots)
     for p in drawn:
         p.result()
     summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
