@@ -17,13 +17,15 @@ from lightsim.luminaires.bulbs import BULBS
 from lightsim.luminaires.cad_example import write_example
 from lightsim.luminaires.headlight import write_headlight
 from lightsim.luminaires.rayfiles import lambertian_square
+from lightsim.materialmap import MaterialMap, read_material_map
+from lightsim.partlist import list_parts
 
 MM = 1e-3
 
 
 @click.group()
 def luminaire() -> None:
-    """Luminaires: the parametric filament headlight and the bulb presets."""
+    """Luminaires: the parametric filament headlight, the bulb presets, a lamp file's parts."""
 
 
 @luminaire.command()
@@ -150,3 +152,48 @@ def cad_example(out: Path, focal_mm: float, aperture_mm: float, flux_lm: float) 
     reflector, axial filament, bulb glass, cover lens) and its material map OUT.toml."""
     mmap = write_example(out, focal_mm, aperture_mm / 2, flux_lm)
     click.echo(f"wrote {out} (reflector, filament, bulb, lens; mm) and {mmap}")
+
+
+@luminaire.command()
+@click.argument("lamp", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--materials", "materials", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="Material map (TOML): also show the rule each name gets.")
+@click.option("--faces/--no-faces", default=True, show_default=True,
+              help="List each CAD part's faces (their addresses part/face).")
+def parts(lamp: Path, materials: Path | None, faces: bool) -> None:
+    """List LAMP's parts (STEP, IGES, glTF) and CAD faces by the names a material map's
+    `match` (and --part-material) can use, with triangles and size in mm."""
+    mmap = read_material_map(materials) if materials is not None else None
+    entries = list_parts(lamp, mmap)
+    n_faces = sum(len(e.faces) for e in entries)
+    click.echo(f"{lamp}: {len(entries)} part(s), {n_faces} named face(s)"
+               + (f"; rules from {materials}" if mmap is not None else ""))
+    names = [e.name for e in entries] + [f.address for e in entries for f in e.faces]
+    width = max(len("part / face address") + 1, *(len(n) + 2 for n in names))
+    click.echo(f"{'part / face address':<{width}} {'triangles':>9}  {'size x×y×z mm':>22}"
+               + ("  rule" if mmap is not None else ""))
+    for e in entries:
+        size = "×".join(f"{x:.1f}" for x in e.size_mm)
+        note = "  (emitter in the file)" if e.emissive else ""
+        click.echo(f"{e.name:<{width}} {e.triangles:>9,d}  {size:>22}"
+                   + (f"  {_rule_text(mmap, e.rule)}" if mmap is not None else "") + note)
+        for f in e.faces if faces else ():
+            rule = ""
+            if mmap is not None and f.split:
+                rule = f"  {_rule_text(mmap, f.rule)} (split off)"
+            click.echo(f"  {f.address:<{width - 2}} {f.triangles:>9,d}{'':24}{rule}".rstrip())
+    if mmap is not None:
+        missing = [e.name for e in entries if e.rule is None]
+        if missing:
+            click.echo(f"no rule for: {', '.join(missing)} (they keep the file's material)")
+    elif not any(e.emissive for e in entries):
+        click.echo("no part emits light: give one a rule with kind = \"emitter\" in a "
+                   "material map (--materials) or add a bulb with --filament")
+
+
+def _rule_text(mmap: MaterialMap, number: int | None) -> str:
+    """'#2 mirror (reflector*)' for rule ``number`` of ``mmap``, '–' for none."""
+    if number is None:
+        return "–"
+    rule = mmap.rules[number - 1]
+    return f"#{number} {rule.kind} ({rule.match})"

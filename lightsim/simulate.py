@@ -15,7 +15,10 @@ file                   content
 ``wall_lux.exr``       float32 OpenEXR, channel ``Y`` = illuminance (lx); ``R``, ``G``,
                        ``B`` too for coloured scenes; metadata: units, wall frame, photons,
                        seed, estimator, lightsim version
-``wall_lux.png``       false colour with a lux colour bar, axes H/V in degrees
+``wall_lux.png``       false colour (log scale unless ``--linear``), axes H/V in degrees,
+                       lx and cd scales, H-V lines, the first rule set's test points
+``isolux.png``         iso-lux plot of the first rule set (``isolux-ID.png`` for each
+                       further one); ``road.png`` the road view; every plot captioned
 ``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings,
                        ``timings_s``: where the run's time went (load, session, sample,
                        trace, insert, estimate, final_map, outputs; s, wall clock),
@@ -168,8 +171,9 @@ class SimulateOptions:
         "marks a finished run); all = every one.", flag=("--outputs",), kind="names",
         choices=("exr", "png", "error_vs_time", "isolux", "road", "json"), resume=True,
         default_text="all")
-    log_scale: bool = option(False, "Logarithmic colour scale in the PNG.",
-                             flag=("--log",), kind="flag")
+    log_scale: bool = option(True, "Colour scale of wall_lux.png: logarithmic (three "
+                             "decades below the maximum) or linear.",
+                             flag=("--log/--linear",), kind="onoff")
     workers: int = option(0, "0: in-process; N: N Ray actors on this machine.",
                           flag=("--workers",), low=0, resume=True)
     address: str | None = option(None, "Ray cluster address HOST:PORT.",
@@ -554,16 +558,14 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
             channels[ch] = rgb[..., i].astype(np.float32)
     wanted = set(opts.outputs)
     drawn = []  # matplotlib is imported only where a plot is asked
-    if "png" in wanted:
-        drawn.append(plots.draw("lux_png", out / "wall_lux.png", lux, wall,
-                                log=opts.log_scale,
-                                title=f"{Path(opts.scene_path).name}: {photons:,} photons"))
-    if "error_vs_time" in wanted:
-        drawn.append(plots.draw("error_vs_time", out / "error_vs_time.png",
-                                summary["error_vs_time"]))
     if "exr" in wanted:
         write_exr(out / "wall_lux.exr", channels, meta)
     _engineering_outputs(out, opts, session, lux, summary, analyses, plots)
+    if "error_vs_time" in wanted:  # after the analyses: its caption names the rule sets
+        caption = report.plot_caption(summary)
+        drawn.append(plots.draw("error_vs_time", out / "error_vs_time.png",
+                                summary["error_vs_time"],
+                                caption=None if caption is None else caption.text()))
     for p in drawn:
         p.result()
     summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
@@ -606,9 +608,10 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
             seen = {(m["name"], m.get("h_deg"), m.get("v_deg")) for m in marks or ()}
             marks = (marks or []) + [m for m in result.marks if (
                 m["name"], m.get("h_deg"), m.get("v_deg")) not in seen]
+    drawn = {"png": "wall_lux", "isolux": "isolux", "road": "road"}
     report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary,
-                             which=tuple(n for n in ("isolux", "road") if n in opts.outputs),
-                             plots=plots)
+                             which=tuple(v for k, v in drawn.items() if k in opts.outputs),
+                             plots=plots, log=opts.log_scale)
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:
