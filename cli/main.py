@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {
     "validate": "validate:validate",
     "converge": "validate:converge",
     "report": "report:report",
+    "road": "road:road",
     "photo": "photo:photo",
     "view": "view:view",
     "screen-target": "screen_target:screen_target",
