@@ -47,7 +47,7 @@ def road(run_dir: str, approaches: str, left_run: str | None, no_plots: bool,
     else:
         click.echo("no intervals: the run has no per-set maps (simulate with --road to "
                    "store them)")
-    for line in reach_lines(ev):
+    for line in reach_lines(ev.to_dict()):
         click.echo(line)
     if settings.sensitivity:
         click.echo("sensitivity (re-projected, 0 photons traced): see "

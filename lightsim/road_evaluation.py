@@ -60,6 +60,7 @@ from lightsim.analysis import AnalysisReport, FinishedRun
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
 from lightsim.io.exr import read_exr
+from lightsim.io.road_plots import plot_approach
 from lightsim.io.summary import read_json, write_json
 from lightsim.options import check_fields, option
 from lightsim.render.frame import luminous
@@ -79,7 +80,7 @@ from lightsim.wall import WallFrame
 
 __all__ = ["DEFAULT_APPROACHES", "ROAD_FILE", "SENSITIVITY", "WALL_SETS_FILE", "FarField",
            "RoadAnalysis", "RoadEvaluation", "RoadSettings", "evaluate_road", "load_far_field",
-           "save_wall_sets", "write_road"]
+           "parse_approaches", "reach_lines", "save_wall_sets", "write_road"]
 
 ROAD_FILE = "road.json"
 WALL_SETS_FILE = "wall_sets.npz"
@@ -397,8 +398,6 @@ def evaluate_road(far: FarField, settings: RoadSettings, left: FarField | None =
 def write_road(out: Path, ev: RoadEvaluation, plots: bool = True) -> list[Path]:
     """``road.json`` and one plot per approach (``road_<approach>.png``) into ``out``,
     each written atomically."""
-    from lightsim.io.road_plots import plot_approach  # matplotlib only when drawing
-
     written: list[Path] = []
     if plots:
         for name, curves in ev.curves.items():
@@ -412,12 +411,12 @@ def write_road(out: Path, ev: RoadEvaluation, plots: bool = True) -> list[Path]:
     return written
 
 
-def reach_lines(ev: RoadEvaluation) -> list[str]:
-    """Short text lines: per approach, the 5/3/1 lx reach of both edges and the glare
-    maximum."""
+def reach_lines(table: dict[str, Any]) -> list[str]:
+    """Short text lines of a road table (:meth:`RoadEvaluation.to_dict`): per approach, the
+    5/3/1 lx reach of both edges (with intervals) and the glare maximum."""
     lines = []
-    by = {(r["approach"], r["sensor"], r["level_lux"]): r for r in ev.reach}
-    for name in ev.curves:
+    by = {(r["approach"], r["sensor"], r["level_lux"]): r for r in table["reach"]}
+    for name in table["approaches"]:
         parts = []
         for sensor in SENSORS[:2]:
             txt = []
@@ -425,11 +424,12 @@ def reach_lines(ev: RoadEvaluation) -> list[str]:
                 r = by[(name, sensor, lv)]
                 d = r["distance_m"]
                 val = "–" if d is None else (f"≥{d:.0f}" if r["beyond_range"] else f"{d:.0f}")
-                if d is not None and r.get("interval_m") and r["interval_m"][1] is not None:
-                    val += f" [{r['interval_m'][0]:.0f}, {r['interval_m'][1]:.0f}]"
+                iv = r.get("interval_m")
+                if d is not None and iv and iv[1] is not None:
+                    val += f" [{iv[0]:.0f}, {iv[1]:.0f}]"
                 txt.append(f"{lv:g} lx {val} m")
             parts.append(f"{sensor.replace('_', ' ')}: " + ", ".join(txt))
-        g = next(x for x in ev.glare if x["approach"] == name)
+        g = next(x for x in table["glare"] if x["approach"] == name)
         parts.append(f"glare max {g['max_lux']:.2f} lx at {g['at_m']:.0f} m")
         lines.append(f"{name:<10} " + "; ".join(parts))
     return lines

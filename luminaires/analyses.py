@@ -14,6 +14,8 @@ option              unit   analysis
 ``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
                            ``ies_type``, ``farfield_photons``, ``ies_step``,
                            ``ldt_step`` deg)
+``road``            –      :class:`lightsim.road_evaluation.RoadAnalysis` (with
+                           ``mount_height`` m, ``traffic``)
 ==================  =====  ==========================================================
 """
 
@@ -22,6 +24,7 @@ from __future__ import annotations
 from typing import Any
 
 from lightsim.analysis import Analysis
+from lightsim.road_evaluation import RoadAnalysis, RoadSettings
 
 from .photometric import resolve_ies_type
 from .photometric.analysis import FarfieldAnalysis
@@ -52,4 +55,7 @@ def for_options(opts: Any) -> list[Analysis]:
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
                                     opts.ies_step, opts.ldt_step))
+    if getattr(opts, "road", False):
+        out.append(RoadAnalysis(RoadSettings(mount_height=opts.mount_height,
+                                             traffic=opts.traffic)))
     return out

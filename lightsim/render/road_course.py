@@ -368,5 +368,5 @@ def distance_grid(s_range_m: Sequence[float] = (5.0, 200.0), step_m: float = 0.2
     if not (np.isfinite(step_m) and step_m > 0 and 0 <= s0 < s1 and np.isfinite(s1)):
         raise InputError(f"road: need 0 ≤ start < end and step > 0, got {s_range_m!r}, "
                          f"step {step_m!r}")
-    n = int(round((s1 - s0) / step_m))
+    n = round((s1 - s0) / step_m)
     return s0 + step_m * np.arange(n + 1)
