@@ -1,18 +1,18 @@
 """A rule set's measuring conditions: the ``[measurement]`` table and what it asks of a run.
 
 Most rule sets are a list of test points on the 25 m screen. Some regulations add rules
-about *how* the points are measured; FMVSS No. 108 (49 CFR 571.108) is the example:
+about *how* the points are measured; FMVSS No. 108 (49 CFR 571.108) is the example (its
+measuring paragraphs S14.2.5 as read in transcriptions here, not in the CFR text itself —
+the shipped sets mark them less sure):
 
-* its angles are goniometer angles (S14.2.5.8: left/right are plan-view angles, up/down
-  true angles from the horizontal plane), i.e. azimuth H and elevation V; the screen's
-  wall angles of lightsim are h = H and v = atan(tan V / cos H) (:func:`wall_angles`);
-* a 1/4° re-aim is permitted in any direction at any test point (S14.2.5.5;
-  :mod:`.reaim`);
-* the photometer is at least 18.3 m from the lamp (S14.2.5.3) and its sensor's effective
-  area lies within a circle of diameter 0.009 × the test distance (S14.2.5.7.2);
+* its angles are goniometer angles (left/right in plan view, up/down from the horizontal
+  plane), i.e. azimuth H and elevation V; the screen's wall angles of lightsim are
+  h = H and v = atan(tan V / cos H) (:func:`wall_angles`);
+* a 1/4° re-aim is permitted in any direction at any test point (:mod:`.reaim`);
+* the photometer is at least 18.3 m (60 ft) from the lamp;
 * mechanically aimed lamps are measured on their own axis; a visually/optically aimed
-  lower beam is aimed by its cut-off, which must have a gradient of at least 0.13
-  (S14.2.5.5.3, S10.18.9.1; :mod:`.visual_aim`);
+  lower beam is aimed by its cut-off, which must be sharp enough (a least gradient, 0.13
+  as in R112 annex 9 by default);
 * the tables are written for right-hand traffic only.
 
 A rule set states these in an optional ``[measurement]`` table (format in ``README.md``
@@ -53,8 +53,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from lightsim.errors import InputError
 
-__all__ = ["ANGLES", "AIMS", "BEAMS", "MeasuringConditions", "check_run", "parse_conditions",
-           "sensor_angle_deg", "wall_angles"]
+__all__ = [
+    "AIMS",
+    "ANGLES",
+    "BEAMS",
+    "MeasuringConditions",
+    "check_run",
+    "parse_conditions",
+    "sensor_angle_deg",
+    "wall_angles",
+]
 
 ANGLES = ("screen", "azimuth-elevation")
 AIMS = ("screen", "mechanical", "visual")
