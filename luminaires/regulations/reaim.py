@@ -109,13 +109,44 @@ def _reaim_deg(rs: RuleSet) -> float:
     return 0.0 if mc is None else float(mc.reaim_deg)
 
 
+def _span(frame: WallFrame) -> tuple[float, float, float, float]:
+    """Wall angles spanned by the pixel centres (deg): what a map can be read at."""
+    h, v = frame.h_deg(), frame.v_deg()
+    return float(h.min()), float(h.max()), float(v.min()), float(v.max())
+
+
+def _inside_wall(base: Probes, frame: WallFrame, angles: str) -> Probes:
+    """``base`` without the probes whose wall angles (after conversion) leave the wall."""
+    h0, h1, v0, v1 = _span(frame)
+    wh, wv = wall_angles(base.h_deg, base.v_deg, angles)
+    ok = (wh >= h0) & (wh <= h1) & (wv >= v0) & (wv <= v1)
+    if ok.all():
+        return base
+    labels = np.asarray(base.labels, dtype=object)
+    dropped = dict(base.dropped)
+    clipped = dict(base.clipped)
+    ext = f"the wall covers H {h0:.2f}..{h1:.2f}°, V {v0:.2f}..{v1:.2f}°"
+    for name in dict.fromkeys(base.labels):
+        mine = labels == name
+        if not ok[mine].any():
+            dropped[name] = f"outside the wall ({ext})"
+            clipped.pop(name, None)
+        elif not ok[mine].all():
+            clipped[name] = clipped.get(name, 0) + int((~ok[mine]).sum())
+    return Probes(base.h_deg[ok], base.v_deg[ok], tuple(labels[ok]), base.ruleset_id,
+                  base.traffic, base.spacing_deg, dropped, clipped)
+
+
 def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
                  frame: Any = None) -> ReaimProbes:
     """The rule set's probes plus the re-aimed positions of every limited point.
 
     ``frame`` (a wall frame) drops what the wall does not cover, as
     :func:`.evaluate.probe_points` does (a point's re-aim disc must fit too)."""
+    angles = rs.measurement.angles if rs.measurement is not None else "screen"
     base = probe_points(rs, traffic, spacing_deg, frame)
+    if frame is not None and angles != "screen":
+        base = _inside_wall(base, WallFrame.from_any(frame), angles)
     reaim = _reaim_deg(rs)
     off = reaim_offsets(reaim)
     rs_t = rs.for_traffic(traffic)
@@ -123,9 +154,16 @@ def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
     pts = tuple(g.name for g in rs_t.geometries
                 if g.kind == "point" and g.has_limits and g.complete and g.name in present)
     if frame is not None and reaim > 0:
-        h0, h1, v0, v1 = WallFrame.from_any(frame).extent_deg()
-        pts = tuple(n for n in pts if h0 + reaim < rs_t.geometry(n).h < h1 - reaim
-                    and v0 + reaim < rs_t.geometry(n).v < v1 - reaim)
+        # a point's whole re-aim disc must lie on the wall
+        h0, h1, v0, v1 = _span(WallFrame.from_any(frame))
+        off = reaim_offsets(reaim)
+        keep = []
+        for n in pts:
+            g = rs_t.geometry(n)
+            wh, wv = wall_angles(g.h + off[:, 0], g.v + off[:, 1], angles)
+            if (wh.min() >= h0) and (wh.max() <= h1) and (wv.min() >= v0) and (wv.max() <= v1):
+                keep.append(n)
+        pts = tuple(keep)
     hs, vs = [base.h_deg], [base.v_deg]
     for name in pts:
         g = rs_t.geometry(name)
@@ -133,7 +171,6 @@ def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
         vs.append(g.v + off[:, 1])
     h = np.concatenate(hs)
     v = np.concatenate(vs)
-    angles = rs.measurement.angles if rs.measurement is not None else "screen"
     wh, wv = wall_angles(h, v, angles)
     return ReaimProbes(base, pts, off, h, v, wh, wv)
 
