@@ -30,6 +30,7 @@ from .photometric import resolve_ies_type
 from .photometric.analysis import FarfieldAnalysis
 from .photometric.gridding import check_step
 from .regulations.check import RegulationAnalysis, split_rulesets
+from .regulations.conditions import refuse_screen_check
 
 __all__ = ["for_options"]
 
@@ -49,9 +50,11 @@ def for_options(opts: Any) -> list[Analysis]:
     if opts.regulation is not None:
         # `a,b`: one table per rule set, the first named "regulation"
         for i, rs in enumerate(split_rulesets(opts.regulation)):
-            out.append(RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
+            analysis = RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
                                           opts.spt_points,
-                                          name="regulation" if i == 0 else f"regulation:{rs}"))
+                                          name="regulation" if i == 0 else f"regulation:{rs}")
+            refuse_screen_check(analysis.rules)  # re-aim etc.: `lightsim check` instead
+            out.append(analysis)
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
                                     opts.ies_step, opts.ldt_step))

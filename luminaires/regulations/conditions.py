@@ -60,6 +60,7 @@ __all__ = [
     "MeasuringConditions",
     "check_run",
     "parse_conditions",
+    "refuse_screen_check",
     "sensor_angle_deg",
     "wall_angles",
 ]
@@ -183,6 +184,22 @@ def parse_conditions(table: Any, fail, default_source: str) -> MeasuringConditio
         raise fail("[measurement]: a 'less-sure' table needs a 'note' saying why")
     return MeasuringConditions(**out, certainty=certainty, note=table.get("note", ""),
                                source=table.get("source", default_source))
+
+
+def refuse_screen_check(ruleset: Any) -> None:
+    """Refuse a rule set whose measuring conditions the screen check (``simulate
+    --regulation``: fixed apertures at screen angles) cannot honour — a re-aim, goniometer
+    angles or a visual aim — and name ``lightsim check``, which does."""
+    mc = getattr(ruleset, "measurement", None)
+    if mc is None:
+        return
+    needs = [what for what, flag in (("a re-aim at every test point", mc.reaim_deg > 0),
+                                     ("goniometer angles", mc.angles != "screen"),
+                                     ("an aim by the cut-off", mc.aim == "visual")) if flag]
+    if needs:
+        raise InputError(f"rule set {ruleset.id} is measured with {' and '.join(needs)}: "
+                         "simulate with --road (it stores the per-set maps), then "
+                         f"lightsim check RUN_DIR --regulation {ruleset.id}")
 
 
 def wall_angles(h_deg: ArrayLike, v_deg: ArrayLike, angles: str = "screen"

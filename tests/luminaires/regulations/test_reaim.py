@@ -200,3 +200,13 @@ def test_measurement_table_read_and_one_traffic_side() -> None:
     with pytest.raises(InputError, match="right-hand traffic only"):
         rs.for_traffic("left")
     assert all(g.certainty == "less-sure" and "571.108" in g.source for g in rs.geometries)
+
+
+def test_screen_check_refuses_reaim_sets(tmp_path: Path, capsys) -> None:
+    """``simulate --regulation`` reads fixed apertures at screen angles: it refuses a set
+    measured with re-aim and goniometer angles before any work, naming ``lightsim check``."""
+    out = tmp_path / "out"
+    code, _, err = run_cli(["simulate", "luminaires/examples/lowbeam.glb", "-n", "1000",
+                            "--regulation", "fmvss-ub1-upper", "--out", str(out)], capsys)
+    assert code == 2 and "lightsim check" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
