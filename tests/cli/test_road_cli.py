@@ -37,12 +37,12 @@ def _lux_of_constant(frame: WallFrame, scale: float = 1.0) -> np.ndarray:
     return scale * I0 * d / (d * d + H * H + V * V) ** 1.5  # E = I·cosθ/r² on the wall
 
 
-def write_run(out: Path, sets: int = 0) -> Path:
+def write_run(out: Path, sets: int = 0, scale: float = 1.0) -> Path:
     """A finished run's files: summary.json with the wall frame, wall_lux.exr (and the
     per-set maps of ``simulate --road`` when ``sets``)."""
     out.mkdir(parents=True, exist_ok=True)
     frame = WallFrame.from_any(FRAME)
-    write_exr(out / "wall_lux.exr", {"Y": _lux_of_constant(frame)})
+    write_exr(out / "wall_lux.exr", {"Y": _lux_of_constant(frame, scale)})
     write_json(out / "summary.json", {"wall": FRAME, "photons": 0})
     if sets:
         sub = frame.with_resolution(200, 60)
@@ -142,3 +142,20 @@ def test_simulate_road_stores_sets_and_table(tmp_path: Path, capsys) -> None:
                               capsys)
     assert code == 0, err
     assert "from 4 interleave sets" in text or "interleave sets" in text
+
+
+def test_left_lamp_from_a_second_run(tmp_path: Path, capsys) -> None:
+    """``--left-run``: a dark left lamp leaves only the right lamp's light."""
+    run = write_run(tmp_path / "right")
+    dark = write_run(tmp_path / "left", scale=0.0)
+    code, _, err = run_cli(["road", str(run), "--left-run", str(dark), "--approaches",
+                            "straight", "--step", "0.1", "--no-plots", "--no-sensitivity"],
+                           capsys)
+    assert code == 0, err
+    row = next(r for r in json.loads((run / ROAD_FILE).read_text())["reach"]
+               if r["sensor"] == "right_edge" and r["level_lux"] == 3.0)
+
+    def e(s: float) -> float:  # the right lamp alone, 0.6 m right of the lane centre
+        return I0 * s / ((1.8 - 0.6) ** 2 + 0.4 ** 2 + s * s) ** 1.5 - 3.0
+    assert row["distance_m"] == pytest.approx(brentq(e, 10.0, 199.0), rel=0.01)
+    assert not (dark / ROAD_FILE).exists()

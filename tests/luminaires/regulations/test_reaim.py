@@ -206,7 +206,8 @@ def test_screen_check_refuses_reaim_sets(tmp_path: Path, capsys) -> None:
     """``simulate --regulation`` reads fixed apertures at screen angles: it refuses a set
     measured with re-aim and goniometer angles before any work, naming ``lightsim check``."""
     out = tmp_path / "out"
-    code, _, err = run_cli(["simulate", "luminaires/examples/lowbeam.glb", "-n", "1000",
+    lamp = Path(__file__).resolve().parents[3] / "luminaires" / "examples" / "lowbeam.glb"
+    code, _, err = run_cli(["simulate", str(lamp), "-n", "1000",
                             "--regulation", "fmvss-ub1-upper", "--out", str(out)], capsys)
     assert code == 2 and "lightsim check" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
