@@ -79,7 +79,8 @@ from lightsim.render.road_course import (
 from lightsim.wall import WallFrame
 
 __all__ = ["DEFAULT_APPROACHES", "ROAD_FILE", "SENSITIVITY", "WALL_SETS_FILE", "FarField",
-           "RoadAnalysis", "RoadEvaluation", "RoadSettings", "evaluate_road", "load_far_field",
+           "RoadAnalysis", "RoadEvaluation", "RoadSettings", "check_field", "evaluate_road",
+           "load_far_field",
            "parse_approaches", "reach_lines", "save_wall_sets", "write_road"]
 
 ROAD_FILE = "road.json"
@@ -238,11 +239,11 @@ def save_wall_sets(out: Path, session: Any, stride: int = WALL_SETS_STRIDE) -> P
     return path
 
 
-def _check_field(far: FarField, settings: RoadSettings) -> None:
+def check_field(frame: WallFrame, settings: RoadSettings) -> None:
     """The road must lie on the screen's field at the wall distance, for every height of
-    the study."""
-    _, _, v_low, v_high = far.frame.extent_deg()
-    d = far.frame.distance_m
+    the study (one :class:`InputError` line otherwise)."""
+    _, _, v_low, v_high = frame.extent_deg()
+    d = frame.distance_m
     heights = [settings.mount_height]
     if settings.sensitivity:
         heights += [settings.mount_height + dh for _, _, dh in SENSITIVITY]
@@ -358,7 +359,7 @@ def evaluate_road(far: FarField, settings: RoadSettings, left: FarField | None =
     t0 = time.perf_counter()
     approaches = settings.approach_list()
     for ff in (far,) if left is None else (far, left):
-        _check_field(ff, settings)
+        check_field(ff.frame, settings)
     lamps = settings.lamps()
     s = distance_grid((settings.step, settings.max_distance), settings.step)
     pooled = _lamp_fns(far, left, sets=False)
@@ -444,7 +445,10 @@ class RoadAnalysis:
     name: str = "road_evaluation"
 
     def prepare(self, config: Any, scene: Any) -> Any:
-        """Nothing to measure beforehand (the maps are read after the run)."""
+        """Check the road lies on the wall before any photon (the maps are read after the
+        run); the configuration is unchanged."""
+        self.settings.approach_list()
+        check_field(WallFrame.from_any(scene.wall), self.settings)
         return config
 
     def report(self, run: FinishedRun, out: Path) -> AnalysisReport:

@@ -16,9 +16,10 @@ the shipped sets mark them less sure):
 * the tables are written for right-hand traffic only.
 
 A rule set states these in an optional ``[measurement]`` table (format in ``README.md``
-beside this module); :func:`parse_conditions` checks it strictly, and
-:func:`check_run` refuses a run the conditions do not allow (one line, before any work
-where it can).
+beside this module); :func:`parse_conditions` checks it strictly;
+:mod:`.lamp_check` refuses a lamp the conditions do not allow (beam type, traffic side,
+test distance) and :func:`refuse_screen_check` a screen check that cannot honour them.
+The photometer's aperture is not modelled: lightsim reads point values of the far field.
 
 Parameters
 ----------
@@ -29,7 +30,6 @@ key                      unit   default     meaning
                                             (goniometer H, V; converted to wall angles)
 ``reaim_deg``            deg    0           permitted re-aim at every test point
 ``min_distance_m``       m      0           the photometer's least distance
-``sensor_diameter_rel``  1      none        sensor within a circle of this × distance
 ``aim``                  –      "screen"    "screen" (as the run is, or ``--aim``),
                                             "mechanical" (the lamp's axis, no aim) or
                                             "visual" (by the cut-off)
@@ -58,17 +58,15 @@ __all__ = [
     "ANGLES",
     "BEAMS",
     "MeasuringConditions",
-    "check_run",
     "parse_conditions",
     "refuse_screen_check",
-    "sensor_angle_deg",
     "wall_angles",
 ]
 
 ANGLES = ("screen", "azimuth-elevation")
 AIMS = ("screen", "mechanical", "visual")
 BEAMS = ("lower", "upper")
-_KEYS = {"angles", "reaim_deg", "min_distance_m", "sensor_diameter_rel", "aim", "beam",
+_KEYS = {"angles", "reaim_deg", "min_distance_m", "aim", "beam",
          "cutoff_gradient_min", "mirror", "certainty", "note", "source"}
 
 
@@ -84,8 +82,6 @@ class MeasuringConditions:
         Re-aim permitted at every test point (deg); 0 = none.
     min_distance_m : float
         Least lamp → photometer distance (m).
-    sensor_diameter_rel : float or None
-        The sensor lies within a circle of this × the distance (None: not limited).
     aim : {"screen", "mechanical", "visual"}
         How the lamp is aimed before the points are read.
     beam : {"lower", "upper"} or None
@@ -101,7 +97,6 @@ class MeasuringConditions:
     angles: str = "screen"
     reaim_deg: float = 0.0
     min_distance_m: float = 0.0
-    sensor_diameter_rel: float | None = None
     aim: str = "screen"
     beam: str | None = None
     cutoff_gradient_min: float = 0.13
@@ -114,7 +109,7 @@ class MeasuringConditions:
         """JSON-ready."""
         return {"angles": self.angles, "reaim_deg": self.reaim_deg,
                 "min_distance_m": self.min_distance_m,
-                "sensor_diameter_rel": self.sensor_diameter_rel, "aim": self.aim,
+                "aim": self.aim,
                 "beam": self.beam, "cutoff_gradient_min": self.cutoff_gradient_min,
                 "mirror": self.mirror, "certainty": self.certainty, "note": self.note,
                 "source": self.source}
@@ -166,7 +161,6 @@ def parse_conditions(table: Any, fail, default_source: str) -> MeasuringConditio
     if "beam" in table:
         out["beam"] = _choice(fail, "beam", table["beam"], BEAMS)
     for key, low, high in (("reaim_deg", 0.0, 2.0), ("min_distance_m", 0.0, 1000.0),
-                           ("sensor_diameter_rel", 1e-6, 1.0),
                            ("cutoff_gradient_min", 0.0, 5.0)):
         if key in table:
             out[key] = _number(fail, key, table[key], low, high)
@@ -217,58 +211,3 @@ def wall_angles(h_deg: ArrayLike, v_deg: ArrayLike, angles: str = "screen"
         return h, v
     hr = np.radians(h)
     return h.copy(), np.degrees(np.arctan2(np.tan(np.radians(v)), np.cos(hr)))
-
-
-def sensor_angle_deg(diameter_rel: float) -> float:
-    """Angular diameter (deg) of a sensor circle of ``diameter_rel`` × the distance."""
-    return float(2.0 * np.degrees(np.arctan(0.5 * diameter_rel)))
-
-
-def check_run(ruleset: Any, *, traffic: str, distance_m: float | None = None,
-              aperture_deg: float | None = None, aim: bool = False) -> None:
-    """Refuse a run that the rule set's measuring conditions do not allow.
-
-    Parameters
-    ----------
-    ruleset : RuleSet
-        The rule set (nothing is checked without a ``[measurement]`` table).
-    traffic : {"right", "left"}
-        The run's traffic side.
-    distance_m : float, optional
-        The run's wall (measuring) distance (m).
-    aperture_deg : float, optional
-        Side of the square detector aperture (deg; 0 or None: kNN estimate).
-    aim : bool
-        Whether ``--aim`` (the R112 cut-off aim) was asked for.
-
-    Raises
-    ------
-    InputError
-        One line naming the condition and the paragraph it comes from.
-    """
-    mc = getattr(ruleset, "measurement", None)
-    if mc is None:
-        return
-    rid = ruleset.id
-    if not mc.mirror and traffic != ruleset.traffic:
-        raise InputError(f"rule set {rid} applies to {ruleset.traffic}-hand traffic only; "
-                         f"--traffic {traffic} does not apply")
-    if aim and mc.aim != "screen":
-        how = ("mechanically aimed lamps are measured on their own axis" if
-               mc.aim == "mechanical" else "the lamp is aimed by its cut-off as the rule "
-               "set says, without --aim")
-        raise InputError(f"--aim does not apply to rule set {rid}: {how}")
-    if distance_m is not None and distance_m < mc.min_distance_m:
-        raise InputError(f"rule set {rid} measures at {mc.min_distance_m:g} m or more "
-                         f"({mc.source or 'its measuring conditions'}); the run's wall is "
-                         f"at {distance_m:g} m: use --wall-distance {mc.min_distance_m:g} "
-                         "or more")
-    if aperture_deg and mc.sensor_diameter_rel is not None:
-        limit = sensor_angle_deg(mc.sensor_diameter_rel)
-        diagonal = float(aperture_deg) * math.sqrt(2.0)
-        if diagonal > limit + 1e-12:
-            raise InputError(f"rule set {rid}: the photometer's sensor must lie within a "
-                             f"circle of {limit:.3f}° ({mc.sensor_diameter_rel:g} × the "
-                             f"distance); a square --aperture {aperture_deg:g}° spans "
-                             f"{diagonal:.3f}° corner to corner: use --aperture "
-                             f"{limit / math.sqrt(2.0):.3f} or less")

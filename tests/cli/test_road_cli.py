@@ -159,3 +159,12 @@ def test_left_lamp_from_a_second_run(tmp_path: Path, capsys) -> None:
         return I0 * s / ((1.8 - 0.6) ** 2 + 0.4 ** 2 + s * s) ** 1.5 - 3.0
     assert row["distance_m"] == pytest.approx(brentq(e, 10.0, 199.0), rel=0.01)
     assert not (dark / ROAD_FILE).exists()
+
+
+def test_simulate_road_checks_the_field_before_shooting(tmp_path: Path, capsys) -> None:
+    lamp = write_point_lamp(tmp_path / "lamp.glb")
+    out = tmp_path / "out"
+    code, _, err = run_cli(["simulate", str(lamp), "-n", "1000", "--road", "--mount-height",
+                            "8", "--out", str(out)], capsys)
+    assert code == 2 and "outside the screen's field" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
