@@ -33,6 +33,7 @@ name                    unit   default      meaning
 ``lamp_spacing``        m      1.2          distance between the two lamps
 ``lane_width``          m      3.6          width of each lane
 ``pitch``               deg    0            lamp aim change (+ up) from the run's aim
+``mirror_left``         –      off          the left lamp's far field mirrored (h → −h)
 ``traffic``             –      right        traffic side (the oncoming lane's side)
 ``glare_limit``         lx     1.0          glare sensor level reported as exceeded (the
                                             user's choice, not a consumer-test threshold)
@@ -121,6 +122,11 @@ class RoadSettings:
                          flag=("--step",), low=0.01, high=5)
     confidence: float = option(0.95, "Two-sided level of the intervals.",
                                flag=("--confidence",), low=0.5, high=0.999)
+    mirror_left: bool = option(
+        False, "The left lamp's far field is the run's mirrored left–right (h → −h), for "
+        "lamp pairs whose optics are mirror images; by default both lamps have the run's "
+        "far field (a low beam's asymmetry is the same on both sides).",
+        flag=("--mirror-left",), kind="flag")
     sensitivity: bool = option(True, "Pitch ±0.5° and height ±0.1 m re-projections.",
                                flag=("--sensitivity/--no-sensitivity",), kind="onoff")
 
@@ -317,7 +323,7 @@ class RoadEvaluation:
         s = self.settings
         return {"approaches": list(s.approaches), "mount_height_m": s.mount_height,
                 "lamp_spacing_m": s.lamp_spacing, "lane_width_m": s.lane_width,
-                "pitch_deg": s.pitch, "traffic": s.traffic,
+                "pitch_deg": s.pitch, "traffic": s.traffic, "mirror_left": s.mirror_left,
                 "edge_sensor_height_m": 0.25, "glare_sensor_height_m": 1.1,
                 "levels_lux": list(EDGE_LEVELS_LUX), "max_distance_m": s.max_distance,
                 "step_m": s.step, "confidence": s.confidence, "interleave_sets": self.n_sets,
@@ -327,15 +333,23 @@ class RoadEvaluation:
                 "files": self.files}
 
 
-def _lamp_fns(far: FarField, left: FarField | None, sets: bool
+def _mirrored(fn: Callable) -> Callable:
+    """The far field ``fn`` mirrored left–right (h → −h)."""
+    return lambda h, v: fn(-np.asarray(h), v)
+
+
+def _lamp_fns(far: FarField, left: FarField | None, sets: bool, mirror_left: bool = False
               ) -> Callable | dict[str, Callable] | None:
-    if sets:
-        if far.n_sets < 2 or (left is not None and left.n_sets < 2):
-            return None
-        return (far.set_intensity if left is None
-                else {"right": far.set_intensity, "left": left.set_intensity})
-    return far.intensity if left is None else {"right": far.intensity,
-                                                "left": left.intensity}
+    """The intensity of both lamps: one far field, or the left lamp's own (a second run, or
+    the run's mirrored)."""
+    if sets and (far.n_sets < 2 or (left is not None and left.n_sets < 2)):
+        return None
+    right_fn = far.set_intensity if sets else far.intensity
+    if left is not None:
+        return {"right": right_fn, "left": left.set_intensity if sets else left.intensity}
+    if mirror_left:
+        return {"right": right_fn, "left": _mirrored(right_fn)}
+    return right_fn
 
 
 def evaluate_road(far: FarField, settings: RoadSettings, left: FarField | None = None
@@ -362,8 +376,8 @@ def evaluate_road(far: FarField, settings: RoadSettings, left: FarField | None =
         check_field(ff.frame, settings)
     lamps = settings.lamps()
     s = distance_grid((settings.step, settings.max_distance), settings.step)
-    pooled = _lamp_fns(far, left, sets=False)
-    per_set = _lamp_fns(far, left, sets=True)
+    pooled = _lamp_fns(far, left, False, settings.mirror_left)
+    per_set = _lamp_fns(far, left, True, settings.mirror_left)
     reach, glare, curves = [], [], {}
     for ap in approaches:
         cs = sensor_curves(pooled, ap, lamps, s, per_set, settings.confidence)

@@ -168,3 +168,20 @@ def test_simulate_road_checks_the_field_before_shooting(tmp_path: Path, capsys) 
                             "8", "--out", str(out)], capsys)
     assert code == 2 and "outside the screen's field" in err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_mirror_left_swaps_a_skewed_beam(tmp_path: Path) -> None:
+    """A far field brighter to the right: with ``mirror_left`` the left lamp throws it to
+    the left, so the pair lights the left edge more than without."""
+    run = write_run(tmp_path / "run")
+    far = load_far_field(run)
+    h = far.frame.h_deg()[None, :]
+    skewed = far.lux * (1.0 + 0.9 * np.tanh(h / 5.0))
+    far = type(far)(skewed, far.frame)
+    base = RoadSettings(approaches=("straight",), sensitivity=False)
+    plain = evaluate_road(far, base)
+    mirrored = evaluate_road(far, RoadSettings(approaches=("straight",), sensitivity=False,
+                                               mirror_left=True))
+    left_plain = plain.curves["straight"][1].lux
+    left_mirr = mirrored.curves["straight"][1].lux
+    assert np.nanmean(left_mirr) > 1.2 * np.nanmean(left_plain)
