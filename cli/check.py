@@ -24,13 +24,16 @@ from lightsim.luminaires.regulations.reaim import format_reaim_table
               show_default=True, help="Traffic side.")
 @click.option("--confidence", type=float, default=0.95, show_default=True,
               help="Two-sided level of the intervals.")
+@click.option("--aperture", type=float, default=0.0, show_default=True,
+              help="Angular diameter of the photometer's aperture (deg); every reading is "
+              "the mean over it. 0: point values.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Also write the verdicts as JSON.")
 def check(source: str, regulation: str, beam: str | None, traffic: str, confidence: float,
-          json_path: str | None) -> None:
+          aperture: float, json_path: str | None) -> None:
     """Verdicts of SOURCE (a run folder, or an .ies/.ldt file) against a rule set; points
     that pass only after the permitted re-aim are named so."""
-    res = check_lamp(lamp_source(source), regulation, beam, traffic, confidence)
+    res = check_lamp(lamp_source(source), regulation, beam, traffic, confidence, aperture)
     console = Console(width=None if sys.stdout.isatty() else 160)
     console.print(format_reaim_table(res.results, f"{res.ruleset.title} — {source}",
                                      res.unevaluated))

@@ -19,7 +19,8 @@ A rule set states these in an optional ``[measurement]`` table (format in ``READ
 beside this module); :func:`parse_conditions` checks it strictly;
 :mod:`.lamp_check` refuses a lamp the conditions do not allow (beam type, traffic side,
 test distance) and :func:`refuse_screen_check` a screen check that cannot honour them.
-The photometer's aperture is not modelled: lightsim reads point values of the far field.
+The photometer's aperture is not part of the table (its FMVSS size was not confirmed):
+``lightsim check --aperture DEG`` averages every reading over a disc of that diameter.
 
 Parameters
 ----------

@@ -26,6 +26,7 @@ name             unit   default   meaning
 ``beam``         –      auto      "lower" or "upper"; auto: lower when a cut-off is found
 ``traffic``      –      right     traffic side
 ``confidence``   1      0.95      two-sided level
+``aperture_deg`` deg    0         photometer aperture's angular diameter (0: point values)
 ``FILE_WALL``    –      25 m      the wall a photometric file is drawn on to find its
                                   cut-off (±15 m × ±6 m, 640 × 256 pixels)
 ===============  =====  ========  ========================================================
@@ -144,7 +145,8 @@ def _beam(src: LampSource, beam: str | None, traffic: str) -> tuple[str, str, di
 
 
 def check_lamp(src: LampSource, ruleset: str, beam: str | None = None,
-               traffic: str = "right", confidence: float = 0.95) -> LampCheck:
+               traffic: str = "right", confidence: float = 0.95,
+               aperture_deg: float = 0.0) -> LampCheck:
     """Verdicts of ``ruleset`` for the lamp ``src`` (see the module docstring).
 
     Raises
@@ -183,7 +185,9 @@ def check_lamp(src: LampSource, ruleset: str, beam: str | None = None,
                              + ("" if ok else ": NOT visually aimable"))
         if mc.reaim_deg > 0:
             notes.append(f"re-aim up to {mc.reaim_deg:g}° permitted at every test point")
-    rp = reaim_probes(rs, traffic, 0.25, src.frame)
+    rp = reaim_probes(rs, traffic, 0.25, src.frame, aperture_deg)
+    if aperture_deg > 0:
+        notes.append(f"photometer aperture {aperture_deg:g}° (mean over its disc)")
     fn = src.set_intensity if src.set_intensity is not None else src.intensity
     values = values_from(fn, rp)
     results = evaluate_reaim(rs, rp, values, confidence)

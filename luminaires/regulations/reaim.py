@@ -31,6 +31,9 @@ name              unit   default  meaning
 ``RINGS``         –      see →    (fraction of ``reaim_deg``, directions): (0.5, 8), (1, 16)
 ``confidence``    1      0.95     two-sided level of the verdicts
 ``spacing_deg``   deg    0.25     zone sampling step
+``aperture_deg``  deg    0        photometer aperture (angular diameter); the mean over
+                                  ``APERTURE_POINTS`` = 32 directions of the disc
+                                  (0: point values)
 ================  =====  =======  =========================================================
 """
 
@@ -51,11 +54,13 @@ from .conditions import wall_angles
 from .evaluate import Probes, evaluate, format_position, format_table, probe_points
 from .ruleset import Geometry, RuleSet
 
-__all__ = ["RINGS", "ReaimProbes", "evaluate_reaim", "format_reaim_table", "reaim_offsets",
-           "reaim_probes", "values_from"]
+__all__ = ["APERTURE_POINTS", "RINGS", "ReaimProbes", "aperture_points", "evaluate_reaim",
+           "format_reaim_table", "reaim_offsets", "reaim_probes", "values_from"]
 
 RINGS = ((0.5, 8), (1.0, 16))
 """Re-aimed positions: (fraction of the re-aim angle, number of directions) per ring."""
+APERTURE_POINTS = 32
+"""Directions averaged over a photometer aperture."""
 
 
 def reaim_offsets(reaim_deg: float) -> NDArray:
@@ -85,6 +90,8 @@ class ReaimProbes:
         All positions in the rule set's angles: ``base`` first, then n per point.
     wall_h_deg, wall_v_deg : ndarray, shape (P,)
         The same positions as lightsim's wall angles.
+    aperture_deg : float
+        Angular diameter of the photometer's aperture (deg; 0: point values).
     """
 
     base: Probes
@@ -94,6 +101,7 @@ class ReaimProbes:
     v_deg: NDArray
     wall_h_deg: NDArray
     wall_v_deg: NDArray
+    aperture_deg: float = 0.0
 
     def __len__(self) -> int:
         return len(self.h_deg)
@@ -115,9 +123,11 @@ def _span(frame: WallFrame) -> tuple[float, float, float, float]:
     return float(h.min()), float(h.max()), float(v.min()), float(v.max())
 
 
-def _inside_wall(base: Probes, frame: WallFrame, angles: str) -> Probes:
-    """``base`` without the probes whose wall angles (after conversion) leave the wall."""
+def _inside_wall(base: Probes, frame: WallFrame, angles: str, margin: float = 0.0) -> Probes:
+    """``base`` without the probes whose wall angles (after conversion), widened by
+    ``margin`` deg, leave the wall."""
     h0, h1, v0, v1 = _span(frame)
+    h0, h1, v0, v1 = h0 + margin, h1 - margin, v0 + margin, v1 - margin
     wh, wv = wall_angles(base.h_deg, base.v_deg, angles)
     ok = (wh >= h0) & (wh <= h1) & (wv >= v0) & (wv <= v1)
     if ok.all():
@@ -138,15 +148,18 @@ def _inside_wall(base: Probes, frame: WallFrame, angles: str) -> Probes:
 
 
 def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
-                 frame: Any = None) -> ReaimProbes:
+                 frame: Any = None, aperture_deg: float = 0.0) -> ReaimProbes:
     """The rule set's probes plus the re-aimed positions of every limited point.
 
     ``frame`` (a wall frame) drops what the wall does not cover, as
-    :func:`.evaluate.probe_points` does (a point's re-aim disc must fit too)."""
+    :func:`.evaluate.probe_points` does (a point's re-aim disc and every aperture must fit
+    too). ``aperture_deg``: the photometer's angular diameter (0: point values)."""
+    if not (np.isfinite(aperture_deg) and 0.0 <= aperture_deg <= 5.0):
+        raise InputError(f"--aperture must lie in [0, 5] deg, got {aperture_deg!r}")
     angles = rs.measurement.angles if rs.measurement is not None else "screen"
     base = probe_points(rs, traffic, spacing_deg, frame)
-    if frame is not None and angles != "screen":
-        base = _inside_wall(base, WallFrame.from_any(frame), angles)
+    if frame is not None and (angles != "screen" or aperture_deg > 0):
+        base = _inside_wall(base, WallFrame.from_any(frame), angles, 0.5 * aperture_deg)
     reaim = _reaim_deg(rs)
     off = reaim_offsets(reaim)
     rs_t = rs.for_traffic(traffic)
@@ -156,6 +169,8 @@ def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
     if frame is not None and reaim > 0:
         # a point's whole re-aim disc must lie on the wall
         h0, h1, v0, v1 = _span(WallFrame.from_any(frame))
+        m = 0.5 * aperture_deg
+        h0, h1, v0, v1 = h0 + m, h1 - m, v0 + m, v1 - m
         off = reaim_offsets(reaim)
         keep = []
         for n in pts:
@@ -172,20 +187,38 @@ def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
     h = np.concatenate(hs)
     v = np.concatenate(vs)
     wh, wv = wall_angles(h, v, angles)
-    return ReaimProbes(base, pts, off, h, v, wh, wv)
+    return ReaimProbes(base, pts, off, h, v, wh, wv, float(aperture_deg))
+
+
+def aperture_points(aperture_deg: float, n: int = APERTURE_POINTS) -> NDArray:
+    """(n, 2) offsets (deg) spread evenly over a disc of diameter ``aperture_deg`` (a
+    sunflower pattern: equal areas), whose mean is the aperture's mean intensity."""
+    i = np.arange(n) + 0.5
+    r = 0.5 * aperture_deg * np.sqrt(i / n)
+    a = i * np.pi * (3.0 - np.sqrt(5.0))
+    return np.column_stack([r * np.cos(a), r * np.sin(a)])
 
 
 def values_from(intensity: Callable[[NDArray, NDArray], NDArray], rp: ReaimProbes
                 ) -> NDArray:
     """(S, P) intensities (cd) of ``intensity(h_deg, v_deg)`` (wall angles; a leading set
-    axis or none) at every position of ``rp``.
+    axis or none) at every position of ``rp``: point values, or with
+    ``rp.aperture_deg`` > 0 the mean over the photometer's aperture (a disc in wall
+    angles, :func:`aperture_points`).
 
     Raises
     ------
     InputError
         A position the source does not cover (NaN): the lamp's data miss a test point.
     """
-    vals = np.asarray(intensity(rp.wall_h_deg, rp.wall_v_deg), dtype=float)
+    if rp.aperture_deg > 0:
+        off = aperture_points(rp.aperture_deg)
+        h = (rp.wall_h_deg[:, None] + off[None, :, 0]).ravel()
+        v = (rp.wall_v_deg[:, None] + off[None, :, 1]).ravel()
+        raw = np.asarray(intensity(h, v), dtype=float)
+        vals = raw.reshape(*raw.shape[:-1], len(rp), len(off)).mean(axis=-1)
+    else:
+        vals = np.asarray(intensity(rp.wall_h_deg, rp.wall_v_deg), dtype=float)
     if vals.ndim == 1:
         vals = vals[None, :]
     bad = ~np.isfinite(vals).all(axis=0)

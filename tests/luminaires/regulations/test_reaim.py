@@ -19,6 +19,7 @@ from lightsim.luminaires.regulations import load_ruleset
 from lightsim.luminaires.regulations.conditions import wall_angles
 from lightsim.luminaires.regulations.lamp_check import check_lamp, lamp_source
 from lightsim.luminaires.regulations.reaim import (
+    aperture_points,
     evaluate_reaim,
     reaim_offsets,
     reaim_probes,
@@ -211,3 +212,19 @@ def test_screen_check_refuses_reaim_sets(tmp_path: Path, capsys) -> None:
                             "--regulation", "fmvss-ub1-upper", "--out", str(out)], capsys)
     assert code == 2 and "lightsim check" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_aperture_mean(lamp_file: Path, capsys) -> None:
+    """An aperture averages the intensity over its disc: a uniform region keeps its value;
+    an aperture straddling the 14 000 → 17 000 cd step gives a value in between."""
+    pts = aperture_points(0.5)
+    assert np.all(np.hypot(pts[:, 0], pts[:, 1]) <= 0.25 + 1e-12)
+    assert abs(pts.mean(axis=0)).max() < 0.02  # centred
+    res = check_lamp(lamp_source(lamp_file), "fmvss-lb1v-lower", beam="lower",
+                     aperture_deg=0.2)
+    rows = {r["name"]: r for r in res.results}
+    assert rows["1.5D-9L"]["value_cd"] == pytest.approx(1000.0)
+    assert 1000.0 < rows["0.5D-1.5R"]["value_cd"] < 10_000.0  # an isolated node, blurred
+    code, _, err = run_cli(["check", str(lamp_file), "--regulation", "fmvss-lb1v-lower",
+                            "--beam", "lower", "--aperture", "-1"], capsys)
+    assert code == 2 and "--aperture" in err
