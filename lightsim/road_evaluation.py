@@ -10,9 +10,13 @@ of 150 m and 250 m radius; :mod:`lightsim.render.road_course`):
 * **glare**: at an oncoming driver's eye (1.1 m, middle of the oncoming lane), the
   illuminance against distance, its maximum and the stretches where it exceeds a limit.
 
-The consumer test these follow (the IIHS headlight evaluation) turns such distances into
-a score; its thresholds and weights could not be confirmed from a public source, so no
-score is computed: the measured quantities are reported as they are.
+The geometry follows the IIHS Headlight Test and Rating Protocol (Version II, November
+2016, as summarised publicly: straightaway and 150 m / 250 m curves, visibility at the
+road edges 25 cm high, glare at 110 cm in the middle of the oncoming lane, factory aim, the
+5 lx distance). The protocol turns the distances into demerits against an ideal system and
+downgrades for glare above thresholds derived from FMVSS No. 108; those thresholds and
+weights could not be confirmed from a public source, so no score is computed: the measured
+quantities are reported as they are.
 
 Intervals come from the interleave sets: ``simulate --road`` stores every set's wall map
 (``wall_sets.npz``, every ``WALL_SETS_STRIDE``-th pixel) so that each sensor's
@@ -91,9 +95,9 @@ DEFAULT_APPROACHES = ("straight", "left-150", "left-250", "right-150", "right-25
 SENSITIVITY = (("pitch +0.5°", 0.5, 0.0), ("pitch −0.5°", -0.5, 0.0),
                ("height +0.1 m", 0.0, 0.1), ("height −0.1 m", 0.0, -0.1))
 """The aim and mounting variants: (label, pitch change deg, height change m)."""
-SCORE_NOTE = ("No rating score: the consumer test's scoring thresholds could not be "
-              "confirmed from a public source; the measured distances and illuminances "
-              "are reported instead.")
+SCORE_NOTE = ("No rating score: the IIHS protocol's glare thresholds and demerit weights "
+              "could not be confirmed from a public source; the measured distances and "
+              "illuminances are reported instead.")
 
 
 @dataclass(frozen=True)
