@@ -89,7 +89,10 @@ def plot_approach(path: Path, curves: Sequence[SensorCurve], lamps: LampPair,
         fig.colorbar(sc, ax=ax_plan, label="illuminance (lx)", shrink=0.8)
     ax_plan.set_xlabel("lateral position x (m, right +)")
     ax_plan.set_ylabel("ahead z (m)")
-    ax_plan.set_aspect("equal", adjustable="datalim")
+    if ap.kind == "straight":  # a thin strip at equal scale: widen the lateral axis
+        ax_plan.set_xlim(-4.0 * lane_width, 4.0 * lane_width)
+    else:
+        ax_plan.set_aspect("equal", adjustable="datalim")
     ax_plan.set_title(f"{name}: road plan, lamps {lamps.mount_height_m:g} m high")
     for c in curves:
         e = c.lux
