@@ -19,6 +19,7 @@ from lightsim.io import plot_worker
 from lightsim.luminaires.analyses import for_options
 from lightsim.luminaires.regulations.check import format_regulation, regulation_tables
 from lightsim.options import click_options
+from lightsim.road_evaluation import reach_lines
 from lightsim.simulate import SimulateOptions, read_checkpoint, run_simulation
 
 
@@ -161,6 +162,10 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
         if "road" in s:
             click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
                        f"{s['road']['text']}")
+        if "road_evaluation" in s:
+            click.echo("road evaluation (m; [95 % interval]):")
+            for line in reach_lines(s["road_evaluation"]):
+                click.echo("  " + line)
         if any(k == "regulation" or k.startswith("regulation:") for k in s):
             console = Console(width=None if sys.stdout.isatty() else 160)
             for table in regulation_tables(s):

@@ -164,6 +164,11 @@ class SimulateOptions:
                                    flag=("--farfield-photons",), low=1)
     mount_height: float = option(0.65, "Lamp height above the road for the road view.",
                                  unit="m", flag=("--mount-height",), low=0, low_open=True)
+    road: bool = option(False, "Road evaluation after the run (lightsim road): reach at the "
+                        "road edges and glare on a straight road and 150/250 m curves, with "
+                        "intervals from the interleave sets; writes road.json, "
+                        "road_<approach>.png and wall_sets.npz.", flag=("--road",),
+                        kind="flag")
     outputs: tuple[str, ...] = option(
         ("exr", "png", "error_vs_time", "isolux", "road", "json"),
         "Files to write, comma-separated: exr (wall_lux.exr), png (wall_lux.png), "
@@ -316,7 +321,7 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
     default: here, after the map).
     """
     analyses = list(analyses or ())
-    if not analyses and (opts.regulation is not None or opts.ies or opts.ldt):
+    if not analyses and (opts.regulation is not None or opts.ies or opts.ldt or opts.road):
         raise LightsimError("run_simulation: the options ask for a regulation check or "
                             "far-field files but no analyses were given (build them with "
                             "lightsim.luminaires.analyses.for_options)")

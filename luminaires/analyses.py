@@ -14,6 +14,8 @@ option              unit   analysis
 ``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
                            ``ies_type``, ``farfield_photons``, ``ies_step``,
                            ``ldt_step`` deg)
+``road``            –      :class:`lightsim.road_evaluation.RoadAnalysis` (with
+                           ``mount_height`` m, ``traffic``)
 ==================  =====  ==========================================================
 """
 
@@ -22,11 +24,13 @@ from __future__ import annotations
 from typing import Any
 
 from lightsim.analysis import Analysis
+from lightsim.road_evaluation import RoadAnalysis, RoadSettings
 
 from .photometric import resolve_ies_type
 from .photometric.analysis import FarfieldAnalysis
 from .photometric.gridding import check_step
 from .regulations.check import RegulationAnalysis, split_rulesets
+from .regulations.conditions import refuse_screen_check
 
 __all__ = ["for_options"]
 
@@ -46,10 +50,15 @@ def for_options(opts: Any) -> list[Analysis]:
     if opts.regulation is not None:
         # `a,b`: one table per rule set, the first named "regulation"
         for i, rs in enumerate(split_rulesets(opts.regulation)):
-            out.append(RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
+            analysis = RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
                                           opts.spt_points,
-                                          name="regulation" if i == 0 else f"regulation:{rs}"))
+                                          name="regulation" if i == 0 else f"regulation:{rs}")
+            refuse_screen_check(analysis.rules)  # re-aim etc.: `lightsim check` instead
+            out.append(analysis)
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
                                     opts.ies_step, opts.ldt_step))
+    if getattr(opts, "road", False):
+        out.append(RoadAnalysis(RoadSettings(mount_height=opts.mount_height,
+                                             traffic=opts.traffic)))
     return out
