@@ -57,12 +57,15 @@ from lightsim.errors import InputError
 
 __all__ = [
     "BULBS",
+    "LEDS",
     "BulbSpec",
+    "LedSpec",
     "EnvelopeSpec",
     "ShieldCupSpec",
     "bulb_names",
     "check_flux",
     "get_bulb",
+    "get_led",
 ]
 
 MM = 1e-3  # metres per millimetre
@@ -322,3 +325,67 @@ def get_bulb(name: str) -> BulbSpec:
     if key is None:
         raise InputError(f"unknown bulb {name!r}; known bulbs: {', '.join(BULBS)}")
     return BULBS[key]
+
+
+@dataclass(frozen=True)
+class LedSpec:
+    """An LED light source: a row of square dies, each a flat Lambertian emitter.
+
+    Attributes
+    ----------
+    name : str
+        Preset name (``"LED-2x1"``); written to each die's ``extras.lightsim.led``.
+    dies : int
+        Number of dies in the row (along the lamp's X axis).
+    die_side_m : float
+        Edge of one square die in m.
+    pitch_m : float
+        Centre distance of neighbouring dies in m.
+    flux_lm : float
+        Luminous flux of all dies together, in lm (shared equally).
+    flux_source : str
+        Where the flux comes from and how sure it is.
+    """
+
+    name: str
+    dies: int
+    die_side_m: float
+    pitch_m: float
+    flux_lm: float
+    flux_source: str
+
+    @property
+    def luminance_cd_m2(self) -> float:
+        """Luminance of the lit dies, L = Φ / (π A), in cd/m² (a Lambertian emitter)."""
+        return self.flux_lm / (math.pi * self.dies * self.die_side_m ** 2)
+
+    def with_flux(self, flux_lm: float) -> LedSpec:
+        """A copy with another luminous flux, in lm (> 0)."""
+        return replace(self, flux_lm=check_flux(flux_lm),
+                       flux_source="given by the user (--flux)")
+
+
+#: LED presets by name. Die sizes and fluxes are typical of automotive headlamp LEDs
+#: (1 mm² dies in rows of 1 to 4, 250–300 lm per die at 1 A); stated assumptions, not the
+#: data sheet of one product.
+LEDS: dict[str, LedSpec] = {
+    "LED-2x1": LedSpec(
+        "LED-2x1", 2, 1.0 * MM, 1.1 * MM, 600.0,
+        "assumption: two 1 mm² dies at 300 lm each, typical of automotive headlamp LEDs "
+        "at 1 A (not one product's data sheet)",
+    ),
+}
+
+
+def get_led(name: str) -> LedSpec:
+    """The LED preset called ``name`` (case-insensitive).
+
+    Raises
+    ------
+    InputError
+        Unknown name (the message lists the known ones).
+    """
+    key = {k.lower(): k for k in LEDS}.get(str(name).strip().lower())
+    if key is None:
+        raise InputError(f"unknown LED {name!r}; known LEDs: {', '.join(LEDS)}")
+    return LEDS[key]
