@@ -369,6 +369,11 @@ class LedSpec:
 #: (1 mm² dies in rows of 1 to 4, 250–300 lm per die at 1 A); stated assumptions, not the
 #: data sheet of one product.
 LEDS: dict[str, LedSpec] = {
+    "LED-1x1": LedSpec(
+        "LED-1x1", 1, 1.0 * MM, 1.1 * MM, 300.0,
+        "assumption: one 1 mm² die at 300 lm, typical of automotive headlamp LEDs at 1 A "
+        "(not one product's data sheet)",
+    ),
     "LED-2x1": LedSpec(
         "LED-2x1", 2, 1.0 * MM, 1.1 * MM, 600.0,
         "assumption: two 1 mm² dies at 300 lm each, typical of automotive headlamp LEDs "

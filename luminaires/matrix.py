@@ -27,7 +27,7 @@ span_deg                °      24        total width of the stripes, centred on
 v_low_deg, v_high_deg   °      −1.5, 2   vertical extent of every stripe (V down, up)
 fill                    –      1.0       die width / pitch (1: the segments of one
                                          monolithic die touch, as on pixel LED arrays)
-flux_lm                 lm     230       flux of one segment's die (≈ 30 lm/mm²)
+flux_lm                 lm     260       flux of one segment's die (≈ 33 lm/mm²)
 lens_diameter_m         m      0.080     lens clear diameter
 lens_distance_m         m      0.050     dies to the lens's flat back face
 lens_ior                –      1.52      lens glass (crown glass)
@@ -73,7 +73,7 @@ class MatrixParams:
     v_low_deg: float = -1.5
     v_high_deg: float = 2.0
     fill: float = 1.0
-    flux_lm: float = 230.0
+    flux_lm: float = 260.0
     lens_diameter_m: float = 0.080
     lens_distance_m: float = 0.050
     lens_ior: float = 1.52
