@@ -55,6 +55,7 @@ reflectance             –      0.90         mirror reflectance (aluminised)
 spread_deg              °      8.0          sector aims span aim ± spread in H
 aim_deg                 °      0.5          H of the middle of the sector aims
 left_drop_deg           °      1.0          how much lower the oncoming side's sectors aim
+right_drop_deg          °      0.0          the same for the kerb side's sectors
 sectors                 –      12           azimuthal sectors of the reflector
 cutoff_deg              °      0.57         cut-off below H–H on the non-step side
 step_deg                °      15           angle of the step (15°; 45° for a kink)
@@ -118,6 +119,7 @@ class ProjectorParams:
     spread_deg: float = 8.0
     aim_deg: float = 0.5
     left_drop_deg: float = 1.0
+    right_drop_deg: float = 0.0
     sectors: int = 12
     cutoff_deg: float = 0.57
     step_deg: float = 15.0
@@ -185,19 +187,21 @@ def _sector_aims(p: ProjectorParams, f_lens: float) -> np.ndarray:
     """Second focus of each sector, (x, y) in m beside F2 in its plane.
 
     H spans aim ± spread: the sectors beside the LED aim wide, the top ones at the centre.
-    Sectors aimed at the oncoming side (H < aim) have their second focus raised by up to
-    ``f·tan(left_drop_deg)``: their images sit higher on the shield, so more of their
-    light passes the edge and lands lower on the road, which keeps the oncoming side of
-    the cut-off dimmer (R149's 50L, 75L maxima).
+    A sector aimed at H (mirrored for left-hand traffic) has its second focus raised by
+    ``f·tan(drop)``, drop growing from 0 at H = 0 to ``left_drop_deg`` at 3° towards the
+    oncoming side and to ``right_drop_deg`` at 3° towards the kerb: its image then sits
+    higher on the shield, more of it passes the edge and it lands lower on the road. The
+    oncoming side is kept dimmer near the cut-off (R149's 50L and 75L maxima) and the
+    kerb side's light fills the points below its raised cut-off (50R).
     """
     k = np.arange(p.sectors)
     phi_mid = (k + 0.5) * math.pi / p.sectors  # 0 = world +X, π = world −X
     side = np.cos(phi_mid) / math.cos(0.5 * math.pi / p.sectors)
-    oncoming = -side if p.traffic == "right" else side
-    h = p.aim_deg + p.spread_deg * side
-    if p.traffic == "left":
-        h = -p.aim_deg + p.spread_deg * side
-    drop = p.left_drop_deg * np.clip(oncoming, 0.0, 1.0)
+    mirror = 1.0 if p.traffic == "right" else -1.0
+    h = mirror * p.aim_deg + p.spread_deg * side
+    kerb = mirror * h  # H towards the kerb side (> 0) or the oncoming side (< 0)
+    drop = (p.left_drop_deg * np.clip(-kerb / 3.0, 0.0, 1.0)
+            + p.right_drop_deg * np.clip(kerb / 3.0, 0.0, 1.0))
     return np.column_stack([f_lens * np.tan(np.radians(h)),
                             f_lens * np.tan(np.radians(drop))])
 
