@@ -63,9 +63,9 @@ step_rise_deg           °      0.9          how far the cut-off rises on the st
 lens_diameter_m         m      0.060        lens clear diameter
 lens_distance_m         m      0.040        shield edge to the lens's flat back face
 lens_ior                –      1.52         lens glass (crown glass)
-sign_prisms             °, m   1°, 3°, 5°;  wedge prism blocks on a band around the lower
-                               1 mm each    half of the lens, alternating: (upward
-                                            deflection, band width) of each kind
+sign_prisms             °, °,  see class    bands of wedge prisms around the lower half of
+                        m                   the lens: (H, V) deflection and band width of
+                                            each (H towards the kerb side > 0)
 sign_radius             –      0.8          inner radius of that band / lens radius
 ======================  =====  ===========  ================================================
 """
@@ -127,7 +127,8 @@ class ProjectorParams:
     lens_diameter_m: float = 0.060
     lens_distance_m: float = 0.040
     lens_ior: float = 1.52
-    sign_prisms: tuple[tuple[float, float], ...] = ((1.0, 0.001), (3.0, 0.001), (5.0, 0.001))
+    sign_prisms: tuple[tuple[float, float, float], ...] = (
+        (-4.0, 0.8, 0.001), (0.0, 3.0, 0.001), (0.0, 5.0, 0.001))
     sign_radius: float = 0.8
 
     @classmethod
@@ -186,7 +187,8 @@ def led_die_parts(spec: LedSpec, centre: tuple[float, float, float], normal: str
 def _sector_aims(p: ProjectorParams, f_lens: float) -> np.ndarray:
     """Second focus of each sector, (x, y) in m beside F2 in its plane.
 
-    H spans aim ± spread: the sectors beside the LED aim wide, the top ones at the centre.
+    H spans aim ± spread evenly over the sectors: those beside the LED aim wide, the top
+    ones at the centre.
     A sector aimed at H (mirrored for left-hand traffic) has its second focus raised by
     ``f·tan(drop)``, drop growing from 0 at H = 0 to ``left_drop_deg`` at 3° towards the
     oncoming side and to ``right_drop_deg`` at 3° towards the kerb: its image then sits
@@ -196,7 +198,7 @@ def _sector_aims(p: ProjectorParams, f_lens: float) -> np.ndarray:
     """
     k = np.arange(p.sectors)
     phi_mid = (k + 0.5) * math.pi / p.sectors  # 0 = world +X, π = world −X
-    side = np.cos(phi_mid) / math.cos(0.5 * math.pi / p.sectors)
+    side = 1.0 - 2.0 * phi_mid / math.pi  # +1 at world +X … −1 at world −X, evenly
     mirror = 1.0 if p.traffic == "right" else -1.0
     h = mirror * p.aim_deg + p.spread_deg * side
     kerb = mirror * h  # H towards the kerb side (> 0) or the oncoming side (< 0)
@@ -350,18 +352,19 @@ def _baffle(z: float, window: tuple[float, float, float, float], outer: float
     return np.array(verts), np.array(faces, dtype=np.int64)
 
 
-def _rim_arcs(kinds: int, blocks: int = 24) -> list[tuple[float, float]]:
-    """Angular ranges (rad) of the prism blocks around the lower half of the rim."""
-    n = blocks - blocks % kinds
-    edges = np.linspace(math.pi, 2 * math.pi, n + 1)
+def _rim_arcs(span: tuple[float, float], blocks: int) -> list[tuple[float, float]]:
+    """``blocks`` equal angular ranges (rad) covering ``span`` about the lens axis."""
+    edges = np.linspace(span[0], span[1], blocks + 1)
     return list(zip(edges[:-1], edges[1:]))
 
 
 def _rim_wedge(r0: float, width: float, axis_y: float, a0: float, a1: float,
-               z0: float, wedge_rad: float) -> tuple[np.ndarray, np.ndarray]:
+               z0: float, wedge_rad: float, toward: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
     """A closed wedge block over the band r0 … r0 + width between azimuths a0, a1 about
-    the lens axis: flat back at z0, front at z0 + 1.5 mm + (y − y_min)·tan(wedge),
-    thicker upwards so it deflects up; outward faces."""
+    the lens axis: flat back at z0, front at z0 + 1.5 mm + s·tan(wedge) with s the
+    distance along ``toward`` (xy) from the block's thinnest corner; thicker that way,
+    so it deflects light that way; outward faces."""
     r1 = r0 + width
     ring = np.array([[r0 * math.cos(a0), r0 * math.sin(a0)],
                      [r1 * math.cos(a0), r1 * math.sin(a0)],
@@ -372,9 +375,11 @@ def _rim_wedge(r0: float, width: float, axis_y: float, a0: float, a1: float,
     area = np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1])
     if area < 0:
         ring = ring[::-1]
-    y_min = ring[:, 1].min()
+    g = np.asarray(toward, dtype=np.float64)
+    g = g / max(float(np.linalg.norm(g)), 1e-300)
+    along = ring @ g
     back = np.column_stack([ring, np.full(4, z0)])
-    front = np.column_stack([ring, z0 + 1.5 * MM + (ring[:, 1] - y_min) * math.tan(wedge_rad)])
+    front = np.column_stack([ring, z0 + 1.5 * MM + (along - along.min()) * math.tan(wedge_rad)])
     v = np.vstack([back, front])
     f = [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7]]
     for i in range(4):
@@ -438,10 +443,11 @@ def _check(p: ProjectorParams) -> LedSpec:
         raise InputError(f"sign prism band radius {p.sign_radius!r} is outside 0.2–0.95 of "
                          "the lens radius")
     for prism in p.sign_prisms:
-        if not (len(prism) == 2 and all(math.isfinite(v) for v in prism)
-                and 0.0 < prism[0] <= 15.0 and 0.0 < prism[1] <= 0.1 * p.lens_diameter_m):
-            raise InputError(f"sign prism {prism!r} needs a deflection in (0, 15]° and a "
-                             "band width up to a tenth of the lens diameter")
+        if not (len(prism) == 3 and all(math.isfinite(v) for v in prism)
+                and 0.0 < math.hypot(prism[0], prism[1]) <= 15.0
+                and 0.0 < prism[2] <= 0.1 * p.lens_diameter_m):
+            raise InputError(f"sign prism {prism!r} needs an (H, V) deflection within 15° "
+                             "and a band width up to a tenth of the lens diameter")
     if spec.dies * spec.pitch_m > 0.5 * p.focal_distance_m:
         raise InputError("the LED is too large for the reflector")
     return spec
@@ -503,20 +509,27 @@ def build_projector(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
                           extras={"lightsim": {"type": "aspheric plano-convex",
                                                "focal_length_m": fl,
                                                "thickness_m": lens.thickness_m}}))
-    # sign-light prisms: blocks on a band around the lower half of the lens (the light there
-    # comes from every reflector sector, so the lifted copy spans the beam's width), alternating
-    # between the deflections, in front of the lens vertex where the light is collimated
+    # sign-light prisms: bands of wedge blocks around the lower half of the lens, stacked
+    # outwards from sign_radius (the light there comes from every reflector sector, so each
+    # lifted copy spans the beam's width), in front of the lens vertex where the light is
+    # collimated. Each kind deflects a small share of the beam by (H, V).
     z0 = L + p.lens_distance_m + lens.thickness_m + 2 * MM
     glass = lens_glass(p.lens_ior, 1.5 * MM)
-    for k, (deflect_deg, width) in enumerate(p.sign_prisms):
-        blocks = [_rim_wedge(0.5 * p.lens_diameter_m * p.sign_radius, width, axis_y, a0, a1, z0,
-                             math.radians(deflect_deg) / (p.lens_ior - 1.0))
-                  for j, (a0, a1) in enumerate(_rim_arcs(len(p.sign_prisms)))
-                  if j % len(p.sign_prisms) == k]
+    r_band = 0.5 * p.lens_diameter_m * p.sign_radius
+    mirror = 1.0 if p.traffic == "right" else -1.0
+    for k, (h_deg, v_deg, width) in enumerate(p.sign_prisms):
+        # towards wall (H, V): world (−tan H, tan V); the wedge thickens that way
+        toward = np.array([-math.tan(math.radians(mirror * h_deg)),
+                           math.tan(math.radians(v_deg))])
+        wedge = math.atan(float(np.linalg.norm(toward))) / (p.lens_ior - 1.0)
+        blocks = [_rim_wedge(r_band, width, axis_y, a0, a1, z0, wedge, toward)
+                  for a0, a1 in _rim_arcs((math.pi, 2 * math.pi), 12)]
+        r_band += width + 1e-5
         vp = np.vstack([v for v, _ in blocks])
         fp = np.vstack([f + 8 * i for i, (_, f) in enumerate(blocks)])
         parts.append(GltfPart(f"sign_{k:02d}", vp, fp, None, glass, extras={"lightsim": {
-            "type": "wedge prisms", "deflection_deg": deflect_deg, "width_m": width}}))
+            "type": "wedge prisms", "deflection_h_deg": mirror * h_deg,
+            "deflection_v_deg": v_deg, "width_m": width}}))
     facts = {"params": asdict(p), "led": spec.name, "flux_lm": spec.flux_lm,
              "luminance_cd_m2": spec.luminance_cd_m2, "lens_focal_length_m": fl,
              "lens_thickness_m": lens.thickness_m, "lens_axis_y_m": axis_y,
