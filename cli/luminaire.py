@@ -185,14 +185,16 @@ def _echo_triangles(triangles: dict[str, int]) -> None:
 @click.option("--flux", "flux_lm", type=float, default=None,
               help="Luminous flux of the LED in lm [default: the example's].")
 @click.option("--focal-distance", "focal_mm", type=float, default=_P.focal_distance_m / MM,
-              show_default=True, help="Distance between the ellipsoid's foci (LED to shield edge) in mm.")
+              show_default=True,
+              help="Distance between the ellipsoid's foci (LED to shield edge) in mm.")
 @click.option("--semi-major", "semi_major_mm", type=float, default=_P.semi_major_m / MM,
               show_default=True, help="Semi-major axis of the ellipsoidal reflector in mm.")
 @click.option("--lens-diameter", "lens_diameter_mm", type=float,
               default=_P.lens_diameter_m / MM, show_default=True,
               help="Diameter of the aspheric lens in mm.")
 @click.option("--lens-distance", "lens_distance_mm", type=float,
-              default=_P.lens_distance_m / MM, show_default=True, help="Shield edge to the lens's flat back face in mm.")
+              default=_P.lens_distance_m / MM, show_default=True,
+              help="Shield edge to the lens's flat back face in mm.")
 @click.option("--step", "step_deg", type=float, default=_P.step_deg, show_default=True,
               help="Angle of the cut-off's step in degrees (15; 45 for a kink).")
 def projector(out: Path, beam: str, traffic: str, led: str, flux_lm: float | None,

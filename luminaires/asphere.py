@@ -32,6 +32,7 @@ towards +Z), metres.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -218,7 +219,7 @@ def revolve(r: np.ndarray, z: np.ndarray, nr: np.ndarray, nz: np.ndarray, sector
     faces = []
     j = np.arange(sectors)
     jn = (j + 1) % sectors
-    for lo, hi in zip(rows[:-1], rows[1:]):
+    for lo, hi in itertools.pairwise(rows):
         if len(lo) == 1:
             faces.append(np.column_stack([np.full(sectors, lo[0]), hi[jn], hi[j]]))
         elif len(hi) == 1:

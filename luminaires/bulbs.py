@@ -1,4 +1,4 @@
-"""Halogen bulb presets (UN R37 categories H1, H3, H4, H7) as data.
+"""Halogen bulb presets (UN R37 categories H1, H3, H4, H7) and LED presets as data.
 
 Each preset gives the luminous flux with its source, the filament (coil envelope) size, the
 filament position relative to the reflector focus, the filament axis, the glass envelope and
@@ -43,6 +43,11 @@ hand:
   that an opaque tip cap shades only directions that would leave the lamp without
   touching a reflector of the default size.
 
+LED presets (:data:`LEDS`): rows of square 1 mm² dies, each a flat Lambertian emitter,
+with 300 lm per die — typical of automotive headlamp LEDs at 1 A (about 95 Mcd/m²),
+an assumption rather than one product's data sheet. Used by the LED projector module
+(:mod:`lightsim.luminaires.projector`).
+
 Tip caps: UN R37 sheet H7/2 (note 7, as amended by ECE/TRANS/WP.29/2006/81) prescribes an
 obscuration covering at least the bulb top down to its cylindrical part; H4 bulbs carry such
 a black cap too (assumed here, not checked against sheet H4); H1 and H3 are modelled without.
@@ -59,8 +64,8 @@ __all__ = [
     "BULBS",
     "LEDS",
     "BulbSpec",
-    "LedSpec",
     "EnvelopeSpec",
+    "LedSpec",
     "ShieldCupSpec",
     "bulb_names",
     "check_flux",

@@ -72,6 +72,7 @@ sign_radius             –      0.8          inner radius of that band / lens r
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from dataclasses import asdict, dataclass, fields
@@ -355,7 +356,7 @@ def _baffle(z: float, window: tuple[float, float, float, float], outer: float
 def _rim_arcs(span: tuple[float, float], blocks: int) -> list[tuple[float, float]]:
     """``blocks`` equal angular ranges (rad) covering ``span`` about the lens axis."""
     edges = np.linspace(span[0], span[1], blocks + 1)
-    return list(zip(edges[:-1], edges[1:]))
+    return list(itertools.pairwise(edges))
 
 
 def _rim_wedge(r0: float, width: float, axis_y: float, a0: float, a1: float,

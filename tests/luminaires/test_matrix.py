@@ -7,13 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import run_cli
 
 import lightsim.luminaires
 from lightsim.errors import InputError
 from lightsim.luminaires.matrix import build_matrix, segment_name, stripe_edges_deg
 from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, run_simulation
+
+from support import run_cli
 
 EXAMPLES = Path(lightsim.luminaires.__file__).parent / "examples"
 EXAMPLE_COMMAND = "lightsim luminaire matrix luminaires/examples/matrix.glb"

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import run_cli
 
 import lightsim.luminaires
 from lightsim.errors import InputError
@@ -18,6 +17,8 @@ from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.luminaires.projector import ProjectorParams, build_projector, shield_edge
 from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, run_simulation
+
+from support import run_cli
 
 EXAMPLES = Path(lightsim.luminaires.__file__).parent / "examples"
 #: the shipped example's command (also in luminaires/examples/README.md)
