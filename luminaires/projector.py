@@ -40,33 +40,37 @@ sign_NN       thin wedge prisms (same glass) in front of the lens's lowest strip
               there (points B1–B8: overhead signs and the left verge)
 ============  ==========================================================================
 
-Parameters of :class:`ProjectorParams`
+Parameters of :class:`ProjectorParams` (the defaults are the shipped example, tuned until
+its low beam passes UN R149 class B; see ``luminaires/examples/README.md``)
 
 ======================  =====  ===========  ================================================
 name                    unit   default      meaning
 ======================  =====  ===========  ================================================
 beam                    –      ``low``      ``low`` (shield up) or ``high`` (flipped down)
-traffic                 –      ``right``    ``left`` mirrors the step
+traffic                 –      ``right``    ``left`` mirrors the step, aims and prisms
 led                     –      ``LED-2x1``  LED preset (:data:`~lightsim.luminaires.bulbs.LEDS`)
-flux_lm                 lm     preset       flux of all dies together
+flux_lm                 lm     540          flux of all dies together (None: the preset's)
 focal_distance_m        m      0.040        F1 to F2 (L = 2c)
 semi_major_m            m      0.029        semi-major axis a of the ellipsoid (> L/2)
 reflectance             –      0.90         mirror reflectance (aluminised)
-spread_deg              °      8.0          sector aims span aim ± spread in H
-aim_deg                 °      0.5          H of the middle of the sector aims
-left_drop_deg           °      1.0          how much lower the oncoming side's sectors aim
-right_drop_deg          °      0.0          the same for the kerb side's sectors
+spread_deg              °      11.5         sector aims span aim ± spread in H, evenly
+aim_deg                 °      0.43         H of the middle of the sector aims
+left_drop_deg           °      2.1          how much lower the oncoming side's sectors aim
+right_drop_deg          °      0.65         the same for the kerb side's sectors
 sectors                 –      12           azimuthal sectors of the reflector
-cutoff_deg              °      0.57         cut-off below H–H on the non-step side
-step_deg                °      15           angle of the step (15°; 45° for a kink)
-step_rise_deg           °      0.9          how far the cut-off rises on the step side
+cutoff_deg              °      0.70         cut-off below H–H on the non-step side
+step_deg                °      45           angle of the step (45°: the kink; or 15°)
+step_rise_deg           °      0.64         how far the cut-off rises on the step side
 lens_diameter_m         m      0.060        lens clear diameter
 lens_distance_m         m      0.040        shield edge to the lens's flat back face
 lens_ior                –      1.52         lens glass (crown glass)
-sign_prisms             °, °,  see class    bands of wedge prisms around the lower half of
-                        m                   the lens: (H, V) deflection and band width of
-                                            each (H towards the kerb side > 0)
-sign_radius             –      0.8          inner radius of that band / lens radius
+sign_prisms             °, °,  (−4.37, 1.2, bands of wedge prisms around the lower half of
+                        m      0.25 mm),    the lens: (H, V) deflection and band width of
+                               (0, 3.5,     each (H towards the kerb side > 0), stacked
+                               0.28 mm),    outwards
+                               (0, 5.5,
+                               0.38 mm)
+sign_radius             –      0.80         inner radius of the prism bands / lens radius
 ======================  =====  ===========  ================================================
 """
 
@@ -113,24 +117,24 @@ class ProjectorParams:
     beam: str = "low"
     traffic: str = "right"
     led: str = "LED-2x1"
-    flux_lm: float | None = None
+    flux_lm: float | None = 540.0
     focal_distance_m: float = 0.040
     semi_major_m: float = 0.029
     reflectance: float = 0.90
-    spread_deg: float = 8.0
-    aim_deg: float = 0.5
-    left_drop_deg: float = 1.0
-    right_drop_deg: float = 0.0
+    spread_deg: float = 11.5
+    aim_deg: float = 0.43
+    left_drop_deg: float = 2.1
+    right_drop_deg: float = 0.65
     sectors: int = 12
-    cutoff_deg: float = 0.57
-    step_deg: float = 15.0
-    step_rise_deg: float = 0.9
+    cutoff_deg: float = 0.70
+    step_deg: float = 45.0
+    step_rise_deg: float = 0.64
     lens_diameter_m: float = 0.060
     lens_distance_m: float = 0.040
     lens_ior: float = 1.52
     sign_prisms: tuple[tuple[float, float, float], ...] = (
-        (-4.0, 0.8, 0.001), (0.0, 3.0, 0.001), (0.0, 5.0, 0.001))
-    sign_radius: float = 0.8
+        (-4.37, 1.2, 0.00025), (0.0, 3.5, 0.00028), (0.0, 5.5, 0.00038))
+    sign_radius: float = 0.80
 
     @classmethod
     def names(cls) -> list[str]:
