@@ -156,7 +156,7 @@ def design(work: Path) -> dict[str, Path]:
 
 def led_lamps(work: Path) -> dict[str, Path]:
     """The LED guide's runs: the projector's low beam and the matrix beam, all on."""
-    run(["simulate", str(PROJECTOR), "--photons", "16000000", "--resolution", "320x128",
+    run(["simulate", str(PROJECTOR), "--photons", "48000000", "--resolution", "320x128",
          "--regulation", "r149-b-passing", "--outputs", "isolux,json", "--out", "projector",
          "--quiet"], work)
     run(["simulate", str(MATRIX), "--photons", "16000000", "--resolution", "320x128",

@@ -146,9 +146,9 @@ class ProjectorParams:
 # ---------------------------------------------------------------------------------------
 
 
-def led_die_parts(spec: LedSpec, centre: tuple[float, float, float], normal: str,
+def led_die_parts(spec: LedSpec, centre: tuple[float, float, float],
                   first_index: int = 0, group: str = "led") -> list[GltfPart]:
-    """The dies of an LED as emitting squares ``led_NN``, in a row along X.
+    """The dies of an LED as emitting squares ``led_NN`` facing +Y, in a row along X.
 
     Parameters
     ----------
@@ -156,20 +156,14 @@ def led_die_parts(spec: LedSpec, centre: tuple[float, float, float], normal: str
         Dies, size, pitch and total flux (shared equally).
     centre : tuple of 3 float
         Centre of the row in m.
-    normal : {"+y", "+z"}
-        The way the dies face (their Lambertian axis).
     first_index : int
         Number of the first die's name.
     group : str
         ``extras.lightsim.group``: dies of one group are driven together.
     """
     s = 0.5 * spec.die_side_m
-    if normal == "+y":  # square in the XZ plane; (−,−), (−,+), (+,+) winding faces +Y
-        corners = np.array([[-s, 0, -s], [-s, 0, s], [s, 0, s], [s, 0, -s]])
-    elif normal == "+z":
-        corners = np.array([[-s, -s, 0], [s, -s, 0], [s, s, 0], [-s, s, 0]])
-    else:
-        raise InputError(f"unknown die orientation {normal!r}")
+    # a square in the XZ plane; the (−,−), (−,+), (+,+) winding faces +Y (the reflector)
+    corners = np.array([[-s, 0, -s], [-s, 0, s], [s, 0, s], [s, 0, -s]])
     faces = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
     parts = []
     flux = spec.flux_lm / spec.dies
@@ -491,7 +485,7 @@ def build_projector(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
     fl = lens.focal_length_m
     # the lens axis lies below the shield edge so the edge is imaged cutoff_deg below H–H
     axis_y = -fl * math.tan(math.radians(p.cutoff_deg))
-    parts = led_die_parts(spec, (0.0, 0.0, 0.0), "+y")
+    parts = led_die_parts(spec, (0.0, 0.0, 0.0))
     back = p.semi_major_m - 0.5 * L  # reflector's back vertex behind F1
     vb, fb = _box((-12 * MM, -1.6 * MM, -back - 2 * MM), (12 * MM, -0.1 * MM, 4 * MM))
     parts.append(GltfPart("board", vb, fb, None, BLACK))
