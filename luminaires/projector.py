@@ -64,8 +64,8 @@ step_rise_deg           °      0.64         how far the cut-off rises on the st
 lens_diameter_m         m      0.060        lens clear diameter
 lens_distance_m         m      0.040        shield edge to the lens's flat back face
 lens_ior                –      1.52         lens glass (crown glass)
-sign_prisms             °, °,  (−4.37, 1.2, bands of wedge prisms around the lower half of
-                        m      0.25 mm),    the lens: (H, V) deflection and band width of
+sign_prisms             °, °,  (−8, 0.85,   bands of wedge prisms around the lower half of
+                        m      0.26 mm),    the lens: (H, V) deflection and band width of
                                (0, 3.5,     each (H towards the kerb side > 0), stacked
                                0.28 mm),    outwards
                                (0, 5.5,
@@ -133,7 +133,7 @@ class ProjectorParams:
     lens_distance_m: float = 0.040
     lens_ior: float = 1.52
     sign_prisms: tuple[tuple[float, float, float], ...] = (
-        (-4.37, 1.2, 0.00025), (0.0, 3.5, 0.00028), (0.0, 5.5, 0.00038))
+        (-8.0, 0.85, 0.00026), (0.0, 3.5, 0.00028), (0.0, 5.5, 0.00038))
     sign_radius: float = 0.80
 
     @classmethod
