@@ -230,7 +230,7 @@ def projector(out: Path, beam: str, traffic: str, led: str, flux_lm: float | Non
 @click.option("--span", "span_deg", type=float, default=_M.span_deg, show_default=True,
               help="Total width of the stripes in degrees, centred on H = 0.")
 @click.option("--flux", "flux_lm", type=float, default=_M.flux_lm, show_default=True,
-              help="Luminous flux of one segment in lm.")
+              help="Mean luminous flux of a segment in lm (shared by die area).")
 @click.option("--only-segment", type=int, default=None,
               help="Build only this segment's die (0 = leftmost stripe).")
 def matrix(out: Path, segments: int, span_deg: float, flux_lm: float,
@@ -245,8 +245,8 @@ def matrix(out: Path, segments: int, span_deg: float, flux_lm: float,
                            only_segment=only_segment)
     edges = summary["stripes_deg"]
     click.echo(
-        f"wrote {out} ({summary['bytes'] / 1e6:.2f} MB): {segments} segments × "
-        f"{flux_lm:g} lm Lambertian ({summary['luminance_cd_m2'] / 1e6:.1f} Mcd/m²), "
+        f"wrote {out} ({summary['bytes'] / 1e6:.2f} MB): {segments} segments, "
+        f"{summary['flux_lm']:g} lm Lambertian ({summary['luminance_cd_m2'] / 1e6:.1f} Mcd/m²), "
         f"stripes {edges[1] - edges[0]:.2f}° wide from H = {edges[0]:g}° to {edges[-1]:g}°, "
         f"lens f = {summary['lens_focal_length_m'] / MM:.1f} mm"
     )

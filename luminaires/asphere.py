@@ -42,7 +42,8 @@ from lightsim.errors import InputError
 
 from .gltf_writer import GltfMaterial
 
-__all__ = ["LensDesign", "lens_design", "lens_glass", "lens_mesh"]
+__all__ = ["LensDesign", "image_angle_deg", "lens_design", "lens_glass", "lens_mesh",
+           "offset_for_angle_m"]
 
 _BAND = 1e-5  # m: width of the strip where the normal turns at a crease (rim edges)
 
@@ -154,6 +155,70 @@ def lens_design(diameter_m: float = 0.060, back_distance_m: float = 0.040,
     norm = np.hypot(nr, nz)
     return LensDesign(diameter_m, back_distance_m, ior, t, back_distance_m + t / ior,
                       r, z, nr / norm, nz / norm, math.degrees(rim[3]))
+
+
+def image_angle_deg(design: LensDesign, offset_m: float, rays: int = 96) -> float:
+    """Where the lens sends a point of its focal plane: the mean exit angle (°) of a fan
+    of meridional rays from ``offset_m`` beside the focus, weighted by a Lambertian
+    source facing the lens, measured towards the offset's side (so ≈ −atan(offset / f)).
+
+    Off the axis the collimating asphere is not distortion-free; the builder places
+    the matrix's dies with this mapping rather than with atan(x / f).
+    """
+    n, d = design.ior, design.back_distance_m
+    radius = 0.5 * design.diameter_m
+    pr, pz = design.profile_r_m, design.profile_z_m
+    alpha = np.linspace(-math.radians(60.0), math.radians(60.0), rays)
+    angles, weights = [], []
+    for a in alpha:
+        xb = offset_m + d * math.tan(a)
+        if abs(xb) >= radius:
+            continue
+        sa = math.sin(a) / n
+        ca = math.sqrt(1.0 - sa * sa)
+
+        def gap(t: float, xb: float = xb, sa: float = sa, ca: float = ca) -> float:
+            x = xb + t * sa
+            return t * ca - float(np.interp(abs(x), pr, pz))  # > 0: beyond the front face
+
+        lo, hi = 0.0, 4.0 * design.thickness_m
+        if gap(hi) <= 0:
+            continue
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if gap(mid) < 0 else (lo, mid)
+        x = xb + hi * sa
+        if abs(x) >= radius:
+            continue
+        nr = float(np.interp(abs(x), pr, design.profile_nr)) * math.copysign(1.0, x)
+        nz = float(np.interp(abs(x), pr, design.profile_nz))
+        # refraction glass → air (n → 1) about the outward normal (nr, nz)
+        cos_i = sa * nr + ca * nz
+        k = 1.0 - n * n * (1.0 - cos_i * cos_i)
+        if k < 0:
+            continue  # total internal reflection: not part of the image
+        ox = n * sa + (math.sqrt(k) - n * cos_i) * nr
+        oz = n * ca + (math.sqrt(k) - n * cos_i) * nz
+        angles.append(math.degrees(math.atan2(ox, oz)))
+        weights.append(math.cos(a))
+    if not weights:
+        raise InputError(f"no light from {offset_m * 1e3:g} mm beside the focus passes the lens")
+    return float(np.average(angles, weights=weights))
+
+
+def offset_for_angle_m(design: LensDesign, angles_deg: np.ndarray) -> np.ndarray:
+    """The focal-plane offsets (m) whose light leaves the lens at ``angles_deg`` (°, the
+    sign convention of :func:`image_angle_deg`: a positive angle needs a negative
+    offset). Interpolated in a table of :func:`image_angle_deg` over 61 offsets within
+    60 % of the lens radius (the mapping is smooth and falls monotonically there)."""
+    half = 0.6 * 0.5 * design.diameter_m
+    table_x = np.linspace(-half, half, 61)
+    table_a = np.array([image_angle_deg(design, x) for x in table_x])
+    a = np.asarray(angles_deg, dtype=np.float64)
+    if np.any(a > table_a[0]) or np.any(a < table_a[-1]):
+        raise InputError(f"angles beyond ±{table_a[0]:.1f}° need dies further off the "
+                         "axis than the lens images well")
+    return np.interp(a, table_a[::-1], table_x[::-1])
 
 
 def lens_glass(ior: float, thickness_m: float) -> GltfMaterial:

@@ -3,9 +3,11 @@
 A row of N LED dies (the segments) lies in the focal plane of an aspheric plano-convex
 lens (:mod:`lightsim.luminaires.asphere`). The lens images each die to infinity: die k,
 centred at x_k beside the lens axis, lights the vertical stripe of the screen around
-H_k = atan(x_k / f) (world +X beside the axis becomes H > 0, the driver's right, because
-the image is inverted), and a die from y_lo to y_hi lights V from −atan(y_hi / f) to
-−atan(y_lo / f). The stripes are equally wide and tile ``span_deg`` without gaps; the
+H_k ≈ atan(x_k / f) (world +X beside the axis becomes H > 0, the driver's right, because
+the image is inverted), and a die from y_lo to y_hi lights V from about −atan(y_hi / f)
+to −atan(y_lo / f). The die edges are placed with the lens's traced mapping
+(:func:`~lightsim.luminaires.asphere.offset_for_angle_m`), which off the axis bends a
+little more than atan(x / f). The stripes are equally wide and tile ``span_deg`` without gaps; the
 dies are ``fill`` of their pitch wide. A black housing (board and tube) takes the light
 that misses the lens, as a real lamp's does.
 
@@ -27,7 +29,8 @@ span_deg                °      24        total width of the stripes, centred on
 v_low_deg, v_high_deg   °      −1.5, 2   vertical extent of every stripe (V down, up)
 fill                    –      1.0       die width / pitch (1: the segments of one
                                          monolithic die touch, as on pixel LED arrays)
-flux_lm                 lm     260       flux of one segment's die (≈ 33 lm/mm²)
+flux_lm                 lm     260       mean flux of a segment; each gets its share by
+                                         die area (equal luminance, ≈ 45 lm/mm²)
 lens_diameter_m         m      0.080     lens clear diameter
 lens_distance_m         m      0.050     dies to the lens's flat back face
 lens_ior                –      1.52      lens glass (crown glass)
@@ -48,7 +51,7 @@ import numpy as np
 from lightsim.errors import InputError
 from lightsim.io.atomic import write_bytes
 
-from .asphere import lens_design, lens_glass, lens_mesh, revolve
+from .asphere import lens_design, lens_glass, lens_mesh, offset_for_angle_m, revolve
 from .gltf_writer import GltfMaterial, GltfPart, glb_bytes
 
 __all__ = ["MatrixParams", "build_matrix", "segment_name", "stripe_edges_deg",
@@ -141,28 +144,32 @@ def build_matrix(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
     lens = lens_design(p.lens_diameter_m, p.lens_distance_m, ior=p.lens_ior)
     f = lens.focal_length_m
     edges = stripe_edges_deg(p.segments, p.span_deg)
-    xe = f * np.tan(np.radians(edges))  # die-plane X of the stripe edges
-    y_lo = -f * math.tan(math.radians(p.v_high_deg))
-    y_hi = -f * math.tan(math.radians(p.v_low_deg))
     radius = 0.5 * p.lens_diameter_m
-    if xe[-1] - xe[0] > 1.2 * radius:
-        raise InputError(f"the dies span {(xe[-1] - xe[0]) / MM:.1f} mm, more than the lens "
-                         f"can image (Ø{p.lens_diameter_m / MM:g} mm)")
+    xe_paraxial = f * np.tan(np.radians(edges))
+    if xe_paraxial[-1] - xe_paraxial[0] > 1.2 * radius:
+        raise InputError(f"the dies span {(xe_paraxial[-1] - xe_paraxial[0]) / MM:.1f} mm, "
+                         f"more than the lens can image (Ø{p.lens_diameter_m / MM:g} mm)")
+    # die-plane X of the stripe edges by the lens's own mapping (its image is inverted:
+    # H > 0 needs world +X; off the axis it spreads a little more than atan(x / f))
+    xe = offset_for_angle_m(lens, -edges)
+    y_lo, y_hi = offset_for_angle_m(lens, np.array([p.v_high_deg, p.v_low_deg]))
     parts: list[GltfPart] = []
-    width = 0.0
+    widths = p.fill * np.diff(xe)
+    # equal luminance on every die (one pixel array, one current density): the flux of a
+    # segment follows its die's area, flux_lm on average
+    flux = p.flux_lm * p.segments * widths / widths.sum()
     for k in range(p.segments):
         if p.only_segment is not None and k != p.only_segment:
             continue
         centre = 0.5 * (xe[k] + xe[k + 1])
-        half = 0.5 * p.fill * (xe[k + 1] - xe[k])
-        width = 2 * half
+        half = 0.5 * widths[k]
         # square in the plane z = 0, counter-clockwise seen from +Z (faces the lens)
         v = np.array([[centre - half, y_lo, 0.0], [centre + half, y_lo, 0.0],
                       [centre + half, y_hi, 0.0], [centre - half, y_hi, 0.0]])
         name = segment_name(k)
         parts.append(GltfPart(name, v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64),
                               None, SEGMENT_MATERIAL, extras={"lightsim": {
-                                  "flux_lm": p.flux_lm, "emission": "lambertian",
+                                  "flux_lm": float(flux[k]), "emission": "lambertian",
                                   "group": name, "segment": k,
                                   "stripe_h_deg": [float(edges[k]), float(edges[k + 1])],
                                   "stripe_v_deg": [p.v_low_deg, p.v_high_deg]}}))
@@ -180,12 +187,14 @@ def build_matrix(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
                           extras={"lightsim": {"type": "aspheric plano-convex",
                                                "focal_length_m": f,
                                                "thickness_m": lens.thickness_m}}))
-    die_area = width * (y_hi - y_lo)
+    die_area = float(widths.sum()) * (y_hi - y_lo)
     facts = {"params": asdict(p), "stripes_deg": [float(e) for e in edges],
              "lens_focal_length_m": f, "lens_thickness_m": lens.thickness_m,
-             "die_m": [width, y_hi - y_lo],
-             "luminance_cd_m2": p.flux_lm / (math.pi * die_area) if die_area else 0.0,
-             "flux_lm": p.flux_lm * (p.segments if p.only_segment is None else 1)}
+             "die_widths_m": [float(w) for w in widths], "die_height_m": float(y_hi - y_lo),
+             "luminance_cd_m2": p.flux_lm * p.segments / (math.pi * die_area),
+             "segment_flux_lm": [float(x) for x in flux],
+             "flux_lm": float(flux.sum() if p.only_segment is None
+                              else flux[p.only_segment])}
     return parts, facts
 
 
