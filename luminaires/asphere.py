@@ -3,8 +3,10 @@
 The projection lens of an LED projector module and of a matrix high beam. Light from the
 lens's focus F on its axis crosses the flat back face (refracted there), and the front
 face is shaped so that every such ray leaves parallel to the axis: a point at F is imaged
-at infinity without spherical aberration, and a point beside F at the angle
-atan(offset / f) on the other side of the axis (the image is inverted). The front profile
+at infinity without spherical aberration, and a point beside F at about the angle
+atan(offset / f) on the other side of the axis (the image is inverted; the lens is
+corrected on the axis only, so off the axis its light bends a few per cent further:
+:func:`image_angle_deg` traces it). The front profile
 follows from equal optical path (the wavefront after the lens is a plane):
 
     |F B| + n |B P| − z_P = const,

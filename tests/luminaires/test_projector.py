@@ -12,7 +12,12 @@ import pytest
 import lightsim.luminaires
 from lightsim.errors import InputError
 from lightsim.io.closed_mesh import closed_mesh
-from lightsim.luminaires.asphere import lens_design, lens_mesh
+from lightsim.luminaires.asphere import (
+    image_angle_deg,
+    lens_design,
+    lens_mesh,
+    offset_for_angle_m,
+)
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.luminaires.projector import ProjectorParams, build_projector, shield_edge
 from lightsim.scene import SceneSettings, load_scene
@@ -81,6 +86,22 @@ def test_lens_is_closed_and_its_thickness_leaves_the_edge():
     mesh = closed_mesh(v, f)
     assert mesh.watertight and mesh.volume > 0
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+
+
+def test_lens_mapping_is_paraxial_near_the_axis_and_inverts():
+    d = lens_design(0.08, 0.05)
+    small = 0.2e-3
+    assert image_angle_deg(d, 0.0) == pytest.approx(0.0, abs=1e-9)
+    # the fan's mean over the whole aperture: within 10 % of atan(x / f) (the asphere is
+    # corrected on the axis only, its marginal rays bend off-axis light further)
+    assert image_angle_deg(d, small) == pytest.approx(
+        -math.degrees(math.atan(small / d.focal_length_m)), rel=0.1)
+    offsets = np.linspace(-0.012, 0.012, 7)
+    angles = np.array([image_angle_deg(d, x) for x in offsets])
+    assert np.all(np.diff(angles) < 0)  # inverted image, monotonic
+    assert np.allclose(offset_for_angle_m(d, angles), offsets, atol=2e-5)
+    with pytest.raises(InputError, match="further off the axis"):
+        offset_for_angle_m(d, np.array([60.0]))
 
 
 def test_lens_collimates_a_point_at_its_focus(tmp_path):
