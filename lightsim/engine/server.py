@@ -102,8 +102,6 @@ UPPER_SLACK = 1.25
 #: the stop is judged on the written map at every estimate when the wall has at most
 #: this many pixels per grid probe (the map's figure then costs about the probes')
 MAP_CHECK_PIXELS = 4
-#: the share of target-error stops allowed to land above the target
-STOP_ALPHA = 0.1
 
 
 def stop_level(error: ErrorEstimate | None) -> float | None:
