@@ -7,7 +7,7 @@ import click
 from lightsim.engine.config import RunConfig
 from lightsim.luminaires.headlight import example_headlight
 from lightsim.options import click_option, lookup
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions
 from lightsim.validation.bench.scaling import bench_scaling
 from lightsim.validation.bench.table import print_table, write_json
@@ -31,7 +31,7 @@ def command(scene_file: str | None, workers: str, frame_photons: int, accumulate
     """Interaction and walkthrough frames/s per worker count, with bytes per frame."""
     w, h = resolution
     path = scene_file or str(example_headlight())
-    scene = load_scene(path, resolution=(w, h))
+    scene = load_scene(path, SceneSettings(resolution=(w, h)))
     counts = tuple(int(x) for x in workers.split(","))
     rows = bench_scaling(scene, counts, frame_photons=frame_photons, accumulate=accumulate,
                          frames=frames, address=address, threads=threads_per_worker or None)

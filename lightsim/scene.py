@@ -4,7 +4,8 @@ A scene is a list of named parts (one per glTF node primitive or trimesh geometr
 part has a role — ``surface`` (traced: diffuse, mirror or dielectric), ``emitter``
 (photon source, not traced), ``wall`` (the measurement wall: a diffuse detector that
 records photons and ends them) — and a material. The tracer sees the flattened soup of
-all surface and wall triangles.
+all surface and wall triangles. :func:`load_scene` takes its parameters as one
+:class:`SceneSettings`:
 
 =====================  =====  =========  ================================================
 parameter              unit   default    meaning
@@ -476,65 +477,113 @@ def _check_dielectric(part: Part, warnings: list[str]) -> Part:
     return part
 
 
-def load_scene(path: str | Path, *, flux: float | None = None, emission: str | None = None,
-               filament: str | None = None, filament_at: tuple[float, float, float] | None = None,
-               filament_axis: tuple[float, float, float] = (0.0, 0.0, 1.0),
-               wall_distance: float = 25.0, wall_size: tuple[float, float] = (30.0, 12.0),
-               wall_albedo: float = 0.8, resolution: tuple[int, int] = (640, 256),
-               part_materials: dict[str, str] | None = None,
-               channels: int | None = None, lamp_set: int | None = None,
-               rayfile: str | None = None,
-               rayfile_at: tuple[float, float, float] | None = None,
-               rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0),
-               materials: str | Path | None = None, tessellation: Any = None) -> Scene:
-    """Load a luminaire (GLB, glTF, OBJ, STL, PLY) into a validated :class:`Scene`.
+@dataclass(frozen=True)
+class SceneSettings:
+    """How a file becomes a scene: the parameters of the module's table (units there).
 
-    An IES/LDT file becomes a goniometric point source (``lamp_set``: the EULUMDAT lamp set
-    to use, 1-based; the reader's warnings become scene warnings).
-
-    See the module docstring for the parameters. A wall is added at ``wall_distance`` when
-    the file has none.
+    Every field has the default the table gives; ``load_scene(path)`` reads the file as it
+    is, with a 30 m × 12 m wall at 25 m added when the file has none.
     """
+
+    flux: float | None = None
+    emission: str | None = None
+    filament: str | None = None
+    filament_at: tuple[float, float, float] | None = None
+    filament_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    wall_distance: float = 25.0
+    wall_size: tuple[float, float] = (30.0, 12.0)
+    wall_albedo: float = 0.8
+    resolution: tuple[int, int] = (640, 256)
+    part_materials: dict[str, str] | None = None
+    channels: int | None = None
+    lamp_set: int | None = None
+    rayfile: str | None = None
+    rayfile_at: tuple[float, float, float] | None = None
+    rayfile_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    materials: str | Path | None = None
+    tessellation: Any = None
+
+    def added_wall(self) -> tuple[Part, WallFrame]:
+        """The wall :func:`make_wall` adds for a file without one."""
+        return make_wall(self.wall_distance, self.wall_size, self.wall_albedo, self.resolution)
+
+
+EMISSIONS = ("isotropic", "lambertian", "collimated")
+
+
+def load_scene(path: str | Path, settings: SceneSettings | None = None) -> Scene:
+    """Load a luminaire (GLB, glTF, OBJ, STL, PLY, STEP, IGES; an IES/LDT file; a TM-25 ray
+    file) into a validated :class:`Scene`.
+
+    An IES/LDT file becomes a goniometric point source (``settings.lamp_set``: the EULUMDAT
+    lamp set to use, 1-based; the reader's warnings become scene warnings); a ray file alone
+    becomes an LED at the origin. A mesh file's parts get their roles and materials
+    (:func:`mesh_parts`), then the emitters (:func:`add_emitters`) and the wall
+    (:func:`add_wall`; one is added at ``settings.wall_distance`` when the file has none).
+    """
+    s = SceneSettings() if settings is None else settings
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
     if not path.is_file():
         raise InputError(f"{path}: not a file")
     if path.suffix.lower() in PHOTOMETRIC_SUFFIXES:
-        if filament is not None:
-            raise InputError("an IES/LDT file is its own light source: --filament makes no sense")
-        parts = [goniometric_source(path, flux, lamp_set=lamp_set)]
-        wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
-        return Scene([*parts, wall_part], frame, str(path),
-                     list(parts[0].distribution.warnings), channels)
-    if lamp_set is not None:
+        return _photometric_scene(path, s)
+    if s.lamp_set is not None:
         raise InputError("--lamp-set applies to EULUMDAT (.ldt) files only")
-    if path.suffix.lower() == ".tm25ray":  # a ray file alone: the LED in front of the wall
-        if filament is not None or rayfile is not None:
-            raise InputError("a ray file is its own light source: --filament/--rayfile make "
-                             "no sense")
-        parts = [ray_source_part(path, (0.0, 0.0, 0.0), rayfile_axis, flux)]
-        wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
-        return Scene([*parts, wall_part], frame, str(path), [], channels)
+    if path.suffix.lower() == ".tm25ray":
+        return _rayfile_scene(path, s)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{path}: not a mesh or photometric file (expected one of "
                          f"{', '.join(MESH_SUFFIXES + PHOTOMETRIC_SUFFIXES)})")
-    if flux is not None and not (math.isfinite(flux) and flux > 0):
-        raise InputError(f"flux must be a positive number of lumens, got {flux}")
-    if emission is not None and emission not in ("isotropic", "lambertian", "collimated"):
+    if s.flux is not None and not (math.isfinite(s.flux) and s.flux > 0):
+        raise InputError(f"flux must be a positive number of lumens, got {s.flux}")
+    if s.emission is not None and s.emission not in EMISSIONS:
         raise InputError(f"emission must be isotropic, lambertian or collimated, "
-                         f"got '{emission}'")
-    part_materials = dict(part_materials or {})
-    mmap = None
-    if materials is not None:
-        mmap = read_material_map(materials)
+                         f"got '{s.emission}'")
     warnings: list[str] = []
-    raw = _read_parts(path, tessellation, warnings)
+    parts = mesh_parts(path, s, warnings)
+    parts = add_emitters(path, parts, s, warnings)
+    parts, frame = add_wall(path, parts, s, warnings)
+    if not any(p.role == SURFACE for p in parts):
+        warnings.append("the scene has no surfaces besides the wall: light goes straight to it")
+    scene = Scene(parts, frame, str(path), warnings, s.channels)
+    for w in warnings:  # the CLI prints scene.warnings itself
+        log.debug(w)
+    return scene
+
+
+def _photometric_scene(path: Path, s: SceneSettings) -> Scene:
+    """An IES/LDT file: its goniometric point source at the origin and the added wall."""
+    if s.filament is not None:
+        raise InputError("an IES/LDT file is its own light source: --filament makes no sense")
+    source = goniometric_source(path, s.flux, lamp_set=s.lamp_set)
+    wall_part, frame = s.added_wall()
+    return Scene([source, wall_part], frame, str(path), list(source.distribution.warnings),
+                 s.channels)
+
+
+def _rayfile_scene(path: Path, s: SceneSettings) -> Scene:
+    """A ray file alone: the LED at the origin in front of the added wall."""
+    if s.filament is not None or s.rayfile is not None:
+        raise InputError("a ray file is its own light source: --filament/--rayfile make "
+                         "no sense")
+    source = ray_source_part(path, (0.0, 0.0, 0.0), s.rayfile_axis, s.flux)
+    wall_part, frame = s.added_wall()
+    return Scene([source, wall_part], frame, str(path), [], s.channels)
+
+
+def mesh_parts(path: Path, s: SceneSettings, warnings: list[str]) -> list[Part]:
+    """The file's parts with their roles and materials: the file's own (glTF materials,
+    ``extras.lightsim``), then ``--part-material`` overrides, then the material map's rules;
+    degenerate triangles dropped. What was repaired or ignored is appended to ``warnings``."""
+    part_materials = dict(s.part_materials or {})
+    mmap = None if s.materials is None else read_material_map(s.materials)
+    raw = _read_parts(path, s.tessellation, warnings)
     raw = split_cad_faces(raw, mmap, part_materials)  # CAD faces a rule/option names
-    unmatched: list[str] = []
     if not raw:
         raise InputError(f"{path}: contains no triangle meshes")
-
+    unmatched: list[str] = []
     parts: list[Part] = []
     names_seen: dict[str, int] = {}
     for name, verts, faces, normals, mat_json, extras in raw:
@@ -579,31 +628,13 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
                         ls["flux_lm"] = rule.flux_lm
         if role == "ignore":
             continue
-        # drop degenerate triangles (zero area or repeated indices)
-        tri = verts[faces] if len(faces) else np.zeros((0, 3, 3))
-        area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-        size = float(np.ptp(verts, axis=0).max()) if len(verts) else 0.0
-        keep = area2 > (1e-12 * size) ** 2
-        if not np.all(keep):
-            warnings.append(f"part '{pname}': dropped {int((~keep).sum())} zero-area triangles")
-            faces = faces[keep]
+        faces = _without_degenerate(pname, verts, faces, warnings)
         if len(faces) == 0:
             warnings.append(f"part '{pname}': no triangles left, ignored")
             continue
         part = Part(pname, role, verts, faces, normals, material, extras=dict(extras))
         if role == EMITTER:
-            part.emission = str(emission or ls.get("emission", "isotropic")).lower()
-            if part.emission not in ("isotropic", "lambertian", "collimated"):
-                raise InputError(f"emitter '{pname}': emission must be isotropic, lambertian "
-                                 f"or collimated, got '{part.emission}'")
-            f = ls.get("flux_lm")
-            if f is not None:
-                if isinstance(f, bool) or not isinstance(f, int | float):
-                    raise InputError(f"emitter '{pname}': flux_lm {f!r} is not a number")
-                if not math.isfinite(f):
-                    raise InputError(f"emitter '{pname}': flux_lm must be a finite number of "
-                                     f"lumens, got {f}")
-                part.flux_lm = float(f)
+            _set_emission(part, ls, s.emission)
         if role == SURFACE and material.kind == DIELECTRIC:
             part = _check_dielectric(part, warnings)
         parts.append(part)
@@ -613,54 +644,89 @@ def load_scene(path: str | Path, *, flux: float | None = None, emission: str | N
     if part_materials:
         raise InputError(f"--part-material names unknown part(s): {', '.join(part_materials)} "
                          f"(parts: {', '.join(n for n, *_ in raw)})")
+    return parts
 
-    # -- emitters --------------------------------------------------------------------------
-    if rayfile is not None:
-        if filament is not None:
+
+def _without_degenerate(pname: str, verts: np.ndarray, faces: np.ndarray,
+                        warnings: list[str]) -> np.ndarray:
+    """``faces`` without zero-area triangles (or repeated indices), with a warning."""
+    tri = verts[faces] if len(faces) else np.zeros((0, 3, 3))
+    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    size = float(np.ptp(verts, axis=0).max()) if len(verts) else 0.0
+    keep = area2 > (1e-12 * size) ** 2
+    if not np.all(keep):
+        warnings.append(f"part '{pname}': dropped {int((~keep).sum())} zero-area triangles")
+        faces = faces[keep]
+    return faces
+
+
+def _set_emission(part: Part, ls: dict[str, Any], emission: str | None) -> None:
+    """An emitter's angular emission and flux (lm) from ``extras.lightsim`` (``ls``), the
+    emission overridden by ``emission``."""
+    part.emission = str(emission or ls.get("emission", "isotropic")).lower()
+    if part.emission not in EMISSIONS:
+        raise InputError(f"emitter '{part.name}': emission must be isotropic, lambertian "
+                         f"or collimated, got '{part.emission}'")
+    f = ls.get("flux_lm")
+    if f is not None:
+        if isinstance(f, bool) or not isinstance(f, int | float):
+            raise InputError(f"emitter '{part.name}': flux_lm {f!r} is not a number")
+        if not math.isfinite(f):
+            raise InputError(f"emitter '{part.name}': flux_lm must be a finite number of "
+                             f"lumens, got {f}")
+        part.flux_lm = float(f)
+
+
+def add_emitters(path: Path, parts: list[Part], s: SceneSettings,
+                 warnings: list[str]) -> list[Part]:
+    """``parts`` with the light sources the settings ask for: a ray file replacing the
+    file's emitters, a bulb preset's filament; every emitter's flux checked (a total
+    ``settings.flux`` shared in the file's ratios)."""
+    if s.rayfile is not None:
+        if s.filament is not None:
             raise InputError("give either --filament or --rayfile, not both")
         for p in [p for p in parts if p.role == EMITTER]:
-            warnings.append(f"emitter '{p.name}' replaced by the ray file {Path(rayfile).name}")
+            warnings.append(f"emitter '{p.name}' replaced by the ray file {Path(s.rayfile).name}")
         parts = [p for p in parts if p.role != EMITTER]
-        parts.append(ray_source_part(rayfile, rayfile_at or (0.0, 0.0, 0.0), rayfile_axis,
-                                     flux))
-    if filament is not None:
-        parts.append(_filament_part(filament, filament_at, filament_axis, flux, emission))
+        parts.append(ray_source_part(s.rayfile, s.rayfile_at or (0.0, 0.0, 0.0),
+                                     s.rayfile_axis, s.flux))
+    if s.filament is not None:
+        parts = [*parts, _filament_part(s.filament, s.filament_at, s.filament_axis, s.flux,
+                                        s.emission)]
     emitters = [p for p in parts if p.role == EMITTER]
     if not emitters:
         raise InputError(f"{path}: no emitter (no material with emissiveFactor); give one with "
                          "--filament BULB --filament-at X,Y,Z")
-    if flux is not None and filament is None and rayfile is None:
+    if s.flux is not None and s.filament is None and s.rayfile is None:
         own = [p.flux_lm for p in emitters]
         total = sum(f for f in own if f > 0)
         for p in emitters:  # the total is set; shares keep the file's ratios where known
-            p.flux_lm = flux * (p.flux_lm / total if total > 0 else 1.0 / len(emitters))
+            p.flux_lm = s.flux * (p.flux_lm / total if total > 0 else 1.0 / len(emitters))
     for p in emitters:
-        if p.flux_lm == 0.0 and flux is None:
+        if p.flux_lm == 0.0 and s.flux is None:
             raise InputError(f"emitter '{p.name}' has no luminous flux: set extras "
                              "{\"lightsim\": {\"flux_lm\": …}} in the file or give --flux")
         if not (math.isfinite(p.flux_lm) and p.flux_lm > 0):
             raise InputError(f"emitter '{p.name}': flux must be positive, got {p.flux_lm} lm")
+    return parts
 
-    # -- wall ----------------------------------------------------------------------------
+
+def add_wall(path: Path, parts: list[Part], s: SceneSettings, warnings: list[str]
+             ) -> tuple[list[Part], WallFrame]:
+    """``parts`` with exactly one wall (the file's, a solid one reduced to its lamp-facing
+    face, or the added one) and the wall's frame."""
     walls = [p for p in parts if p.role == WALL]
     if len(walls) > 1:
         raise InputError(f"{path}: more than one wall ({', '.join(p.name for p in walls)})")
-    if walls:
-        solid = solid_wall_face(walls[0])
-        if solid is not None:
-            parts = [solid[0] if p is walls[0] else p for p in parts]
-            warnings.append(solid[1])
-            walls = [solid[0]]
-        frame = _plane_frame(walls[0], resolution)
-    else:
-        wall_part, frame = make_wall(wall_distance, wall_size, wall_albedo, resolution)
-        parts.append(wall_part)
-    if not any(p.role == SURFACE for p in parts):
-        warnings.append("the scene has no surfaces besides the wall: light goes straight to it")
-    scene = Scene(parts, frame, str(path), warnings, channels)
-    for w in warnings:  # the CLI prints scene.warnings itself
-        log.debug(w)
-    return scene
+    if not walls:
+        wall_part, frame = s.added_wall()
+        return [*parts, wall_part], frame
+    solid = solid_wall_face(walls[0])
+    if solid is not None:
+        parts = [solid[0] if p is walls[0] else p for p in parts]
+        warnings.append(solid[1])
+        walls = [solid[0]]
+    return parts, _plane_frame(walls[0], s.resolution)
 
 
 def goniometric_source(path: str | Path, flux: float | None = None,

@@ -54,7 +54,7 @@ from lightsim.io.summary import read_json, write_json
 from lightsim.options import option
 from lightsim.render.cutoff import cutoff_interval, find_cutoff, scan_sample_points
 from lightsim.render.frame import luminous
-from lightsim.scene import Scene, load_scene
+from lightsim.scene import Scene, SceneSettings, load_scene
 
 CHECKPOINT = "checkpoint.json"
 UNTIL_CAP_PHOTONS = 400_000_000
@@ -292,7 +292,7 @@ def folder_notes(out: Path) -> list[str]:
 
 def load(opts: SimulateOptions) -> Scene:
 
-    return load_scene(opts.scene_path, flux=opts.flux, emission=opts.emission,
+    return load_scene(opts.scene_path, SceneSettings(flux=opts.flux, emission=opts.emission,
                       filament=opts.filament, filament_at=opts.filament_at,
                       filament_axis=opts.filament_axis, wall_distance=opts.wall_distance,
                       wall_size=opts.wall_size, resolution=opts.resolution,
@@ -301,7 +301,7 @@ def load(opts: SimulateOptions) -> Scene:
                       rayfile_at=opts.rayfile_at, rayfile_axis=opts.rayfile_axis,
                       materials=opts.materials,
                       tessellation=Tessellation(opts.cad_linear_tol_mm,
-                                                opts.cad_angular_tol_deg))
+                                                opts.cad_angular_tol_deg)))
 
 
 def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,

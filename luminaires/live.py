@@ -34,7 +34,7 @@ from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.luminaires.regulations import load_ruleset, unevaluated_rules
 from lightsim.luminaires.regulations.sequential import VerdictRule
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, Material
-from lightsim.scene import EMITTER, WALL, Part, Scene, load_scene
+from lightsim.scene import EMITTER, WALL, Part, Scene, SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, write_outputs
 from lightsim.view.app import Hub, ViewServer, serve
 from lightsim.view.editor import BulbPreset
@@ -223,7 +223,7 @@ def build_live(scene_path: str, settings: ViewSettings | None = None, *,
     settings = settings if settings is not None else ViewSettings()
     if settings.regulation is not None:
         load_ruleset(settings.regulation)  # an unknown rule set fails before any work
-    scene = load_scene(scene_path, resolution=tuple(settings.resolution))
+    scene = load_scene(scene_path, SceneSettings(resolution=tuple(settings.resolution)))
     return open_live(scene, settings, view_hooks(scene_path, settings), folder=folder,
                      state=state, publish=publish)
 
@@ -237,5 +237,6 @@ def start_view(scene_path: str, settings: ViewSettings | None = None, *,
     hub = Hub()
     live = build_live(scene_path, settings, folder=folder, state=state, publish=hub.publish)
     res = tuple(settings.resolution)
-    server = serve(live, hub, lambda path: load_scene(path, resolution=res), settings.port)
+    server = serve(live, hub, lambda path: load_scene(path, SceneSettings(resolution=res)),
+                   settings.port)
     return live, server

@@ -35,7 +35,7 @@ import numpy as np
 from lightsim.io.cad import Tessellation, read_cad
 from lightsim.luminaires.cad_example import paraboloid_face, write_cad
 from lightsim.materials import MIRROR, Material
-from lightsim.scene import Part, Scene, load_scene
+from lightsim.scene import Part, Scene, SceneSettings, load_scene
 from lightsim.tracer import PhotonTracer
 
 TOLS = ((0.5, 20.0), (0.1, 10.0), (0.03, 5.0), (0.01, 2.0), (0.003, 1.0))
@@ -73,9 +73,9 @@ def beam_error(step: Path, focal_mm: float, rim_mm: float, hole_mm: float,
     """
     tess = Tessellation(linear_tol_mm, angular_tol_deg)
     if backend == "auto":
-        scene = load_scene(step, part_materials={"reflector": "mirror:1.0"},
+        scene = load_scene(step, SceneSettings(part_materials={"reflector": "mirror:1.0"},
                            filament="H7", filament_at=(0.0, 0.0, focal_mm * 1e-3),
-                           tessellation=tess)
+                           tessellation=tess))
         refl = next(p for p in scene.parts if p.name == "reflector")
     else:
         prim = next(p for p in read_cad(step, tess, backend=backend) if p.name == "reflector")

@@ -60,7 +60,7 @@ from lightsim.io.atomic import atomic_path, write_text
 from lightsim.io.summary import write_json
 from lightsim.materials import DIFFUSE
 from lightsim.render.frame import luminous
-from lightsim.scene import Scene, load_scene
+from lightsim.scene import Scene, SceneSettings, load_scene
 from lightsim.validation.scenes import analytic as an
 
 QUICK_BUDGETS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
@@ -182,7 +182,7 @@ def reference_run(target: Target, seconds: float | None, seed: int, frame_photon
 
 
 def scene_target(path: str, resolution: tuple[int, int] = (160, 64), **load_kw: Any) -> Target:
-    scene = load_scene(path, resolution=resolution, **load_kw)
+    scene = load_scene(path, SceneSettings(resolution=resolution, **load_kw))
     return Target(str(path), scene)
 
 

@@ -84,7 +84,7 @@ from lightsim.luminaires.regulations.check import (
 )
 from lightsim.render.frame import luminous
 from lightsim.report import aperture_values
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, load
 
 __all__ = ["COVERAGE_BAND", "DEFAULT_RULESETS", "RULE_KINDS", "CoverageResult", "LampRun",
@@ -307,7 +307,7 @@ def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
     """Simulate the IES file at ``path`` as a point source, measure its test points and
     judge every rule of ``ruleset`` (one id or several, comma-separated) as
     ``lightsim simulate --regulation`` does, next to the exact answers."""
-    scene = load_scene(str(path), resolution=(160, 64))
+    scene = load_scene(str(path), SceneSettings(resolution=(160, 64)))
     cfg = config or RunConfig(seed=seed, estimator="bin", frame_photons=250_000)
     names_rs = split_rulesets(ruleset)
     offsets = []

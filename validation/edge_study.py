@@ -46,7 +46,7 @@ from lightsim.io.exr import read_exr
 from lightsim.render import written_map
 from lightsim.render.frame import luminous
 from lightsim.render.written_map import MapInputs
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, run_simulation
 from lightsim.validation import converge as cv
 from lightsim.validation.bench.peer import CASES, LIGHTSIM_OUTPUTS, truth_of, write_scene_glb
@@ -189,7 +189,7 @@ def time_maps(cap: MapInputs, repeats: int = 3) -> dict[str, float]:
 def timing(path: str, resolution: tuple[int, int], photons: int, repeats: int = 3
            ) -> dict[str, float]:
     """:func:`time_maps` on a run of ``photons`` of the scene file at ``resolution``."""
-    scene = load_scene(path, resolution=resolution)
+    scene = load_scene(path, SceneSettings(resolution=resolution))
     with Session(scene, RunConfig(seed=1, frame_photons=500_000)) as s:
         cap = capture_run(s, photons)
     return time_maps(cap, repeats)
@@ -257,7 +257,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     if name == "--figure":  # --figure FILE WxH budgets…: the figures of both maps
         W, H = (int(v) for v in args[1].split("x"))
-        scene = load_scene(args[0], resolution=(W, H))
+        scene = load_scene(args[0], SceneSettings(resolution=(W, H)))
         with Session(scene, RunConfig(seed=1, frame_photons=500_000)) as s:
             for b in sorted(int(float(x)) for x in args[2:]):
                 cap = capture_run(s, b)

@@ -76,7 +76,7 @@ from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, Material, slab_trans
 from lightsim.photonmap.density import PhotonMap
 from lightsim.photonmap.kdtree import KdTree
 from lightsim.sampling import photon_keys
-from lightsim.scene import WALL, Part, Scene, WallFrame, load_scene, make_wall
+from lightsim.scene import WALL, Part, Scene, SceneSettings, WallFrame, load_scene, make_wall
 from lightsim.tracer import LEDGER, PhotonTracer
 from lightsim.validation.analytic import (
     BUDGET_RTOL,
@@ -624,7 +624,7 @@ def _glass_box(lo, hi, inverted: bool = False, open_sides: bool = False):
 
 
 def _load(path: Path, **kw: Any) -> Scene:
-    return load_scene(path, **kw)
+    return load_scene(path, SceneSettings(**kw))
 
 
 def case_degenerate(settings: StabilitySettings) -> list[Check]:

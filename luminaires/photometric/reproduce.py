@@ -115,7 +115,7 @@ class Reproduction:
     warning: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form (``summary.json["farfield"]["files"][…]["check"]``)."""
+        """JSON-ready form (``summary.json["farfield"]["checks"][path]``)."""
         return {"peak_cd": self.peak_cd, "run_imax_cd": self.run_imax_cd,
                 "run_imax_interval_cd": self.run_imax_interval_cd,
                 "test_points": self.points, "outside": self.outside, "worst": self.worst}
@@ -144,7 +144,8 @@ def reproduction(grid: Any, name: str, session: Any, bins: BeamBins | None,
     if bins is not None and bins.tiles.size:
         mean, half = _student(bins.tiles, confidence)
         i, k = np.unravel_index(int(np.argmax(mean)), mean.shape)
-        run, lo, hi = float(mean[i, k]), float(mean[i, k] - half[i, k]), float(
+        # an intensity is never negative: the interval's lower end is clipped at 0
+        run, lo, hi = float(mean[i, k]), max(0.0, float(mean[i, k] - half[i, k])), float(
             mean[i, k] + half[i, k])
         cols, vs = np.meshgrid(bins.h_deg, bins.v_deg, indexing="ij")
         # an even count of midpoints is exact for a kink at the bin centre
@@ -160,11 +161,8 @@ def reproduction(grid: Any, name: str, session: Any, bins: BeamBins | None,
     if cfg.apertures and cfg.aperture_deg:
         ap = aperture_values(session, 0.0, confidence)
         layout = layout_from_config(cfg, frame.distance_m)
-        mean, half = _student(ap["cd"], confidence)
-        lo, hi = mean - half, mean + half
-        sparse = np.all(np.isfinite(ap["intervals_cd"]), axis=1)
-        lo = np.where(sparse, ap["intervals_cd"][:, 0], lo)
-        hi = np.where(sparse, ap["intervals_cd"][:, 1], hi)
+        mean = ap["cd"].mean(axis=0)
+        lo, hi = ap["intervals_cd"].T  # the regulation check's intervals (never below 0)
         file_cd = aperture_means(grid, frame, layout.h_deg, layout.v_deg, layout.size_deg,
                                  layout.size_deg)
         slack = SLACK * np.abs(mean)

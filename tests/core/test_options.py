@@ -29,7 +29,7 @@ from lightsim.engine.estimator import effective_radii
 from lightsim.errors import InputError
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart
 from lightsim.options import Option
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, read_checkpoint, run_simulation
 from lightsim.validation import converge as cv
 from lightsim.view.controls import CONFIG_CONTROLS, SPEC_BY_NAME
@@ -164,8 +164,8 @@ def test_help_shows_every_option_with_unit_range_and_default():
 
 def test_max_radius_help_says_what_the_estimator_does(lamp):
     """The auto max radius in --help comes from MAX_RADIUS_FACTOR; the estimator uses it."""
-    wall = load_scene(str(lamp), wall_distance=2.0, wall_size=(4.0, 2.0),
-                      resolution=(16, 8)).wall
+    wall = load_scene(str(lamp), SceneSettings(wall_distance=2.0, wall_size=(4.0, 2.0),
+                      resolution=(16, 8))).wall
     help_text = options.lookup(RunConfig, "max_radius").help_text()
     for mode, factor in MAX_RADIUS_FACTOR.items():
         assert f"{factor:g} × ({mode})" in help_text

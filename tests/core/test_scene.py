@@ -12,7 +12,7 @@ import trimesh
 from lightsim.errors import InputError
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR
-from lightsim.scene import EMITTER, WALL, load_scene
+from lightsim.scene import EMITTER, WALL, SceneSettings, load_scene
 from lightsim.validation.fuzz import pack_glb, small_scene_glb, split_glb, to_gltf_text
 
 EMIT = GltfMaterial("filament", emissive=(1.0, 0.9, 0.8))
@@ -68,7 +68,8 @@ def test_glb_conventions_are_read(tmp_path):
 
 
 def test_default_wall_and_flux_override(tmp_path):
-    scene = load_scene(_lamp(tmp_path), flux=900.0, wall_distance=20.0, wall_size=(8, 4))
+    scene = load_scene(_lamp(tmp_path),
+                       SceneSettings(flux=900.0, wall_distance=20.0, wall_size=(8, 4)))
     assert scene.wall.distance_m == 20.0
     assert scene.total_flux == pytest.approx(900.0)
     wall = next(p for p in scene.parts if p.role == WALL)
@@ -106,8 +107,8 @@ def test_stl_without_emitter_takes_a_filament(tmp_path):
     trimesh.creation.icosphere(1, radius=0.05).export(path)
     with pytest.raises(InputError, match="no emitter"):
         load_scene(path)
-    scene = load_scene(path, filament="H7", filament_at=(0, 0, 0.0),
-                       part_materials={"reflector.stl": "mirror:0.9"})
+    scene = load_scene(path, SceneSettings(filament="H7", filament_at=(0, 0, 0.0),
+                       part_materials={"reflector.stl": "mirror:0.9"}))
     em = scene.emitters
     assert len(em) == 1 and em[0].flux_lm > 0
     refl = next(p for p in scene.parts if p.role == "surface")
@@ -159,9 +160,9 @@ def test_unknown_bulb_and_bad_wall(tmp_path):
     path = tmp_path / "r.stl"
     trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(path)
     with pytest.raises(InputError):
-        load_scene(path, filament="H99", filament_at=(0, 0, 0))
+        load_scene(path, SceneSettings(filament="H99", filament_at=(0, 0, 0)))
     with pytest.raises(InputError, match="wall distance"):
-        load_scene(_lamp(tmp_path), wall_distance=-3)
+        load_scene(_lamp(tmp_path), SceneSettings(wall_distance=-3))
     bent = GltfPart("wall", np.array([[-5, -2, 10], [5, -2, 10], [5, 2, 11], [-5, 2, 10.0]]),
                     np.array([[0, 2, 1], [0, 3, 2]]), None, GREY)
     with pytest.raises(InputError, match="not planar"):

@@ -11,7 +11,7 @@ from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.render.frame import luminous
-from lightsim.scene import WALL, load_scene
+from lightsim.scene import WALL, SceneSettings, load_scene
 
 EMIT = GltfMaterial("filament", emissive=(1.0, 1.0, 1.0))
 GREY = GltfMaterial("paint", base_color=(0.8, 0.8, 0.8))
@@ -39,7 +39,7 @@ def _plane_wall(z0: float):
 def test_slab_wall_becomes_its_front_face(tmp_path, inverted):
     path = tmp_path / "slab.glb"
     write_glb(path, [_source(), _slab_wall(2.0, 0.001, inverted)])
-    scene = load_scene(path, resolution=(40, 20))
+    scene = load_scene(path, SceneSettings(resolution=(40, 20)))
     wall = next(p for p in scene.parts if p.role == WALL)
     tri = wall.vertices[wall.faces]
     # only the two front triangles remain, in the plane z = 2, facing the lamp (−Z)
@@ -65,7 +65,7 @@ def test_solid_wall_lux_matches_planar_wall(tmp_path):
     for name, wall in (("plane", _plane_wall(2.0)), ("slab", _slab_wall(2.0, 0.001))):
         path = tmp_path / f"{name}.glb"
         write_glb(path, [_source(), wall])
-        scene = load_scene(path, resolution=(32, 16))
+        scene = load_scene(path, SceneSettings(resolution=(32, 16)))
         with Session(scene, RunConfig(frame_photons=32_000, interleave=2)) as s:
             lux.append(luminous(s.run(photons=32_000).lux))
     plane, slab = lux

@@ -15,7 +15,7 @@ from lightsim.errors import InputError
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.raycast import RayCaster
 from lightsim.sampling import digit_permutations, halton_points, photon_keys
-from lightsim.scene import Scene, load_scene
+from lightsim.scene import Scene, SceneSettings, load_scene
 from lightsim.tracer import Geometry, PhotonTracer
 from lightsim.validation.bench.tracer_aim import aim_rotation as aim
 from lightsim.validation.bench.tracer_aim import rotated_lamp
@@ -171,7 +171,7 @@ def test_solid_wall_aim(tmp_path):
         GltfPart("cup", cup_v, np.asarray(cup.faces), None, chrome),
         GltfPart("wall", np.asarray(slab.vertices) + (0, 0, 2.0005), np.asarray(slab.faces),
                  None, grey)])
-    scene = load_scene(tmp_path / "lamp.glb", resolution=(32, 16))
+    scene = load_scene(tmp_path / "lamp.glb", SceneSettings(resolution=(32, 16)))
     assert any("closed solid" in w for w in scene.warnings)
     m = aim(-6.0, 4.0)
     ra, rb, old, moved = compare_aim(scene, m, n=20_000)

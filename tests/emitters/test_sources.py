@@ -18,7 +18,7 @@ from lightsim.luminaires.photometric import (
     write_ies,
     write_ldt,
 )
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 
 IES = Path(__file__).parents[2] / "luminaires" / "photometric" / "interlight-ovni-60w-5300lm.ies"
 
@@ -41,7 +41,7 @@ def test_photometric_file_as_point_source(tmp_path, fmt):
         path = tmp_path / "lamp.ldt"
         write_ldt(path, grid)
     d, w, h = 2.0, 8.0, 8.0
-    scene = load_scene(path, wall_distance=d, wall_size=(w, h), resolution=(32, 32))
+    scene = load_scene(path, SceneSettings(wall_distance=d, wall_size=(w, h), resolution=(32, 32)))
     assert scene.total_flux == pytest.approx(grid.total_flux(), rel=1e-5)
     with Session(scene, RunConfig(estimator="bin", frame_photons=100_000, interleave=2)) as s:
         s.run(photons=300_000)
@@ -53,7 +53,7 @@ def test_photometric_file_as_point_source(tmp_path, fmt):
 
 
 def test_photometric_source_flux_override():
-    scene = load_scene(IES, flux=1000.0)
+    scene = load_scene(IES, SceneSettings(flux=1000.0))
     assert scene.total_flux == pytest.approx(1000.0)
     grid = read_photometric(IES)
     src = scene.emitters[0].distribution
@@ -70,7 +70,8 @@ def test_type_a_source_wall_lux_is_the_files_intensity(tmp_path):
     cd = 20000 * np.exp(-((H - 6) / 9) ** 2 - ((V + 3) / 5) ** 2) + 100
     grid = HVGrid(h, v, cd, "A")
     path = write_ies(tmp_path / "beam.ies", grid)
-    scene = load_scene(path, wall_distance=25.0, wall_size=(16.0, 8.0), resolution=(16, 8))
+    scene = load_scene(path, SceneSettings(wall_distance=25.0, wall_size=(16.0, 8.0),
+                                           resolution=(16, 8)))
     n = 400_000
     with Session(scene, RunConfig(estimator="bin", frame_photons=100_000, interleave=2)) as s:
         est = s.run(photons=n)
@@ -94,9 +95,9 @@ def test_core_finds_readers_through_the_entry_point():
     registry loads the ``lightsim.sources`` entry point on first need."""
     code = ("import sys\n"
             "from lightsim.emitters import registry\n"
-            "from lightsim.scene import load_scene\n"
+            "from lightsim.scene import SceneSettings, load_scene\n"
             "assert not any(m.startswith('lightsim.luminaires') for m in sys.modules)\n"
-            f"s = load_scene({str(IES)!r}, wall_distance=2.0, resolution=(8, 8))\n"
+            f"s = load_scene({str(IES)!r}, SceneSettings(wall_distance=2.0, resolution=(8, 8)))\n"
             "print(round(s.total_flux), callable(registry.filament_factory()))\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=False)

@@ -87,9 +87,9 @@ def test_a_simulate_process_does_not_set_numba_s_compiler_up(tmp_path):
         import sys
         from lightsim.engine.config import RunConfig
         from lightsim.engine.server import Session
-        from lightsim.scene import load_scene
+        from lightsim.scene import SceneSettings, load_scene
 
-        scene = load_scene({str(glb)!r}, resolution=(8, 8))
+        scene = load_scene({str(glb)!r}, SceneSettings(resolution=(8, 8)))
         with Session(scene, RunConfig(frame_photons=2_000, interleave=2)) as s:
             est = s.run(photons=4_000)
         assert est.photons == 4_000

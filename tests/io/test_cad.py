@@ -26,7 +26,7 @@ from lightsim.luminaires.cad_example import (
     write_cad,
 )
 from lightsim.materials import DIELECTRIC, MIRROR
-from lightsim.scene import EMITTER, load_scene
+from lightsim.scene import EMITTER, SceneSettings, load_scene
 from lightsim.validation.cad_beam import beam_error, write_paraboloid_step
 
 COARSE = Tessellation(0.1, 10.0)  # fast meshes for the tests that do not measure optics
@@ -60,7 +60,7 @@ def test_step_parts_keep_names_units_and_exact_normals(lamp):
 
 def test_material_map_assigns_optics(lamp):
     step, mmap = lamp
-    scene = load_scene(step, materials=mmap, tessellation=COARSE)
+    scene = load_scene(step, SceneSettings(materials=mmap, tessellation=COARSE))
     by = {p.name: p for p in scene.parts}
     assert by["reflector"].material.kind == MIRROR
     np.testing.assert_allclose(by["reflector"].material.rgb, 0.88)
@@ -75,7 +75,7 @@ def test_material_map_errors_and_unmatched_parts(lamp, tmp_path):
     partial = tmp_path / "partial.toml"
     partial.write_text('[[rule]]\nmatch = "filament"\nkind = "emitter"\nflux_lm = 10\n'
                        '[[rule]]\nmatch = "lens"\nkind = "ignore"\n')
-    scene = load_scene(step, materials=partial, tessellation=COARSE)
+    scene = load_scene(step, SceneSettings(materials=partial, tessellation=COARSE))
     assert "lens" not in scene.part_names
     assert any("no rule for" in w and "reflector" in w for w in scene.warnings)
     for body, frag in (('[[rule]]\nmatch = "x"\nkind = "chrome"\n', "kind"),
@@ -84,7 +84,7 @@ def test_material_map_errors_and_unmatched_parts(lamp, tmp_path):
         bad = tmp_path / "bad.toml"
         bad.write_text(body)
         with pytest.raises(InputError, match=frag) as err:
-            load_scene(step, materials=bad, tessellation=COARSE)
+            load_scene(step, SceneSettings(materials=bad, tessellation=COARSE))
         assert "\n" not in str(err.value)
 
 

@@ -23,7 +23,7 @@ from lightsim.errors import InputError
 from lightsim.io.cad import Tessellation, read_cad
 from lightsim.io.cad_xcaf import FaceLabels
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR
-from lightsim.scene import EMITTER, load_scene
+from lightsim.scene import EMITTER, SceneSettings, load_scene
 
 COARSE = Tessellation(0.1, 10.0)
 BOX_MM = (40.0, 30.0, 20.0)            # housing box, corner at the origin
@@ -208,7 +208,7 @@ def test_material_map_targets_named_and_numbered_faces(tmp_path):
                           '[[rule]]\nmatch = "housing/face-3"\nkind = "glass"\nior = 1.5\n'
                           '[[rule]]\nmatch = "housing*"\nkind = "diffuse"\n')
     whole = next(p for p in read_cad(cad, COARSE) if p.name == "housing")
-    scene = load_scene(cad, materials=mmap, tessellation=COARSE)
+    scene = load_scene(cad, SceneSettings(materials=mmap, tessellation=COARSE))
     by = {p.name: p for p in scene.parts}
     assert {"housing/lid", "housing/face-3", "housing", "filament"} <= set(by)
     assert by["housing/lid"].material.kind == MIRROR
@@ -227,14 +227,14 @@ def test_material_map_targets_named_and_numbered_faces(tmp_path):
 def test_part_material_option_splits_a_face(tmp_path):
     cad = write_named_cad(tmp_path / "lamp.step")
     mmap = _map(tmp_path, '[[rule]]\nmatch = "housing*"\nkind = "diffuse"\n')
-    scene = load_scene(cad, materials=mmap, tessellation=COARSE,
-                       part_materials={"housing/window": "mirror"})
+    scene = load_scene(cad, SceneSettings(materials=mmap, tessellation=COARSE,
+                       part_materials={"housing/window": "mirror"}))
     by = {p.name: p for p in scene.parts}
     assert by["housing/window"].material.kind == MIRROR
     assert by["housing"].material.kind == DIFFUSE
     with pytest.raises(InputError, match="unknown part"):
-        load_scene(cad, materials=mmap, tessellation=COARSE,
-                   part_materials={"housing/face-99": "mirror"})
+        load_scene(cad, SceneSettings(materials=mmap, tessellation=COARSE,
+                   part_materials={"housing/face-99": "mirror"}))
 
 
 def test_cli_face_rule_runs(tmp_path, capsys):

@@ -17,7 +17,7 @@ from lightsim.errors import InputError
 from lightsim.io.rayfile import read_rayfile, write_tm25, write_zemax
 from lightsim.luminaires.rayfiles import lambertian_square, lambertian_square_luminance
 from lightsim.render.frame import luminous
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.validation.scenes.analytic import lambert_polygon_lux, pixel_average
 
 from support import run_cli
@@ -121,7 +121,8 @@ def test_lambertian_square_led_is_exact(tmp_path):
     side, flux, d = 0.04, 100.0, 0.1
     pos, k, fl = lambertian_square(side, 40_000, flux, seed=2)
     path = write_tm25(tmp_path / "led.tm25ray", pos, k, fl)
-    scene = load_scene(path, wall_distance=d, wall_size=(0.3, 0.3), resolution=(30, 30))
+    scene = load_scene(path, SceneSettings(wall_distance=d, wall_size=(0.3, 0.3),
+                                           resolution=(30, 30)))
     with Session(scene, RunConfig(frame_photons=160_000, interleave=2,
                                   estimator="bin")) as s:
         lux = luminous(s.run(photons=160_000).lux)

@@ -1,4 +1,4 @@
-"""Analytic validation (issue 7): the exact answers themselves, the fast suite, and that
+"""Analytic validation: the exact answers themselves, the fast suite, and that
 its checks can fail. The full study is ``-m slow``."""
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from lightsim.io.summary import read_json
 from lightsim.luminaires.gltf_writer import write_glb
 from lightsim.luminaires.live import build_live, bulb_presets, scene_gltf_parts, start_view
 from lightsim.render.frame import ErrorEstimate
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.validation.bench.view import error_law
 from lightsim.view.app import Connection, check_glb, same_origin
 from lightsim.view.controls import Controls
@@ -106,7 +106,7 @@ def test_good_control_values():
 # -- scene edits ----------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def headlight():
-    return load_scene(HEADLIGHT, resolution=(64, 32))
+    return load_scene(HEADLIGHT, SceneSettings(resolution=(64, 32)))
 
 
 def _bulbs():
@@ -177,7 +177,7 @@ def test_edited_scene_written_as_glb_reads_back(headlight, tmp_path):
                                                  "wall_distance_m": 12.0}))
     path = tmp_path / "edited.glb"
     write_glb(path, scene_gltf_parts(scene))
-    back = load_scene(path, resolution=(64, 32))
+    back = load_scene(path, SceneSettings(resolution=(64, 32)))
     assert back.n_triangles == scene.n_triangles
     assert back.total_flux == pytest.approx(800.0)
     assert back.wall.distance_m == pytest.approx(12.0)
@@ -254,10 +254,10 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
         # a second scene (here the saved one) replaces the first; the session goes on
         edit, frames = live.edit, live.stats.frames
         saved = next(p for p in tmp_path.iterdir() if p.name.startswith("run-"))
-        live.replace_scene(load_scene(saved / "scene.glb", resolution=(48, 24)))
+        live.replace_scene(load_scene(saved / "scene.glb", SceneSettings(resolution=(48, 24))))
         with pytest.raises(InputError):  # no emitter: refused before anything changes
-            live.replace_scene(load_scene(saved / "scene.glb", resolution=(48, 24),
-                                          part_materials={"filament": "ignore"}))
+            live.replace_scene(load_scene(saved / "scene.glb", SceneSettings(resolution=(48, 24),
+                                          part_materials={"filament": "ignore"})))
         while (live.edit == edit or live.stats.frames <= frames + 1
                or "regulation" not in published) and time.monotonic() - t0 < 300:
             time.sleep(0.05)  # (the table comes once the new scene has been still)
@@ -284,7 +284,7 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
     assert state["scene"].endswith("scene.glb") and state["controls"]["filament_y_mm"] == 0
     saved_state = read_json(run / "controls.json")
     assert saved_state["controls"]["filament_y_mm"] == 0.2
-    back = load_scene(run / "scene.glb", resolution=(48, 24))
+    back = load_scene(run / "scene.glb", SceneSettings(resolution=(48, 24)))
     assert back.total_flux == pytest.approx(1000.0)
     assert {"frame:wall", "status", "regulation"} <= set(published)
 
@@ -491,7 +491,7 @@ def test_live_session_on_ray_workers(tmp_path):
 
 def test_accumulate_shoots_the_same_photons_as_frames():
     """``Session.accumulate`` (added for the view) is ``frame`` without the estimates."""
-    scene = load_scene(HEADLIGHT, resolution=(32, 16))
+    scene = load_scene(HEADLIGHT, SceneSettings(resolution=(32, 16)))
     cfg = RunConfig(frame_photons=1600, probe_grid=(8, 4))
     with Session(scene, cfg) as a, Session(scene, cfg) as b:
         a.frame(image=False)
@@ -507,7 +507,7 @@ def test_interaction_frame_without_probes_and_ici_only_error_figure():
     """``frame(probes=False)`` (the view's interaction frame) draws the same image with no
     error figure; ``probes="ici"`` (its accumulation) gives the same error figure as the
     full frame without the kNN probe estimates."""
-    scene = load_scene(HEADLIGHT, resolution=(32, 16))
+    scene = load_scene(HEADLIGHT, SceneSettings(resolution=(32, 16)))
     cfg = RunConfig(frame_photons=1600, probe_grid=(8, 4))
     assert cfg.uses_ici
     with Session(scene, cfg) as a, Session(scene, cfg) as b:
@@ -536,8 +536,8 @@ def test_interaction_image_at_every_second_pixel_is_the_coarser_wall(size):
     what a session at that resolution draws (radii fixed, so they do not follow the
     pixel size) — and needs a quarter of the queries."""
     W, H = size
-    fine = load_scene(HEADLIGHT, resolution=(W, H))
-    coarse = load_scene(HEADLIGHT, resolution=(-(-W // 2), -(-H // 2)))
+    fine = load_scene(HEADLIGHT, SceneSettings(resolution=(W, H)))
+    coarse = load_scene(HEADLIGHT, SceneSettings(resolution=(-(-W // 2), -(-H // 2))))
     cfg = RunConfig(frame_photons=3200, probe_grid=(8, 4), min_radius=0.05, max_radius=0.4)
     with Session(fine, cfg) as a, Session(coarse, cfg) as b:
         ea = a.frame(probes=False, image_step=2)

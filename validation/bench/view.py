@@ -50,7 +50,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.errors import LightsimError
 from lightsim.luminaires.live import build_live, start_view
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.view.editor import SceneEditor
 from lightsim.view.settings import ViewSettings
 
@@ -81,7 +81,7 @@ def engine_alone(scene_path: str, resolution: tuple[int, int], frame_photons: in
     """The engine alone, the same edits as the page makes: seconds of an aim change
     (scene rebuilt) + frame, frames/s of filament moves (light transform) + frame, and
     photons/s of accumulation (``Session.accumulate``)."""
-    scene = load_scene(scene_path, resolution=resolution)
+    scene = load_scene(scene_path, SceneSettings(resolution=resolution))
     editor = SceneEditor(scene)
     c = editor.defaults()
     with Session(scene, RunConfig(frame_photons=frame_photons)) as s:

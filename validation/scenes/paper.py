@@ -24,7 +24,7 @@ import trimesh
 from lightsim.errors import InputError
 from lightsim.luminaires.headlight import example_headlight
 from lightsim.materials import DIELECTRIC, Material
-from lightsim.scene import SURFACE, Part, Scene, WallFrame, load_scene
+from lightsim.scene import SURFACE, Part, Scene, SceneSettings, WallFrame, load_scene
 from lightsim.validation.scenes import primitives as prim
 
 SCENES = ("ring", "egg", "glass", "headlight")
@@ -101,7 +101,7 @@ def glass(resolution: tuple[int, int] = (256, 256)) -> Scene:
 
 def headlight(resolution: tuple[int, int] = (640, 256)) -> Scene:
     """The shipped example headlight with the default 25 m wall."""
-    return load_scene(example_headlight(), resolution=resolution)
+    return load_scene(example_headlight(), SceneSettings(resolution=resolution))
 
 
 def build(name: str, resolution: tuple[int, int] | None = None) -> Scene:

@@ -10,7 +10,7 @@ import pytest
 
 from lightsim.errors import InputError
 from lightsim.luminaires.photometric import CandelaGrid, read_ies, read_ldt
-from lightsim.scene import load_scene
+from lightsim.scene import SceneSettings, load_scene
 
 from support import run_cli as _run
 
@@ -130,7 +130,7 @@ def test_ldt_lamp_sets(tmp_path):
     assert second.lamp_lumens == 3000.0 and np.allclose(second.candela, 300.0)
     with pytest.raises(InputError, match="lamp set"):
         read_ldt(p, lamp_set=3)
-    scene = load_scene(p, lamp_set=2, resolution=(8, 8))
+    scene = load_scene(p, SceneSettings(lamp_set=2, resolution=(8, 8)))
     assert scene.total_flux == pytest.approx(second.total_flux())
     assert any("lamp sets" in w for w in scene.warnings)
 

@@ -21,6 +21,7 @@ from lightsim.luminaires.photometric import (
     uniform_axes,
     write_ies,
 )
+from lightsim.scene import SceneSettings, load_scene
 
 from support import run_cli as _run
 
@@ -134,8 +135,8 @@ def test_type_a_file_comes_back_with_its_header_flux(tmp_path):
           f"({grid.total_flux() / phi - 1:+.1e})")
     assert grid.node_solid_angles().sum() == pytest.approx(
         np.radians(120) * 2 * np.sin(np.radians(20)), rel=1e-12)
-    from lightsim.scene import load_scene
-    assert load_scene(p, resolution=(8, 8)).total_flux == pytest.approx(phi, rel=1e-8)
+    scene = load_scene(p, SceneSettings(resolution=(8, 8)))
+    assert scene.total_flux == pytest.approx(phi, rel=1e-8)
     # the sampler's photons carry Φ/n each: the far field they make holds that flux
     n = 200_000
     rng = np.random.default_rng(5)
