@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from lightsim import __version__, options, report
-from lightsim.analysis import Analysis, FinishedRun
+from lightsim.analysis import Analysis, FinishedRun, StopsRun
 from lightsim.engine.config import RunConfig
 from lightsim.engine.memory import check_fits
 from lightsim.engine.server import Session
@@ -61,6 +61,9 @@ from lightsim.render.frame import luminous
 from lightsim.scene import Scene, SceneSettings, load_scene
 
 CHECKPOINT = "checkpoint.json"
+UNTIL_CAP_PHOTONS = 400_000_000
+"""Photon cap of ``--until decided`` without ``--photons`` (a rule exactly at its limit
+never decides)."""
 
 
 @dataclass
@@ -81,6 +84,13 @@ class SimulateOptions:
     target_error: float | None = option(
         None, "Stop when the estimated relative error over the lit region is at most this.",
         flag=("--target-error",), low=0, high=1, low_open=True, high_open=True, resume=True)
+    until: str | None = option(
+        None, "decided: stop as soon as every rule of every --regulation rule set is pass "
+        "or fail at its confidence, with a sequential rule that keeps wrong verdicts at "
+        "their nominal rate however often it looks; --photons (default "
+        f"{UNTIL_CAP_PHOTONS:,}) and --time cap the run, which then reports what is still "
+        "undecided.", flag=("--until",), choices=(None, "decided"), resume=True,
+        default_text="the photon or time budget")
     out_dir: str = option("lightsim-out", "Output folder.", flag=("--out",), kind="dir")
     resolution: tuple[int, int] = option((640, 256), "Wall pixels WxH.", unit="px",
                                          flag=("--resolution",), kind="pair", low=1)
@@ -345,6 +355,7 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     scene = load(opts)
     clock["load"] = time.perf_counter()
     config = opts.run_config()
+    check_until(opts, config)
     check_fits(opts.photons, scene.wall.resolution, config, scene.channels or 3)  # pre-flight
     for analysis in analyses:  # e.g. test points counted in detector apertures
         config = analysis.prepare(config, scene)
@@ -364,11 +375,15 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
             stopped["flag"] = bool(should_stop and should_stop())
             return stopped["flag"]
 
+        photons, rule = opts.photons, None
+        if opts.until is not None:  # the verdicts stop the run; the photons cap it
+            photons = opts.photons if opts.photons is not None else UNTIL_CAP_PHOTONS
+            rule = stopping_rule(analyses, session, photons)
         try:
-            est = session.run(photons=opts.photons, seconds=opts.seconds,
+            est = session.run(photons=photons, seconds=opts.seconds,
                               target_error=opts.target_error, callback=progress,
-                              should_stop=stop,
-                              probes=False)  # the outputs read the map and the apertures
+                              should_stop=stop, probes=False,  # outputs read map + apertures
+                              rule=rule)
             if stopped["flag"]:
                 write_checkpoint(out, opts, session)
                 return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
@@ -389,6 +404,52 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
         return result
     finally:
         session.close()
+
+
+def check_until(opts: SimulateOptions, config: RunConfig) -> None:
+    """``--until decided`` needs verdicts to decide, one stopping rule and the sets'
+    spread (one clear line otherwise)."""
+    if opts.until is None:
+        return
+    if opts.regulation is None:
+        raise InputError("--until decided stops when the regulation's verdicts are decided: "
+                         "give --regulation")
+    if opts.target_error is not None:
+        raise InputError("--until decided and --target-error are two stopping rules: give "
+                         "one of them")
+    if config.n_sets < 2:
+        raise InputError("--until decided needs at least 2 interleave sets (-M 2 or more): "
+                         "the verdicts' intervals come from their spread")
+
+
+def stopping_rule(analyses: Sequence[Analysis], session, cap_photons: int) -> Any:
+    """The first stopping rule an analysis gives (:class:`~lightsim.analysis.StopsRun`),
+    bound to ``session`` with the photon cap; None if none does."""
+    for analysis in analyses:
+        if isinstance(analysis, StopsRun):
+            rule = analysis.stopping_rule(session, cap_photons)
+            if rule is not None:
+                return rule
+    return None
+
+
+def until_summary(opts: SimulateOptions, session, summary: dict[str, Any],
+                  analyses: Sequence[Analysis]) -> dict[str, Any] | None:
+    """``summary.json["until"]``: the stopping rule's record (after the analyses reported)
+    and what ended the run — ``decided``, or the cap that came first: ``memory``,
+    ``time`` or ``photons``."""
+    for analysis in analyses:
+        if isinstance(analysis, StopsRun) and (rec := analysis.stop_summary()) is not None:
+            if rec.get("stopped") == "decided":
+                why = "decided"
+            elif session.memory_stop is not None:
+                why = "memory"
+            elif opts.seconds is not None and summary["seconds"] >= opts.seconds:
+                why = "time"
+            else:
+                why = "photons"
+            return {**rec, "stopped_by": why}
+    return None
 
 
 def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
@@ -613,6 +674,9 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
             seen = {(m["name"], m.get("h_deg"), m.get("v_deg")) for m in marks or ()}
             marks = (marks or []) + [m for m in result.marks if (
                 m["name"], m.get("h_deg"), m.get("v_deg")) not in seen]
+    until = until_summary(opts, session, summary, analyses)
+    if until is not None:  # --until decided: its looks and what is still open
+        summary["until"] = until
     drawn = {"png": "wall_lux", "isolux": "isolux", "road": "road"}
     report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary,
                              which=tuple(v for k, v in drawn.items() if k in opts.outputs),
