@@ -394,8 +394,9 @@ def test_view_command_prints_the_token_url_and_the_unencrypted_line(tmp_path):
         r.start()
     try:
         end = time.monotonic() + 200
-        while time.monotonic() < end and proc.poll() is None and not any(
-                "unencrypted" in ln for ln in lines):
+        while time.monotonic() < end and proc.poll() is None and not (
+                any("unencrypted" in ln for ln in lines)
+                and any("?token=" in ln for ln in lines)):  # two streams: either comes first
             time.sleep(0.2)
         url = [ln for ln in lines if "?token=" in ln]
         assert url, lines
