@@ -32,6 +32,8 @@ name             unit   default   meaning
 ``aperture_deg`` deg    the set's photometer aperture's angular diameter (0: point values;
                         or 0      None: the rule set's ``aperture_deg``)
 ``visual_aim``   –      True      aim a visually/optically aimed lamp by its cut-off
+``visual_mark``  –      the set's "VOL" or "VOR": the lamp's marking (where its cut-off is
+                                  scanned and put)
 ``FILE_WALL``    –      25 m      the wall a photometric file is drawn on to find its
                                   cut-off (±15 m × ±6 m, 640 × 256 pixels)
 ===============  =====  ========  ========================================================
@@ -40,7 +42,7 @@ name             unit   default   meaning
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +54,7 @@ from lightsim.road_evaluation import load_far_field
 from lightsim.wall import WallFrame
 
 from ..photometric import read_photometric
+from .conditions import VISUAL_AIMS
 from .evaluate import unevaluated_rules
 from .reaim import evaluate_reaim, reaim_probes, values_from
 from .ruleset import RuleSet, load_ruleset
@@ -155,7 +158,8 @@ def _beam(src: LampSource, beam: str | None, traffic: str) -> tuple[str, str, di
 
 def check_lamp(src: LampSource, ruleset: str, beam: str | None = None,
                traffic: str = "right", confidence: float = 0.95,
-               aperture_deg: float | None = None, visual_aim: bool = True) -> LampCheck:
+               aperture_deg: float | None = None, visual_aim: bool = True,
+               visual_mark: str | None = None) -> LampCheck:
     """Verdicts of ``ruleset`` for the lamp ``src`` (see the module docstring).
 
     Raises
@@ -183,6 +187,11 @@ def check_lamp(src: LampSource, ruleset: str, beam: str | None = None,
     aim = None
     dv = 0.0
     if mc is not None and mc.aim == "visual":
+        if visual_mark is not None:
+            if visual_mark not in VISUAL_AIMS:
+                raise InputError(f"--visual-mark must be one of {', '.join(VISUAL_AIMS)}, "
+                                 f"got {visual_mark!r}")
+            mc = replace(mc, visual_aim=visual_mark)
         aim = find_visual_aim(src.lux, src.lux_frame, mc, traffic, visual_aim)
         cut["gradient_min"] = mc.cutoff_gradient_min
         cut["visually_aimable"] = aim.aimable

@@ -5,10 +5,11 @@ paragraphs were read in secondary sources here) is not measured on its mechanica
 the tester aims it by the cut-off first, then reads the test points. lightsim does the
 same when a rule set's ``[measurement]`` says ``aim = "visual"``:
 
-1. the cut-off is located on the lamp's wall map by the R112 annex 9 scans
-   (:func:`lightsim.render.cutoff.find_cutoff`): at 1.5°, 2.5° and 3.5° left of V-V for a
-   "VOL" lamp, right of V-V for a "VOR" lamp (for right-hand traffic; mirrored for left);
-   the position is the 2.5° scan's inflection of log10 E, the gradient G its sharpness;
+1. the cut-off is located on the lamp's wall map by a vertical scan
+   (:func:`lightsim.render.cutoff.find_cutoff`) on the standard's line: 2.5° left of V-V
+   for a "VOL" lamp, 2.0° right of V-V for a "VOR" lamp (for right-hand traffic; mirrored
+   for left); its position is the steepest fall of log10 E going up (the maximum
+   gradient), and G = log10 E(β) − log10 E(β + 0.1°) across it;
 2. a lamp whose cut-off is not found, or whose G is below ``cutoff_gradient_min``, is
    **not visually aimable**: no aim is applied and the check says so;
 3. otherwise the lamp is pitched by ``dv = cutoff_v_deg − v_cutoff`` so that its cut-off
@@ -25,6 +26,8 @@ Parameters
 name                     unit   default     meaning
 =======================  =====  ==========  ============================================
 ``visual_aim``           –      "VOL"       the side the cut-off is scanned on
+``SCAN_H_DEG``           deg    VOL 2.5,    distance of the scan line from V-V
+                                VOR 2.0
 ``cutoff_v_deg``         deg    VOL −0.4,   where the aim puts the cut-off (+ up)
                                 VOR 0
 ``cutoff_gradient_min``  1      0.13        least G for the lamp to be visually aimable
@@ -45,7 +48,10 @@ from lightsim.render.cutoff import find_cutoff
 
 from .conditions import MeasuringConditions
 
-__all__ = ["VisualAim", "find_visual_aim", "pitch_back", "pitched"]
+__all__ = ["SCAN_H_DEG", "VisualAim", "find_visual_aim", "pitch_back", "pitched"]
+
+SCAN_H_DEG = {"VOL": 2.5, "VOR": 2.0}
+"""Distance (deg) from V-V of the line a visual aim scans: 2.5° L (VOL), 2.0° R (VOR)."""
 
 _EDGE_Z = 1e-9
 """Smallest forward component kept: directions pitched past the zenith or nadir are read
@@ -118,6 +124,7 @@ def find_visual_aim(lux: ArrayLike, frame: Any, mc: MeasuringConditions,
     # find_cutoff scans left of V-V for "right" and right of it for "left"
     scan_left = (mc.visual_aim == "VOL") == (traffic == "right")
     res = find_cutoff(lux, frame, "right" if scan_left else "left",
+                      scan_h_deg=(SCAN_H_DEG[mc.visual_aim],),
                       target_v_deg=mc.cutoff_target_deg)
     target = float(mc.cutoff_target_deg)
     if not res.found:
@@ -129,7 +136,8 @@ def find_visual_aim(lux: ArrayLike, frame: Any, mc: MeasuringConditions,
     v_cut = float(res.v_cutoff_deg)
     aimable = g >= mc.cutoff_gradient_min
     dv = target - v_cut
-    side = f"{mc.visual_aim}, scanned {'left' if scan_left else 'right'} of V-V"
+    side = (f"{mc.visual_aim}, scanned {SCAN_H_DEG[mc.visual_aim]:g}° "
+            f"{'left' if scan_left else 'right'} of V-V")
     if not aimable:
         return VisualAim(mc.visual_aim, True, v_cut, target, g, mc.cutoff_gradient_min,
                          False, False, 0.0,

@@ -42,19 +42,20 @@ def high_lamp(tmp_path_factory) -> Path:
     return path
 
 
-# by hand, for the lamp pitched 1.4° down (cut-off at 0.4° D): a point at wall V reads the
-# built lamp at V + 1.4°: above 1° U → 200 cd, 1° U … 2° D → 16 000 cd, below → 5 000 cd;
-# from 9.6° U → 0 cd
+# by hand, for the lamp pitched 1.4° down (cut-off at 0.4° D): a point at V reads the built
+# lamp 1.4° higher: from 0.4° D up → 200 cd (0 cd from 9.6° U), 0.4° D … 3.4° D → 16 000 cd,
+# below → 5 000 cd (Table XIX-a LB1V, point values)
 AIMED = {
-    "4U-8L": ("pass", 200.0), "4U-8R": ("pass", 200.0), "2U-4L": ("pass", 200.0),
-    "2U-4R": ("pass", 200.0), "0.5U-1R": ("pass", 200.0), "0.5U-2R": ("pass", 200.0),
-    "0.5U-3R": ("pass", 200.0), "0.5D-1.5R": ("pass", 16_000.0), "1D-6L": ("pass", 16_000.0),
-    "1.5D-2R": ("pass", 16_000.0), "1.5D-9L": ("pass", 16_000.0),
-    "1.5D-9R": ("pass", 16_000.0), "2D-15L": ("pass", 16_000.0),
-    "2D-15R": ("pass", 16_000.0), "4D-4R": ("pass", 5_000.0),
-    "10U-90U": ("pass", 0.0), "1U-1.5L to L": ("pass", 200.0),
-    "0.5U-1.5L to L": ("pass", 200.0), "0.5D-1.5L to L": ("fail", 16_000.0),
-    "1.5U-1R to R": ("pass", 200.0),
+    "10U-90U": ("pass", 0.0), "4U-8L": ("pass", 200.0), "4U-8R": ("pass", 200.0),
+    "2U-4L": ("pass", 200.0), "1.5U-1R to 3R": ("pass", 200.0),
+    "1.5U-1R to R": ("pass", 200.0), "1U-1.5L to L": ("pass", 200.0),
+    "0.5U-1.5L to L": ("pass", 200.0), "0.5U-1R to 3R (min)": ("fail", 200.0),
+    "0.5U-1R to 3R (max)": ("pass", 200.0), "H-V": ("pass", 200.0),
+    "H-4L": ("pass", 200.0), "H-8L": ("pass", 200.0), "0.6D-1.3R": ("pass", 16_000.0),
+    "0.86D-V": ("pass", 16_000.0), "0.86D-3.5L": ("fail", 16_000.0),
+    "1.5D-2R": ("pass", 16_000.0), "2D-9L": ("pass", 16_000.0), "2D-9R": ("pass", 16_000.0),
+    "2D-15L": ("pass", 16_000.0), "2D-15R": ("pass", 16_000.0), "4D-V": ("pass", 5_000.0),
+    "4D-4R": ("pass", 5_000.0), "4D-20L": ("pass", 5_000.0), "4D-20R": ("pass", 5_000.0),
 }
 
 
@@ -78,28 +79,32 @@ def test_pitch_back_is_the_inverse_rotation() -> None:
 
 
 def test_lamp_with_known_offset_is_aimed_then_read(high_lamp: Path) -> None:
-    res = check_lamp(lamp_source(high_lamp), "fmvss-lb1v-lower", beam="lower")
+    res = check_lamp(lamp_source(high_lamp), "fmvss-lb1v-lower", beam="lower",
+                     aperture_deg=0.0)
     aim = res.aim
     assert aim["applied"] and aim["aimable"] and aim["method"] == "VOL"
     assert aim["target_v_deg"] == CUTOFF_V_DEG["VOL"] == -0.4
     assert aim["v_cutoff_deg"] == pytest.approx(CUT, abs=0.05)
     assert aim["dv_deg"] == pytest.approx(-0.4 - CUT, abs=0.05)
     rows = {r["name"]: r for r in res.results}
+    assert set(rows) == set(AIMED)
     for name, (verdict, value) in AIMED.items():
         assert rows[name]["verdict"] == verdict, name
         assert rows[name]["value_cd"] == pytest.approx(value, rel=1e-9, abs=1e-9), name
     assert not any(r.get("after_reaim") for r in res.results)
+    assert rows["0.86D-3.5L"]["reaim_direction"].startswith("none passes")  # 16 000 > 12 000
     assert any("pitched -1.4" in n for n in res.notes)
 
 
 def test_without_the_aim_the_high_lamp_glares(high_lamp: Path) -> None:
     """The same lamp read at its aim as built: the points above H sit in the bright part."""
     res = check_lamp(lamp_source(high_lamp), "fmvss-lb1v-lower", beam="lower",
-                     visual_aim=False)
+                     visual_aim=False, aperture_deg=0.0)
     rows = {r["name"]: r for r in res.results}
-    assert not res.aim["applied"] and res.aim["dv_deg"] == 0.0
-    for name in ("0.5U-1R", "0.5U-2R", "0.5U-3R"):
-        assert rows[name]["verdict"] == "fail" and rows[name]["value_cd"] == 16_000.0
+    assert not res.aim["applied"] and res.aim["dv_deg"] == 0.0 and res.aim["aimable"]
+    assert rows["H-V"]["verdict"] == "fail" and rows["H-V"]["value_cd"] == 16_000.0
+    assert rows["0.5U-1R to 3R (max)"]["verdict"] == "fail"
+    assert rows["0.5U-1R to 3R (max)"]["value_cd"] == 16_000.0
     assert rows["10U-90U"]["verdict"] == "fail"  # 200 cd up to 11° U
 
 
@@ -125,7 +130,7 @@ def test_a_lamp_without_cutoff_is_not_aimable(tmp_path: Path) -> None:
     res = check_lamp(lamp_source(path), "fmvss-lb1v-lower", beam="lower")
     assert not res.aim["aimable"] and not res.aim["applied"] and res.aim["dv_deg"] == 0.0
     assert "NOT visually aimable" in res.aim["message"]
-    assert {r["name"]: r for r in res.results}["0.5U-1R"]["value_cd"] == 1000.0
+    assert {r["name"]: r for r in res.results}["H-V"]["value_cd"] == 1000.0
 
 
 def test_the_wall_is_judged_on_the_aimed_lamp() -> None:
@@ -168,17 +173,11 @@ def test_new_measurement_keys_checked(tmp_path: Path, key: str, value: str, text
         load_ruleset(str(rs))
 
 
-def test_rule_set_aperture_is_the_default(high_lamp: Path, tmp_path: Path) -> None:
-    """A set's aperture_deg applies unless one is given: 0.5U-1R straddles nothing (200 cd
-    all round), 0.5D-1.5R's disc of 1° reaches above the aimed cut-off (less than 16 000)."""
-    text = Path(load_ruleset("fmvss-lb1v-lower").path).read_text()
-    rs = tmp_path / "lb1v-aperture.toml"
-    rs.write_text(text.replace('id = "fmvss-lb1v-lower"', 'id = "lb1v-aperture"')
-                  .replace("reaim_deg = 0.25", "reaim_deg = 0.25\naperture_deg = 1.0"))
-    res = check_lamp(lamp_source(high_lamp), str(rs), beam="lower")
-    assert res.aperture_deg == 1.0
+def test_rule_set_aperture_is_the_default(high_lamp: Path) -> None:
+    """The set's aperture (0.516°) applies unless one is given: H-V, 0.4° above the aimed
+    cut-off, keeps 200 cd over the whole disc; 0.6D-1.3R, 0.2° below it, is blurred."""
+    res = check_lamp(lamp_source(high_lamp), "fmvss-lb1v-lower", beam="lower")
+    assert res.aperture_deg == pytest.approx(0.516)
     rows = {r["name"]: r for r in res.results}
-    assert rows["0.5U-1R"]["value_cd"] == pytest.approx(200.0)
-    assert 200.0 < rows["0.5D-1.5R"]["value_cd"] < 16_000.0
-    res0 = check_lamp(lamp_source(high_lamp), str(rs), beam="lower", aperture_deg=0.0)
-    assert res0.aperture_deg == 0.0
+    assert rows["H-V"]["value_cd"] == pytest.approx(200.0)
+    assert 200.0 < rows["0.6D-1.3R"]["value_cd"] < 16_000.0
