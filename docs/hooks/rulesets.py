@@ -92,7 +92,9 @@ def section(rs: RuleSet) -> str:
     """One rule set: its facts, its rules and their numbered sources."""
     facts = [("title", mdtext.text(rs.title)), ("regulation", mdtext.text(rs.regulation)),
              ("beam", mdtext.text(rs.beam)), ("version", mdtext.text(rs.version)),
-             ("traffic", f"{rs.traffic} (the other side mirrors every position, h → −h)"),
+             ("traffic", f"{rs.traffic} only (not mirrored)"
+              if rs.measurement is not None and not rs.measurement.mirror
+              else f"{rs.traffic} (the other side mirrors every position, h → −h)"),
              ("distance", f"{rs.distance_m:g} m"),
              ("file", mdtext.code(f"lightsim/luminaires/regulations/{Path(rs.path).name}"))]
     parts = [f"## {rs.id}", "\n".join(f"- **{k}**: {v}" for k, v in facts if v)]
