@@ -191,7 +191,8 @@ def check_lamp(src: LampSource, ruleset: str, beam: str | None = None,
             if visual_mark not in VISUAL_AIMS:
                 raise InputError(f"--visual-mark must be one of {', '.join(VISUAL_AIMS)}, "
                                  f"got {visual_mark!r}")
-            mc = replace(mc, visual_aim=visual_mark)
+            if visual_mark != mc.visual_aim:  # the other marking's cut-off position
+                mc = replace(mc, visual_aim=visual_mark, cutoff_v_deg=None)
         aim = find_visual_aim(src.lux, src.lux_frame, mc, traffic, visual_aim)
         cut["gradient_min"] = mc.cutoff_gradient_min
         cut["visually_aimable"] = aim.aimable

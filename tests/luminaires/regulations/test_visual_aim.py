@@ -124,6 +124,17 @@ def test_vor_aim_puts_the_cutoff_on_h(high_lamp: Path, tmp_path: Path) -> None:
     assert rows["0.5D-V"]["verdict"] == "fail" and rows["0.5D-V"]["value_cd"] == 16_000.0
 
 
+def test_visual_mark_vor_on_a_v_column(high_lamp: Path, capsys) -> None:
+    """A VOR lamp checked against LB1V: scanned 2.0° R and put on H-H, not at 0.4° D."""
+    res = check_lamp(lamp_source(high_lamp), "fmvss-lb1v-lower", beam="lower",
+                     aperture_deg=0.0, visual_mark="VOR")
+    assert res.aim["method"] == "VOR" and res.aim["target_v_deg"] == 0.0
+    assert res.aim["dv_deg"] == pytest.approx(-CUT, abs=0.05)
+    code, _, err = run_cli(["check", str(high_lamp), "--regulation", "fmvss-lb1v-lower",
+                            "--beam", "lower", "--visual-mark", "VOX"], capsys)
+    assert code == 2 and "--visual-mark" in err
+
+
 def test_a_lamp_without_cutoff_is_not_aimable(tmp_path: Path) -> None:
     path = tmp_path / "flat.ies"
     write_ies(path, HVGrid(H, V, np.full((H.size, V.size), 1000.0), "A"))
