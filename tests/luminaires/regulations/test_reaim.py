@@ -236,20 +236,24 @@ def test_screen_check_refuses_reaim_sets(tmp_path: Path, capsys) -> None:
     assert not out.exists()
 
 
-def test_aperture_mean(lamp_file: Path, capsys) -> None:
+def test_aperture_mean(lamp_file: Path, tmp_path: Path, capsys) -> None:
     """An aperture averages the intensity over its disc: a uniform region keeps its value;
     an aperture straddling the 14 000 → 17 000 cd step gives a value in between."""
     pts = aperture_points(0.5)
     assert np.all(np.hypot(pts[:, 0], pts[:, 1]) <= 0.25 + 1e-12)
     assert abs(pts.mean(axis=0)).max() < 0.02  # centred
-    res = check_lamp(lamp_source(lamp_file), "fmvss-lb1v-lower", beam="lower",
-                     aperture_deg=0.2, visual_aim=False)
+    two = tmp_path / "two.toml"  # two LB1V rows (the whole set's 10U-90U area is slow here)
+    two.write_text('schema = "lightsim-ruleset-1"\nid = "two"\ntitle = "t"\nversion = "1"\n'
+                   'source = "test"\ntraffic = "right"\n[measurement]\n'
+                   'angles = "azimuth-elevation"\nreaim_deg = 0.25\n'
+                   '[[point]]\nname = "4D-V"\nh = 0.0\nv = -4.0\nmax = 10000\n'
+                   '[[point]]\nname = "0.6D-1.3R"\nh = 1.3\nv = -0.6\nmin = 10000\n')
+    res = check_lamp(lamp_source(lamp_file), str(two), beam="lower", aperture_deg=0.2)
     rows = {r["name"]: r for r in res.results}
     assert rows["4D-V"]["value_cd"] == pytest.approx(1000.0)
     assert 1000.0 < rows["0.6D-1.3R"]["value_cd"] < 12_000.0  # a 2 × 2 node block, blurred
     # the rule set's own aperture (0.516°: 0.009 × the distance across) is the default
-    dflt = check_lamp(lamp_source(lamp_file), "fmvss-lb1v-lower", beam="lower",
-                      visual_aim=False)
+    dflt = check_lamp(lamp_source(lamp_file), "fmvss-ub2-upper", beam="upper")
     assert dflt.aperture_deg == pytest.approx(0.516)
     assert any("aperture 0.516°" in n for n in dflt.notes)
     code, _, err = run_cli(["check", str(lamp_file), "--regulation", "fmvss-lb1v-lower",

@@ -138,7 +138,7 @@ def test_visual_mark_vor_on_a_v_column(high_lamp: Path, capsys) -> None:
 def test_a_lamp_without_cutoff_is_not_aimable(tmp_path: Path) -> None:
     path = tmp_path / "flat.ies"
     write_ies(path, HVGrid(H, V, np.full((H.size, V.size), 1000.0), "A"))
-    res = check_lamp(lamp_source(path), "fmvss-lb1v-lower", beam="lower")
+    res = check_lamp(lamp_source(path), "fmvss-lb1v-lower", beam="lower", aperture_deg=0.0)
     assert not res.aim["aimable"] and not res.aim["applied"] and res.aim["dv_deg"] == 0.0
     assert "NOT visually aimable" in res.aim["message"]
     assert {r["name"]: r for r in res.results}["H-V"]["value_cd"] == 1000.0
@@ -161,7 +161,8 @@ def test_the_wall_is_judged_on_the_aimed_lamp() -> None:
 def test_cli_reports_the_aim(high_lamp: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "v.json"
     code, text, err = run_cli(["check", str(high_lamp), "--regulation", "fmvss-lb1v-lower",
-                               "--beam", "lower", "--json", str(out)], capsys)
+                               "--beam", "lower", "--aperture", "0", "--json", str(out)],
+                              capsys)
     assert code == 0, err
     assert "lamp pitched -1.4" in text
     doc = json.loads(out.read_text())
@@ -184,11 +185,24 @@ def test_new_measurement_keys_checked(tmp_path: Path, key: str, value: str, text
         load_ruleset(str(rs))
 
 
-def test_rule_set_aperture_is_the_default(high_lamp: Path) -> None:
-    """The set's aperture (0.516°) applies unless one is given: H-V, 0.4° above the aimed
-    cut-off, keeps 200 cd over the whole disc; 0.6D-1.3R, 0.2° below it, is blurred."""
-    res = check_lamp(lamp_source(high_lamp), "fmvss-lb1v-lower", beam="lower")
+def test_rule_set_aperture_is_the_default(high_lamp: Path, tmp_path: Path) -> None:
+    """A set's aperture applies unless one is given: H-V, 0.4° above the aimed cut-off, keeps
+    200 cd over the whole 0.516° disc; 0.6D-1.3R, 0.2° below it, is blurred. Every shipped
+    FMVSS set states the standard's 0.516° (0.009 × the distance across)."""
+    for col in ("lb1m", "lb1v", "lb2m", "lb2v", "lb3m", "lb3v", "lb4m", "lb4v", "lb5m"):
+        assert load_ruleset(f"fmvss-{col}-lower").measurement.aperture_deg == 0.516
+    for n in range(1, 7):
+        assert load_ruleset(f"fmvss-ub{n}-upper").measurement.aperture_deg == 0.516
+    rs = tmp_path / "two.toml"
+    rs.write_text('schema = "lightsim-ruleset-1"\nid = "two"\ntitle = "t"\nversion = "1"\n'
+                  'source = "test"\ntraffic = "right"\n[measurement]\naim = "visual"\n'
+                  'beam = "lower"\nangles = "azimuth-elevation"\naperture_deg = 0.516\n'
+                  '[[point]]\nname = "H-V"\nh = 0.0\nv = 0.0\nmax = 5000\n'
+                  '[[point]]\nname = "0.6D-1.3R"\nh = 1.3\nv = -0.6\nmin = 10000\n')
+    res = check_lamp(lamp_source(high_lamp), str(rs), beam="lower")
     assert res.aperture_deg == pytest.approx(0.516)
     rows = {r["name"]: r for r in res.results}
     assert rows["H-V"]["value_cd"] == pytest.approx(200.0)
     assert 200.0 < rows["0.6D-1.3R"]["value_cd"] < 16_000.0
+    point = check_lamp(lamp_source(high_lamp), str(rs), beam="lower", aperture_deg=0.0)
+    assert {r["name"]: r for r in point.results}["0.6D-1.3R"]["value_cd"] == 16_000.0
