@@ -10,8 +10,12 @@ same when a rule set's ``[measurement]`` says ``aim = "visual"``:
    for a "VOL" lamp, 2.0° right of V-V for a "VOR" lamp (for right-hand traffic; mirrored
    for left); its position is the steepest fall of log10 E going up (the maximum
    gradient), and G = log10 E(β) − log10 E(β + 0.1°) across it;
-2. a lamp whose cut-off is not found, or whose G is below ``cutoff_gradient_min``, is
-   **not visually aimable**: no aim is applied and the check says so;
+2. the cut-off must be at least ``WIDTH_DEG`` = 2° wide, centred on that line, and level:
+   the scans 1° either side of the line must find it within ``INCLINATION_DEG`` = 0.2° of
+   the centre's position (S10.18.9.1.3–4 as cited in a transcription of the standard);
+   a lamp whose cut-off is not found, not level over that width, or whose G is below
+   ``cutoff_gradient_min``, is **not visually aimable**: no aim is applied and the check
+   says so;
 3. otherwise the lamp is pitched by ``dv = cutoff_v_deg − v_cutoff`` so that its cut-off
    sits at ``cutoff_v_deg`` (VOL 0.4° D, VOR on H unless the set says otherwise); the
    horizontal aim is kept as built, because such a lamp has no horizontal adjustment;
@@ -31,6 +35,9 @@ name                     unit   default     meaning
 ``cutoff_v_deg``         deg    VOL −0.4,   where the aim puts the cut-off (+ up)
                                 VOR 0
 ``cutoff_gradient_min``  1      0.13        least G for the lamp to be visually aimable
+``WIDTH_DEG``            deg    2.0         least width of the cut-off, centred on the line
+``INCLINATION_DEG``      deg    0.2         largest offset of the cut-off at the width's
+                                            ends from its position on the line
 ``dv_deg``               deg    –           the pitch applied (+ up)
 =======================  =====  ==========  ============================================
 """
@@ -48,7 +55,13 @@ from lightsim.render.cutoff import find_cutoff
 
 from .conditions import MeasuringConditions
 
-__all__ = ["SCAN_H_DEG", "VisualAim", "find_visual_aim", "pitch_back", "pitched"]
+__all__ = ["INCLINATION_DEG", "SCAN_H_DEG", "WIDTH_DEG", "VisualAim", "find_visual_aim",
+           "pitch_back", "pitched"]
+
+WIDTH_DEG = 2.0
+"""Least width (deg) of the cut-off, centred on the scan line."""
+INCLINATION_DEG = 0.2
+"""Largest vertical offset (deg) of the cut-off at the width's ends from its centre."""
 
 SCAN_H_DEG = {"VOL": 2.5, "VOR": 2.0}
 """Distance (deg) from V-V of the line a visual aim scans: 2.5° L (VOL), 2.0° R (VOR)."""
@@ -76,8 +89,12 @@ class VisualAim:
         Its gradient G.
     gradient_min : float
         The least G of a visually aimable lamp.
+    ends_v_deg : list of float or None
+        The cut-off found 1° either side of the line (None where not found).
+    level : bool
+        Both ends found within :data:`INCLINATION_DEG` of the centre.
     aimable : bool
-        Found, and G ≥ ``gradient_min``.
+        Found, level, and G ≥ ``gradient_min``.
     applied : bool
         Whether the points are read on the aimed lamp.
     dv_deg : float
@@ -92,6 +109,8 @@ class VisualAim:
     target_v_deg: float
     sharpness_g: float | None
     gradient_min: float
+    ends_v_deg: list[float | None]
+    level: bool
     aimable: bool
     applied: bool
     dv_deg: float
@@ -123,37 +142,50 @@ def find_visual_aim(lux: ArrayLike, frame: Any, mc: MeasuringConditions,
     """
     # find_cutoff scans left of V-V for "right" and right of it for "left"
     scan_left = (mc.visual_aim == "VOL") == (traffic == "right")
+    line = SCAN_H_DEG[mc.visual_aim]
+    half = 0.5 * WIDTH_DEG
     res = find_cutoff(lux, frame, "right" if scan_left else "left",
-                      scan_h_deg=(SCAN_H_DEG[mc.visual_aim],),
+                      scan_h_deg=(line - half, line, line + half),
                       target_v_deg=mc.cutoff_target_deg)
     target = float(mc.cutoff_target_deg)
-    if not res.found:
-        return VisualAim(mc.visual_aim, False, None, target, None, mc.cutoff_gradient_min,
-                         False, False, 0.0,
-                         f"visual/optical aim ({mc.visual_aim}): {res.message}: NOT visually "
-                         "aimable; points read at the lamp's aim as built")
-    g = float(res.sharpness_g)
-    v_cut = float(res.v_cutoff_deg)
-    aimable = g >= mc.cutoff_gradient_min
+    side = f"{mc.visual_aim}, scanned {line:g}° {'left' if scan_left else 'right'} of V-V"
+    centre = res.scans[1]
+    ends = [float(e.v_inflection_deg) if e.found else None for e in (res.scans[0],
+                                                                       res.scans[2])]
+
+    def aim(found: bool, v_cut: float | None, g: float | None, level: bool, aimable: bool,
+            dv: float, message: str) -> VisualAim:
+        return VisualAim(mc.visual_aim, found, v_cut, target, g, mc.cutoff_gradient_min,
+                         ends, level, aimable, dv != 0.0 or (aimable and apply), dv, message)
+
+    as_built = "points read at the lamp's aim as built"
+    if not centre.found:
+        return aim(False, None, None, False, False, 0.0,
+                   f"visual/optical aim ({side}): no cut-off ({centre.message}): NOT visually "
+                   f"aimable; {as_built}")
+    v_cut = float(centre.v_inflection_deg)
+    g = float(centre.sharpness_g)
+    level = all(e is not None and abs(e - v_cut) <= INCLINATION_DEG + 1e-9 for e in ends)
+    where = f"cut-off at {v_cut:+.2f}°, G = {g:.3f}"
+    if g < mc.cutoff_gradient_min:
+        return aim(True, v_cut, g, level, False, 0.0,
+                   f"visual/optical aim ({side}): {where} < {mc.cutoff_gradient_min:g}: NOT "
+                   f"visually aimable; {as_built}")
+    if not level:
+        at = ", ".join("none" if e is None else f"{e:+.2f}°" for e in ends)
+        return aim(True, v_cut, g, False, False, 0.0,
+                   f"visual/optical aim ({side}): {where}, but not level over "
+                   f"{WIDTH_DEG:g}° (1° either side: {at}; at most {INCLINATION_DEG:g}° off): "
+                   f"NOT visually aimable; {as_built}")
     dv = target - v_cut
-    side = (f"{mc.visual_aim}, scanned {SCAN_H_DEG[mc.visual_aim]:g}° "
-            f"{'left' if scan_left else 'right'} of V-V")
-    if not aimable:
-        return VisualAim(mc.visual_aim, True, v_cut, target, g, mc.cutoff_gradient_min,
-                         False, False, 0.0,
-                         f"visual/optical aim ({side}): cut-off at {v_cut:+.2f}°, gradient "
-                         f"G = {g:.3f} < {mc.cutoff_gradient_min:g}: NOT visually aimable; "
-                         "points read at the lamp's aim as built")
-    where = f"cut-off at {v_cut:+.2f}°, G = {g:.3f} ≥ {mc.cutoff_gradient_min:g}"
+    where = f"{where} ≥ {mc.cutoff_gradient_min:g}, level over {WIDTH_DEG:g}°"
     if not apply:
-        return VisualAim(mc.visual_aim, True, v_cut, target, g, mc.cutoff_gradient_min,
-                         True, False, 0.0,
-                         f"visual/optical aim ({side}): {where}; NOT applied (points read at "
-                         f"the lamp's aim as built; the aim would pitch it {dv:+.2f}°)")
-    return VisualAim(mc.visual_aim, True, v_cut, target, g, mc.cutoff_gradient_min, True,
-                     True, float(dv),
-                     f"visual/optical aim ({side}): {where}; lamp pitched {dv:+.2f}° to put "
-                     f"it at {target:+.2f}° (horizontal aim as built)")
+        return aim(True, v_cut, g, True, True, 0.0,
+                   f"visual/optical aim ({side}): {where}; NOT applied ({as_built}; the aim "
+                   f"would pitch it {dv:+.2f}°)")
+    return aim(True, v_cut, g, True, True, float(dv),
+               f"visual/optical aim ({side}): {where}; lamp pitched {dv:+.2f}° to put it at "
+               f"{target:+.2f}° (horizontal aim as built)")
 
 
 def pitch_back(h_deg: ArrayLike, v_deg: ArrayLike, dv_deg: float) -> tuple[NDArray, NDArray]:

@@ -82,7 +82,7 @@ def test_lamp_with_known_offset_is_aimed_then_read(high_lamp: Path) -> None:
     res = check_lamp(lamp_source(high_lamp), "fmvss-lb1v-lower", beam="lower",
                      aperture_deg=0.0)
     aim = res.aim
-    assert aim["applied"] and aim["aimable"] and aim["method"] == "VOL"
+    assert aim["applied"] and aim["aimable"] and aim["level"] and aim["method"] == "VOL"
     assert aim["target_v_deg"] == CUTOFF_V_DEG["VOL"] == -0.4
     assert aim["v_cutoff_deg"] == pytest.approx(CUT, abs=0.05)
     assert aim["dv_deg"] == pytest.approx(-0.4 - CUT, abs=0.05)
@@ -206,3 +206,21 @@ def test_rule_set_aperture_is_the_default(high_lamp: Path, tmp_path: Path) -> No
     assert 200.0 < rows["0.6D-1.3R"]["value_cd"] < 16_000.0
     point = check_lamp(lamp_source(high_lamp), str(rs), beam="lower", aperture_deg=0.0)
     assert {r["name"]: r for r in point.results}["0.6D-1.3R"]["value_cd"] == 16_000.0
+
+
+def test_a_tilted_cutoff_is_not_level(tmp_path: Path) -> None:
+    """The cut-off rises 0.3° per degree to the right: 1° either side of 2.5° L it is 0.3°
+    off the centre's position, more than 0.2°: not visually aimable, no aim applied."""
+    cut = 0.3 * (H[:, None] + 2.5)  # on H at 2.5° L
+    cd = np.where(V[None, :] >= cut - 1e-9, 200.0, 16_000.0)
+    path = tmp_path / "tilted.ies"
+    write_ies(path, HVGrid(H, V, cd, "A"))
+    res = check_lamp(lamp_source(path), "fmvss-lb1v-lower", beam="lower", aperture_deg=0.0)
+    aim = res.aim
+    # positions to within the step's cell and the scan band; the ends 0.3° either way
+    v0 = aim["v_cutoff_deg"]
+    assert aim["found"] and v0 == pytest.approx(0.0, abs=0.1)
+    assert aim["ends_v_deg"][0] - v0 == pytest.approx(0.3, abs=0.05)  # 1.5° L
+    assert aim["ends_v_deg"][1] - v0 == pytest.approx(-0.3, abs=0.05)  # 3.5° L
+    assert not aim["level"] and not aim["aimable"] and not aim["applied"]
+    assert "not level over 2°" in aim["message"] and aim["dv_deg"] == 0.0
