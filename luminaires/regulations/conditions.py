@@ -9,13 +9,13 @@ the shipped sets mark them less sure):
   plane), i.e. azimuth H and elevation V; the screen's wall angles of lightsim are
   h = H and v = atan(tan V / cos H) (:func:`wall_angles`);
 * a 1/4° re-aim is permitted in any direction at any test point (:mod:`.reaim`);
-* the photometer is at least 18.3 m (60 ft) from the lamp;
+* the photometer is at least 18.3 m (60 ft) from the lamp, its sensor 0.516° across;
 * mechanically aimed lamps are measured on their own axis; a visually/optically aimed
   lower beam is aimed by its cut-off before the points are read (:mod:`.visual_aim`): the
   cut-off, scanned left of V-V ("VOL") or right of it ("VOR"), is moved vertically to
   ``cutoff_v_deg`` (VOL 0.4° D, VOR on H by default); its horizontal aim is kept (such a
   lamp has no horizontal adjustment); the cut-off must be sharp enough (a least gradient,
-  0.13 as in R112 annex 9 by default);
+  0.13 by default) and level over 2°;
 * the tables are written for right-hand traffic only.
 
 A rule set states these in an optional ``[measurement]`` table (format in ``README.md``
@@ -24,8 +24,9 @@ beside this module); :func:`parse_conditions` checks it strictly;
 test distance) and :func:`refuse_screen_check` a screen check that cannot honour them.
 A set may state its photometer's aperture (``aperture_deg``, the angular diameter of the
 receiver seen from the lamp): ``lightsim check`` then averages every reading over a disc of
-that diameter unless ``--aperture`` says otherwise. The shipped FMVSS sets state none (the
-standard's receiver size was not confirmed here): their readings are point values.
+that diameter unless ``--aperture`` says otherwise. The shipped FMVSS sets state 0.516°:
+a sensor inside a circle 0.009 × the test distance across (S14.2.5.7.2.1, as cited by a
+transcription of the standard).
 
 Parameters
 ----------

@@ -12,10 +12,11 @@ Before any verdict the rule set's ``[measurement]`` table is checked against the
 (:mod:`.conditions`): a rule set for upper beams does not apply to a lower beam (the beam
 is given, or a lower beam is recognised by its cut-off on the wall), a right-hand-only set
 does not apply to left-hand traffic, a run's wall nearer than the least test distance is
-refused; each is one line. A visually/optically aimed set needs a cut-off whose gradient
-G (R112 annex 9 scan at 2.5°) reaches ``cutoff_gradient_min``; the lamp is then aimed by
-that cut-off (pitched to put it at the set's ``cutoff_v_deg``, :mod:`.visual_aim`) and the
-points are read on the aimed lamp (``visual_aim=False``: at the lamp's aim as built). The
+refused; each is one line. A visually/optically aimed set needs a cut-off, scanned on the
+standard's line (2.5° L for VOL, 2.0° R for VOR), whose gradient G reaches
+``cutoff_gradient_min`` and which is level over 2°; the lamp is then aimed by that cut-off
+(pitched to put it at the set's ``cutoff_v_deg``, :mod:`.visual_aim`) and the points are
+read on the aimed lamp (``visual_aim=False``: at the lamp's aim as built). The
 photometer's aperture is the set's ``aperture_deg`` unless one is given. Then
 :mod:`.reaim` gives the verdicts.
 

@@ -34,6 +34,8 @@ name              unit   default  meaning
 ``aperture_deg``  deg    0        photometer aperture (angular diameter); the mean over
                                   ``APERTURE_POINTS`` = 32 directions of the disc
                                   (0: point values)
+``aim_dv_deg``    deg    0        pitch of a visual aim (+ up; :mod:`.visual_aim`): what the
+                                  wall covers is judged on the pitched lamp
 ================  =====  =======  =========================================================
 """
 
