@@ -24,16 +24,28 @@ from lightsim.luminaires.regulations.reaim import format_reaim_table
               show_default=True, help="Traffic side.")
 @click.option("--confidence", type=float, default=0.95, show_default=True,
               help="Two-sided level of the intervals.")
-@click.option("--aperture", type=float, default=0.0, show_default=True,
+@click.option("--aperture", type=float, default=None,
               help="Angular diameter of the photometer's aperture (deg); every reading is "
-              "the mean over it. 0: point values.")
+              "the mean over it. 0: point values. [default: the rule set's aperture_deg, "
+              "else 0]")
+@click.option("--visual-aim/--no-visual-aim", default=True, show_default=True,
+              help="Aim a visually/optically aimed lamp by its cut-off before the points "
+              "are read (rule sets with aim = \"visual\"); --no-visual-aim reads them at "
+              "the lamp's aim as built.")
+@click.option("--visual-mark", type=click.Choice(["VOL", "VOR"]),
+              help="A visually/optically aimable lower beam's marking: VOL (cut-off scanned "
+              "2.5° L, aimed to 0.4° D) or VOR (2.0° R, aimed to H) [default: the rule "
+              "set's].")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Also write the verdicts as JSON.")
 def check(source: str, regulation: str, beam: str | None, traffic: str, confidence: float,
-          aperture: float, json_path: str | None) -> None:
+          aperture: float | None, visual_aim: bool, visual_mark: str | None,
+          json_path: str | None) -> None:
     """Verdicts of SOURCE (a run folder, or an .ies/.ldt file) against a rule set; points
-    that pass only after the permitted re-aim are named so."""
-    res = check_lamp(lamp_source(source), regulation, beam, traffic, confidence, aperture)
+    that pass only after the permitted re-aim are named so. A visually/optically aimed lamp
+    is first aimed by its cut-off, as the rule set's measuring conditions say."""
+    res = check_lamp(lamp_source(source), regulation, beam, traffic, confidence, aperture,
+                     visual_aim, visual_mark)
     console = Console(width=None if sys.stdout.isatty() else 160)
     console.print(format_reaim_table(res.results, f"{res.ruleset.title} — {source}",
                                      res.unevaluated))

@@ -28,6 +28,8 @@ run               commands                               pictures (docs/img/…)
 ``led-lamps``     ``simulate`` the shipped LED           led-projector-isolux,
                   projector (R149 class B passing) and   led-matrix-isolux
                   matrix high beam (class B driving)
+``road``          ``simulate --road`` the shipped low    road-right-250
+                  beam (the road guide's run)
 ================  =====================================  ====================================
 
 Parameters
@@ -166,6 +168,14 @@ def led_lamps(work: Path) -> dict[str, Path]:
             "led-matrix-isolux": work / "matrix" / "isolux.png"}
 
 
+def road(work: Path) -> dict[str, Path]:
+    """The road guide's run: the shipped low beam with the road evaluation; its plot of the
+    250 m right curve."""
+    run(["simulate", str(LOWBEAM), "--photons", "400000", "--road", "--out", "lowbeam-road",
+         "--quiet"], work)
+    return {"road-right-250": work / "lowbeam-road" / "road_right-250.png"}
+
+
 _DRAG_JS = """async (seconds) => {
   const V = window.lightsimView;
   const t0 = performance.now();
@@ -274,6 +284,7 @@ RUNS = (
     Run("tolerance", tolerance, ("tolerance",)),
     Run("design", design, ("design-isolux",)),
     Run("led-lamps", led_lamps, ("led-projector-isolux", "led-matrix-isolux")),
+    Run("road", road, ("road-right-250",)),
     Run("view", view, ("view-interaction", "view-converged", "view-camera")),
 )
 

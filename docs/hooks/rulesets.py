@@ -92,12 +92,16 @@ def section(rs: RuleSet) -> str:
     """One rule set: its facts, its rules and their numbered sources."""
     facts = [("title", mdtext.text(rs.title)), ("regulation", mdtext.text(rs.regulation)),
              ("beam", mdtext.text(rs.beam)), ("version", mdtext.text(rs.version)),
-             ("traffic", f"{rs.traffic} (the other side mirrors every position, h → −h)"),
+             ("traffic", f"{rs.traffic} only (not mirrored)"
+              if rs.measurement is not None and not rs.measurement.mirror
+              else f"{rs.traffic} (the other side mirrors every position, h → −h)"),
              ("distance", f"{rs.distance_m:g} m"),
              ("file", mdtext.code(f"lightsim/luminaires/regulations/{Path(rs.path).name}"))]
     parts = [f"## {rs.id}", "\n".join(f"- **{k}**: {v}" for k, v in facts if v)]
     if rs.notes:
         parts.append("\n".join(f"- {mdtext.text(n)}" for n in rs.notes))
+    if rs.measurement is not None:
+        parts.append(measuring(rs))
     sources: dict[str, int] = {}
     rows = []
     for rule in (*rs.geometries, *rs.sums, *rs.relations):
@@ -111,6 +115,23 @@ def section(rs: RuleSet) -> str:
     parts.append("Sources:\n\n" + "\n".join(f"{n}. {mdtext.text(s)}"
                                             for s, n in sources.items()))
     return "\n\n".join(parts)
+
+
+def measuring(rs: RuleSet) -> str:
+    """The ``[measurement]`` table: how ``lightsim check`` reads the points."""
+    mc = rs.measurement
+    aim = {"screen": "as the run is", "mechanical": "the lamp's own axis",
+           "visual": (f"by the cut-off ({mc.visual_aim}): put at {mc.cutoff_target_deg:+g}°, "
+                      f"gradient at least {mc.cutoff_gradient_min:g}")}[mc.aim]
+    facts = [("angles", mc.angles), ("re-aim at every test point", f"{mc.reaim_deg:g}°"),
+             ("least test distance", f"{mc.min_distance_m:g} m"),
+             ("photometer aperture", f"{mc.aperture_deg:g}°" if mc.aperture_deg
+              else "none (point values)"),
+             ("aim", aim), ("beam", mc.beam or "any"),
+             ("traffic", "mirrored for the other side" if mc.mirror else "this side only"),
+             ("certainty", _certainty(mc)), ("source", mdtext.text(mc.source))]
+    return ("Measuring conditions (`lightsim check`):\n\n"
+            + "\n".join(f"- **{k}**: {v}" for k, v in facts))
 
 
 def summary(rulesets: list[RuleSet]) -> str:

@@ -9,18 +9,24 @@ the shipped sets mark them less sure):
   plane), i.e. azimuth H and elevation V; the screen's wall angles of lightsim are
   h = H and v = atan(tan V / cos H) (:func:`wall_angles`);
 * a 1/4° re-aim is permitted in any direction at any test point (:mod:`.reaim`);
-* the photometer is at least 18.3 m (60 ft) from the lamp;
+* the photometer is at least 18.3 m (60 ft) from the lamp, its sensor 0.516° across;
 * mechanically aimed lamps are measured on their own axis; a visually/optically aimed
-  lower beam is aimed by its cut-off, which must be sharp enough (a least gradient, 0.13
-  as in R112 annex 9 by default);
+  lower beam is aimed by its cut-off before the points are read (:mod:`.visual_aim`): the
+  cut-off, scanned left of V-V ("VOL") or right of it ("VOR"), is moved vertically to
+  ``cutoff_v_deg`` (VOL 0.4° D, VOR on H by default); its horizontal aim is kept (such a
+  lamp has no horizontal adjustment); the cut-off must be sharp enough (a least gradient,
+  0.13 by default) and level over 2°;
 * the tables are written for right-hand traffic only.
 
 A rule set states these in an optional ``[measurement]`` table (format in ``README.md``
 beside this module); :func:`parse_conditions` checks it strictly;
 :mod:`.lamp_check` refuses a lamp the conditions do not allow (beam type, traffic side,
 test distance) and :func:`refuse_screen_check` a screen check that cannot honour them.
-The photometer's aperture is not part of the table (its FMVSS size was not confirmed):
-``lightsim check --aperture DEG`` averages every reading over a disc of that diameter.
+A set may state its photometer's aperture (``aperture_deg``, the angular diameter of the
+receiver seen from the lamp): ``lightsim check`` then averages every reading over a disc of
+that diameter unless ``--aperture`` says otherwise. The shipped FMVSS sets state 0.516°:
+a sensor inside a circle 0.009 × the test distance across (S14.2.5.7.2.1, as cited by a
+transcription of the standard).
 
 Parameters
 ----------
@@ -36,6 +42,12 @@ key                      unit   default     meaning
                                             "visual" (by the cut-off)
 ``beam``                 –      none        "lower" or "upper": the lamps it applies to
 ``cutoff_gradient_min``  1      0.13        least cut-off gradient of a visual aim
+``visual_aim``           –      "VOL"       where a visual aim scans the cut-off: "VOL"
+                                            (left of V-V) or "VOR" (right of V-V)
+``cutoff_v_deg``         deg    VOL −0.4,   where a visual aim puts the cut-off (+ up)
+                                VOR 0
+``aperture_deg``         deg    0           the photometer's angular diameter (0: point
+                                            values)
 ``mirror``               –      true        false: the set has one traffic side only
 ``certainty``, ``note``,
 ``source``                                  as for every rule
@@ -58,6 +70,8 @@ __all__ = [
     "AIMS",
     "ANGLES",
     "BEAMS",
+    "CUTOFF_V_DEG",
+    "VISUAL_AIMS",
     "MeasuringConditions",
     "parse_conditions",
     "refuse_screen_check",
@@ -67,8 +81,12 @@ __all__ = [
 ANGLES = ("screen", "azimuth-elevation")
 AIMS = ("screen", "mechanical", "visual")
 BEAMS = ("lower", "upper")
+VISUAL_AIMS = ("VOL", "VOR")
+CUTOFF_V_DEG = {"VOL": -0.4, "VOR": 0.0}
+"""Where a visual aim puts the cut-off by default (deg, + up): VOL 0.4° D, VOR on H."""
 _KEYS = {"angles", "reaim_deg", "min_distance_m", "aim", "beam",
-         "cutoff_gradient_min", "mirror", "certainty", "note", "source"}
+         "cutoff_gradient_min", "visual_aim", "cutoff_v_deg", "aperture_deg", "mirror",
+         "certainty", "note", "source"}
 
 
 @dataclass(frozen=True)
@@ -89,6 +107,12 @@ class MeasuringConditions:
         The beams the rule set applies to (None: any).
     cutoff_gradient_min : float
         Least gradient G of the cut-off of a visual aim.
+    visual_aim : {"VOL", "VOR"}
+        Where a visual aim scans the cut-off: left (VOL) or right (VOR) of V-V.
+    cutoff_v_deg : float or None
+        Where a visual aim puts the cut-off (deg, + up); None: :data:`CUTOFF_V_DEG`.
+    aperture_deg : float
+        The photometer's angular diameter (deg); 0: point values.
     mirror : bool
         False when the positions may not be mirrored for the other traffic side.
     certainty, note, source : str
@@ -101,6 +125,9 @@ class MeasuringConditions:
     aim: str = "screen"
     beam: str | None = None
     cutoff_gradient_min: float = 0.13
+    visual_aim: str = "VOL"
+    cutoff_v_deg: float | None = None
+    aperture_deg: float = 0.0
     mirror: bool = True
     certainty: str = "sure"
     note: str = ""
@@ -112,8 +139,14 @@ class MeasuringConditions:
                 "min_distance_m": self.min_distance_m,
                 "aim": self.aim,
                 "beam": self.beam, "cutoff_gradient_min": self.cutoff_gradient_min,
-                "mirror": self.mirror, "certainty": self.certainty, "note": self.note,
-                "source": self.source}
+                "visual_aim": self.visual_aim, "cutoff_v_deg": self.cutoff_target_deg,
+                "aperture_deg": self.aperture_deg, "mirror": self.mirror,
+                "certainty": self.certainty, "note": self.note, "source": self.source}
+
+    @property
+    def cutoff_target_deg(self) -> float:
+        """Where a visual aim puts the cut-off (deg, + up)."""
+        return CUTOFF_V_DEG[self.visual_aim] if self.cutoff_v_deg is None else self.cutoff_v_deg
 
 
 def _number(fail, key: str, value: Any, low: float, high: float) -> float:
@@ -161,8 +194,11 @@ def parse_conditions(table: Any, fail, default_source: str) -> MeasuringConditio
         out["aim"] = _choice(fail, "aim", table["aim"], AIMS)
     if "beam" in table:
         out["beam"] = _choice(fail, "beam", table["beam"], BEAMS)
+    if "visual_aim" in table:
+        out["visual_aim"] = _choice(fail, "visual_aim", table["visual_aim"], VISUAL_AIMS)
     for key, low, high in (("reaim_deg", 0.0, 2.0), ("min_distance_m", 0.0, 1000.0),
-                           ("cutoff_gradient_min", 0.0, 5.0)):
+                           ("cutoff_gradient_min", 0.0, 5.0), ("cutoff_v_deg", -3.0, 1.5),
+                           ("aperture_deg", 0.0, 5.0)):
         if key in table:
             out[key] = _number(fail, key, table[key], low, high)
     if "mirror" in table:

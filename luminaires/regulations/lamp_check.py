@@ -12,9 +12,13 @@ Before any verdict the rule set's ``[measurement]`` table is checked against the
 (:mod:`.conditions`): a rule set for upper beams does not apply to a lower beam (the beam
 is given, or a lower beam is recognised by its cut-off on the wall), a right-hand-only set
 does not apply to left-hand traffic, a run's wall nearer than the least test distance is
-refused; each is one line. A visually/optically aimed set needs a cut-off whose gradient
-G (R112 annex 9 scan at 2.5°) reaches ``cutoff_gradient_min``; the points are read at the
-lamp's aim. Then :mod:`.reaim` gives the verdicts.
+refused; each is one line. A visually/optically aimed set needs a cut-off, scanned on the
+standard's line (2.5° L for VOL, 2.0° R for VOR), whose gradient G reaches
+``cutoff_gradient_min`` and which is level over 2°; the lamp is then aimed by that cut-off
+(pitched to put it at the set's ``cutoff_v_deg``, :mod:`.visual_aim`) and the points are
+read on the aimed lamp (``visual_aim=False``: at the lamp's aim as built). The
+photometer's aperture is the set's ``aperture_deg`` unless one is given. Then
+:mod:`.reaim` gives the verdicts.
 
 Parameters
 ----------
@@ -26,7 +30,11 @@ name             unit   default   meaning
 ``beam``         –      auto      "lower" or "upper"; auto: lower when a cut-off is found
 ``traffic``      –      right     traffic side
 ``confidence``   1      0.95      two-sided level
-``aperture_deg`` deg    0         photometer aperture's angular diameter (0: point values)
+``aperture_deg`` deg    the set's photometer aperture's angular diameter (0: point values;
+                        or 0      None: the rule set's ``aperture_deg``)
+``visual_aim``   –      True      aim a visually/optically aimed lamp by its cut-off
+``visual_mark``  –      the set's "VOL" or "VOR": the lamp's marking (where its cut-off is
+                                  scanned and put)
 ``FILE_WALL``    –      25 m      the wall a photometric file is drawn on to find its
                                   cut-off (±15 m × ±6 m, 640 × 256 pixels)
 ===============  =====  ========  ========================================================
@@ -35,7 +43,7 @@ name             unit   default   meaning
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -47,9 +55,11 @@ from lightsim.road_evaluation import load_far_field
 from lightsim.wall import WallFrame
 
 from ..photometric import read_photometric
+from .conditions import VISUAL_AIMS
 from .evaluate import unevaluated_rules
 from .reaim import evaluate_reaim, reaim_probes, values_from
 from .ruleset import RuleSet, load_ruleset
+from .visual_aim import find_visual_aim, pitched
 
 __all__ = ["FILE_WALL", "LampCheck", "LampSource", "check_lamp", "lamp_source", "verdict_counts"]
 
@@ -119,6 +129,8 @@ class LampCheck:
     cutoff: dict[str, Any]
     n_sets: int
     notes: list[str] = field(default_factory=list)
+    aim: dict[str, Any] | None = None
+    aperture_deg: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         mc = self.ruleset.measurement
@@ -126,6 +138,7 @@ class LampCheck:
                 "version": self.ruleset.version, "source": self.ruleset.source,
                 "measurement": None if mc is None else mc.to_dict(), "beam": self.beam,
                 "beam_from": self.beam_from, "cutoff": self.cutoff,
+                "visual_aim": self.aim, "aperture_deg": self.aperture_deg,
                 "interleave_sets": self.n_sets, "error_estimate": self.n_sets > 1,
                 "results": self.results, "unevaluated": self.unevaluated,
                 "notes": self.notes}
@@ -146,7 +159,8 @@ def _beam(src: LampSource, beam: str | None, traffic: str) -> tuple[str, str, di
 
 def check_lamp(src: LampSource, ruleset: str, beam: str | None = None,
                traffic: str = "right", confidence: float = 0.95,
-               aperture_deg: float = 0.0) -> LampCheck:
+               aperture_deg: float | None = None, visual_aim: bool = True,
+               visual_mark: str | None = None) -> LampCheck:
     """Verdicts of ``ruleset`` for the lamp ``src`` (see the module docstring).
 
     Raises
@@ -171,28 +185,33 @@ def check_lamp(src: LampSource, ruleset: str, beam: str | None = None,
         if src.frame is not None and src.frame.distance_m < mc.min_distance_m:
             raise InputError(f"rule set {rs.id} measures at {mc.min_distance_m:g} m or more; "
                              f"the run's wall is at {src.frame.distance_m:g} m")
-        if mc.aim == "visual":
-            g = cut["sharpness_g"] if cut["found"] else None
-            ok = g is not None and g >= mc.cutoff_gradient_min
-            cut["gradient_min"] = mc.cutoff_gradient_min
-            cut["visually_aimable"] = bool(ok)
-            if g is None:
-                notes.append("visual/optical aim by the cut-off: no cut-off found: NOT "
-                             "visually aimable")
-            else:
-                notes.append(f"visual/optical aim by the cut-off: gradient G = {g:.3f} "
-                             f"{'≥' if ok else '<'} {mc.cutoff_gradient_min:g}"
-                             + ("" if ok else ": NOT visually aimable"))
-        if mc.reaim_deg > 0:
-            notes.append(f"re-aim up to {mc.reaim_deg:g}° permitted at every test point")
-    rp = reaim_probes(rs, traffic, 0.25, src.frame, aperture_deg)
+    aim = None
+    dv = 0.0
+    if mc is not None and mc.aim == "visual":
+        if visual_mark is not None:
+            if visual_mark not in VISUAL_AIMS:
+                raise InputError(f"--visual-mark must be one of {', '.join(VISUAL_AIMS)}, "
+                                 f"got {visual_mark!r}")
+            if visual_mark != mc.visual_aim:  # the other marking's cut-off position
+                mc = replace(mc, visual_aim=visual_mark, cutoff_v_deg=None)
+        aim = find_visual_aim(src.lux, src.lux_frame, mc, traffic, visual_aim)
+        cut["gradient_min"] = mc.cutoff_gradient_min
+        cut["visually_aimable"] = aim.aimable
+        notes.append(aim.message)
+        dv = aim.dv_deg
+    if mc is not None and mc.reaim_deg > 0:
+        notes.append(f"re-aim up to {mc.reaim_deg:g}° permitted at every test point")
+    if aperture_deg is None:
+        aperture_deg = mc.aperture_deg if mc is not None else 0.0
+    rp = reaim_probes(rs, traffic, 0.25, src.frame, aperture_deg, aim_dv_deg=dv)
     if aperture_deg > 0:
         notes.append(f"photometer aperture {aperture_deg:g}° (mean over its disc)")
     fn = src.set_intensity if src.set_intensity is not None else src.intensity
-    values = values_from(fn, rp)
+    values = values_from(pitched(fn, dv), rp)
     results = evaluate_reaim(rs, rp, values, confidence)
     return LampCheck(rs, results, unevaluated_rules(rs, rp.base), kind, why, cut,
-                     int(values.shape[0]), notes)
+                     int(values.shape[0]), notes, None if aim is None else aim.to_dict(),
+                     float(aperture_deg))
 
 
 def verdict_counts(results: list[dict[str, Any]]) -> dict[str, int]:

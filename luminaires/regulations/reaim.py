@@ -34,6 +34,8 @@ name              unit   default  meaning
 ``aperture_deg``  deg    0        photometer aperture (angular diameter); the mean over
                                   ``APERTURE_POINTS`` = 32 directions of the disc
                                   (0: point values)
+``aim_dv_deg``    deg    0        pitch of a visual aim (+ up; :mod:`.visual_aim`): what the
+                                  wall covers is judged on the pitched lamp
 ================  =====  =======  =========================================================
 """
 
@@ -53,6 +55,7 @@ from lightsim.wall import WallFrame
 from .conditions import wall_angles
 from .evaluate import Probes, evaluate, format_position, format_table, probe_points
 from .ruleset import Geometry, RuleSet
+from .visual_aim import pitch_back
 
 __all__ = ["APERTURE_POINTS", "RINGS", "ReaimProbes", "aperture_points", "evaluate_reaim",
            "format_reaim_table", "reaim_offsets", "reaim_probes", "values_from"]
@@ -123,13 +126,23 @@ def _span(frame: WallFrame) -> tuple[float, float, float, float]:
     return float(h.min()), float(h.max()), float(v.min()), float(v.max())
 
 
-def _inside_wall(base: Probes, frame: WallFrame, angles: str, margin: float = 0.0) -> Probes:
-    """``base`` without the probes whose wall angles (after conversion), widened by
-    ``margin`` deg, leave the wall."""
+def _on_wall(frame: WallFrame, wh: NDArray, wv: NDArray, margin: float, aim_dv_deg: float
+             ) -> NDArray:
+    """Which wall angles (of the lamp pitched by ``aim_dv_deg``) the built lamp's wall
+    covers, ``margin`` deg inside its edges."""
+    h0, h1, v0, v1 = _span(frame)
+    h, v = pitch_back(wh, wv, aim_dv_deg) if aim_dv_deg else (wh, wv)
+    return (h >= h0 + margin) & (h <= h1 - margin) & (v >= v0 + margin) & (v <= v1 - margin)
+
+
+def _inside_wall(base: Probes, frame: WallFrame, angles: str, margin: float = 0.0,
+                 aim_dv_deg: float = 0.0) -> Probes:
+    """``base`` without the probes whose wall angles (after conversion, and read on the lamp
+    pitched by ``aim_dv_deg``), widened by ``margin`` deg, leave the wall."""
     h0, h1, v0, v1 = _span(frame)
     h0, h1, v0, v1 = h0 + margin, h1 - margin, v0 + margin, v1 - margin
     wh, wv = wall_angles(base.h_deg, base.v_deg, angles)
-    ok = (wh >= h0) & (wh <= h1) & (wv >= v0) & (wv <= v1)
+    ok = _on_wall(frame, wh, wv, margin, aim_dv_deg)
     if ok.all():
         return base
     labels = np.asarray(base.labels, dtype=object)
@@ -148,18 +161,22 @@ def _inside_wall(base: Probes, frame: WallFrame, angles: str, margin: float = 0.
 
 
 def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
-                 frame: Any = None, aperture_deg: float = 0.0) -> ReaimProbes:
+                 frame: Any = None, aperture_deg: float = 0.0,
+                 aim_dv_deg: float = 0.0) -> ReaimProbes:
     """The rule set's probes plus the re-aimed positions of every limited point.
 
     ``frame`` (a wall frame) drops what the wall does not cover, as
     :func:`.evaluate.probe_points` does (a point's re-aim disc and every aperture must fit
-    too). ``aperture_deg``: the photometer's angular diameter (0: point values)."""
+    too). ``aperture_deg``: the photometer's angular diameter (0: point values).
+    ``aim_dv_deg``: the pitch of a visual aim (deg, + up; :mod:`.visual_aim`): the
+    positions are read on the pitched lamp, so what the wall covers is judged there."""
     if not (np.isfinite(aperture_deg) and 0.0 <= aperture_deg <= 5.0):
         raise InputError(f"--aperture must lie in [0, 5] deg, got {aperture_deg!r}")
     angles = rs.measurement.angles if rs.measurement is not None else "screen"
     base = probe_points(rs, traffic, spacing_deg, frame)
-    if frame is not None and (angles != "screen" or aperture_deg > 0):
-        base = _inside_wall(base, WallFrame.from_any(frame), angles, 0.5 * aperture_deg)
+    if frame is not None and (angles != "screen" or aperture_deg > 0 or aim_dv_deg):
+        base = _inside_wall(base, WallFrame.from_any(frame), angles, 0.5 * aperture_deg,
+                            aim_dv_deg)
     reaim = _reaim_deg(rs)
     off = reaim_offsets(reaim)
     rs_t = rs.for_traffic(traffic)
@@ -168,15 +185,12 @@ def reaim_probes(rs: RuleSet, traffic: str = "right", spacing_deg: float = 0.25,
                 if g.kind == "point" and g.has_limits and g.complete and g.name in present)
     if frame is not None and reaim > 0:
         # a point's whole re-aim disc must lie on the wall
-        h0, h1, v0, v1 = _span(WallFrame.from_any(frame))
-        m = 0.5 * aperture_deg
-        h0, h1, v0, v1 = h0 + m, h1 - m, v0 + m, v1 - m
-        off = reaim_offsets(reaim)
+        wf = WallFrame.from_any(frame)
         keep = []
         for n in pts:
             g = rs_t.geometry(n)
             wh, wv = wall_angles(g.h + off[:, 0], g.v + off[:, 1], angles)
-            if (wh.min() >= h0) and (wh.max() <= h1) and (wv.min() >= v0) and (wv.max() <= v1):
+            if _on_wall(wf, wh, wv, 0.5 * aperture_deg, aim_dv_deg).all():
                 keep.append(n)
         pts = tuple(keep)
     hs, vs = [base.h_deg], [base.v_deg]

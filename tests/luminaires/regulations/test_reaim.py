@@ -33,35 +33,52 @@ V = np.round(np.arange(-10.0, 10.001, 0.25), 6)
 
 
 def _table() -> np.ndarray:
-    """1000 cd below the horizontal, 100 cd above it, 0 from 9.5U; 200 cd at 2U-4L/4R;
-    10 000 cd at 0.5D-1.5R; 14 000 cd at 1.5D-2R with 17 000 cd a quarter degree above
-    (so 15 500 cd 1/8° up: passes only re-aimed); 300 cd over the whole re-aim disc of
-    1D-6L (fails even re-aimed)."""
+    """Goniometer (Type A) nodes: 1000 cd up to H, 100 cd from 0.25° U, 0 from 9.5U; 200 cd
+    at 2U-4L; 250 cd along 1.5U from 1R to 3R; 600 cd along 0.5U from 1R to 3R; 12 000 cd
+    on the four nodes around 0.6D-1.3R; 5 000 cd at 0.75D and 1D on V; 2 000 cd at 0.75D and
+    1D on 3.5L; 14 000 cd at 1.5D-2R with 17 000 cd a quarter degree above (so 15 500 cd 1/8°
+    up: passes only re-aimed); 300 cd over the whole re-aim disc of 2D-9L (fails even
+    re-aimed); 1 500 cd at 2D-9R."""
     cd = np.where(V[None, :] < 0.25, 1000.0, 100.0) * np.ones((H.size, 1))
     cd[:, V >= 9.5] = 0.0
 
     def node(h: float, v: float) -> tuple[int, int]:
         return int(np.flatnonzero(np.isclose(H, h))[0]), int(np.flatnonzero(np.isclose(V, v))[0])
 
-    for h in (-4.0, 4.0):
-        cd[node(h, 2.0)] = 200.0
-    cd[node(1.5, -0.5)] = 10_000.0
+    cd[node(-4.0, 2.0)] = 200.0
+    for h in np.arange(1.0, 3.001, 0.25):
+        cd[node(h, 1.5)] = 250.0
+        cd[node(h, 0.5)] = 600.0
+    for h in (1.25, 1.5):
+        for v in (-0.5, -0.75):
+            cd[node(h, v)] = 12_000.0
+    for v in (-0.75, -1.0):
+        cd[node(0.0, v)] = 5_000.0
+        cd[node(-3.5, v)] = 2_000.0
     cd[node(2.0, -1.5)] = 14_000.0
     cd[node(2.0, -1.25)] = 17_000.0
-    for h in (-6.5, -6.25, -6.0, -5.75, -5.5):
-        for v in (-1.5, -1.25, -1.0, -0.75, -0.5):
+    for h in (-9.5, -9.25, -9.0, -8.75, -8.5):
+        for v in (-2.5, -2.25, -2.0, -1.75, -1.5):
             cd[node(h, v)] = 300.0
+    cd[node(9.0, -2.0)] = 1_500.0
     return cd
 
 
-# the verdicts an engineer computes by hand from the table above (LB1V, right traffic)
+# the verdicts an engineer computes by hand from the table above (Table XIX-a LB1V, right
+# traffic, point values at the lamp's aim as built): every row class — point minimum,
+# maximum and range, line minimum and maximum, a line range split in two, the 10U-90U area
 EXPECTED = {
     "4U-8L": ("pass", 100.0), "4U-8R": ("pass", 100.0), "2U-4L": ("pass", 200.0),
-    "2U-4R": ("pass", 200.0), "0.5U-1R": ("pass", 100.0), "0.5U-2R": ("pass", 100.0),
-    "0.5U-3R": ("pass", 100.0), "0.5D-1.5R": ("pass", 10_000.0), "1D-6L": ("fail", 300.0),
-    "1.5D-2R": ("pass", 15_500.0), "1.5D-9L": ("pass", 1000.0), "1.5D-9R": ("pass", 1000.0),
-    "2D-15L": ("pass", 1000.0), "2D-15R": ("pass", 1000.0), "4D-4R": ("pass", 1000.0),
+    "H-V": ("pass", 1000.0), "H-4L": ("pass", 1000.0), "H-8L": ("pass", 1000.0),
+    "0.6D-1.3R": ("pass", 12_000.0), "0.86D-V": ("pass", 5_000.0),
+    "0.86D-3.5L": ("pass", 2_000.0), "1.5D-2R": ("pass", 15_500.0),
+    "2D-9L": ("fail", 300.0), "2D-9R": ("pass", 1_500.0), "2D-15L": ("pass", 1000.0),
+    "2D-15R": ("pass", 1000.0), "4D-V": ("pass", 1000.0), "4D-4R": ("pass", 1000.0),
+    "4D-20L": ("pass", 1000.0), "4D-20R": ("pass", 1000.0),
+    "10U-90U": ("pass", 0.0), "1.5U-1R to 3R": ("pass", 250.0),
+    "0.5U-1R to 3R (min)": ("pass", 600.0), "0.5U-1R to 3R (max)": ("pass", 600.0),
 }
+LINES = ("1.5U-1R to R", "1U-1.5L to L", "0.5U-1.5L to L")
 
 
 @pytest.fixture(scope="module")
@@ -87,19 +104,23 @@ def test_goniometer_angles_to_wall_angles() -> None:
 
 
 def test_known_lamp_matches_hand_computed_table(lamp_file: Path) -> None:
-    res = check_lamp(lamp_source(lamp_file), "fmvss-lb1v-lower", beam="lower")
+    """Point values read at the lamp's aim as built (no visual aim, no aperture: the table
+    is written for it)."""
+    res = check_lamp(lamp_source(lamp_file), "fmvss-lb1v-lower", beam="lower",
+                     visual_aim=False, aperture_deg=0.0)
     rows = {r["name"]: r for r in res.results}
+    assert set(rows) == set(EXPECTED) | set(LINES)
     for name, (verdict, value) in EXPECTED.items():
         assert rows[name]["verdict"] == verdict, name
-        assert rows[name]["value_cd"] == pytest.approx(value, rel=1e-9), name
+        assert rows[name]["value_cd"] == pytest.approx(value, rel=1e-9, abs=1e-9), name
     assert rows["1.5D-2R"]["after_reaim"] is True
     assert rows["1.5D-2R"]["reaim_offset_deg"] == pytest.approx([0.0, 0.125], abs=1e-12)
     assert rows["1.5D-2R"]["reaim_direction"] == "0.125° U"
     assert not any(rows[n].get("after_reaim") for n in EXPECTED if n != "1.5D-2R")
-    assert rows["1D-6L"]["reaim_direction"].startswith("none passes")
-    for zone in ("10U-90U", "1U-1.5L to L", "0.5U-1.5L to L", "0.5D-1.5L to L",
-                 "1.5U-1R to R"):
+    assert rows["2D-9L"]["reaim_direction"].startswith("none passes")
+    for zone in LINES:  # 100 cd or less along them (250 cd on 1.5U up to 3R)
         assert rows[zone]["verdict"] == "pass", zone
+    assert rows["1.5U-1R to R"]["value_cd"] == pytest.approx(250.0)
     assert res.n_sets == 1 and res.beam == "lower"
 
 
@@ -133,7 +154,8 @@ def test_intervals_from_sets_and_bonferroni(lamp_file: Path) -> None:
 def test_cli_table_json_and_bad_input(lamp_file: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "verdicts.json"
     code, text, err = run_cli(["check", str(lamp_file), "--regulation", "fmvss-lb1v-lower",
-                               "--beam", "lower", "--json", str(out)], capsys)
+                               "--beam", "lower", "--no-visual-aim", "--aperture", "0",
+                               "--json", str(out)], capsys)
     assert code == 0, err
     assert "after re-aim 0.125° U" in text and "1 only after re-aim" in text
     doc = json.loads(out.read_text())
@@ -214,17 +236,26 @@ def test_screen_check_refuses_reaim_sets(tmp_path: Path, capsys) -> None:
     assert not out.exists()
 
 
-def test_aperture_mean(lamp_file: Path, capsys) -> None:
+def test_aperture_mean(lamp_file: Path, tmp_path: Path, capsys) -> None:
     """An aperture averages the intensity over its disc: a uniform region keeps its value;
     an aperture straddling the 14 000 → 17 000 cd step gives a value in between."""
     pts = aperture_points(0.5)
     assert np.all(np.hypot(pts[:, 0], pts[:, 1]) <= 0.25 + 1e-12)
     assert abs(pts.mean(axis=0)).max() < 0.02  # centred
-    res = check_lamp(lamp_source(lamp_file), "fmvss-lb1v-lower", beam="lower",
-                     aperture_deg=0.2)
+    two = tmp_path / "two.toml"  # two LB1V rows (the whole set's 10U-90U area is slow here)
+    two.write_text('schema = "lightsim-ruleset-1"\nid = "two"\ntitle = "t"\nversion = "1"\n'
+                   'source = "test"\ntraffic = "right"\n[measurement]\n'
+                   'angles = "azimuth-elevation"\nreaim_deg = 0.25\n'
+                   '[[point]]\nname = "4D-V"\nh = 0.0\nv = -4.0\nmax = 10000\n'
+                   '[[point]]\nname = "0.6D-1.3R"\nh = 1.3\nv = -0.6\nmin = 10000\n')
+    res = check_lamp(lamp_source(lamp_file), str(two), beam="lower", aperture_deg=0.2)
     rows = {r["name"]: r for r in res.results}
-    assert rows["1.5D-9L"]["value_cd"] == pytest.approx(1000.0)
-    assert 1000.0 < rows["0.5D-1.5R"]["value_cd"] < 10_000.0  # an isolated node, blurred
+    assert rows["4D-V"]["value_cd"] == pytest.approx(1000.0)
+    assert 1000.0 < rows["0.6D-1.3R"]["value_cd"] < 12_000.0  # a 2 × 2 node block, blurred
+    # the rule set's own aperture (0.516°: 0.009 × the distance across) is the default
+    dflt = check_lamp(lamp_source(lamp_file), "fmvss-ub2-upper", beam="upper")
+    assert dflt.aperture_deg == pytest.approx(0.516)
+    assert any("aperture 0.516°" in n for n in dflt.notes)
     code, _, err = run_cli(["check", str(lamp_file), "--regulation", "fmvss-lb1v-lower",
                             "--beam", "lower", "--aperture", "-1"], capsys)
     assert code == 2 and "--aperture" in err
