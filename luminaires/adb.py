@@ -55,8 +55,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.sparse import block_diag
+from scipy.stats import norm
 
+from lightsim import options
 from lightsim.errors import InputError
+from lightsim.options import option
 from lightsim.persource import PerSourceMaps, compose
 from lightsim.wall import WallFrame, candela_from_lux
 
@@ -401,7 +405,6 @@ def choose_levels_batch(problems: list[tuple[np.ndarray, np.ndarray]], gain: np.
     independent, so its optimum is every frame's own). Returns levels (F, G) and whether
     each frame's limits can be met."""
     from scipy.optimize import linprog
-    from scipy.sparse import block_diag
 
     G = len(gain)
     bounds = _bounds(G, fixed)
@@ -452,9 +455,16 @@ class FrameVerdict:
 class AdbSettings:
     """Settings of :func:`run_adb` (module table)."""
 
-    aperture_deg: float = 0.15
-    confidence: float = 0.95
-    ruleset: str = RULESET
+    aperture_deg: float = option(0.15, "Side of the square detector at each glare position.",
+                                 unit="deg", flag=("--aperture",), low=0.01, high=2)
+    confidence: float = option(0.95, "Two-sided level of the intervals (and of the margin "
+                               "the levels keep below each limit).", flag=("--confidence",),
+                               low=0.5, high=0.999)
+    ruleset: str = option(RULESET, "Rule set with the ADB lines ([meta.adb]).",
+                          flag=("--ruleset",))
+
+    def __post_init__(self) -> None:
+        options.check_fields(self)
 
 
 class AdbComposer:
@@ -466,8 +476,6 @@ class AdbComposer:
         self.maps = maps
         self.screen = ScreenMaps(maps)
         self.traffic = traffic
-        from scipy.stats import norm
-
         self.z = float(norm.ppf(0.5 + 0.5 * self.settings.confidence))
         self.fixed = {maps.index(n): w for n, w in traffic.fixed.items()}
         self.limits = AdbLimits.load(self.settings.ruleset)
