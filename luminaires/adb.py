@@ -506,7 +506,7 @@ class AdbComposer:
         levels, ok = choose_levels_batch(
             [(upper[cut[f]:cut[f + 1]], limit[cut[f]:cut[f + 1]]) for f in range(len(frames))],
             self.screen.flux, self.fixed)
-        w = levels[np.asarray(pos_frame, np.int64)].reshape(len(pos), -1)
+        w = levels[np.asarray(pos_frame, np.int64)].reshape(len(pos), levels.shape[1])
         value = np.einsum("ig,ig->i", a, w)
         se = np.sqrt(np.einsum("ig,ig->i", var, w * w))
         lo, hi = np.maximum(value - self.z * se, 0.0), value + self.z * se
@@ -588,3 +588,38 @@ def run_adb(maps: PerSourceMaps, traffic: Traffic, settings: AdbSettings | None 
     seconds = time.perf_counter() - t0
     return AdbResult(maps.names, frames, traffic, shown % n, seconds, settings, maps.wall,
                      composer.limits)
+
+
+def panel_solver(maps: PerSourceMaps, road: Traffic | None = None,
+                 settings: AdbSettings | None = None) -> Any:
+    """The ``/mask`` function of the view's ADB panel (:mod:`lightsim.view.adb_panel`): a
+    request ``{"vehicles": [{"kind", "distance_m", "h_deg"}], "fixed": {name: level}}``
+    (the road user's centre at H = ``h_deg`` on the screen) → its levels, verdicts and
+    residual light; bad input: one line (:class:`~lightsim.errors.InputError`)."""
+    road = road or Traffic(frames=[])
+    composer = AdbComposer(maps, road, settings)
+
+    def solve(req: dict[str, Any]) -> dict[str, Any]:
+        vehicles = req.get("vehicles")
+        fixed = req.get("fixed") or {}
+        if not isinstance(vehicles, list) or not isinstance(fixed, dict) \
+                or set(req) - {"vehicles", "fixed"}:
+            raise InputError("a mask request has vehicles (a list) and fixed (a table)")
+        users = []
+        for i, v in enumerate(vehicles):
+            where = f"vehicle {i + 1}"
+            if not isinstance(v, dict) or v.get("kind") not in KINDS:
+                raise InputError(f"{where}: kind must be oncoming or preceding")
+            d = _distance(where, "distance_m", v.get("distance_m"))
+            h = _number(where, "h_deg", v.get("h_deg"), -60, 60)
+            sign = 1.0 if road.side == "right" else -1.0
+            users.append(RoadUser(str(v.get("name", f"vehicle {i + 1}")), v["kind"], d,
+                                  d * math.tan(math.radians(h)),
+                                  _points(where, None, v["kind"], sign)))
+        composer.fixed = {maps.index(str(n)): check_level("fixed", str(n), w)
+                          for n, w in fixed.items()}
+        f = composer.frame(users)
+        return f.to_dict(maps.names) | {"segments": list(maps.names),
+                                        "levels_list": [float(w) for w in f.levels]}
+
+    return solve
