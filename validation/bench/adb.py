@@ -57,13 +57,15 @@ kind = "preceding"
 distance_m = 80.0
 """
 
+# the child's own peak (VmHWM: ru_maxrss would keep the parent's peak across exec)
 _MEMORY = """
-import resource, sys
+import sys
 from lightsim.simulate import SimulateOptions, run_simulation
 run_simulation(SimulateOptions(scene_path=sys.argv[1], photons=int(sys.argv[2]),
                out_dir=sys.argv[3], resolution=(640, 256), per_source=sys.argv[4] == "1",
                outputs=("json",)))
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+with open("/proc/self/status") as f:
+    print(next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")))
 """
 
 
