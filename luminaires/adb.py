@@ -129,8 +129,11 @@ class AdbLimits:
     def for_user(self, kind: str, distance_m: float) -> AdbLine:
         """The line of a road user of ``kind`` at ``distance_m`` (see the module docstring)."""
         rows = sorted((ln for ln in self.lines if ln.kind == kind), key=lambda ln: ln.distance_m)
-        below = [ln for ln in rows if ln.distance_m <= distance_m]
-        return below[-1] if below else rows[0]
+        best = rows[0]
+        for ln in rows:
+            if ln.distance_m <= distance_m:
+                best = ln
+        return best
 
 
 # -- traffic ------------------------------------------------------------------------------
@@ -370,18 +373,17 @@ def place(users: list[RoadUser], traffic: Traffic, limits: AdbLimits
     user's outline (n_users, 4: h0, h1, v0, v1 in deg), from the mounting height and lanes."""
     pos, boxes = [], []
     hm = traffic.mount_height_m
+    deg = math.degrees  # scalars: math is several times faster than NumPy here
     for k, u in enumerate(users):
         line = limits.for_user(u.kind, u.distance_m)
+        d = u.distance_m
         for label, dx, height in u.points:
-            pos.append(GlarePosition(k, label, float(np.degrees(np.arctan2(u.lateral_m + dx,
-                                                                           u.distance_m))),
-                                     float(np.degrees(np.arctan2(height - hm, u.distance_m))),
-                                     line))
+            pos.append(GlarePosition(k, label, deg(math.atan2(u.lateral_m + dx, d)),
+                                     deg(math.atan2(height - hm, d)), line))
         w, h = VEHICLE_SIZE_M
-        boxes.append([np.degrees(np.arctan2(u.lateral_m - 0.5 * w, u.distance_m)),
-                      np.degrees(np.arctan2(u.lateral_m + 0.5 * w, u.distance_m)),
-                      np.degrees(np.arctan2(-hm, u.distance_m)),
-                      np.degrees(np.arctan2(h - hm, u.distance_m))])
+        boxes.append([deg(math.atan2(u.lateral_m - 0.5 * w, d)),
+                      deg(math.atan2(u.lateral_m + 0.5 * w, d)),
+                      deg(math.atan2(-hm, d)), deg(math.atan2(h - hm, d))])
     return pos, np.asarray(boxes, np.float64).reshape(-1, 4)
 
 

@@ -120,9 +120,9 @@ def bench_adb(run_dir: str | Path | None = None, frames: int = 1000,
         if memory_photons > 0:
             plain = _peak_rss_kb(MATRIX, memory_photons, tmpd / "plain", False)
             per = _peak_rss_kb(MATRIX, memory_photons, tmpd / "per", True)
-            rows.append({"step": f"peak memory, plain run of {memory_photons:,} photons "
-                         "(MB)", "seconds": plain / 1024.0, "ratio": 1.0, "frames": 0})
-            rows.append({"step": "peak memory, the same with --per-source (MB)",
-                         "seconds": per / 1024.0, "ratio": per / plain, "frames": 0,
+            rows.append({"step": f"peak memory, plain run of {memory_photons:,} photons",
+                         "MB": plain / 1024.0, "ratio": 1.0, "frames": 0})
+            rows.append({"step": "peak memory, the same with --per-source", "MB": per / 1024.0,
+                         "ratio": per / plain, "frames": 0,
                          "within_target": per <= MEMORY_RATIO * plain})
     return rows
