@@ -124,3 +124,14 @@ def test_toggle_and_drag_recompose_in_the_browser(server, maps):
         assert dragged["levels"][k] == 0.0  # the toggle holds through new masks
         assert errors == []
         browser.close()
+
+
+def test_panel_needs_the_access_token(server):
+    base = f"http://127.0.0.1:{server.port}"
+    for path in ("/maps", "/mask"):
+        req = urllib.request.Request(base + path, data=b"{}" if path == "/mask" else None)
+        with pytest.raises(urllib.error.HTTPError) as exc:
+            urllib.request.urlopen(req, timeout=30)
+        assert exc.value.code == 403
+    with urllib.request.urlopen(server.url.replace("/?", "/maps?"), timeout=30) as r:
+        assert r.status == 200
