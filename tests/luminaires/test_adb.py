@@ -23,6 +23,7 @@ from lightsim.luminaires.adb import (
 )
 from lightsim.luminaires.matrix import write_matrix
 from lightsim.persource import read_per_source
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, run_simulation
 
 from support import run_cli
@@ -217,3 +218,23 @@ def test_run_without_per_source_maps_is_refused(tmp_path, approach, capsys):
 def test_settings_are_checked():
     with pytest.raises(Exception, match="confidence"):
         AdbSettings(confidence=1.5)
+
+
+def test_matrix_levels_on_the_command_line(tmp_path, capsys):
+    out = tmp_path / "dimmed.glb"
+    levels = ["1"] * 16
+    levels[5], levels[6] = "0", "0.3"
+    code, _, err = run_cli(["luminaire", "matrix", str(out), "--levels", ",".join(levels)],
+                           capsys)
+    assert code == 0, err
+    scene = load_scene(str(out), SceneSettings(resolution=(8, 8)))
+    flux = {p.name: p.flux_lm for p in scene.emitters}
+    assert "led_05" not in flux and len(flux) == 15
+    full = load_scene(str(MATRIX), SceneSettings(resolution=(8, 8)))
+    assert flux["led_06"] == pytest.approx(0.3 * next(
+        p.flux_lm for p in full.emitters if p.name == "led_06"), rel=1e-12)
+    for bad in ("1,1,0.5", ",".join(["1"] * 15 + ["2"]), "1,x"):
+        code, _, err = run_cli(["luminaire", "matrix", str(tmp_path / "b.glb"), "--levels",
+                                bad], capsys)
+        assert code == 2 and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "b.glb").exists()
