@@ -280,16 +280,23 @@ def projector(out: Path, beam: str, traffic: str, led: str, flux_lm: float | Non
               help="Mean luminous flux of a segment in lm (shared by die area).")
 @click.option("--only-segment", type=int, default=None,
               help="Build only this segment's die (0 = leftmost stripe).")
+@click.option("--levels", default=None, metavar="W0,W1,…",
+              help="Dimming of every segment, 0-1, comma-separated (flux × level; 0 leaves "
+              "the die out): the lamp with an ADB mask applied.")
 def matrix(out: Path, segments: int, span_deg: float, flux_lm: float,
-           only_segment: int | None) -> None:
+           only_segment: int | None, levels: str | None) -> None:
     """Write the matrix LED high beam (a row of LED segments behind one aspheric lens) to
     OUT.glb; segment k is the emitter part led_k (k = 00 lights the leftmost stripe).
 
     Axes: +Y up, the lamp shines along +Z, the dies in the plane z = 0 on the lens axis.
     """
     _check_glb(out)
+    try:
+        level_list = None if levels is None else [float(x) for x in levels.split(",")]
+    except ValueError:
+        raise InputError(f"--levels {levels!r}: give numbers 0-1 separated by commas") from None
     summary = write_matrix(out, segments=segments, span_deg=span_deg, flux_lm=flux_lm,
-                           only_segment=only_segment)
+                           only_segment=only_segment, levels=level_list)
     edges = summary["stripes_deg"]
     click.echo(
         f"wrote {out} ({summary['bytes'] / 1e6:.2f} MB): {segments} segments, "

@@ -32,6 +32,7 @@ COMMANDS: dict[str, str] = {
     "converge": "validate:converge",
     "report": "report:report",
     "road": "road:road",
+    "adb": "adb:adb",
     "check": "check:check",
     "photo": "photo:photo",
     "view": "view:view",

@@ -9,24 +9,33 @@ for Ctrl-C.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import click
 
 from lightsim.errors import InputError
+from lightsim.luminaires.adb import panel_solver
 from lightsim.luminaires.live import start_view
 from lightsim.options import click_options
+from lightsim.persource import read_per_source
 from lightsim.simulate import check_out_dir
+from lightsim.view.adb_panel import serve_adb
 from lightsim.view.launch import read_state
 from lightsim.view.settings import ViewSettings
 
 
 @click.command("view")
-@click.argument("scene", type=click.Path(dir_okay=False))
+@click.argument("scene", type=click.Path())
 @click_options(ViewSettings)
 def view(scene: str, **values: Any) -> None:
-    """Interactive session in the browser: live lux, controls, regulation, save run."""
+    """Interactive session in the browser: live lux, controls, regulation, save run. A run
+    folder of ``simulate --per-source`` opens the ADB panel instead: toggle segments, drag a
+    road user, the map re-composed from the per-source maps."""
     settings = ViewSettings.from_command_line(values)
+    if Path(scene).is_dir():
+        _adb_panel(scene, settings)
+        return
     state = read_state(settings.state_file) if settings.state_file is not None else None
     folder = check_out_dir(settings.out_dir)
     live, server = start_view(scene, settings, folder=folder, state=state)
@@ -49,3 +58,15 @@ def view(scene: str, **values: Any) -> None:
     finally:
         server.stop()
         live.stop()
+
+
+def _adb_panel(run_dir: str, settings: ViewSettings) -> None:
+    """Serve the ADB panel of a ``--per-source`` run until Ctrl-C."""
+    maps = read_per_source(run_dir)
+    server = serve_adb(maps, panel_solver(maps), settings.host, settings.port)
+    click.echo(f"lightsim view: ADB panel of {run_dir}: {server.url}  (Ctrl-C to stop)")
+    try:
+        while server.thread is not None and server.thread.is_alive():
+            time.sleep(0.5)
+    finally:
+        server.stop()

@@ -25,6 +25,8 @@ file                   content
                        ``outputs``: the files of this set (moved in last: the run finished)
 ``error_vs_time.png``  estimated relative error against seconds and photons (log-log)
 ``checkpoint.json``    only while a run is interrupted: ``--resume DIR`` continues it
+``per_source.exr``     ``--per-source``: a channel per emitter group (lx), ``Y`` their sum;
+                       ``per_source_var.exr`` their variances (lx²); :mod:`lightsim.persource`
 =====================  ====================================================================
 """
 
@@ -179,6 +181,11 @@ class SimulateOptions:
                         "intervals from the interleave sets; writes road.json, "
                         "road_<approach>.png and wall_sets.npz.", flag=("--road",),
                         kind="flag")
+    per_source: bool = option(
+        False, "Also write a map per emitter group (glTF extras lightsim.group, else the part "
+        "name) from the same photons: per_source.exr (a channel per group, Y = their sum, "
+        "lx) and per_source_var.exr (variances, lx²), each group's error in summary.json; "
+        "costs groups × pixels × 16 bytes of memory.", flag=("--per-source",), kind="flag")
     outputs: tuple[str, ...] = option(
         ("exr", "png", "error_vs_time", "isolux", "road", "json"),
         "Files to write, comma-separated: exr (wall_lux.exr), png (wall_lux.png), "
@@ -270,7 +277,8 @@ class SimulationResult:
 
 
 OUTPUT_FILES = ("wall_lux.exr", "wall_lux.png", "error_vs_time.png", "isolux.png",
-                "road.png", "probes.npz", "summary.json")
+                "road.png", "probes.npz", "per_source.exr", "per_source_var.exr",
+                "summary.json")
 """Files a finished run may have left in its folder (an older set's are replaced)."""
 
 
@@ -364,7 +372,8 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     scene.warnings.extend(folder_notes(out))  # printed with the scene's warnings
     session = Session(scene, config, workers=opts.workers, address=opts.address,
                       checkpoint=(resume or {}).get("session"),
-                      regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt))
+                      regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt),
+                      per_source=opts.per_source)
     clock["session"] = time.perf_counter()
     try:
         if on_plan is not None:
@@ -626,6 +635,9 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
     drawn = []  # matplotlib is imported only where a plot is asked
     if "exr" in wanted:
         write_exr(out / "wall_lux.exr", channels, meta)
+    if opts.per_source and (maps := session.per_source()) is not None:
+        summary["per_source"] = maps.write(out, {"source": Path(opts.scene_path).name,
+                                                 "lightsim_version": __version__})
     _engineering_outputs(out, opts, session, lux, summary, analyses, plots)
     if "error_vs_time" in wanted:  # after the analyses: its caption names the rule sets
         caption = report.plot_caption(summary)

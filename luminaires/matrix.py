@@ -36,6 +36,9 @@ lens_distance_m         m      0.050     dies to the lens's flat back face
 lens_ior                –      1.52      lens glass (crown glass)
 only_segment            –      none      build only this segment's die (the others are
                                          left out); ``None``: all
+levels                  –      none      dimming of each segment, 0–1 (its flux × the
+                                         level; a segment at 0 is left out): the lamp
+                                         with an ADB mask applied; ``None``: all at 1
 ======================  =====  ========  ===================================================
 """
 
@@ -81,6 +84,7 @@ class MatrixParams:
     lens_distance_m: float = 0.050
     lens_ior: float = 1.52
     only_segment: int | None = None
+    levels: tuple[float, ...] | None = None
 
     @classmethod
     def names(cls) -> list[str]:
@@ -113,6 +117,15 @@ def _check(p: MatrixParams) -> None:
         raise InputError(f"segment flux must be > 0 lm, got {p.flux_lm!r}")
     if p.only_segment is not None and not 0 <= p.only_segment < p.segments:
         raise InputError(f"segment {p.only_segment} does not exist (0…{p.segments - 1})")
+    if p.levels is not None:
+        if len(p.levels) != p.segments:
+            raise InputError(f"levels: {len(p.levels)} given for {p.segments} segments")
+        for k, w in enumerate(p.levels):
+            if isinstance(w, bool) or not isinstance(w, (int, float)) \
+                    or not math.isfinite(w) or not 0.0 <= w <= 1.0:
+                raise InputError(f"level of segment {k} must be from 0 to 1, got {w!r}")
+        if not any(p.levels):
+            raise InputError("levels: every segment is off (no light to simulate)")
 
 
 def build_matrix(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
@@ -139,6 +152,8 @@ def build_matrix(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
     unknown = sorted(set(kwargs) - set(MatrixParams.names()))
     if unknown:
         raise InputError(f"unknown matrix option(s): {', '.join(unknown)}")
+    if kwargs.get("levels") is not None:
+        kwargs["levels"] = tuple(kwargs["levels"])
     p = MatrixParams(**kwargs)
     _check(p)
     lens = lens_design(p.lens_diameter_m, p.lens_distance_m, ior=p.lens_ior)
@@ -161,6 +176,9 @@ def build_matrix(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
     for k in range(p.segments):
         if p.only_segment is not None and k != p.only_segment:
             continue
+        level = 1.0 if p.levels is None else float(p.levels[k])
+        if level == 0.0:  # switched off: no emitter
+            continue
         centre = 0.5 * (xe[k] + xe[k + 1])
         half = 0.5 * widths[k]
         # square in the plane z = 0, counter-clockwise seen from +Z (faces the lens)
@@ -169,7 +187,8 @@ def build_matrix(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
         name = segment_name(k)
         parts.append(GltfPart(name, v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64),
                               None, SEGMENT_MATERIAL, extras={"lightsim": {
-                                  "flux_lm": float(flux[k]), "emission": "lambertian",
+                                  "flux_lm": float(flux[k] * level),
+                                  "emission": "lambertian",
                                   "group": name, "segment": k,
                                   "stripe_h_deg": [float(edges[k]), float(edges[k + 1])],
                                   "stripe_v_deg": [p.v_low_deg, p.v_high_deg]}}))
@@ -188,13 +207,16 @@ def build_matrix(**kwargs: Any) -> tuple[list[GltfPart], dict[str, Any]]:
                                                "focal_length_m": f,
                                                "thickness_m": lens.thickness_m}}))
     die_area = float(widths.sum()) * (y_hi - y_lo)
-    facts = {"params": asdict(p), "stripes_deg": [float(e) for e in edges],
+    params = asdict(p)
+    if p.levels is None:  # (the GLB of an unmasked lamp is as it was before levels existed)
+        del params["levels"]
+    facts = {"params": params, "stripes_deg": [float(e) for e in edges],
              "lens_focal_length_m": f, "lens_thickness_m": lens.thickness_m,
              "die_widths_m": [float(w) for w in widths], "die_height_m": float(y_hi - y_lo),
              "luminance_cd_m2": p.flux_lm * p.segments / (math.pi * die_area),
              "segment_flux_lm": [float(x) for x in flux],
-             "flux_lm": float(flux.sum() if p.only_segment is None
-                              else flux[p.only_segment])}
+             "flux_lm": float((flux * (1.0 if p.levels is None else np.array(p.levels))).sum()
+                              if p.only_segment is None else flux[p.only_segment])}
     return parts, facts
 
 

@@ -173,6 +173,11 @@ class Client:
     def stats(self) -> dict[int, dict[str, Any]]:
         return self.photons.stats()
 
+    def per_source(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """ΣΦ, ΣΦ² per emitter group and pixel over the owned sets (``--per-source``)."""
+        ps = self.photons.per_source
+        return None if ps is None else (ps.power, ps.square)
+
     def apertures(self) -> dict[int, np.ndarray | None]:
         return self.photons.apertures()
 

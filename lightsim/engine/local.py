@@ -52,6 +52,9 @@ class LocalBackend:
             out.update(c.stats())
         return dict(sorted(out.items()))
 
+    def per_source(self) -> list[tuple[np.ndarray, np.ndarray] | None]:
+        return [c.per_source() for c in self.clients]
+
     def apertures(self) -> dict[int, Any]:
         out: dict[int, Any] = {}
         for c in self.clients:

@@ -40,6 +40,7 @@ from lightsim.engine.frame_insert import insert_wall
 from lightsim.engine.memory import write_pages
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
+from lightsim.persource import EmitterGroups, PerSourceSums
 from lightsim.photonmap.common import r_floor
 from lightsim.photonmap.density import PhotonMap
 from lightsim.photonmap.near import NearGrid
@@ -289,12 +290,17 @@ class PhotonSets:
                                    caster=caster)
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
+        # --per-source: every emitter group's wall photons per pixel (lightsim.persource)
+        self.per_source = (PerSourceSums(EmitterGroups.of(scene, self.tracer.emitters),
+                                         scene.wall) if self.plan.per_source else None)
 
     def reset(self) -> None:
         """Discard all photons (interaction mode: the next frame starts afresh)."""
         self.sets: dict[int, SetState] = {s: self._new_set(s) for s in self.set_indices}
         self._blocks: dict[str, Any] = {}  # stores stacked over sets (_stacked), work arrays
         self._frames_inserted = 0  # frames inserted by _insert_frame
+        if getattr(self, "per_source", None) is not None:
+            self.per_source.reset()
         self._lattice_ready = self._prefault_lattice()
 
     def _prefault_lattice(self) -> Future | None:
@@ -399,7 +405,10 @@ class PhotonSets:
         offsets = np.cumsum([0] + [len(o) for o in owners])
         bounds = np.searchsorted(rec.source, offsets)
         frame_level = self._insert_frame(rec, bounds, offsets)
-        wall = None if frame_level else _WallHits(self, rec)
+        wall = None if frame_level and self.per_source is None else _WallHits(self, rec)
+        if self.per_source is not None:  # the group from the emitted photon's sample point
+            self.per_source.add(self.per_source.groups.of_points(points)[rec.source[wall.index]],
+                                wall.h, wall.v, luminous(rec.power[wall.index]))
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             lo, hi = offsets[g], offsets[g + 1]

@@ -53,6 +53,7 @@ class Plan:
     pilot_yield: float | None = None
     pilot_photons: int = 0
     stages: list[dict[str, Any]] = field(default_factory=list)
+    per_source: bool = False  # keep every emitter group's wall map (lightsim.persource)
 
     def to_dict(self) -> dict[str, Any]:
         return {"stages": self.stages, "pilot_yield": self.pilot_yield,

@@ -293,6 +293,9 @@ def _actor_class():
         def apertures(self) -> dict[int, np.ndarray | None]:
             return self.client.apertures()
 
+        def per_source(self) -> tuple[np.ndarray, np.ndarray] | None:
+            return self.client.per_source()
+
         def counters(self) -> dict[int, int]:
             return self.client.counters()
 
@@ -483,6 +486,9 @@ class RayBackend:
         for r in self._call_all(lambda a: a.stats.remote()):
             out.update(r)
         return dict(sorted(out.items()))
+
+    def per_source(self) -> list[tuple[np.ndarray, np.ndarray] | None]:
+        return list(self._call_all(lambda a: a.per_source.remote()))
 
     def apertures(self) -> dict[int, Any]:
         out: dict[int, Any] = {}

@@ -52,7 +52,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -75,6 +75,7 @@ from lightsim.engine.results import (
     ShootResult,
 )
 from lightsim.errors import InputError
+from lightsim.persource import PerSourceMaps, group_names
 from lightsim.render.frame import (
     ErrorEstimate,
     ProbeStats,
@@ -310,7 +311,8 @@ class Session:
     def __init__(self, scene: Scene, config: RunConfig | None = None, *, workers: int = 0,
                  address: str | None = None, camera: bool = False, farfield: bool = False,
                  regulation: str | None = None, extra_probes: np.ndarray | None = None,
-                 plan: Plan | None = None, checkpoint: dict | None = None) -> None:
+                 plan: Plan | None = None, checkpoint: dict | None = None,
+                 per_source: bool = False) -> None:
         if scene.wall is None:
             raise InputError("the scene has no measurement wall")
         lazy_target_setup()  # before the first kernel load: cache loads set up no compiler
@@ -327,6 +329,8 @@ class Session:
             caster = scene_caster(scene, threads=self.config.threads)
         self.plan = plan or make_plan(scene, self.config, camera=camera, farfield=farfield,
                                       regulation=regulation, caster=caster)
+        if per_source:  # every emitter group's wall map too (lightsim.persource)
+            self.plan = replace(self.plan, per_source=True)
         W, H = scene.wall.resolution
         if W < 1 or H < 1:
             raise InputError(f"resolution must be at least 1x1, got {W}x{H}")
@@ -574,6 +578,17 @@ class Session:
     def radii_m(self) -> tuple[float, float]:
         """(min, max) density-estimation radius in use (m)."""
         return effective_radii(self.config, self.scene.wall)
+
+    def per_source(self) -> PerSourceMaps | None:
+        """Every emitter group's wall map after the photons so far (a run started with
+        ``per_source=True``; None otherwise)."""
+        parts = [p for p in self.backend.per_source() if p is not None]
+        if not parts:
+            return None
+        power = np.sum([p[0] for p in parts], axis=0) if len(parts) > 1 else parts[0][0]
+        square = np.sum([p[1] for p in parts], axis=0) if len(parts) > 1 else parts[0][1]
+        return PerSourceMaps.from_sums(group_names(self.scene), power, square,
+                                       self.photons_emitted(), self.scene.wall)
 
     def emitted_per_set(self) -> dict[int, int]:
         """Photons each set has emitted, keyed by set."""

@@ -33,7 +33,7 @@ BUILTIN = ["fmvss-lb1m-lower", "fmvss-lb1v-lower", "fmvss-lb2m-lower", "fmvss-lb
            "fmvss-lb5m-lower", "fmvss-ub1-upper", "fmvss-ub2-upper", "fmvss-ub3-upper",
            "fmvss-ub4-upper", "fmvss-ub5-upper", "fmvss-ub6-upper",
            "r112-a-passing", "r112-b-driving", "r112-b-passing", "r149-01-a-driving",
-           "r149-01-b-driving", "r149-01-c-passing", "r149-a-driving", "r149-a-passing",
+           "r149-01-b-driving", "r149-01-c-passing", "r149-a-driving", "r149-a-passing", "r149-adb",
            "r149-b-driving", "r149-b-passing", "r149-d-driving", "sae-j1383-low"]
 REQUIRED_KEYS = {"name", "h_deg", "v_deg", "value_cd", "interval_cd", "limit", "verdict"}
 
