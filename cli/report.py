@@ -14,6 +14,7 @@ from lightsim.io import plot_worker
 from lightsim.io.exr import read_exr
 from lightsim.io.summary import read_json, write_json
 from lightsim.luminaires import regulations
+from lightsim.luminaires.provenance_report import format_breakdown, rule_breakdown
 from lightsim.luminaires.regulations import check
 
 
@@ -27,11 +28,26 @@ from lightsim.luminaires.regulations import check
 @click.option("--log/--linear", "log_scale", default=True, show_default=True,
               help="Colour scale of wall_lux.png: logarithmic or linear.")
 @click.option("--list-rulesets", is_flag=True, help="List the available rule sets and exit.")
+@click.option("--provenance", "provenance_rule", metavar="RULE",
+              help="Print where RULE's light comes from (path classes with intervals) of a "
+              "run made with simulate --provenance; writes nothing.")
+@click.option("--part", metavar="NAME",
+              help="With --provenance: only the path classes that meet part NAME.")
 def report(result_dir: str | None, regulation: str | None, confidence: float,
-           mount_height: float, log_scale: bool, list_rulesets: bool) -> None:
+           mount_height: float, log_scale: bool, list_rulesets: bool,
+           provenance_rule: str | None, part: str | None) -> None:
     """Rebuild wall_lux.png, isolux.png, road.png, error_vs_time.png and the regulation
     table of RESULT_DIR from its wall_lux.exr, summary.json and probes.npz."""
     console = Console(width=None if sys.stdout.isatty() else 160)
+    if part is not None and provenance_rule is None:
+        raise InputError("--part goes with --provenance RULE")
+    if provenance_rule is not None:
+        if result_dir is None:
+            raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
+        summary = read_json(Path(result_dir) / "summary.json")
+        for rs, b in rule_breakdown(summary, provenance_rule, part):
+            console.print(format_breakdown(rs, provenance_rule, b))
+        return
     if list_rulesets:
         for rs in regulations.list_rulesets():
             click.echo(f"{rs['id']:<20} {rs.get('title', '')}  [{rs.get('path', '')}]")

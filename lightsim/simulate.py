@@ -147,6 +147,11 @@ class SimulateOptions:
         0.15, "Side of the square detector aperture each regulation test point counts "
         "photons in (0.15° ≈ 65 mm at 25 m); 0 = kNN estimate instead.", unit="deg",
         flag=("--aperture",), low=0, high=2)
+    provenance: bool = option(
+        False, "Break every regulation rule's light down by the path it took (emitter, "
+        "parts and reflector facets met, reflection/refraction/TIR/diffuse at each): "
+        "summary.json's provenance, a table for failing and uncertain rules, lightsim "
+        "report --provenance RULE.", flag=("--provenance",), kind="flag")
     spt_points: bool = option(False, "Aim Selective Photon Tracing at the regulation's "
                               "test points.", flag=("--spt-points/--no-spt-points",),
                               kind="onoff")

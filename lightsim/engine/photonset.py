@@ -20,6 +20,7 @@ store               unit         kept when
 ``lattice``         lm           ``bandwidth=ici``: power per half-pixel cell
 ``wall_moments``    lm, lm², –   kNN/radius: ΣΦ, ΣΦ², count of luminous wall photons
 ``apertures``       lm           regulation detector apertures
+``paths``           lm           ``--provenance``: aperture flux per path signature
 ``ledger``          lm           always: bookkeeping, unnormalised
 ==================  ===========  ====================================================
 """
@@ -43,6 +44,7 @@ from lightsim.engine.results import ShootResult
 from lightsim.photonmap.common import r_floor
 from lightsim.photonmap.density import PhotonMap
 from lightsim.photonmap.near import NearGrid
+from lightsim.provenance import PathCounter, PathElements, emitter_index, signature_rows
 from lightsim.render import ici
 from lightsim.render.frame import luminous
 from lightsim.sampling import (
@@ -217,6 +219,7 @@ class SetState:
     aperture_hits: np.ndarray | None = None  # sources of this frame's target-aperture photons
     lattice: np.ndarray | None = None  # (2H·2W, C) power per half-pixel cell (ICI windows)
     wall_moments: np.ndarray | None = None  # ΣΦ (lm), ΣΦ² (lm²), count of wall photons
+    paths: PathCounter | None = None  # aperture flux per path signature (--provenance)
 
     def __post_init__(self) -> None:
         if self.ledger is None:
@@ -286,7 +289,10 @@ class PhotonSets:
         self.channels = self.plan.channels
         self.tracer = PhotonTracer(scene, max_depth=self.config.max_depth,
                                    record=self.plan.record, threads=self.config.threads,
-                                   caster=caster)
+                                   caster=caster, path_length=self.config.path_length)
+        self._elements = (PathElements.from_scene(scene) if self.config.path_length
+                          else None)
+        self._rows = np.zeros((0, 0), np.int32)  # the frame's path signatures
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
 
@@ -333,6 +339,8 @@ class PhotonSets:
                                           pass_photons=self.config.photons_per_set)
         if self.config.apertures:
             st.apertures = counter_from_config(self.config, self.frame, self.channels)
+            if self.config.path_length:
+                st.paths = PathCounter(self.channels)
         if self.config.estimator == "bin":
             W, H = self.frame.resolution
             st.bins = np.zeros((H, W, self.channels))
@@ -396,6 +404,10 @@ class PhotonSets:
                                        by_source=True)
         t2 = time.perf_counter()
         rec = res.records
+        if self._elements is not None and rec.path is not None:
+            el = self._elements
+            self._rows = signature_rows(el, rec.path, rec.events, emitter_index(
+                self.tracer.emitters, points[rec.source], el.emitter_triangles))
         offsets = np.cumsum([0] + [len(o) for o in owners])
         bounds = np.searchsorted(rec.source, offsets)
         frame_level = self._insert_frame(rec, bounds, offsets)
@@ -502,6 +514,9 @@ class PhotonSets:
                         idx = index[sl]
                         hit = st.apertures.add(h[sl], v[sl], rec.power[idx])
                         st.aperture_hits = rec.source[idx][hit] - offsets[g]
+                        if st.paths is not None:
+                            st.paths.add(self._rows[idx], st.apertures.locate(h[sl], v[sl]),
+                                         rec.power[idx])
             return out[:3]
 
         # the sets in two halves of about equal records, one half on a second thread:
@@ -568,6 +583,8 @@ class PhotonSets:
         if st.apertures is not None:  # detector apertures count every wall photon directly
             hit = st.apertures.add(h, v, rec.power[idx])
             st.aperture_hits = rec.source[idx][hit] - first
+            if st.paths is not None and len(self._rows):
+                st.paths.add(self._rows[idx], st.apertures.locate(h, v), rec.power[idx])
         if st.bins is not None:
             self._add_to_bins(st, h, v, rec.power[idx].astype(np.float64))
             return
@@ -644,6 +661,12 @@ class PhotonSets:
     def apertures(self) -> dict[int, np.ndarray | None]:
         """Per-set detector-aperture counts (:mod:`lightsim.engine.apertures`), or None."""
         return {s: None if st.apertures is None else st.apertures.counts.copy()
+                for s, st in self.sets.items()}
+
+    def paths(self) -> dict[int, dict | None]:
+        """Per-set aperture flux per path signature (:meth:`lightsim.provenance.
+        PathCounter.export`), or None (a run without ``--provenance``)."""
+        return {s: None if st.paths is None else st.paths.export()
                 for s, st in self.sets.items()}
 
     def counters(self) -> dict[int, int]:

@@ -293,6 +293,9 @@ def _actor_class():
         def apertures(self) -> dict[int, np.ndarray | None]:
             return self.client.apertures()
 
+        def paths(self) -> dict[int, Any]:
+            return self.client.paths()
+
         def counters(self) -> dict[int, int]:
             return self.client.counters()
 
@@ -487,6 +490,12 @@ class RayBackend:
     def apertures(self) -> dict[int, Any]:
         out: dict[int, Any] = {}
         for r in self._call_all(lambda a: a.apertures.remote()):
+            out.update(r)
+        return dict(sorted(out.items()))
+
+    def paths(self) -> dict[int, Any]:
+        out: dict[int, Any] = {}
+        for r in self._call_all(lambda a: a.paths.remote()):
             out.update(r)
         return dict(sorted(out.items()))
 
