@@ -68,6 +68,9 @@ def for_options(opts: Any) -> list[Analysis]:
         regs = [a for a in out if isinstance(a, RegulationAnalysis)]
         if not regs:
             raise InputError("--provenance breaks regulation rules down: give --regulation")
+        if not opts.aperture:
+            raise InputError("--provenance splits the detector apertures' photons: give "
+                             "--aperture > 0")
         out.append(ProvenanceAnalysis(regs))
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
