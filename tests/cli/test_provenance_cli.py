@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+
 from support import run_cli
 
 EXAMPLES = Path(__file__).parents[2] / "luminaires" / "examples"

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from support import write_point_lamp
 
 from lightsim.engine.apertures import layout_from_config
 from lightsim.engine.config import RunConfig
@@ -23,6 +22,8 @@ from lightsim.provenance import (
 )
 from lightsim.scene import load_scene
 from lightsim.tracer import EV_REFLECT, EV_REFRACT, EV_TIR, PhotonTracer
+
+from support import write_point_lamp
 
 APERTURE_DEG = 9.0  # a wide aperture: many photons per class in a short test
 PHI = 1000.0  # lm, the point lamp's flux
@@ -41,7 +42,6 @@ def _facet_mirror(x: float) -> tuple[np.ndarray, np.ndarray]:
     along ±x leaves along +z (towards the wall): the origin's mirror image sits at
     (x, 0, −|x|) and shines along +z through the mirror."""
     s = math.copysign(1.0, x)
-    n = np.array([-s, 0.0, 1.0]) / math.sqrt(2)  # faces the origin and the wall
     u = np.array([s, 0.0, 1.0]) / math.sqrt(2)
     return _square((x, 0.0, 0.0), u, (0.0, 1.0, 0.0), 0.012)
 
