@@ -14,7 +14,13 @@ from lightsim.io import plot_worker
 from lightsim.io.exr import read_exr
 from lightsim.io.summary import read_json, write_json
 from lightsim.luminaires import regulations
-from lightsim.luminaires.provenance_report import format_breakdown, rule_breakdown
+from lightsim.luminaires.provenance_report import (
+    SPOTS_FILE,
+    draw_spots,
+    format_breakdown,
+    rule_breakdown,
+    spots_image_name,
+)
 from lightsim.luminaires.regulations import check
 
 
@@ -30,7 +36,8 @@ from lightsim.luminaires.regulations import check
 @click.option("--list-rulesets", is_flag=True, help="List the available rule sets and exit.")
 @click.option("--provenance", "provenance_rule", metavar="RULE",
               help="Print where RULE's light comes from (path classes with intervals) of a "
-              "run made with simulate --provenance; writes nothing.")
+              "run made with simulate --provenance, and draw provenance-RULE.png: the lamp "
+              "seen from the screen, coloured by how much of RULE's light left each spot.")
 @click.option("--part", metavar="NAME",
               help="With --provenance: only the path classes that meet part NAME.")
 def report(result_dir: str | None, regulation: str | None, confidence: float,
@@ -44,9 +51,18 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     if provenance_rule is not None:
         if result_dir is None:
             raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
-        summary = read_json(Path(result_dir) / "summary.json")
-        for rs, b in rule_breakdown(summary, provenance_rule, part):
+        out = Path(result_dir)
+        summary = read_json(out / "summary.json")
+        found = rule_breakdown(summary, provenance_rule, part)
+        first = found[0][0] if found else ""
+        tables = [t.get("ruleset") for t in check.regulation_tables(summary)]
+        first = tables[0] if tables else first
+        for rs, b in found:
             console.print(format_breakdown(rs, provenance_rule, b))
+        wrote = [draw_spots(out / SPOTS_FILE, rs, provenance_rule,
+                            out / spots_image_name(provenance_rule, rs, first), b)
+                 for rs, b in found]
+        click.echo("wrote " + ", ".join(str(p) for p in wrote))
         return
     if list_rulesets:
         for rs in regulations.list_rulesets():

@@ -45,7 +45,7 @@ from lightsim.render.frame import luminous
 from lightsim.tracer import EV_DIFFUSE, EV_REFLECT, EV_REFRACT, EV_TIR
 
 __all__ = ["PATH_LENGTH", "PathCounter", "PathElements", "class_label", "class_values",
-           "emitter_index", "share_table"]
+           "emitter_index", "share_table", "signature_rows", "spot_values"]
 
 PATH_LENGTH = 8
 """Surface events a wall photon's signature keeps."""
@@ -141,16 +141,32 @@ def emitter_index(mix: EmitterMix, u: np.ndarray, mesh_triangles: tuple[int, ...
 
 def signature_rows(elements: PathElements, path: np.ndarray, events: np.ndarray,
                    emitter: np.ndarray) -> np.ndarray:
-    """(n, K + 2) int32 signature rows of records: emitter, K steps ``element · 4 +
-    event`` (−1 past the path's end), and 1 where the path had more than K events."""
+    """(n, K + 3) int32 signature rows of records: emitter, K steps ``element · 4 +
+    event`` (−1 past the path's end), 1 where the path had more than K events, and the
+    *spot*: the triangle of the last event, where the light left the lamp (−1 for a
+    direct or a longer path)."""
     n, K = path.shape
-    rows = np.full((n, K + 2), -1, np.int32)
+    rows = np.full((n, K + 3), -1, np.int32)
+    last = np.minimum(events.astype(np.int64), K) - 1
+    ok_last = (last >= 0) & (events.astype(np.int64) <= K)
+    rows[ok_last, K + 2] = path[ok_last, last[ok_last]] // 4
     rows[:, 0] = emitter
     ok = path >= 0
     code = np.where(ok, path, 0)
     rows[:, 1:K + 1] = np.where(ok, elements.tri_element[code // 4] * 4 + code % 4, -1)
     rows[:, K + 1] = events.astype(np.int32) > K
     return rows
+
+
+def _accumulate(keys: np.ndarray, flux: np.ndarray, new_keys: np.ndarray,
+                new_flux: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted unique keys and their summed flux of two sparse stores together."""
+    k = np.concatenate([keys, new_keys])
+    f = np.concatenate([flux, new_flux])
+    uk, back = np.unique(k, return_inverse=True)
+    back = back.reshape(-1)
+    return uk, np.stack([np.bincount(back, f[:, c], len(uk)) for c in range(f.shape[1])],
+                        axis=1)
 
 
 class PathCounter:
@@ -166,6 +182,8 @@ class PathCounter:
         self.signatures: list[tuple[int, ...]] = []
         self.keys = np.zeros(0, np.int64)  # signature · 2³² + bin, sorted
         self.flux = np.zeros((0, channels))
+        self.spot_keys = np.zeros(0, np.int64)  # spot triangle · 2³² + bin, sorted
+        self.spot_flux = np.zeros((0, channels))
 
     def add(self, rows: np.ndarray, located: tuple[np.ndarray, np.ndarray],
             power: np.ndarray) -> None:
@@ -174,7 +192,12 @@ class PathCounter:
         who, where = located
         if len(who) == 0:
             return
-        uniq, inv = np.unique(rows[who], axis=0, return_inverse=True)
+        pw = np.asarray(power, np.float64).reshape(len(power), -1)[who]
+        spot = rows[who, -1].astype(np.int64)
+        placed = spot >= 0
+        self.spot_keys, self.spot_flux = _accumulate(
+            self.spot_keys, self.spot_flux, spot[placed] * 2**32 + where[placed], pw[placed])
+        uniq, inv = np.unique(rows[who, :-1], axis=0, return_inverse=True)
         ids = np.empty(len(uniq), np.int64)
         for i, r in enumerate(map(tuple, uniq.tolist())):
             sid = self.index.get(r)
@@ -182,18 +205,17 @@ class PathCounter:
                 sid = self.index[r] = len(self.signatures)
                 self.signatures.append(r)
             ids[i] = sid
-        keys = np.concatenate([self.keys, ids[inv.reshape(-1)] * 2**32 + where])
-        pw = np.asarray(power, np.float64).reshape(len(power), -1)[who]
-        flux = np.concatenate([self.flux, pw])
-        self.keys, back = np.unique(keys, return_inverse=True)
-        self.flux = np.stack([np.bincount(back.reshape(-1), flux[:, c], len(self.keys))
-                              for c in range(self.channels)], axis=1)
+        self.keys, self.flux = _accumulate(self.keys, self.flux,
+                                           ids[inv.reshape(-1)] * 2**32 + where, pw)
 
     def export(self) -> dict[str, Any]:
         """{"signatures": tuples, "signature": (n,) index into them, "bin": (n,) flat
-        strip bin, "flux": (n, C) unnormalised photon power}."""
+        strip bin, "flux": (n, C) unnormalised photon power; "spot", "spot_bin",
+        "spot_flux": the same per triangle where the light left the lamp}."""
         return {"signatures": list(self.signatures), "signature": self.keys // 2**32,
-                "bin": self.keys % 2**32, "flux": self.flux.copy()}
+                "bin": self.keys % 2**32, "flux": self.flux.copy(),
+                "spot": self.spot_keys // 2**32, "spot_bin": self.spot_keys % 2**32,
+                "spot_flux": self.spot_flux.copy()}
 
 
 def _step_text(elements: PathElements, element: int, event: int) -> tuple[str, str]:
@@ -313,3 +335,35 @@ def locate_and_count(counter: ApertureCounter, paths: PathCounter, rows: np.ndar
                      h_m: np.ndarray, v_m: np.ndarray, power: np.ndarray) -> None:
     """Count a set's wall photons (h, v in m) by signature in its apertures' strip bins."""
     paths.add(rows, counter.locate(h_m, v_m), power)
+
+
+def spot_values(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
+                layout: ApertureLayout, shift_deg: float, points: list[list[int]]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Where on the lamp each quantity's light left it: the triangles of the last surface
+    event (T,) and their mean contribution over the sets (T, Q) in luminous cd (a direct
+    photon, or a path longer than the signature keeps, has no spot)."""
+    k, _ = layout.quantize_shift(shift_deg)
+    B, m, r = layout.n_bins, layout.substeps, layout.reach_bins
+    omega = layout.solid_angles(shift_deg)
+    tris, parts = [], []
+    for s_pos, (_s, data) in enumerate(per_set.items()):
+        if data is None or emitted[s_pos] <= 0:
+            continue
+        b = np.asarray(data["spot_bin"], np.int64)
+        point, off = b // B, b % B - (r + k)
+        inside = (off >= 0) & (off < m)
+        lum = luminous(np.asarray(data["spot_flux"]).reshape(len(b), -1))
+        cd = np.where(inside, lum / emitted[s_pos] / omega[np.where(inside, point, 0)], 0.0)
+        q_cd = np.stack([np.where(np.isin(point, members), cd, 0.0) for members in points],
+                        axis=1) if points else np.zeros((len(b), 0))
+        tris.append(np.asarray(data["spot"], np.int64))
+        parts.append(q_cd)
+    if not tris:
+        return np.zeros(0, np.int64), np.zeros((0, len(points)))
+    t = np.concatenate(tris)
+    v = np.concatenate(parts)
+    uniq, back = np.unique(t, return_inverse=True)
+    out = np.zeros((len(uniq), len(points)))
+    np.add.at(out, back.reshape(-1), v)
+    return uniq, out / max(len(emitted), 1)

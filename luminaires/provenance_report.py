@@ -21,6 +21,12 @@ over the sets and its share; the classes add up to the table's value (``sum_cd``
 same photons split, so to rounding). ``summary.json["provenance"]`` holds the tables;
 ``lightsim report --provenance RULE RUN_DIR`` prints one.
 
+Where on the lamp a rule's light left it: ``provenance.npz`` holds, per rule, every lamp
+triangle's share (cd) by the triangle of the photons' last surface event, and the lamp's
+triangles; ``provenance-<RULE>.png`` (written by the run for failing rules, by ``lightsim
+report --provenance RULE`` on demand) draws the lamp seen from the screen, each triangle
+coloured by the rule's intensity that left it per unit of its projected area.
+
 =================  =====  ========  ====================================================
 parameter          unit   default   meaning
 =================  =====  ========  ====================================================
@@ -42,11 +48,24 @@ from rich.table import Table
 from lightsim.analysis import AnalysisReport, FinishedRun
 from lightsim.engine.apertures import layout_from_config
 from lightsim.errors import InputError
-from lightsim.provenance import PATH_LENGTH, PathElements, class_values, share_table
+from lightsim.io.atomic import atomic_path
+from lightsim.provenance import (
+    PATH_LENGTH,
+    PathElements,
+    class_values,
+    share_table,
+    spot_values,
+)
 
 from .regulations.check import RegulationAnalysis, regulation_check
 
-__all__ = ["ProvenanceAnalysis", "failing_breakdowns", "format_breakdown", "rule_breakdown"]
+__all__ = ["SPOTS_FILE", "ProvenanceAnalysis", "draw_spots", "failing_breakdowns",
+           "format_breakdown", "rule_breakdown", "spots_image_name"]
+
+SPOTS_FILE = "provenance.npz"
+"""Per rule, the lamp triangles its light left from (see the module docstring)."""
+MAX_RUN_IMAGES = 8
+"""Lamp pictures a run draws at most (its failing rules, in table order)."""
 
 
 def _quantities(reg: dict[str, Any], offset: int) -> list[tuple[str, list[int]]]:
@@ -98,6 +117,7 @@ class ProvenanceAnalysis:
         layout = layout_from_config(session.config, session.scene.wall.distance_m)
         elements = PathElements.from_scene(session.scene)
         rulesets: dict[str, Any] = {}
+        spot_rows: list[tuple[str, str, np.ndarray, np.ndarray]] = []
         for an in self.regulations:
             reg = regulation_check(session, run.lux, an.ruleset, an.traffic, an.aim,
                                    an.confidence, an.offset)
@@ -107,8 +127,12 @@ class ProvenanceAnalysis:
                                           layout, elements, shift,
                                           [q for _, q in quantities])
             rows = {r["name"]: r for r in reg["results"]}
+            tris, spot_cd = spot_values({s: per_set.get(s) for s in sets}, emitted, layout,
+                                        shift, [q for _, q in quantities])
             rules = {}
             for q, (name, _) in enumerate(quantities):
+                keep = spot_cd[:, q] > 0
+                spot_rows.append((reg["ruleset"], name, tris[keep], spot_cd[keep, q]))
                 classes = share_table(labels, values, q, self.confidence, self.min_share,
                                       self.top)
                 row = rows[name]
@@ -124,7 +148,15 @@ class ProvenanceAnalysis:
                                    | set(elements.emitters)),
                    "rulesets": rulesets}
         self.tables = summary
-        return AnalysisReport(summary)
+        files = [write_spots(out / SPOTS_FILE, session.scene, spot_rows)]
+        first = self.regulations[0].rules.id if self.regulations else ""
+        failing = [(rs, name) for rs, rules in rulesets.items() for name, b in rules.items()
+                   if b["verdict"] == "fail"][:MAX_RUN_IMAGES]
+        for rs, name in failing:
+            path = out / spots_image_name(name, rs, first)
+            draw_spots(out / SPOTS_FILE, rs, name, path, rulesets[rs][name])
+            files.append(path)
+        return AnalysisReport(summary, files=files)
 
 
 def rule_breakdown(summary: dict[str, Any], rule: str, part: str | None = None
@@ -193,3 +225,99 @@ def failing_breakdowns(summary: dict[str, Any]) -> list[Table]:
     return [format_breakdown(rs, name, b)
             for rs, rules in (prov.get("rulesets") or {}).items()
             for name, b in rules.items() if b.get("verdict") in ("fail", "uncertain")]
+
+
+def spots_image_name(rule: str, ruleset: str, first: str) -> str:
+    """``provenance-<RULE>.png`` for the run's first rule set,
+    ``provenance-<RULESET>-<RULE>.png`` for a further one (unsafe characters as "_")."""
+    safe = "".join(ch if ch.isalnum() or ch in "+-_." else "_" for ch in rule)
+    return (f"provenance-{safe}.png" if ruleset == first
+            else f"provenance-{ruleset}-{safe}.png")
+
+
+def write_spots(path: Path, scene: Any, rows: list[tuple[str, str, np.ndarray, np.ndarray]]
+                ) -> Path:
+    """``provenance.npz``: the lamp's triangles (m, float32), their parts, and per rule
+    the triangles its light left from with their cd."""
+    lamp = ~np.asarray(scene.tri_is_wall, bool)
+    index = np.full(len(lamp), -1, np.int64)
+    index[lamp] = np.arange(int(lamp.sum()))
+    tri = np.asarray(scene.triangles, np.float32)[lamp]
+    part = np.asarray(scene.tri_part, np.int32)[lamp]
+    names = np.asarray([p.name for p in scene.surfaces], dtype=str)
+    rule_of = np.concatenate([np.full(len(t), i, np.int32) for i, (_, _, t, _) in
+                              enumerate(rows)]) if rows else np.zeros(0, np.int32)
+    spot = (np.concatenate([index[t] for _, _, t, _ in rows]) if rows
+            else np.zeros(0, np.int64))
+    cd = np.concatenate([c for _, _, _, c in rows]) if rows else np.zeros(0)
+    with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, triangles=tri, part=part, part_names=names,
+                 rulesets=np.asarray([r[0] for r in rows], dtype=str),
+                 rules=np.asarray([r[1] for r in rows], dtype=str),
+                 rule=rule_of, spot=spot, cd=cd)
+    return Path(path)
+
+
+def read_spots(path: Path, ruleset: str, rule: str) -> dict[str, np.ndarray]:
+    """One rule's spots from ``provenance.npz``."""
+    if not Path(path).exists():
+        raise InputError(f"{path}: missing (a run made with --provenance writes it)")
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            data = {k: d[k] for k in d.files}
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputError(f"{path}: corrupt provenance file ({exc})") from None
+    hit = np.flatnonzero((data["rulesets"] == ruleset) & (data["rules"] == rule))
+    if len(hit) == 0:
+        raise InputError(f"{path}: no rule '{rule}' of {ruleset}")
+    sel = data["rule"] == hit[0]
+    return {"triangles": data["triangles"], "part": data["part"],
+            "part_names": data["part_names"], "spot": data["spot"][sel],
+            "cd": data["cd"][sel]}
+
+
+def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
+               breakdown: dict[str, Any]) -> Path:
+    """``provenance-<RULE>.png``: the lamp seen from the screen (looking back along −z,
+    world +X to the right), every triangle coloured by the rule's intensity that left it
+    per unit of its projected area (cd/mm², log scale); unlit triangles grey."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+    from matplotlib.colors import LogNorm
+
+    d = read_spots(spots_file, ruleset, rule)
+    tri = d["triangles"].astype(np.float64)
+    xy = tri[:, :, :2] * 1e3  # mm, seen from the screen: +X right, +Y up
+    e1, e2 = xy[:, 1] - xy[:, 0], xy[:, 2] - xy[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    dens = np.zeros(len(tri))
+    np.add.at(dens, d["spot"], d["cd"])
+    lit = (dens > 0) & (area > 1e-12)
+    dens = np.where(lit, dens / np.maximum(area, 1e-12), 0.0)
+    order = np.argsort(tri[:, :, 2].mean(axis=1), kind="stable")  # far from the screen first
+    fig, ax = plt.subplots(figsize=(7.5, 6.5), dpi=110)
+    grey = PolyCollection(xy[order][~lit[order]], facecolors="0.85", edgecolors="0.6",
+                          linewidths=0.1)
+    ax.add_collection(grey)
+    if lit.any():
+        top = float(dens[lit].max())
+        norm = LogNorm(vmin=max(top * 1e-3, float(dens[lit].min())), vmax=top)
+        li = order[lit[order]]
+        coll = PolyCollection(xy[li], array=np.maximum(dens[li], norm.vmin), cmap="inferno",
+                              norm=norm, edgecolors="none")
+        ax.add_collection(coll)
+        fig.colorbar(coll, ax=ax, label="intensity leaving per projected area (cd/mm²)")
+    ax.set_xlim(xy[..., 0].min(), xy[..., 0].max())
+    ax.set_ylim(xy[..., 1].min(), xy[..., 1].max())
+    ax.set_aspect("equal")
+    ax.set_xlabel("X (mm), lamp seen from the screen")
+    ax.set_ylabel("Y (mm)")
+    head = (breakdown["classes"][0]["class"] if breakdown.get("classes") else "no photons")
+    ax.set_title(f"{ruleset} {rule}: {_cd(breakdown['value_cd'])} cd ({breakdown['verdict']})"
+                 f"\nlargest class: {head}", fontsize=8)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return Path(path)

@@ -52,9 +52,17 @@ def test_lowbeam_classes_add_up_at_every_point_and_report_prints_them(tmp_path, 
     code, out, err = run_cli(["report", "--provenance", "B50L", str(tmp_path)], capsys)
     assert code == 0, err
     assert "B50L" in out and "path class" in out and "share" in out
-    code, out, _ = run_cli(["report", "--provenance", "III", "--part", "reflector",
+    code, out, _ = run_cli(["report", "--provenance", "50R", "--part", "reflector",
                             str(tmp_path)], capsys)
-    assert code == 0 and "III" in out
+    assert code == 0 and "50R" in out
+    # the lamp pictures: the rule's light lands on the lamp (a real PNG, read back)
+    import matplotlib.image as mpimg
+    img = mpimg.imread(tmp_path / "provenance-50R.png")
+    assert img.ndim == 3 and img.shape[0] > 100
+    assert (tmp_path / "provenance-r149-b-passing-50R.png").exists()
+    assert (tmp_path / "provenance-B50L.png").exists()
+    for p in tmp_path.glob("provenance-*.png"):
+        p.unlink()
     assert {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()} == before
     # bad input: one line, exit 2, nothing written
     for argv, words in ((["report", "--provenance", "B99X", str(tmp_path)], "no rule"),
