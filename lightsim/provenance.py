@@ -254,6 +254,12 @@ def class_label(elements: PathElements, signature: tuple[int, ...]) -> str:
     return label + (" → …" if signature[-1] > 0 else "")
 
 
+def _luminous_rows(flux: Any, n: int) -> np.ndarray:
+    """(n,) luminous values of (n, C) channel fluxes (n may be 0)."""
+    f = np.asarray(flux, np.float64)
+    return np.zeros(0) if n == 0 else luminous(f.reshape(n, -1))
+
+
 def class_values(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
                  layout: ApertureLayout, elements: PathElements, shift_deg: float,
                  points: list[list[int]]) -> tuple[list[str], np.ndarray]:
@@ -289,7 +295,7 @@ def class_values(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
         point, off = b // B, b % B - (r + k)
         inside = (off >= 0) & (off < m)  # the bins of the (shifted) aperture
         lab = np.asarray(sig_label, np.int64)[np.asarray(data["signature"], np.int64)]
-        lum = luminous(np.asarray(data["flux"]).reshape(len(b), -1))
+        lum = _luminous_rows(data["flux"], len(b))
         rows.append((s_pos, lab[inside], point[inside], lum[inside]))
     S = len(emitted)
     Q = len(points)
@@ -353,7 +359,7 @@ def spot_values(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
         b = np.asarray(data["spot_bin"], np.int64)
         point, off = b // B, b % B - (r + k)
         inside = (off >= 0) & (off < m)
-        lum = luminous(np.asarray(data["spot_flux"]).reshape(len(b), -1))
+        lum = _luminous_rows(data["spot_flux"], len(b))
         cd = np.where(inside, lum / emitted[s_pos] / omega[np.where(inside, point, 0)], 0.0)
         q_cd = np.stack([np.where(np.isin(point, members), cd, 0.0) for members in points],
                         axis=1) if points else np.zeros((len(b), 0))

@@ -211,3 +211,17 @@ def test_share_table_pools_rare_classes_and_survives_empty_input():
     assert rows[1]["classes"] == 2
     assert sum(r["value_cd"] for r in rows) == pytest.approx(values.sum(axis=1).mean())
     assert share_table([], np.zeros((4, 0, 1)), 0) == []
+
+
+def test_sets_that_caught_nothing_give_empty_classes_and_spots():
+    from lightsim.engine.apertures import ApertureLayout
+    from lightsim.provenance import PathCounter, spot_values
+
+    layout = ApertureLayout(np.array([0.0, 1.0]), np.array([0.0, 0.0]), 0.15, 25.0)
+    empty = {0: PathCounter(1).export(), 1: None}
+    labels, values = class_values(empty, np.array([100.0, 0.0]), layout,
+                                  PathElements(np.zeros(0, np.int32), [], np.zeros(0)), 0.0,
+                                  [[0], [0, 1]])
+    assert labels == [] and values.shape == (2, 0, 2)
+    tris, cd = spot_values(empty, np.array([100.0, 0.0]), layout, 0.0, [[0]])
+    assert len(tris) == 0 and cd.shape == (0, 1)
