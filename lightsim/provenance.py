@@ -45,7 +45,8 @@ from lightsim.render.frame import luminous
 from lightsim.tracer import EV_DIFFUSE, EV_REFLECT, EV_REFRACT, EV_TIR
 
 __all__ = ["PATH_LENGTH", "PathCounter", "PathElements", "class_label", "class_values",
-           "emitter_index", "share_table", "signature_rows", "spot_values"]
+           "element_table", "emitter_index", "share_table", "signature_rows",
+           "spot_values"]
 
 PATH_LENGTH = 8
 """Surface events a wall photon's signature keeps."""
@@ -335,6 +336,36 @@ def share_table(labels: list[str], values: np.ndarray, q: int, confidence: float
                     "share": mu / total if total > 0 else 0.0,
                     **({"classes": len(cols[0])} if name == "other" else {})})
     return out
+
+
+def element_table(labels: list[str], values: np.ndarray, q: int, confidence: float = 0.95,
+                  marker: str = " facet ", top: int = 5) -> list[dict[str, Any]]:
+    """The lamp elements (by default reflector facets: names holding ``marker``) whose
+    light reaches quantity ``q``, largest first: per element the value (cd) and share of
+    the classes whose path met it, with the Student-t interval over the sets. A path
+    meeting two facets counts for both, so shares may add up to more than 1."""
+    per = values[:, :, q]
+    S = per.shape[0]
+    total = float(per.sum(axis=1).mean()) if S else 0.0
+    members: dict[str, list[int]] = {}
+    for i, lab in enumerate(labels):
+        for step in set(lab.split(" → ")):
+            name = step.split(" (")[0].removesuffix(" TIR")
+            if marker in name:
+                members.setdefault(name, []).append(i)
+    t = float(stdtrit(S - 1, 0.5 + confidence / 2)) if S >= 2 else 0.0
+    out = []
+    for name, cols in members.items():
+        v = per[:, cols].sum(axis=1)
+        mu = float(v.mean())
+        if mu <= 0:
+            continue
+        half = t * float(v.std(ddof=1)) / np.sqrt(S) if S >= 2 else 0.0
+        out.append({"element": name, "value_cd": mu,
+                    "interval_cd": [max(mu - half, 0.0), mu + half],
+                    "share": mu / total if total > 0 else 0.0})
+    out.sort(key=lambda r: -r["value_cd"])
+    return out[:top]
 
 
 def locate_and_count(counter: ApertureCounter, paths: PathCounter, rows: np.ndarray,

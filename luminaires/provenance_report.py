@@ -53,6 +53,7 @@ from lightsim.provenance import (
     PATH_LENGTH,
     PathElements,
     class_values,
+    element_table,
     share_table,
     spot_values,
 )
@@ -119,8 +120,8 @@ class ProvenanceAnalysis:
         rulesets: dict[str, Any] = {}
         spot_rows: list[tuple[str, str, np.ndarray, np.ndarray]] = []
         for an in self.regulations:
-            reg = regulation_check(session, run.lux, an.ruleset, an.traffic, an.aim,
-                                   an.confidence, an.offset)
+            reg = an.last if an.last is not None else regulation_check(
+                session, run.lux, an.ruleset, an.traffic, an.aim, an.confidence, an.offset)
             quantities = _quantities(reg, an.offset)
             shift = -float(reg["aim"]["dv_deg"])
             labels, values = class_values({s: per_set.get(s) for s in sets}, emitted,
@@ -141,7 +142,8 @@ class ProvenanceAnalysis:
                                "h_deg": row.get("h_deg"), "v_deg": row.get("v_deg"),
                                "value_cd": row.get("value_cd"),
                                "interval_cd": row.get("interval_cd"),
-                               "sum_cd": total, "classes": classes}
+                               "sum_cd": total, "classes": classes,
+                               "facets": element_table(labels, values, q, self.confidence)}
             rulesets[reg["ruleset"]] = rules
         summary = {"confidence": self.confidence, "path_length": PATH_LENGTH,
                    "parts": sorted({elements.part_name(e) for e in range(len(elements.names))}
@@ -216,6 +218,10 @@ def format_breakdown(ruleset: str, rule: str, b: dict[str, Any]) -> Table:
         t.add_row(name, _cd(c["value_cd"]),
                   f"[{_cd(c['interval_cd'][0])}, {_cd(c['interval_cd'][1])}]",
                   f"{c['share']:.1%}")
+    for f in b.get("facets", []):  # the facets a design would move, by their light here
+        t.add_row(f"[dim]every path via {f['element']}[/dim]", _cd(f["value_cd"]),
+                  f"[{_cd(f['interval_cd'][0])}, {_cd(f['interval_cd'][1])}]",
+                  f"{f['share']:.1%}")
     return t
 
 

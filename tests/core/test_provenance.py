@@ -17,6 +17,7 @@ from lightsim.provenance import (
     PathElements,
     class_label,
     class_values,
+    element_table,
     emitter_index,
     share_table,
 )
@@ -110,6 +111,9 @@ def test_two_facet_scene_gives_each_facet_its_geometric_share(tmp_path):
     assert set(exact) <= set(rows), rows.keys()
     for name, want in exact.items():
         _within(rows[name], want)
+    facets = {r["element"]: r for r in element_table(labels, values, 0, top=10)}
+    assert set(facets) == {"reflector facet 0", "reflector facet 1"}
+    _within(facets["reflector facet 0"], exact["filament → reflector facet 0"])
     # the parts add up to the aperture's own count, set by set
     np.testing.assert_allclose(values[:, :, 0].sum(axis=1), total, rtol=1e-9)
     other = sum(r["value_cd"] for n, r in rows.items() if n not in exact)
