@@ -44,9 +44,20 @@ from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR
 from lightsim.render.frame import luminous
 from lightsim.tracer import EV_DIFFUSE, EV_REFLECT, EV_REFRACT, EV_TIR
 
-__all__ = ["PATH_LENGTH", "PathCounter", "PathElements", "class_label", "class_values",
-           "element_table", "emitter_index", "share_table", "signature_rows",
-           "spot_values"]
+__all__ = [
+    "PATH_LENGTH",
+    "ClassMatcher",
+    "PathCounter",
+    "PathElements",
+    "class_label",
+    "class_values",
+    "element_table",
+    "emitter_index",
+    "share_table",
+    "signature_rows",
+    "spot_values",
+    "step_texts",
+]
 
 PATH_LENGTH = 8
 """Surface events a wall photon's signature keeps."""
@@ -366,6 +377,37 @@ def element_table(labels: list[str], values: np.ndarray, q: int, confidence: flo
                     "share": mu / total if total > 0 else 0.0})
     out.sort(key=lambda r: -r["value_cd"])
     return out[:top]
+
+
+def step_texts(elements: PathElements) -> list[str]:
+    """Every step text a class name of this lamp can hold (for checking a
+    ``--provenance-map`` text before a run)."""
+    out = [*elements.emitters, "(direct)"]
+    for e in range(len(elements.names)):
+        for ev in (EV_REFLECT, EV_REFRACT, EV_TIR, EV_DIFFUSE):
+            out.append(_step_text(elements, e, ev)[1])
+    return out
+
+
+class ClassMatcher:
+    """Which signatures' class names contain ``text`` (cached per signature)."""
+
+    def __init__(self, elements: PathElements, text: str) -> None:
+        self.elements, self.text = elements, text
+        self.cache: dict[tuple[int, ...], bool] = {}
+
+    def __call__(self, rows: np.ndarray) -> np.ndarray:
+        """(n,) bool for signature rows (n, K + 3) of :func:`signature_rows`."""
+        if len(rows) == 0:
+            return np.zeros(0, bool)
+        uniq, inv = np.unique(rows[:, :-1], axis=0, return_inverse=True)
+        hit = np.empty(len(uniq), bool)
+        for i, r in enumerate(map(tuple, uniq.tolist())):
+            got = self.cache.get(r)
+            if got is None:
+                got = self.cache[r] = self.text in class_label(self.elements, r)
+            hit[i] = got
+        return hit[inv.reshape(-1)]
 
 
 def locate_and_count(counter: ApertureCounter, paths: PathCounter, rows: np.ndarray,

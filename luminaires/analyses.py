@@ -71,7 +71,9 @@ def for_options(opts: Any) -> list[Analysis]:
         if not opts.aperture:
             raise InputError("--provenance splits the detector apertures' photons: give "
                              "--aperture > 0")
-        out.append(ProvenanceAnalysis(regs))
+        out.append(ProvenanceAnalysis(regs, map_text=opts.provenance_map or ""))
+    elif getattr(opts, "provenance_map", None):
+        raise InputError("--provenance-map needs --provenance")
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
                                     opts.ies_step, opts.ldt_step))

@@ -49,6 +49,7 @@ from lightsim.analysis import AnalysisReport, FinishedRun
 from lightsim.engine.apertures import layout_from_config
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.io.exr import write_exr
 from lightsim.provenance import (
     PATH_LENGTH,
     PathElements,
@@ -56,7 +57,9 @@ from lightsim.provenance import (
     element_table,
     share_table,
     spot_values,
+    step_texts,
 )
+from lightsim.render.frame import luminous
 
 from .regulations.check import RegulationAnalysis, regulation_check
 
@@ -103,11 +106,21 @@ class ProvenanceAnalysis:
     name: str = "provenance"
     min_share: float = 0.02
     top: int = 8
+    map_text: str = ""
     tables: dict[str, Any] = field(default_factory=dict, init=False)
 
     def prepare(self, config: Any, scene: Any) -> Any:
-        """Path signatures kept and counted per aperture."""
-        return config.with_(path_length=PATH_LENGTH)
+        """Path signatures kept and counted per aperture (and the ``map_text`` class
+        binned into a wall map: a text no class of this lamp can hold is refused)."""
+        if self.map_text:
+            steps = step_texts(PathElements.from_scene(scene))
+            if not any(self.map_text in s for s in steps):
+                names = sorted({s.split(" (")[0].split(" facet ")[0] for s in steps})
+                raise InputError(f"--provenance-map '{self.map_text}': no part, facet or "
+                                 f"path step of the lamp holds it (parts: {', '.join(names)};"
+                                 " steps: TIR, Fresnel reflection, refracted, diffuse, "
+                                 "direct)")
+        return config.with_(path_length=PATH_LENGTH, path_map=self.map_text)
 
     def report(self, run: FinishedRun, out: Path) -> AnalysisReport:
         session = run.session
@@ -158,6 +171,10 @@ class ProvenanceAnalysis:
             path = out / spots_image_name(name, rs, first)
             draw_spots(out / SPOTS_FILE, rs, name, path, rulesets[rs][name])
             files.append(path)
+        if self.map_text:
+            files += write_path_map(out, session.scene.wall, self.map_text, per_set, emitted,
+                                    sets)
+            summary["map"] = {"class": self.map_text, "files": [p.name for p in files[-2:]]}
         return AnalysisReport(summary, files=files)
 
 
@@ -327,3 +344,42 @@ def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
         fig.savefig(tmp, format="png")
     plt.close(fig)
     return Path(path)
+
+
+def write_path_map(out: Path, frame: Any, text: str, per_set: dict[int, Any],
+                   emitted: np.ndarray, sets: list[int]) -> list[Path]:
+    """``provenance-map.exr`` (channel Y, lx: the wall illuminance of the photons whose
+    class name holds ``text``, the sets' binned flux over their emitted photons per pixel
+    area) and ``provenance-map.png`` (false colour, log scale)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    W, H = frame.resolution
+    total = np.zeros((H * W,))
+    for s in sets:
+        data = per_set.get(s) or {}
+        m = data.get("map")
+        if m is not None:
+            total += luminous(m)
+    dh, dv = frame.pixel_size_m
+    n = float(emitted.sum())
+    lux = (total / n / (dh * dv) if n > 0 else total).reshape(H, W)
+    exr = out / "provenance-map.exr"
+    write_exr(exr, {"Y": lux}, {"units": "lx", "provenance_class": text})
+    png = out / "provenance-map.png"
+    fig, ax = plt.subplots(figsize=(9, 4), dpi=110)
+    h0, h1, v0, v1 = frame.extent_deg()
+    top = float(lux.max())
+    if top > 0:
+        im = ax.imshow(np.maximum(lux, top * 1e-4), extent=(h0, h1, v0, v1), origin="upper",
+                       cmap="inferno", norm=LogNorm(top * 1e-4, top), aspect="auto")
+        fig.colorbar(im, ax=ax, label="lx")
+    ax.set_xlabel("H (°)")
+    ax.set_ylabel("V (°)")
+    ax.set_title(f"light of path classes naming '{text}': max {top:.4g} lx", fontsize=9)
+    with atomic_path(png, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return [exr, png]

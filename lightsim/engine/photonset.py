@@ -44,7 +44,13 @@ from lightsim.engine.results import ShootResult
 from lightsim.photonmap.common import r_floor
 from lightsim.photonmap.density import PhotonMap
 from lightsim.photonmap.near import NearGrid
-from lightsim.provenance import PathCounter, PathElements, emitter_index, signature_rows
+from lightsim.provenance import (
+    ClassMatcher,
+    PathCounter,
+    PathElements,
+    emitter_index,
+    signature_rows,
+)
 from lightsim.render import ici
 from lightsim.render.frame import luminous
 from lightsim.sampling import (
@@ -220,6 +226,7 @@ class SetState:
     lattice: np.ndarray | None = None  # (2H·2W, C) power per half-pixel cell (ICI windows)
     wall_moments: np.ndarray | None = None  # ΣΦ (lm), ΣΦ² (lm²), count of wall photons
     paths: PathCounter | None = None  # aperture flux per path signature (--provenance)
+    path_map: np.ndarray | None = None  # (H·W, C) flux of one path class (--provenance-map)
 
     def __post_init__(self) -> None:
         if self.ledger is None:
@@ -293,6 +300,9 @@ class PhotonSets:
         self._elements = (PathElements.from_scene(scene) if self.config.path_length
                           else None)
         self._rows = np.zeros((0, 0), np.int32)  # the frame's path signatures
+        self._match = (ClassMatcher(self._elements, self.config.path_map)
+                       if self._elements is not None and self.config.path_map else None)
+        self._matched = np.zeros(0, bool)  # the frame's records in the mapped class
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
 
@@ -408,6 +418,8 @@ class PhotonSets:
             el = self._elements
             self._rows = signature_rows(el, rec.path, rec.events, emitter_index(
                 self.tracer.emitters, points[rec.source], el.emitter_triangles))
+            if self._match is not None:
+                self._matched = self._match(self._rows)
         offsets = np.cumsum([0] + [len(o) for o in owners])
         bounds = np.searchsorted(rec.source, offsets)
         frame_level = self._insert_frame(rec, bounds, offsets)
@@ -517,6 +529,7 @@ class PhotonSets:
                         if st.paths is not None:
                             st.paths.add(self._rows[idx], st.apertures.locate(h[sl], v[sl]),
                                          rec.power[idx])
+                            self._add_to_path_map(st, h[sl], v[sl], idx, rec.power)
             return out[:3]
 
         # the sets in two halves of about equal records, one half on a second thread:
@@ -585,6 +598,7 @@ class PhotonSets:
             st.aperture_hits = rec.source[idx][hit] - first
             if st.paths is not None and len(self._rows):
                 st.paths.add(self._rows[idx], st.apertures.locate(h, v), rec.power[idx])
+                self._add_to_path_map(st, h, v, idx, rec.power)
         if st.bins is not None:
             self._add_to_bins(st, h, v, rec.power[idx].astype(np.float64))
             return
@@ -595,6 +609,23 @@ class PhotonSets:
                 if st.windows is not None:
                     self._add_to_windows(st, h, v, power)
                 self._add_to_lattice(st, h, v, power)
+
+    def _add_to_path_map(self, st: SetState, h: np.ndarray, v: np.ndarray, idx: np.ndarray,
+                         power: np.ndarray) -> None:
+        """Add the wall photons ``idx`` (at h, v in m) of the mapped path class to the
+        set's path map (``--provenance-map``: lm per wall pixel, unnormalised)."""
+        if self._match is None or len(idx) == 0:
+            return
+        on = self._matched[idx]
+        if st.path_map is None:
+            W, H = self.frame.resolution
+            st.path_map = np.zeros((H * W, self.channels))
+        if on.any():
+            W, H = self.frame.resolution
+            row, col = self.frame.pixel_index(h[on], v[on])
+            ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+            add_to_cells(st.path_map, row[ok] * W + col[ok],
+                         power[idx[on]][ok].astype(np.float64))
 
     def _add_to_bins(self, st: SetState, h: np.ndarray, v: np.ndarray,
                      power: np.ndarray) -> None:
@@ -666,7 +697,9 @@ class PhotonSets:
     def paths(self) -> dict[int, dict | None]:
         """Per-set aperture flux per path signature (:meth:`lightsim.provenance.
         PathCounter.export`), or None (a run without ``--provenance``)."""
-        return {s: None if st.paths is None else st.paths.export()
+        return {s: None if st.paths is None else
+                {**st.paths.export(), "map": None if st.path_map is None
+                 else st.path_map.copy()}
                 for s, st in self.sets.items()}
 
     def counters(self) -> dict[int, int]:

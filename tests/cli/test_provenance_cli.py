@@ -95,3 +95,31 @@ def test_report_provenance_on_a_run_without_it_and_bad_simulate_options(tmp_path
 @pytest.mark.parametrize("lamp", ["headlight.glb", "projector.glb", "matrix.glb"])
 def test_every_shipped_lamp_adds_up_at_every_point(tmp_path, capsys, lamp):
     assert _adds_up(_simulate(tmp_path, lamp, 200_000, capsys)) > 40
+
+
+def test_path_map_holds_its_class_and_all_classes_hold_the_wall_flux(tmp_path, capsys):
+    """--provenance-map: every class names the emitter, so its map is all the wall's flux
+    (read back from the EXR); a part's map is part of it; a text no class can hold is
+    refused before the run."""
+    from lightsim.io.exr import read_exr
+
+    s = _simulate(tmp_path / "all", "lowbeam.glb", 50_000, capsys, "--provenance-map",
+                  "filament")
+    ch, _ = read_exr(tmp_path / "all" / "provenance-map.exr")
+    w = s["wall"]
+    area = ((w["h_range_m"][1] - w["h_range_m"][0]) / w["resolution"][0]
+            * (w["v_range_m"][1] - w["v_range_m"][0]) / w["resolution"][1])
+    assert float(ch["Y"].astype(float).sum()) * area == pytest.approx(
+        s["energy_lm"]["wall"], rel=1e-4)
+    assert (tmp_path / "all" / "provenance-map.png").exists()
+    s2 = _simulate(tmp_path / "shield", "lowbeam.glb", 50_000, capsys, "--provenance-map",
+                   "shield (diffuse)")
+    ch2, _ = read_exr(tmp_path / "shield" / "provenance-map.exr")
+    part = float(ch2["Y"].astype(float).sum()) * area
+    assert 0 < part < 0.5 * s2["energy_lm"]["wall"]
+    code, _, err = run_cli(["simulate", str(EXAMPLES / "lowbeam.glb"), "--photons", "1000",
+                            "--regulation", "r112-b-passing", "--provenance",
+                            "--provenance-map", "housing", "--out", str(tmp_path / "bad"),
+                            "--quiet"], capsys)
+    assert code == 2 and "housing" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "bad").exists()
