@@ -155,13 +155,15 @@ def signature_rows(elements: PathElements, path: np.ndarray, events: np.ndarray,
                    emitter: np.ndarray) -> np.ndarray:
     """(n, K + 3) int32 signature rows of records: emitter, K steps ``element · 4 +
     event`` (−1 past the path's end), 1 where the path had more than K events, and the
-    *spot*: the triangle of the last event, where the light left the lamp (−1 for a
-    direct or a longer path)."""
+    *spot*: the triangle of the path's last event that was not a refraction — the
+    reflector facet, the lens surface of a ghost, the diffuse part — that sent the light
+    on its way out (−1 for a direct photon, one only refracted, or a longer path)."""
     n, K = path.shape
     rows = np.full((n, K + 3), -1, np.int32)
-    last = np.minimum(events.astype(np.int64), K) - 1
-    ok_last = (last >= 0) & (events.astype(np.int64) <= K)
-    rows[ok_last, K + 2] = path[ok_last, last[ok_last]] // 4
+    turn = (path >= 0) & (path % 4 != EV_REFRACT)
+    any_turn = turn.any(axis=1) & (events.astype(np.int64) <= K)
+    last = K - 1 - np.argmax(turn[:, ::-1], axis=1)
+    rows[any_turn, K + 2] = path[any_turn, last[any_turn]] // 4
     rows[:, 0] = emitter
     ok = path >= 0
     code = np.where(ok, path, 0)

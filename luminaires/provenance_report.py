@@ -21,8 +21,9 @@ over the sets and its share; the classes add up to the table's value (``sum_cd``
 same photons split, so to rounding). ``summary.json["provenance"]`` holds the tables;
 ``lightsim report --provenance RULE RUN_DIR`` prints one.
 
-Where on the lamp a rule's light left it: ``provenance.npz`` holds, per rule, every lamp
-triangle's share (cd) by the triangle of the photons' last surface event, and the lamp's
+Where on the lamp a rule's light was sent out: ``provenance.npz`` holds, per rule, every
+lamp triangle's share (cd) by the triangle of the photons' last event that was not a
+refraction (the reflector spot, a lens ghost's surface, a diffuse part), and the lamp's
 triangles; ``provenance-<RULE>.png`` (written by the run for failing rules, by ``lightsim
 report --provenance RULE`` on demand) draws the lamp seen from the screen, each triangle
 coloured by the rule's intensity that left it per unit of its projected area.
@@ -302,8 +303,9 @@ def read_spots(path: Path, ruleset: str, rule: str) -> dict[str, np.ndarray]:
 def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
                breakdown: dict[str, Any]) -> Path:
     """``provenance-<RULE>.png``: the lamp seen from the screen (looking back along −z,
-    world +X to the right), every triangle coloured by the rule's intensity that left it
-    per unit of its projected area (cd/mm², log scale); unlit triangles grey."""
+    world +X to the right), every triangle coloured by the rule's intensity it sent out
+    (its last reflection or scattering) per unit of its projected area (cd/mm², log
+    scale), drawn over the unlit parts (grey: a clear lens shows what lies behind it)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -331,7 +333,7 @@ def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
         coll = PolyCollection(xy[li], array=np.maximum(dens[li], norm.vmin), cmap="inferno",
                               norm=norm, edgecolors="none")
         ax.add_collection(coll)
-        fig.colorbar(coll, ax=ax, label="intensity leaving per projected area (cd/mm²)")
+        fig.colorbar(coll, ax=ax, label="intensity sent out per projected area (cd/mm²)")
     ax.set_xlim(xy[..., 0].min(), xy[..., 0].max())
     ax.set_ylim(xy[..., 1].min(), xy[..., 1].max())
     ax.set_aspect("equal")

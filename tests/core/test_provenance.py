@@ -229,3 +229,25 @@ def test_sets_that_caught_nothing_give_empty_classes_and_spots():
     assert labels == [] and values.shape == (2, 0, 2)
     tris, cd = spot_values(empty, np.array([100.0, 0.0]), layout, 0.0, [[0]])
     assert len(tris) == 0 and cd.shape == (0, 1)
+
+
+def test_signature_rows_map_triangles_to_elements_and_find_the_spot():
+    from lightsim.provenance import signature_rows
+
+    el = PathElements(np.array([0, 0, 1, 1, 2], np.int32), ["reflector facet 0",
+                      "reflector facet 1", "lens"], np.array([1, 1, 2]), ["filament"])
+    path = np.array([[3 * 4 + EV_REFLECT, 4 * 4 + EV_REFRACT, 4 * 4 + EV_REFRACT, -1],
+                     [4 * 4 + EV_REFRACT, 4 * 4 + EV_REFLECT, 4 * 4 + EV_REFRACT, -1],
+                     [-1, -1, -1, -1],
+                     [0 * 4 + EV_REFLECT, 1, 1, 1]], np.int32)
+    events = np.array([3, 3, 0, 9], np.uint8)
+    rows = signature_rows(el, path, events, np.zeros(4, np.int32))
+    assert rows[0].tolist() == [0, 1 * 4 + EV_REFLECT, 2 * 4 + EV_REFRACT,
+                                2 * 4 + EV_REFRACT, -1, 0, 3]
+    assert rows[1, -1] == 4  # a ghost: the lens surface that reflected it
+    assert rows[2, -1] == -1 and rows[3, -2] == 1 and rows[3, -1] == -1  # direct; too long
+    assert class_label(el, tuple(rows[0, :-1])) == \
+        "filament → reflector facet 1 → lens (refracted)"
+    assert class_label(el, tuple(rows[1, :-1])) == (
+        "filament → lens (refracted) → lens (Fresnel reflection) → lens (refracted)")
+    assert class_label(el, tuple(rows[3, :-1])).endswith("→ …")
