@@ -432,7 +432,8 @@ class RegulationAnalysis:
     rules: RuleSet = field(init=False, repr=False)
     offset: int = field(default=0, init=False)  # where this set's apertures start
     index: int = field(default=-1, init=False)  # this rule set's place in ``until``
-    last: dict[str, Any] | None = field(default=None, init=False, repr=False)  # last table
+    last: dict[str, Any] | None = field(default=None, init=False, repr=False,
+                                        compare=False)  # the last table (--provenance)
 
     def __post_init__(self) -> None:
         self.rules = load_ruleset(self.ruleset)
