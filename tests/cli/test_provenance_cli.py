@@ -94,7 +94,7 @@ def test_report_provenance_on_a_run_without_it_and_bad_simulate_options(tmp_path
 @pytest.mark.slow
 @pytest.mark.parametrize("lamp", ["headlight.glb", "projector.glb", "matrix.glb"])
 def test_every_shipped_lamp_adds_up_at_every_point(tmp_path, capsys, lamp):
-    assert _adds_up(_simulate(tmp_path, lamp, 200_000, capsys)) > 40
+    assert _adds_up(_simulate(tmp_path, lamp, 200_000, capsys)) > 30
 
 
 def test_path_map_holds_its_class_and_all_classes_hold_the_wall_flux(tmp_path, capsys):
