@@ -251,3 +251,21 @@ def test_signature_rows_map_triangles_to_elements_and_find_the_spot():
     assert class_label(el, tuple(rows[1, :-1])) == (
         "filament → lens (refracted) → lens (Fresnel reflection) → lens (refracted)")
     assert class_label(el, tuple(rows[3, :-1])).endswith("→ …")
+
+
+def test_emitter_index_names_the_led_each_photon_leaves():
+    """The matrix lamp's 16 LEDs: every sampled origin lies on the LED the index names."""
+    from pathlib import Path
+
+    scene = load_scene(Path(__file__).parents[2] / "luminaires" / "examples" / "matrix.glb")
+    el = PathElements.from_scene(scene)
+    mix = PhotonTracer(scene, threads=1).emitters
+    u = np.random.default_rng(5).random((4000, 5))
+    origin, _ = mix.sample(u)
+    idx = emitter_index(mix, u, el.emitter_triangles)
+    parts = {p.name: p for p in scene.emitters}
+    assert len(set(idx.tolist())) == 16
+    for k in range(16):
+        tri = parts[el.emitters[k]].triangles.reshape(-1, 3)
+        o = origin[idx == k]
+        assert np.all(o >= tri.min(axis=0) - 1e-9) and np.all(o <= tri.max(axis=0) + 1e-9)
