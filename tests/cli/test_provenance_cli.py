@@ -42,7 +42,8 @@ def _adds_up(summary: dict) -> int:
 
 
 def test_lowbeam_classes_add_up_at_every_point_and_report_prints_them(tmp_path, capsys):
-    s = _simulate(tmp_path, "lowbeam.glb", 200_000, capsys)
+    s = _simulate(tmp_path, "lowbeam.glb", 200_000, capsys, "--aim")  # shifted apertures
+    assert s["regulation"]["aim"]["aperture_dv_deg"] != 0
     assert _adds_up(s) > 30
     p50r = s["provenance"]["rulesets"]["r112-b-passing"]["50R"]  # bright: photons at 200 k
     assert p50r["classes"] and all(c["interval_cd"][0] <= c["value_cd"] <= c["interval_cd"][1]
