@@ -19,8 +19,8 @@ reflection "TIR", a diffuse part "(diffuse)"; a path longer than the kept events
 parameter          unit   default   meaning
 =================  =====  ========  =========================================================
 ``PATH_LENGTH``    –      8         surface events kept per photon
-``min_share``      –      0.02      classes below this share of a point (and beyond the
-                                    ``top`` largest) are pooled as "other"
+``min_share``      –      0.02      classes below this share of a point, or beyond the
+                                    ``top`` largest, are pooled as "other"
 ``top``            –      8         classes shown per point at most
 ``confidence``     –      0.95      two-sided level of the class intervals
 =================  =====  ========  =========================================================
@@ -28,6 +28,11 @@ parameter          unit   default   meaning
 A class's value at a point is the mean over the S interleave sets of its per-set
 intensity (cd), its interval the Student-t interval of that mean (S − 1 degrees of
 freedom), as the regulation's point intervals are where the sets hold photons.
+
+Each set also counts, per aperture bin, the *spot* of every photon — the triangle of its
+last reflection or scatter (:func:`spot_values`: where on the lamp a point's light was
+sent out) — and, with ``--provenance-map``, bins the wall photons of one class into a
+wall map (:class:`ClassMatcher`).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import numpy as np
 from scipy.special import stdtrit
 
 from lightsim.emitters import EmitterMix
-from lightsim.engine.apertures import ApertureCounter, ApertureLayout
+from lightsim.engine.apertures import ApertureLayout
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR
 from lightsim.render.frame import luminous
 from lightsim.tracer import EV_DIFFUSE, EV_REFLECT, EV_REFRACT, EV_TIR
@@ -202,7 +207,7 @@ class PathCounter:
     def add(self, rows: np.ndarray, located: tuple[np.ndarray, np.ndarray],
             power: np.ndarray) -> None:
         """Add wall photons: their signature rows (n, K + 2), the (photon, bin) pairs of
-        :meth:`ApertureCounter.locate`, their powers (n, C)."""
+        :meth:`lightsim.engine.apertures.ApertureCounter.locate`, their powers (n, C)."""
         who, where = located
         if len(who) == 0:
             return
@@ -410,12 +415,6 @@ class ClassMatcher:
                 got = self.cache[r] = self.text in class_label(self.elements, r)
             hit[i] = got
         return hit[inv.reshape(-1)]
-
-
-def locate_and_count(counter: ApertureCounter, paths: PathCounter, rows: np.ndarray,
-                     h_m: np.ndarray, v_m: np.ndarray, power: np.ndarray) -> None:
-    """Count a set's wall photons (h, v in m) by signature in its apertures' strip bins."""
-    paths.add(rows, counter.locate(h_m, v_m), power)
 
 
 def spot_values(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
