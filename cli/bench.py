@@ -24,6 +24,7 @@ BENCHMARKS: dict[str, str] = {
     "pipeline": "bench_pipeline:command",
     "road": "bench_road:command",
     "adb": "bench_adb:command",
+    "provenance": "bench_provenance:command",
 }
 
 

@@ -14,6 +14,13 @@ from lightsim.io import plot_worker
 from lightsim.io.exr import read_exr
 from lightsim.io.summary import read_json, write_json
 from lightsim.luminaires import regulations
+from lightsim.luminaires.provenance_report import (
+    SPOTS_FILE,
+    draw_spots,
+    format_breakdown,
+    rule_breakdown,
+    spots_image_name,
+)
 from lightsim.luminaires.regulations import check
 
 
@@ -27,11 +34,36 @@ from lightsim.luminaires.regulations import check
 @click.option("--log/--linear", "log_scale", default=True, show_default=True,
               help="Colour scale of wall_lux.png: logarithmic or linear.")
 @click.option("--list-rulesets", is_flag=True, help="List the available rule sets and exit.")
+@click.option("--provenance", "provenance_rule", metavar="RULE",
+              help="Print where RULE's light comes from (path classes with intervals) of a "
+              "run made with simulate --provenance, and draw provenance-RULE.png: the lamp "
+              "seen from the screen, coloured by how much of RULE's light left each spot.")
+@click.option("--part", metavar="NAME",
+              help="With --provenance: only the path classes that meet part NAME.")
 def report(result_dir: str | None, regulation: str | None, confidence: float,
-           mount_height: float, log_scale: bool, list_rulesets: bool) -> None:
+           mount_height: float, log_scale: bool, list_rulesets: bool,
+           provenance_rule: str | None, part: str | None) -> None:
     """Rebuild wall_lux.png, isolux.png, road.png, error_vs_time.png and the regulation
     table of RESULT_DIR from its wall_lux.exr, summary.json and probes.npz."""
     console = Console(width=None if sys.stdout.isatty() else 160)
+    if part is not None and provenance_rule is None:
+        raise InputError("--part goes with --provenance RULE")
+    if provenance_rule is not None:
+        if result_dir is None:
+            raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
+        out = Path(result_dir)
+        summary = read_json(out / "summary.json")
+        found = rule_breakdown(summary, provenance_rule, part)
+        first = found[0][0] if found else ""
+        tables = [t.get("ruleset") for t in check.regulation_tables(summary)]
+        first = tables[0] if tables else first
+        for rs, b in found:
+            console.print(format_breakdown(rs, provenance_rule, b))
+        wrote = [draw_spots(out / SPOTS_FILE, rs, provenance_rule,
+                            out / spots_image_name(provenance_rule, rs, first), b)
+                 for rs, b in found]
+        click.echo("wrote " + ", ".join(str(p) for p in wrote))
+        return
     if list_rulesets:
         for rs in regulations.list_rulesets():
             click.echo(f"{rs['id']:<20} {rs.get('title', '')}  [{rs.get('path', '')}]")

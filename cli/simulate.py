@@ -18,6 +18,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
 from lightsim.io import plot_worker
 from lightsim.luminaires.analyses import for_options
+from lightsim.luminaires.provenance_report import failing_breakdowns
 from lightsim.luminaires.regulations.check import format_regulation, regulation_tables
 from lightsim.options import click_options
 from lightsim.road_evaluation import reach_lines
@@ -193,6 +194,8 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
             console = Console(width=None if sys.stdout.isatty() else 160)
             for table in regulation_tables(s):
                 console.print(format_regulation(table))
+            for table in failing_breakdowns(s):  # --provenance: where the light comes from
+                console.print(table)
         if "until" in s:
             click.echo(until_text(s["until"]))
         order = ("wall_lux.exr", "wall_lux.png", "isolux.png", "road.png",

@@ -149,6 +149,16 @@ class SimulateOptions:
         0.15, "Side of the square detector aperture each regulation test point counts "
         "photons in (0.15° ≈ 65 mm at 25 m); 0 = kNN estimate instead.", unit="deg",
         flag=("--aperture",), low=0, high=2)
+    provenance: bool = option(
+        False, "Break every regulation rule's light down by the path it took (emitter, "
+        "parts and reflector facets met, reflection/refraction/TIR/diffuse at each): "
+        "summary.json's provenance, a table for failing and uncertain rules, lightsim "
+        "report --provenance RULE.", flag=("--provenance",), kind="flag")
+    provenance_map: str | None = option(
+        None, "With --provenance: the wall map of one path class — the photons whose class "
+        "name holds this text (a part, a facet, 'TIR', 'Fresnel reflection', 'diffuse') — "
+        "as provenance-map.exr (lx) and provenance-map.png.", flag=("--provenance-map",),
+        metavar="CLASS")
     spt_points: bool = option(False, "Aim Selective Photon Tracing at the regulation's "
                               "test points.", flag=("--spt-points/--no-spt-points",),
                               kind="onoff")

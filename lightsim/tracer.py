@@ -44,6 +44,9 @@ parameter          unit   default   meaning
 ``batch``          photon 262144    photons per wavefront batch (memory bound)
 ``min_chunk``      photon 8192      smallest chunk a thread traces (4 chunks per thread
                                     and batch otherwise: load balance)
+``path_length``    –      0         path signatures: surface events each record keeps
+                                    (triangle and event: reflection, refraction, TIR,
+                                    diffuse); 0 = none (no cost)
 =================  =====  ========  ===================================================
 
 Ray origins are pushed off the surface by ε = 2⁻¹⁸ · (|p|∞ + 0.01 · scene scale) along the
@@ -84,6 +87,10 @@ _TAKEN = tuple(col for _, col in sorted({DIFFUSE: L_ABS_DIFF, MIRROR: L_ABS_MIRR
 # photon flags
 F_SPECULAR = np.uint8(1)  # the path had at least one specular bounce (caustic path)
 F_DIFFUSE = np.uint8(2)   # the path had at least one diffuse bounce (indirect light)
+
+# path signatures (``path_length`` > 0): each step is ``triangle · 4 + event``
+EV_REFLECT, EV_REFRACT, EV_TIR, EV_DIFFUSE = 0, 1, 2, 3
+EVENTS = ("reflection", "refraction", "TIR", "diffuse")
 
 
 
@@ -282,7 +289,7 @@ def _offset(px, py, pz, nx, ny, nz, sign, eps_floor):
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_off, caustic,
-            o32, d32, esc_d, esc_p, record_escaped):
+            o32, d32, esc_d, esc_p, record_escaped, hist, nev, rhist, rnev):
     """One bounce of the first ``m`` rays of a wavefront, fused with its compaction.
 
     Per ray, in named steps: escape (no hit), the hit (point, facing geometric normal,
@@ -296,6 +303,11 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
     record, if on a specular path, marks ``caustic[j]``. Random numbers of a bounce at
     ``depth``: counter 8 · depth + 0 the Fresnel choice, + 1 roulette, + 2 and + 3 the
     diffuse direction.
+
+    Path signatures (``hist`` with rows, else (0, 1)): each ray's first K surface events
+    (``triangle · 4 + event``, :data:`EVENTS`) in ``hist``, their count (up to 255) in
+    ``nev``; a record copies them to ``rhist``/``rnev``. Without them nothing of this runs
+    but one test per hit.
 
     The named tuples are unpacked once, before the loop, and the loop body hands the BSDF
     only scalars, tuples of scalars and whole arrays with row indices: a row view or a
@@ -314,6 +326,8 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
     wall_tri, wall_index, slab = geom.wall_tri, geom.wall_index, geom.wall_slab
     eps_floor, rr_threshold, rr_min_depth = prm.eps_floor, prm.rr_threshold, prm.rr_min_depth
     record_all = prm.record_all
+    track = hist.shape[0] > 0
+    K = hist.shape[1]
     C = pw.shape[1]
     P = packed.shape[1]
     # the exact wall (outside embree) in its own pass before the loop. The hit triangles'
@@ -396,6 +410,10 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
             rsrc[r] = j
             if fl & F_SPECULAR:
                 caustic[j] = True
+            if track:
+                for q in range(K):
+                    rhist[r, q] = hist[i, q]
+                rnev[r] = nev[i]
             r += 1
 
         # shading normal ns (specular kinds: interpolated vertex normals, facing like
@@ -420,6 +438,9 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
                                    ledger, jl, _TAKEN[kind])
         if side == 0.0:  # the wall: detected, the photon ends
             continue
+        if track:
+            _path_step(hist, nev, i, k, kind, side, front, mats.ior[mi], (dx, dy, dz),
+                       (nsx, nsy, nsz), (ngx, ngy, ngz))
 
         # spawned ray: unit ω from p pushed off the surface on ω's side
         ln = math.sqrt(wx * wx + wy * wy + wz * wz)
@@ -464,8 +485,38 @@ def _bounce(wf, m, hits, geom, mats, prm, depth, last_bounce, rec, ledger, led_o
             wflags[w] = wflags[i]
             wkeys[w] = wkeys[i]
             wlid[w] = wlid[i]
+            if track:
+                for q in range(K):
+                    hist[w, q] = hist[i, q]
+                nev[w] = nev[i]
         w += 1
     return w, r, e
+
+
+@njit(cache=True, inline="always")
+def _path_step(hist, nev, i, k, kind, side, front, ior, d, ns, ng):
+    """Append ray ``i``'s event on triangle ``k`` to its path: diffuse, mirror reflection,
+    refraction (``side`` < 0) or, on glass, Fresnel reflection or total internal
+    reflection (no refracted ray: sin²θₜ ≥ 1 about the shading or the geometric normal).
+    The first ``hist.shape[1]`` events are kept; ``nev`` counts up to 255."""
+    ev = EV_REFLECT
+    if kind == DIFFUSE:
+        ev = EV_DIFFUSE
+    elif kind == DIELECTRIC:
+        if side < 0.0:
+            ev = EV_REFRACT
+        else:
+            eta = 1.0 / ior if front else ior
+            ci = -(d[0] * ns[0] + d[1] * ns[1] + d[2] * ns[2])
+            cg = -(d[0] * ng[0] + d[1] * ng[1] + d[2] * ng[2])
+            if (eta * eta * (1.0 - ci * ci) >= 1.0
+                    or eta * eta * (1.0 - cg * cg) >= 1.0):
+                ev = EV_TIR
+    n = nev[i]
+    if n < hist.shape[1]:
+        hist[i, n] = np.int32(k * 4 + ev)
+    if n < 255:
+        nev[i] = n + np.uint8(1)
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
@@ -666,6 +717,13 @@ class PhotonRecords:
         F_SPECULAR (caustic path) / F_DIFFUSE (indirect).
     source : (n,) int64
         Index of the emitted photon (within the traced batch) that made this record.
+    path : (n, K) int32 or None
+        With path signatures (``path_length`` K > 0): the first K surface events of the
+        photon's path before this record, each ``triangle · 4 + event`` (:data:`EVENTS`),
+        −1 past the last.
+    events : (n,) uint8 or None
+        With path signatures: how many events the path had (up to 255; more than K: the
+        path is longer than ``path`` shows).
     """
 
     position: np.ndarray
@@ -674,6 +732,8 @@ class PhotonRecords:
     part: np.ndarray
     flags: np.ndarray
     source: np.ndarray
+    path: np.ndarray | None = None
+    events: np.ndarray | None = None
 
     @classmethod
     def empty(cls, channels: int) -> PhotonRecords:
@@ -690,11 +750,18 @@ class PhotonRecords:
         if not parts:
             return cls.empty(channels)
         fields = ("position", "normal", "power", "part", "flags", "source")
+        paths = all(p.path is not None for p in parts)
         if pool is None or len(parts) == 1:
-            return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
-        order = ("position", "normal", "source", "power", "part", "flags")  # largest first
-        out = {f: pool.submit(np.concatenate, [getattr(p, f) for p in parts]) for f in order}
-        return cls(*(out[f].result() for f in fields))
+            out = cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
+        else:
+            order = ("position", "normal", "source", "power", "part", "flags")  # largest first
+            fut = {f: pool.submit(np.concatenate, [getattr(p, f) for p in parts])
+                   for f in order}
+            out = cls(*(fut[f].result() for f in fields))
+        if paths:
+            out.path = np.concatenate([p.path for p in parts])
+            out.events = np.concatenate([p.events for p in parts])
+        return out
 
     def __len__(self) -> int:
         return len(self.position)
@@ -753,6 +820,33 @@ def sort_by_source(position, normal, power, part, flags, source, n_sources, firs
     return pos, nrm, pw, pt, fl, src
 
 
+@njit(cache=True, nogil=True)
+def sort_paths_by_source(path, events, source, n_sources, first=0):
+    """``path`` and ``events`` of records in the stable order of ``source``, as
+    :func:`sort_by_source` orders the other fields."""
+    n = source.shape[0]
+    start = np.zeros(n_sources + 1, np.int64)
+    for i in range(n):
+        start[source[i] - first + 1] += 1
+    for s in range(n_sources):
+        start[s + 1] += start[s]
+    K = path.shape[1]
+    pt = np.empty((n, K), path.dtype)
+    ev = np.empty(n, events.dtype)
+    for i in range(n):
+        k = start[source[i] - first]
+        start[source[i] - first] = k + 1
+        for q in range(K):
+            pt[k, q] = path[i, q]
+        ev[k] = events[i]
+    return pt, ev
+
+
+def _path_buffer(rows: int, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """Empty path-signature record arrays (rows, max(K, 1)) int32 and (rows,) uint8."""
+    return np.empty((rows, max(K, 1)), np.int32), np.empty(rows, np.uint8)
+
+
 def _record_buffer(rows: int, C: int) -> RecordBuffer:
     """Empty record arrays of ``rows`` rows."""
     return RecordBuffer(np.empty((rows, 3), np.float32), np.empty((rows, 3), np.float32),
@@ -786,7 +880,7 @@ class PhotonTracer:
     def __init__(self, scene, *, max_depth: int = 32, rr_threshold: float = 0.05,
                  rr_min_depth: int = 3, record: str = "wall", threads: int | None = None,
                  batch: int = 262144, caster: RayCaster | None = None,
-                 min_chunk: int = 8192) -> None:
+                 min_chunk: int = 8192, path_length: int = 0) -> None:
         if record not in ("wall", "all"):
             raise ValueError("record must be 'wall' or 'all'")
         self.scene = scene
@@ -794,6 +888,10 @@ class PhotonTracer:
         self.rr_threshold = float(rr_threshold)
         self.rr_min_depth = int(rr_min_depth)
         self.record_all = record == "all"
+        if not 0 <= int(path_length) <= 64:
+            raise ValueError("path_length must be in 0..64")
+        #: surface events a record keeps of its photon's path (0: no path signatures)
+        self.path_length = int(path_length)
         self.batch = int(batch)
         self.caster = _caster_for(scene, caster, threads)
         self.emitters = EmitterMix.from_scene(scene)
@@ -981,6 +1079,11 @@ class PhotonTracer:
         if clock:
             t_start = clock() - t1
         wf = Wavefront(o, d, pw, p_ref, flags, kk, lid)
+        K = self.path_length
+        # path signatures: the rays' events so far and the records' copies (none: 0 rows)
+        hist = np.full((n if K else 0, max(K, 1)), -1, np.int32)
+        nev = np.zeros(n if K else 0, np.uint8)
+        pbuf = _path_buffer(n if K else 0, K)
         recs: list[PhotonRecords] = []
         escs: list[tuple[np.ndarray, np.ndarray]] = []
         rays = 0
@@ -1002,23 +1105,34 @@ class PhotonTracer:
             rays += m
             if len(buf.source) - r0 < m:  # record="all": a bounce may record every ray
                 buf, r0 = _record_buffer(max(2 * len(buf.source), m), C), 0  # parts kept
+                pbuf = _path_buffer(len(buf.source) if K else 0, K)
             rb = RecordBuffer(*(a[r0:] for a in buf))
             esc = ((np.empty((m, 3), np.float32), np.empty((m, C))) if record_escaped
                    else (np.empty((0, 3), np.float32), np.empty((0, C))))
             m, r, e = _bounce(wf, m, hits, self.geometry, self._mats, self._params, depth,
                               depth == self.max_depth - 1, rb, ledger, base, caustic, o32,
-                              d32, esc[0], esc[1], record_escaped)
+                              d32, esc[0], esc[1], record_escaped, hist, nev,
+                              pbuf[0][r0:] if K else pbuf[0], pbuf[1][r0:] if K else pbuf[1])
             if clock:
                 t_bounce += clock() - t1
             recs.append(PhotonRecords(*(a[r0:r0 + r] for a in buf)))
+            if K:
+                recs[-1].path, recs[-1].events = pbuf[0][r0:r0 + r], pbuf[1][r0:r0 + r]
             r0 += r
             escs.append((esc[0][:e], esc[1][:e]))
         if by_source and recs:  # one part: the chunk's records in photon order
-            whole = (PhotonRecords(*(a[:r0] for a in buf)) if r0 == sum(map(len, recs))
-                     else PhotonRecords.concatenate(recs, C))  # buffers replaced: join them
+            if r0 == sum(map(len, recs)):  # one buffer: its prefix, no copy
+                whole = PhotonRecords(*(a[:r0] for a in buf))
+                if K:
+                    whole.path, whole.events = pbuf[0][:r0], pbuf[1][:r0]
+            else:  # buffers replaced: join them
+                whole = PhotonRecords.concatenate(recs, C)
             recs = [PhotonRecords(*sort_by_source(
                 whole.position, whole.normal, whole.power, whole.part, whole.flags,
                 whole.source, n, base))]
+            if K:
+                recs[0].path, recs[0].events = sort_paths_by_source(
+                    whole.path, whole.events, whole.source, n, base)
         if clock:
             with self._stages_lock:
                 for k, v in (("emit", t_emit), ("start", t_start), ("cast", t_cast),

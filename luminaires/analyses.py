@@ -15,6 +15,8 @@ option              unit   analysis
 ``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
                            ``ies_type``, ``farfield_photons``, ``ies_step``,
                            ``ldt_step`` deg)
+``provenance``      –      :class:`~.provenance_report.ProvenanceAnalysis` of the rule
+                           sets (path classes per rule)
 ``road``            –      :class:`lightsim.road_evaluation.RoadAnalysis` (with
                            ``mount_height`` m, ``traffic``)
 ==================  =====  ==========================================================
@@ -25,11 +27,13 @@ from __future__ import annotations
 from typing import Any
 
 from lightsim.analysis import Analysis
+from lightsim.errors import InputError
 from lightsim.road_evaluation import RoadAnalysis, RoadSettings
 
 from .photometric import resolve_ies_type
 from .photometric.analysis import FarfieldAnalysis
 from .photometric.gridding import check_step
+from .provenance_report import ProvenanceAnalysis
 from .regulations.check import RegulationAnalysis, split_rulesets
 from .regulations.conditions import refuse_screen_check
 from .regulations.sequential import VerdictRule
@@ -60,6 +64,16 @@ def for_options(opts: Any) -> list[Analysis]:
                                           until=until)
             refuse_screen_check(analysis.rules)  # re-aim etc.: `lightsim check` instead
             out.append(analysis)
+    if getattr(opts, "provenance", False):
+        regs = [a for a in out if isinstance(a, RegulationAnalysis)]
+        if not regs:
+            raise InputError("--provenance breaks regulation rules down: give --regulation")
+        if not opts.aperture:
+            raise InputError("--provenance splits the detector apertures' photons: give "
+                             "--aperture > 0")
+        out.append(ProvenanceAnalysis(regs, map_text=opts.provenance_map or ""))
+    elif getattr(opts, "provenance_map", None):
+        raise InputError("--provenance-map needs --provenance")
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
                                     opts.ies_step, opts.ldt_step))

@@ -215,6 +215,41 @@ def _bin_photons(hd, vd, power, cell_start, cell_items, g_h0, g_v0, g_dh, g_dv, 
                 counts[offset[p] + b, c] += power[i, c]
 
 
+@njit(cache=True, nogil=True)
+def _locate_photons(hd, vd, cell_start, cell_items, g_h0, g_v0, g_dh, g_dv, g_nh, g_nv,
+                    ap_h0, ap_h1, ap_v0, n_bins, offset, step, n_points):
+    """(photon, flat bin) of every photon in a test-point strip (:func:`_bin_photons`'s
+    tests; strips ≥ ``n_points``, the raster's, skipped)."""
+    cap = hd.shape[0] + 16
+    who = np.empty(cap, np.int64)
+    where = np.empty(cap, np.int64)
+    n = 0
+    for i in range(hd.shape[0]):
+        ci = math.floor((hd[i] - g_h0) / g_dh)
+        cj = math.floor((vd[i] - g_v0) / g_dv)
+        if ci < 0 or ci >= g_nh or cj < 0 or cj >= g_nv:
+            continue
+        cell = cj * g_nh + ci
+        for q in range(cell_start[cell], cell_start[cell + 1]):
+            p = cell_items[q]
+            if p >= n_points or hd[i] < ap_h0[p] or hd[i] >= ap_h1[p]:
+                continue
+            b = math.floor((vd[i] - ap_v0[p]) / step)
+            if b < 0 or b >= n_bins[p]:
+                continue
+            if n == cap:  # overlapping apertures: more pairs than photons
+                cap *= 2
+                w2 = np.empty(cap, np.int64)
+                b2 = np.empty(cap, np.int64)
+                w2[:n] = who[:n]
+                b2[:n] = where[:n]
+                who, where = w2, b2
+            who[n] = i
+            where[n] = offset[p] + b
+            n += 1
+    return who[:n], where[:n]
+
+
 class ApertureCounter:
     """Per-set flux (unnormalised photon power) in every strip bin, flat (bins, C).
 
@@ -292,6 +327,21 @@ class ApertureCounter:
                      self._h0, self._h1, self._v0, self._bins, self._offset,
                      self.layout.step_deg, self.counts)
         return hit
+
+    def locate(self, h_m: NDArray, v_m: NDArray) -> tuple[NDArray, NDArray]:
+        """Which test-point strip bins wall photons at (h, v) (m) fall in, as
+        :meth:`add` counts them: (photon index, flat bin) pairs, photon by photon (the
+        Imax raster's strips left out)."""
+        n = len(h_m)
+        if n == 0 or self._grid is None or len(self.layout) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        d = self.layout.distance_m
+        hd = np.degrees(np.arctan2(np.asarray(h_m, np.float64), d))
+        vd = np.degrees(np.arctan2(np.asarray(v_m, np.float64), d))
+        start, items, g_h0, g_v0, g_dh, g_dv, g_nh, g_nv = self._grid
+        return _locate_photons(hd, vd, start, items, g_h0, g_v0, g_dh, g_dv, g_nh, g_nv,
+                               self._h0, self._h1, self._v0, self._bins, self._offset,
+                               self.layout.step_deg, len(self.layout))
 
     def active_targets(self) -> list[int]:
         """Targets whose aperture has caught fewer than ``target_photons`` (effective)

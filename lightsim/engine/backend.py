@@ -43,6 +43,9 @@ class Backend(Protocol):
     def apertures(self) -> dict[int, np.ndarray | None]:
         """Per-set detector-aperture counts, in set order."""
 
+    def paths(self) -> dict[int, Any]:
+        """Per-set aperture flux per path signature (``--provenance``), in set order."""
+
     def counters(self) -> dict[int, int]:
         """Frames shot per set (with the seed, all a replay needs)."""
 

@@ -181,6 +181,9 @@ class Client:
     def apertures(self) -> dict[int, np.ndarray | None]:
         return self.photons.apertures()
 
+    def paths(self) -> dict[int, Any]:
+        return self.photons.paths()
+
     def counters(self) -> dict[int, int]:
         return self.photons.counters()
 

@@ -172,6 +172,14 @@ class RunConfig:
     aperture_raster: tuple[float, float, float, float] | None = option(
         None, "(H lo, H hi, V lo, V hi) tiled with apertures for the beam maximum Imax.",
         unit="deg", kind="tuple", internal=_APERTURES)
+    path_length: int = option(
+        0, "Surface events each wall photon's path signature keeps (0: none); the sets "
+        "count every path class's flux in the detector apertures (lightsim.provenance).",
+        low=0, high=64, internal="set by --provenance")
+    path_map: str = option(
+        "", "With path signatures: the sets also bin the wall photons whose path class "
+        "names this text into a wall map (lightsim.provenance.matches); empty: none.",
+        internal="set by --provenance-map")
 
     def __post_init__(self) -> None:
         options.check_fields(self)  # choices and ranges, from the declarations above

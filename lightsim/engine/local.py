@@ -61,6 +61,12 @@ class LocalBackend:
             out.update(c.apertures())
         return dict(sorted(out.items()))
 
+    def paths(self) -> dict[int, Any]:
+        out: dict[int, Any] = {}
+        for c in self.clients:
+            out.update(c.paths())
+        return dict(sorted(out.items()))
+
     def counters(self) -> dict[int, int]:
         out: dict[int, int] = {}
         for c in self.clients:

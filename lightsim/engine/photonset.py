@@ -20,6 +20,7 @@ store               unit         kept when
 ``lattice``         lm           ``bandwidth=ici``: power per half-pixel cell
 ``wall_moments``    lm, lm², –   kNN/radius: ΣΦ, ΣΦ², count of luminous wall photons
 ``apertures``       lm           regulation detector apertures
+``paths``           lm           ``--provenance``: aperture flux per path signature
 ``ledger``          lm           always: bookkeeping, unnormalised
 ==================  ===========  ====================================================
 """
@@ -44,6 +45,13 @@ from lightsim.persource import EmitterGroups, PerSourceSums
 from lightsim.photonmap.common import r_floor
 from lightsim.photonmap.density import PhotonMap
 from lightsim.photonmap.near import NearGrid
+from lightsim.provenance import (
+    ClassMatcher,
+    PathCounter,
+    PathElements,
+    emitter_index,
+    signature_rows,
+)
 from lightsim.render import ici
 from lightsim.render.frame import luminous
 from lightsim.sampling import (
@@ -218,6 +226,8 @@ class SetState:
     aperture_hits: np.ndarray | None = None  # sources of this frame's target-aperture photons
     lattice: np.ndarray | None = None  # (2H·2W, C) power per half-pixel cell (ICI windows)
     wall_moments: np.ndarray | None = None  # ΣΦ (lm), ΣΦ² (lm²), count of wall photons
+    paths: PathCounter | None = None  # aperture flux per path signature (--provenance)
+    path_map: np.ndarray | None = None  # (H·W, C) flux of one path class (--provenance-map)
 
     def __post_init__(self) -> None:
         if self.ledger is None:
@@ -287,7 +297,13 @@ class PhotonSets:
         self.channels = self.plan.channels
         self.tracer = PhotonTracer(scene, max_depth=self.config.max_depth,
                                    record=self.plan.record, threads=self.config.threads,
-                                   caster=caster)
+                                   caster=caster, path_length=self.config.path_length)
+        self._elements = (PathElements.from_scene(scene) if self.config.path_length
+                          else None)
+        self._rows = np.zeros((0, 0), np.int32)  # the frame's path signatures
+        self._match = (ClassMatcher(self._elements, self.config.path_map)
+                       if self._elements is not None and self.config.path_map else None)
+        self._matched = np.zeros(0, bool)  # the frame's records in the mapped class
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
         # --per-source: every emitter group's wall photons per pixel (lightsim.persource)
@@ -339,6 +355,8 @@ class PhotonSets:
                                           pass_photons=self.config.photons_per_set)
         if self.config.apertures:
             st.apertures = counter_from_config(self.config, self.frame, self.channels)
+            if self.config.path_length:
+                st.paths = PathCounter(self.channels)
         if self.config.estimator == "bin":
             W, H = self.frame.resolution
             st.bins = np.zeros((H, W, self.channels))
@@ -402,6 +420,12 @@ class PhotonSets:
                                        by_source=True)
         t2 = time.perf_counter()
         rec = res.records
+        if self._elements is not None and rec.path is not None:
+            el = self._elements
+            self._rows = signature_rows(el, rec.path, rec.events, emitter_index(
+                self.tracer.emitters, points[rec.source], el.emitter_triangles))
+            if self._match is not None:
+                self._matched = self._match(self._rows)
         offsets = np.cumsum([0] + [len(o) for o in owners])
         bounds = np.searchsorted(rec.source, offsets)
         frame_level = self._insert_frame(rec, bounds, offsets)
@@ -511,6 +535,10 @@ class PhotonSets:
                         idx = index[sl]
                         hit = st.apertures.add(h[sl], v[sl], rec.power[idx])
                         st.aperture_hits = rec.source[idx][hit] - offsets[g]
+                        if st.paths is not None:
+                            st.paths.add(self._rows[idx], st.apertures.locate(h[sl], v[sl]),
+                                         rec.power[idx])
+                            self._add_to_path_map(st, h[sl], v[sl], idx, rec.power)
             return out[:3]
 
         # the sets in two halves of about equal records, one half on a second thread:
@@ -577,6 +605,9 @@ class PhotonSets:
         if st.apertures is not None:  # detector apertures count every wall photon directly
             hit = st.apertures.add(h, v, rec.power[idx])
             st.aperture_hits = rec.source[idx][hit] - first
+            if st.paths is not None and len(self._rows):
+                st.paths.add(self._rows[idx], st.apertures.locate(h, v), rec.power[idx])
+                self._add_to_path_map(st, h, v, idx, rec.power)
         if st.bins is not None:
             self._add_to_bins(st, h, v, rec.power[idx].astype(np.float64))
             return
@@ -587,6 +618,23 @@ class PhotonSets:
                 if st.windows is not None:
                     self._add_to_windows(st, h, v, power)
                 self._add_to_lattice(st, h, v, power)
+
+    def _add_to_path_map(self, st: SetState, h: np.ndarray, v: np.ndarray, idx: np.ndarray,
+                         power: np.ndarray) -> None:
+        """Add the wall photons ``idx`` (at h, v in m) of the mapped path class to the
+        set's path map (``--provenance-map``: lm per wall pixel, unnormalised)."""
+        if self._match is None or len(idx) == 0:
+            return
+        on = self._matched[idx]
+        if st.path_map is None:
+            W, H = self.frame.resolution
+            st.path_map = np.zeros((H * W, self.channels))
+        if on.any():
+            W, H = self.frame.resolution
+            row, col = self.frame.pixel_index(h[on], v[on])
+            ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+            add_to_cells(st.path_map, row[ok] * W + col[ok],
+                         power[idx[on]][ok].astype(np.float64))
 
     def _add_to_bins(self, st: SetState, h: np.ndarray, v: np.ndarray,
                      power: np.ndarray) -> None:
@@ -653,6 +701,14 @@ class PhotonSets:
     def apertures(self) -> dict[int, np.ndarray | None]:
         """Per-set detector-aperture counts (:mod:`lightsim.engine.apertures`), or None."""
         return {s: None if st.apertures is None else st.apertures.counts.copy()
+                for s, st in self.sets.items()}
+
+    def paths(self) -> dict[int, dict | None]:
+        """Per-set aperture flux per path signature (:meth:`lightsim.provenance.
+        PathCounter.export`), or None (a run without ``--provenance``)."""
+        return {s: None if st.paths is None else
+                {**st.paths.export(), "map": None if st.path_map is None
+                 else st.path_map.copy()}
                 for s, st in self.sets.items()}
 
     def counters(self) -> dict[int, int]:

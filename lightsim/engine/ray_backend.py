@@ -296,6 +296,9 @@ def _actor_class():
         def per_source(self) -> tuple[np.ndarray, np.ndarray] | None:
             return self.client.per_source()
 
+        def paths(self) -> dict[int, Any]:
+            return self.client.paths()
+
         def counters(self) -> dict[int, int]:
             return self.client.counters()
 
@@ -493,6 +496,12 @@ class RayBackend:
     def apertures(self) -> dict[int, Any]:
         out: dict[int, Any] = {}
         for r in self._call_all(lambda a: a.apertures.remote()):
+            out.update(r)
+        return dict(sorted(out.items()))
+
+    def paths(self) -> dict[int, Any]:
+        out: dict[int, Any] = {}
+        for r in self._call_all(lambda a: a.paths.remote()):
             out.update(r)
         return dict(sorted(out.items()))
 

@@ -432,6 +432,8 @@ class RegulationAnalysis:
     rules: RuleSet = field(init=False, repr=False)
     offset: int = field(default=0, init=False)  # where this set's apertures start
     index: int = field(default=-1, init=False)  # this rule set's place in ``until``
+    last: dict[str, Any] | None = field(default=None, init=False, repr=False,
+                                        compare=False)  # the last table (--provenance)
 
     def __post_init__(self) -> None:
         self.rules = load_ruleset(self.ruleset)
@@ -476,6 +478,7 @@ class RegulationAnalysis:
             reg = regulation_check(run.session, run.lux, self.ruleset, self.traffic,
                                    self.aim, self.confidence, self.offset)
         path = save_probes(out, reg, self.probes_name)
+        self.last = reg  # read by --provenance (the same rows, not evaluated twice)
         summary = public(reg)
         if summary.get("aim", {}).get("applied"):
             summary["aim"]["cutoff_interval_deg"] = run.cutoff.get("v_cutoff_interval_deg")
