@@ -45,8 +45,16 @@ option                  unit   default          meaning
 ``--budgets``           s      0.25,0.5,…,8     time budgets (``--full``: up to 64)
 ``--photons``           –      none             photon budgets instead (e.g. 250k,1M,4M;
                                                 reproducible whatever the machine's load)
-``--estimator``         –      all five         knnM=4, knnM=1, bin, radius, knnM=4SPT
+``--estimator``         –      all              the lines of
+                                                :data:`lightsim.validation.converge.SPECS`
+                                                (``--help`` lists their labels)
 ``--out``               –      converge-out     folder for converge.csv/.json/.png
+                                                (``--stop-study``: stop-study.csv/.json/.png)
+``--stop-study``        –      off              where ``--target-error`` stops instead
+                                                (:mod:`lightsim.validation.stop_study`):
+                                                every analytic case, or SCENE's, many seeds
+``--targets``           –      0.02             target errors of the stop study (fractions)
+``--seeds``             –      20               runs per case and target (stop study)
 ``--frame-photons``     –      50 000           photons per frame (all sets)
 ``--resolution``        px     160x64 (files)   wall pixels
 ``--reference-factor``  –      20               reference length / longest budget
@@ -75,6 +83,7 @@ from lightsim.options import click_option, lookup
 from lightsim.validation import analytic
 from lightsim.validation import converge as cv
 from lightsim.validation import stability as stab
+from lightsim.validation import stop_study as stops
 from lightsim.validation.analytic import TABLE_COLUMNS, SuiteSettings, table_rows
 from lightsim.validation.converge import FULL_BUDGETS, QUICK_BUDGETS
 from lightsim.validation.coverage import (
@@ -293,32 +302,57 @@ def _resolution(text: str | None) -> tuple[int, int] | None:
     return w, h
 
 
+#: the estimator labels ``--estimator`` accepts: the study's own lines (one source)
+ESTIMATOR_LABELS = tuple(s.label.replace(" ", "") for s in cv.SPECS)
+
+
 @click.command()
-@click.argument("scene")
+@click.argument("scene", required=False)
 @click.option("--budgets", help="Time budgets in s, comma-separated (default 0.25 … 8; "
                                 "--full: 0.25 … 64).")
 @click.option("--full", is_flag=True, help="Budgets up to a minute.")
 @click.option("--photons", "photon_budgets",
               help="Photon budgets instead of seconds, comma-separated (250k, 1M, 4e6).")
 @click.option("--estimator", "estimators", multiple=True,
-              help="knnM=4, knnM=1, bin, radius, knnM=4SPT (repeatable; default all).")
+              help=f"{', '.join(ESTIMATOR_LABELS)} (repeatable; default all).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="converge-out",
-              show_default=True, help="Folder for converge.csv/.json/.png.")
+              show_default=True,
+              help="Folder for converge.csv/.json/.png (--stop-study: stop-study.*).")
+@click.option("--stop-study", is_flag=True,
+              help="Where --target-error stops instead: every analytic case (or SCENE's) "
+                   "stopped at each target over many seeds, scored against the exact "
+                   "answer.")
+@click.option("--targets", default="0.02", show_default=True,
+              help="Target errors of the stop study, fractions, comma-separated.")
+@click.option("--seeds", type=int, default=20, show_default=True,
+              help="Runs per case and target of the stop study.")
 @click_option(lookup(RunConfig, "frame_photons"), default=50_000)
 @click.option("--resolution", help="Wall pixels WxH (scene files: default 160x64).")
 @click.option("--reference-factor", type=float, default=20.0, show_default=True,
               help="Reference run length / longest budget (scene files).")
 @click_option(lookup(RunConfig, "seed"))
 @click.option("--quiet", "-q", is_flag=True)
-def converge(scene: str, budgets: str | None, full: bool, photon_budgets: str | None,
-             estimators: tuple[str, ...], out_dir: str, frame_photons: int,
-             resolution: str | None, reference_factor: float, seed: int, quiet: bool) -> None:
+def converge(scene: str | None, budgets: str | None, full: bool, photon_budgets: str | None,
+             estimators: tuple[str, ...], out_dir: str, stop_study: bool, targets: str,
+             seeds: int, frame_photons: int, resolution: str | None,
+             reference_factor: float, seed: int, quiet: bool) -> None:
     """Error against run time for every estimator on SCENE.
 
     SCENE is analytic:NAME (isotropic, paraboloid, slab, slab-absorbing, lambertian:
     compared with the exact answer) or a scene file (compared with a bin reference run
     --reference-factor times longer than the longest budget).
+
+    With --stop-study: where --target-error stops, on every analytic case (or SCENE,
+    analytic:NAME), --seeds runs per target, against the exact answer: photons at the
+    stop, true error / target, and the runs above the target against what the stop's
+    confidence allows.
     """
+    if stop_study:
+        _stop_study(scene, targets, seeds, seed, out_dir, quiet)
+        return
+    if scene is None:
+        raise InputError("converge needs a SCENE (analytic:NAME or a scene file), or "
+                         "--stop-study")
     if frame_photons < 16:
         raise InputError(f"--frame-photons must be at least 16, got {frame_photons}")
     if not (reference_factor >= 1 and math.isfinite(reference_factor)):
@@ -370,6 +404,49 @@ def converge(scene: str, budgets: str | None, full: bool, photon_budgets: str | 
         click.echo(f"reference: bin, {ref['photons']:,} photons in {ref['seconds']:.0f} s, "
                    f"its own estimated error {ref['rel_error']:.2%}"
                    if ref.get("rel_error") is not None else "reference: bin")
+    click.echo(f"wrote {paths['csv']}, {paths['json']}, {paths['png']}")
+
+
+def _targets(text: str) -> list[float]:
+    """'0.02,0.05' → fractions in (0, 1); one clear error otherwise."""
+    try:
+        out = [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise InputError(f"--targets must be fractions like 0.02,0.05, got '{text}'") from None
+    if not out or not all(0 < t < 1 and math.isfinite(t) for t in out):
+        raise InputError(f"--targets must lie in (0, 1), got '{text}'")
+    return out
+
+
+def _stop_study(scene: str | None, targets: str, seeds: int, first_seed: int, out_dir: str,
+                quiet: bool) -> None:
+    """``converge --stop-study``: run, print the per-case table, write the outputs."""
+    cases = None
+    if scene is not None:
+        name = scene.removeprefix("analytic:")
+        if name not in stops.CASES:
+            raise InputError(f"--stop-study runs on the analytic cases ({', '.join(stops.CASES)}),"
+                             f" got '{scene}'")
+        cases = [name]
+    tl = _targets(targets)
+    if seeds < 1:
+        raise InputError(f"--seeds must be at least 1, got {seeds}")
+
+    def progress(line: str) -> None:
+        if not quiet:
+            click.echo(f"  {line}", err=True)
+
+    study = stops.run_study(cases, tl, seeds, first_seed, progress=progress)
+    paths = stops.write_outputs(study, out_dir)
+    summary = study.summary
+    _print_table(f"lightsim converge --stop-study: where --target-error stops (true error "
+                 f"against the exact answer over the figure's region; confidence "
+                 f"{1 - stops.STOP_ALPHA:.0%})", stops.HEADER, [s.row() for s in summary])
+    honest = sum(s.honest for s in summary)
+    band = sum(stops.BAND[0] <= s.median_ratio <= stops.BAND[1] for s in summary)
+    click.echo(f"{honest}/{len(summary)} cases stop above the target no more often than the "
+               f"confidence allows; {band}/{len(summary)} have their median true error in "
+               f"{stops.BAND[0]}–{stops.BAND[1]} × the target")
     click.echo(f"wrote {paths['csv']}, {paths['json']}, {paths['png']}")
 
 

@@ -50,7 +50,7 @@ from lightsim import __version__, options, report
 from lightsim.analysis import Analysis, FinishedRun, StopsRun
 from lightsim.engine.config import RunConfig
 from lightsim.engine.memory import check_fits
-from lightsim.engine.server import Session
+from lightsim.engine.server import STOP_ALPHA, Session
 from lightsim.errors import ClusterError, InputError, LightsimError
 from lightsim.io.atomic import STAGING_PREFIX, OutputSet, clean_stale, unfinished_set
 from lightsim.io.cad import Tessellation
@@ -84,7 +84,8 @@ class SimulateOptions:
     seconds: float | None = option(None, "Stop after this much time.", unit="s",
                                    flag=("--time",), low=0, low_open=True, resume=True)
     target_error: float | None = option(
-        None, "Stop when the estimated relative error over the lit region is at most this.",
+        None, "Stop when the relative error over the lit region is at most this at "
+        f"{1 - STOP_ALPHA:.0%} confidence (the error figure's upper bound).",
         flag=("--target-error",), low=0, high=1, low_open=True, high_open=True, resume=True)
     until: str | None = option(
         None, "decided: stop as soon as every rule of every --regulation rule set is pass "
@@ -611,8 +612,8 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         "rel_noise": None if est.error is None else est.error.noise,
         "rel_bias": None if est.error is None else est.error.bias,
         "rel_bias_upper": None if est.error is None else est.error.bias_upper,
-        # the figure's upper bound, √(noise² + rel_bias_upper²): a target-error stop reads
-        # rel_error and allows this up to UPPER_SLACK × the target (engine/server.py)
+        # the figure's upper bound, √(noise² + rel_bias_upper²) (a target-error stop reads
+        # its own bound at the look's confidence: stop_level in engine/server.py)
         "rel_error_upper": None if est.error is None else est.error.upper,
         "error_text": None if est.error is None else est.error.describe()
         + ("" if cfg.error_region == "lit" else f" over the {cfg.error_region}"),

@@ -32,7 +32,7 @@ interpolated log-log between the first budget that reaches it and the one before
 parameter              unit   default               meaning
 =====================  =====  ====================  =========================================
 ``budgets``            s      0.25 … 8 (×2)         time budgets (``--full``: 0.25 … 64)
-``estimators``         –      see ``SPECS``         knn M=4, knn M=1, bin, radius, knn+SPT
+``estimators``         –      every ``SPECS``       the lines of :data:`SPECS` (their labels)
 ``frame_photons``      –      50 000                photons per frame (all sets): small frames
                                                     resolve short budgets
 ``lit_fraction``       –      0.1                   lit region threshold
@@ -77,6 +77,7 @@ class EstimatorSpec:
     needs_specular: bool = False
 
 
+#: the study's estimators, the one list ``lightsim converge --estimator`` offers
 SPECS: tuple[EstimatorSpec, ...] = (
     EstimatorSpec("knn M=4", {"estimator": "knn", "interleave": 4, "spt": False}),
     EstimatorSpec("knn M=4 rk", {"estimator": "knn", "interleave": 4, "spt": False,

@@ -29,8 +29,9 @@ parameter             unit   default     meaning
                                          this
 ``aim``               –      0.98        a target-error stop is aimed at this × the
                                          target
-``UPPER_SLACK``       –      1.25        a stop allows the figure's upper bound this ×
-                                         the target
+``STOP_ALPHA``        –      0.1         a target-error stop ends above the target at
+                                         most this often (the error budget of its
+                                         looks)
 ``EXPONENT_RANGE``    –      0.35 … 1    the error law's exponent p (e ∝ N^-p) is
                                          clamped to this range
 ``LAW_POINTS``        –      3           estimates the error law is fitted to
@@ -38,13 +39,13 @@ parameter             unit   default     meaning
                                          probe judge every estimate on the written map
 ====================  =====  ==========  =============================================
 
-A target error stops the run on the error *figure* itself (``ErrorEstimate.total``, the
-point estimate √(noise² + blur²), what the run reports), not on its upper bound: the
-figure tracks the true error of the lit pixels closely, the bound sits 10–20 % above it
-and stopped runs that far under the target. The bound still guards the stop: it may
-exceed the target by at most :data:`UPPER_SLACK` (a blur the photons cannot resolve yet
-keeps the run going). :func:`stop_level` is the one number both the rule and the
-schedule read.
+A target error stops the run when the written map's error figure is at most the target
+at confidence 1 − :data:`STOP_ALPHA`: the figure's upper bound √(noise² + blur² + z·se)
+(:func:`stop_level`; se the standard error of the squared-blur estimate, which dominates
+the figure's own uncertainty) at most the target, with z growing with every look at a
+written map so the chances of a wrong stop over all looks sum to at most the budget
+(:class:`MapErrorRule`). The schedule places the looks where the error law predicts the
+bound meets the target (:class:`ErrorSchedule`), so a run takes few of them.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from statistics import NormalDist
 from typing import Any, Protocol
 
 import numpy as np
@@ -99,21 +101,37 @@ __all__ = ["Estimate", "FrameResult", "MapErrorRule", "Session", "StoppingRule"]
 EXPONENT_RANGE = (0.35, 1.0)
 #: estimates the law is fitted to (the last ones of the same figure)
 LAW_POINTS = 3
-#: a target-error stop allows the figure's upper bound (blur + 2 s.e.) this × the target
-UPPER_SLACK = 1.25
+#: a target-error stop is wrong (true error above the target) at most this often: the
+#: error budget α spent over the looks, α·2^-j at look j (Σ = α)
+STOP_ALPHA = 0.1
+#: a frame shot to land a look where the error law places the stop has at least this
+#: share of a whole frame's photons
+MIN_PARTIAL = 0.1
 #: the stop is judged on the written map at every estimate when the wall has at most
 #: this many pixels per grid probe (the map's figure then costs about the probes')
 MAP_CHECK_PIXELS = 4
 
 
-def stop_level(error: ErrorEstimate | None) -> float | None:
-    """What a target-error stop compares with the target (a fraction): the error figure
-    (``total``) or its upper bound over :data:`UPPER_SLACK`, whichever is larger; None
-    without a figure. The run stops when this is ≤ the target: the figure at the target,
-    its bound within ``UPPER_SLACK`` × the target."""
+def look_z(look: int, alpha: float = STOP_ALPHA) -> float:
+    """The one-sided normal quantile of look ``look`` (1, 2, …): its share α·2^-look of
+    the error budget, z = Φ⁻¹(1 − α·2^-look) (1.64, 1.96, 2.24, 2.50, … for α = 0.1)."""
+    if not (0 < alpha < 1) or look < 1:
+        raise ValueError(f"look {look} with budget {alpha}: need look ≥ 1, 0 < α < 1")
+    return -NormalDist().inv_cdf(alpha * 2.0 ** -min(look, 200))  # Φ⁻¹(1 − p) = −Φ⁻¹(p)
+
+
+def stop_level(error: ErrorEstimate | None, z: float = 0.0) -> float | None:
+    """What a target-error stop compares with the target (a fraction): the error figure's
+    upper confidence bound √(noise² + max(blur², 0) + z·se) — blur² the unbiased
+    squared-blur estimate, se its standard error — or the figure itself (``total``) where
+    no blur is measured (binning, one set). A negative blur² estimate is noise (the true
+    one is ≥ 0) and must not eat the margin z·se; ``z`` = 0 gives the figure
+    (``total``). None without a figure."""
     if error is None:
         return None
-    return max(error.total, error.upper / UPPER_SLACK)
+    if error.bias2 is None or error.bias2_se is None:
+        return error.total
+    return math.sqrt(error.noise**2 + max(error.bias2, 0.0) + z * max(error.bias2_se, 0.0))
 
 
 class StoppingRule(Protocol):
@@ -132,29 +150,54 @@ class StoppingRule(Protocol):
         ...
 
 
-@dataclass(frozen=True)
+@dataclass
 class MapErrorRule:
-    """The target-error rule (``--target-error``): :func:`stop_level` of the estimate's
-    error figure — the figure, its upper bound allowed :data:`UPPER_SLACK` × the
-    target — is at most ``target_error`` after at least ``min_frames`` frames.
+    """The target-error rule (``--target-error``): the written map's error figure is at
+    most ``target_error`` at confidence 1 − ``alpha``, after at least ``min_frames``
+    frames.
+
+    A judgement of a written map whose figure (``total``) is at most the target is a
+    *look*; look j tests the upper bound :func:`stop_level` with z = :func:`look_z` (j),
+    one-sided at level α·2^-j. A run stops wrongly — its true error above the target —
+    only if one of its looks does, and those chances sum to at most Σ α·2^-j = α however
+    many looks the run takes and wherever it places them (Bonferroni over the looks):
+    valid under repeated looks. A map whose figure is above the target cannot stop the
+    run at any z, so it is no test and spends nothing. The schedule
+    (:class:`ErrorSchedule`) places the looks where the error law predicts the bound
+    reaches the target, and the run shoots a partial frame to land there
+    (:meth:`Session.frame_photons`), so a run takes one or two looks. The probes' figure
+    proposes a stop at the z of the next look; it spends nothing (only the written map
+    decides).
 
     ================  =====  =======  ================================================
     parameter         unit   default  meaning
     ================  =====  =======  ================================================
     ``target_error``  –      –        relative error (a fraction) the run stops at
     ``min_frames``    –      3        frames before the rule may stop a run
+    ``alpha``         –      0.1      error budget: the share of runs allowed to stop
+                                      above the target (:data:`STOP_ALPHA`)
     ================  =====  =======  ================================================
     """
 
     target_error: float
     min_frames: int = 3
+    alpha: float = STOP_ALPHA
+    looks: int = 0  # written maps judged so far
+
+    def level(self, error: ErrorEstimate | None) -> float | None:
+        """:func:`stop_level` at the z of the next look."""
+        return stop_level(error, look_z(self.looks + 1, self.alpha))
 
     def satisfied(self, est: FrameResult, frames: int) -> bool:
-        """A :class:`StoppingRule`: the figure (:func:`stop_level`) at most the target
-        after ``min_frames`` frames; never without a figure."""
-        if est.error is None:
+        """A :class:`StoppingRule`: the bound (:meth:`level`) at most the target after
+        ``min_frames`` frames; never without a figure. A written map (``est.lux`` set)
+        whose figure is at most the target spends a look."""
+        if est.error is None or frames < self.min_frames:
             return False
-        return frames >= self.min_frames and stop_level(est.error) <= self.target_error
+        ok = self.level(est.error) <= self.target_error
+        if est.lux is not None and est.error.total <= self.target_error:
+            self.looks += 1
+        return ok
 
 
 @dataclass
@@ -164,8 +207,9 @@ class ErrorSchedule:
 
     Without a target error the estimates (the error-vs-time log) are spaced by a factor
     ``growth`` in photons. With one, the next estimate comes where the error law measured
-    so far says the stop's level (:func:`stop_level`: the figure, its upper bound
-    allowed :data:`UPPER_SLACK` × the target) reaches ``aim`` × target: e ∝ N^-p, with
+    so far says the stop's level (``level``: the rule's bound at its next look,
+    :meth:`MapErrorRule.level`; the figure itself, :func:`stop_level`, without a rule)
+    reaches ``aim`` × target: e ∝ N^-p, with
     p fitted to the last estimates of the same figure (clamped to
     :data:`EXPONENT_RANGE`; 0.5, the noise's, with one estimate), at the frame nearest
     to that photon count (``due``), at most ``growth`` × N and at least the next frame.
@@ -185,6 +229,8 @@ class ErrorSchedule:
     ``map_is_cheap``  –      False    the written map's figure costs about the probes'
                                       (:meth:`Session.map_check_is_cheap`)
     ``min_frames``    –      3        frames before the written map is calibrated
+    ``level``         –      None     the stop's level of an error figure (None:
+                                      :func:`stop_level`, the figure)
     ================  =====  =======  ================================================
     """
 
@@ -193,6 +239,7 @@ class ErrorSchedule:
     aim: float = 0.98
     map_is_cheap: bool = False
     min_frames: int = 3
+    level: Callable[[ErrorEstimate | None], float | None] | None = None
     next_photons: float = 0.0
     stop_expected: bool = False
     history: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
@@ -250,8 +297,8 @@ class ErrorSchedule:
         factor = self.growth
         self.stop_expected = False
         if self.target_error is not None and est.error is not None:
-            e = stop_level(est.error)
-            if math.isfinite(e) and e > 0:
+            e = self.stop_level(est.error)
+            if e is not None and math.isfinite(e) and e > 0:
                 self.history.setdefault(kind, []).append((photons, e))
                 level = e * (self.probe_scale if kind == "probes" else 1.0)
                 ratio = (level / (self.aim * self.target_error)) ** (1.0 / self.exponent(kind))
@@ -261,11 +308,15 @@ class ErrorSchedule:
                 factor = 1.0
         self.next_photons = photons * max(1.0, factor)
 
+    def stop_level(self, error: ErrorEstimate | None) -> float | None:
+        """The stop's level of ``error`` (``level``, or :func:`stop_level`)."""
+        return stop_level(error) if self.level is None else self.level(error)
+
     def calibrate(self, probes: FrameResult, written: FrameResult) -> None:
         """The ratio of the written map's figure to the probes' at the same photons
         (kept as ``probe_scale``; 1 when either has no usable figure)."""
         self.calibrated = True
-        a, b = stop_level(probes.error), stop_level(written.error)
+        a, b = self.stop_level(probes.error), self.stop_level(written.error)
         if a and b and math.isfinite(a) and math.isfinite(b) and a > 0:
             self.probe_scale = b / a
 
@@ -629,9 +680,9 @@ class Session:
         last frame is partial, except with Selective Photon Tracing, whose passes are whole),
         ``seconds`` elapsed, or the stopping ``rule`` satisfied — by default, with a
         ``target_error``, :class:`MapErrorRule`: the estimated relative error ≤ the
-        target (the figure itself, with its upper bound at most :data:`UPPER_SLACK` × the
-        target, after at least ``min_frames`` frames; :func:`stop_level`), first at the
-        probes and then confirmed on the written map itself. With no budget at all, one
+        target at its confidence (the figure's upper bound at the look's z, after at
+        least ``min_frames`` frames; :func:`stop_level`), first at the probes and then
+        confirmed on the written map itself. With no budget at all, one
         frame is shot. Before every frame after the first the kept photons are measured
         against the memory (:meth:`memory_full`): a run that would outgrow it stops there
         with its final image, and :attr:`memory_stop` says so (None otherwise).
@@ -658,7 +709,8 @@ class Session:
             rule = MapErrorRule(target_error, min_frames)
         self.start_clock()
         schedule = ErrorSchedule(target_error, map_is_cheap=self.map_check_is_cheap(),
-                                 min_frames=min_frames)
+                                 min_frames=min_frames,
+                                 level=getattr(rule, "level", None))
         self.memory_stop = None
         budget = self.photon_budget()
         stop: FrameResult | None = None  # the written map the stopping rule accepted
@@ -667,7 +719,7 @@ class Session:
                    or self.budget_spent(photons, seconds, should_stop)
                    or self.memory_full(budget)):  # memory_stop says so
             t0 = time.perf_counter()
-            self.shoot(self.frame_photons(photons))  # shoot → insert
+            self.shoot(self.frame_photons(photons, schedule))  # shoot → insert
             timings = {"shoot": time.perf_counter() - t0}
             last_frame = self.budget_spent(photons, seconds)
             if not last_frame:  # estimate → error → stopping rule
@@ -763,13 +815,25 @@ class Session:
             return True
         return should_stop is not None and should_stop()
 
-    def frame_photons(self, photons: int | None) -> int | None:
+    def frame_photons(self, photons: int | None,
+                      schedule: ErrorSchedule | None = None) -> int | None:
         """Photons (over all sets) of the next frame: None for a whole frame; the rest of
-        a ``photons`` budget when it is smaller (an SPT pass is always whole)."""
-        if photons is None or self.plan.spt:
+        a ``photons`` budget when it is smaller; with a ``schedule`` that places a stop
+        (``stop_expected``) inside the next frame, the photons up to it, at least
+        :data:`MIN_PARTIAL` of a frame (the look lands where the error law puts the
+        target, not up to a frame beyond it). An SPT pass is always whole."""
+        if self.plan.spt:
             return None
-        rest = photons - self.photons_emitted()
-        return rest if rest < self.config.photons_per_set * self.config.n_sets else None
+        whole = self.config.photons_per_set * self.config.n_sets
+        done = self.photons_emitted()
+        n = whole
+        if photons is not None:
+            n = min(n, photons - done)
+        if schedule is not None and schedule.stop_expected and self.frames > 0:
+            to_stop = math.ceil(schedule.next_photons - done)
+            if 0 < to_stop < n:
+                n = max(to_stop, math.ceil(MIN_PARTIAL * whole))
+        return n if n < whole else None
 
     def progress(self, timings: dict[str, float] | None = None) -> FrameResult:
         """A frame that estimated nothing: photons and time now, the error of the last

@@ -134,13 +134,18 @@ class ErrorEstimate:
     ``total`` = √(noise² + bias²); ``bias`` is None where it is not measured (binning,
     whose pixel means carry no blur, or a single set). ``bias_upper``: the bias estimate
     plus two of its standard errors (in the square) — with few photons per pixel window
-    the blur cannot be resolved below it, which a bias of 0 would hide.
+    the blur cannot be resolved below it, which a bias of 0 would hide. ``bias2`` and
+    ``bias2_se``: the unbiased estimate of the squared blur (may be negative) and its
+    standard error, relative² (None where no blur is measured); the target-error stop
+    reads them (:func:`lightsim.engine.server.stop_level`).
     """
 
     total: float
     noise: float
     bias: float | None
     bias_upper: float | None = None
+    bias2: float | None = None
+    bias2_se: float | None = None
 
     @property
     def upper(self) -> float:
@@ -200,7 +205,7 @@ def probe_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1,
     noise = math.sqrt(float(np.mean(se[lit] ** 2))) / mean_lit
     if not math.isfinite(noise):
         return None
-    bias = upper = None
+    bias = upper = b2_rel = se_rel = None
     if windows is not None:
         d_mean, d_se = _mean_over_sets(y - windows)
         terms = d_mean[lit] ** 2 - d_se[lit] ** 2  # each an unbiased estimate of b²
@@ -208,10 +213,11 @@ def probe_error(stats: ProbeStats, grid_count: int, lit_fraction: float = 0.1,
         se_b2 = float(np.std(terms, ddof=1) / math.sqrt(terms.size)) if terms.size > 1 else 0.0
         bias = math.sqrt(max(b2, 0.0)) / mean_lit
         upper = math.sqrt(max(b2 + 2.0 * se_b2, 0.0)) / mean_lit
-        if not (math.isfinite(bias) and math.isfinite(upper)):
-            bias = upper = None
+        b2_rel, se_rel = b2 / mean_lit**2, se_b2 / mean_lit**2
+        if not all(math.isfinite(x) for x in (bias, upper, b2_rel, se_rel)):
+            bias = upper = b2_rel = se_rel = None
     total = math.hypot(noise, bias or 0.0)
-    return ErrorEstimate(total, noise, bias, upper)
+    return ErrorEstimate(total, noise, bias, upper, b2_rel, se_rel)
 
 
 def probe_grid(h_range: tuple[float, float], v_range: tuple[float, float],

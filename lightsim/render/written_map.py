@@ -160,8 +160,8 @@ class _MixParts:
             return None
         bias = math.sqrt(max(b2, 0.0))
         upper = math.sqrt(max(b2 + 2.0 * se, 0.0))
-        return ErrorFigure(ErrorEstimate(math.hypot(noise, bias), noise, bias, upper), b2, se,
-                           self.lit)
+        return ErrorFigure(ErrorEstimate(math.hypot(noise, bias), noise, bias, upper, b2, se),
+                           b2, se, self.lit)
 
 
 def _rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:

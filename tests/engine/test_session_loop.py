@@ -3,6 +3,10 @@ final image) and its pipeline speed-ups: each must leave the written map bit-ide
 
 from __future__ import annotations
 
+import itertools
+import math
+from statistics import NormalDist
+
 import numpy as np
 import pytest
 
@@ -14,11 +18,12 @@ from lightsim.engine.ray_backend import RayBackend
 from lightsim.engine.results import FrameResult
 from lightsim.engine.server import (
     EXPONENT_RANGE,
-    UPPER_SLACK,
+    STOP_ALPHA,
     ErrorSchedule,
     MapErrorRule,
     Session,
     StoppingRule,
+    look_z,
     stop_level,
 )
 from lightsim.photonmap.density import PhotonMap
@@ -253,21 +258,51 @@ def test_target_error_stops_at_the_first_estimate_below_it(point):
     # no stop was proposed before the minimum frames
     assert all(e.photons >= 3 * 8_000 for e in estimated if stop_level(e.error) <= 0.08)
     assert len(estimated) < s.frames  # not every frame paid for an estimate
-    # the stop reads the figure itself, so it lands on the target (within 10 % under
-    # it), not where the figure's upper bound first passes it
-    assert 0.9 * 0.08 <= final.error.total <= 0.08 < final.error.upper
+    # the stop reads the figure's upper bound at the look's z: the figure is below the
+    # target, the bound at the first look's z within it
+    assert final.error.total <= 0.08
+    assert stop_level(final.error, look_z(1)) <= 0.08 or \
+        stop_level(final.error, look_z(2)) <= 0.08
     assert final.rel_error == final.error.total
 
 
-def test_the_stop_reads_the_figure_and_bounds_its_upper_bound():
-    """stop_level: the figure (total) unless its upper bound exceeds UPPER_SLACK × the
-    level, so a blur the photons cannot resolve yet keeps a run going."""
+def test_the_stop_level_is_the_figures_upper_bound_at_the_looks_z():
+    """stop_level: √(noise² + max(blur², 0) + z·se); the figure itself at z = 0 and
+    without a blur estimate; a negative blur² estimate does not eat the margin."""
     assert stop_level(None) is None
-    resolved = ErrorEstimate(0.019, 0.015, 0.0117, 0.0150)  # upper 2.1 %: figure decides
-    assert stop_level(resolved) == pytest.approx(0.019)
-    unresolved = ErrorEstimate(0.016, 0.015, 0.005, 0.030)  # upper 3.35 %: bound decides
-    assert stop_level(unresolved) == pytest.approx(unresolved.upper / UPPER_SLACK)
-    assert stop_level(unresolved) > 0.02 > stop_level(resolved)
+    e = ErrorEstimate(0.019, 0.015, 0.0117, 0.0150, bias2=0.0117**2, bias2_se=4e-5)
+    assert stop_level(e) == pytest.approx(math.hypot(0.015, 0.0117))
+    assert stop_level(e, 2.0) == pytest.approx(math.sqrt(0.015**2 + 0.0117**2 + 8e-5))
+    neg = ErrorEstimate(0.015, 0.015, 0.0, 0.0, bias2=-3e-4, bias2_se=5e-5)
+    assert stop_level(neg, 1.5) == pytest.approx(math.sqrt(0.015**2 + 7.5e-5))
+    assert stop_level(ErrorEstimate(0.03, 0.03, None)) == 0.03  # binning: the figure
+
+
+def test_the_looks_spend_the_error_budget_by_halves():
+    """look j tests at α·2^-j one-sided: Σ over any number of looks stays ≤ α."""
+    zs = [look_z(j) for j in range(1, 8)]
+    assert zs[0] == pytest.approx(NormalDist().inv_cdf(1 - STOP_ALPHA / 2))
+    assert all(a < b for a, b in itertools.pairwise(zs))
+    spent = sum(1 - NormalDist().cdf(z) for z in [look_z(j) for j in range(1, 201)])
+    assert spent <= STOP_ALPHA + 1e-12
+    with pytest.raises(ValueError):
+        look_z(0)
+
+
+def test_the_rule_spends_a_look_only_on_a_written_map_at_or_below_the_target():
+    rule = MapErrorRule(0.02, min_frames=1)
+    err = ErrorEstimate(0.018, 0.015, 0.01, 0.012, bias2=1e-4, bias2_se=2e-5)
+    probes = FrameResult(None, None, None, 0.018, 0, 0.0, error=err)
+    written = FrameResult(np.zeros((2, 2, 1)), None, None, 0.018, 0, 0.0, error=err)
+    high = FrameResult(np.zeros((2, 2, 1)), None, None, 0.03, 0, 0.0,
+                       error=ErrorEstimate(0.03, 0.03, 0.0, 0.0, 0.0, 1e-5))
+    assert rule.level(err) == pytest.approx(stop_level(err, look_z(1)))
+    rule.satisfied(probes, 5)
+    rule.satisfied(high, 5)
+    assert rule.looks == 0  # the probes propose, a figure above the target is no test
+    ok = rule.satisfied(written, 5)
+    assert rule.looks == 1 and ok == (stop_level(err, look_z(1)) <= 0.02)
+    assert rule.level(err) == pytest.approx(stop_level(err, look_z(2)))
 
 
 def test_final_map_without_probes_is_the_ici_map(point):
