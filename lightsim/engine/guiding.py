@@ -61,7 +61,6 @@ name                unit   default   meaning
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -213,15 +212,24 @@ def cell_of(points: NDArray, shape: tuple[int, int, int]) -> NDArray:
     return (k * n0 + r) * n1 + c
 
 
-@dataclass
-class _TargetStats:
-    """What one set has learned about one target: per-cell luminous power (lm,
-    unnormalised) of its photons that landed in the rectangle and in the window, and
-    Σw, Σw², count of the rectangle's photons."""
-
-    own: NDArray
-    window: NDArray
-    moments: NDArray = field(default_factory=lambda: np.zeros(3))
+@njit(cache=True, nogil=True)
+def _learn(cells, hd, vd, lum, rects, half_window, own, window, moments):
+    """Add photons (cells, wall angles in deg, luminous power) to every target whose
+    window (its rectangle widened to ``half_window`` either side of its centre) or
+    rectangle (H₀ ≤ H < H₁, V₀ ≤ V < V₁) holds them."""
+    for t in range(rects.shape[0]):
+        h0, h1, v0, v1 = rects[t, 0], rects[t, 1], rects[t, 2], rects[t, 3]
+        hc, vc = 0.5 * (h0 + h1), 0.5 * (v0 + v1)
+        wh = max(half_window, 0.5 * (h1 - h0))
+        wv = max(half_window, 0.5 * (v1 - v0))
+        for i in range(cells.shape[0]):
+            if abs(hd[i] - hc) < wh and abs(vd[i] - vc) < wv:
+                window[t, cells[i]] += lum[i]
+                if h0 <= hd[i] < h1 and v0 <= vd[i] < v1:
+                    own[t, cells[i]] += lum[i]
+                    moments[t, 0] += lum[i]
+                    moments[t, 1] += lum[i] * lum[i]
+                    moments[t, 2] += 1.0
 
 
 class EmissionGuide:
@@ -241,6 +249,11 @@ class EmissionGuide:
         Side of the learning window around each target (deg).
     distance_m : float
         Wall distance D (m): wall positions to degrees.
+
+    Per target (rows in the order of :meth:`set_targets`): ``own`` and ``window``
+    (K, n_cells) luminous power (lm, unnormalised) of the set's photons that landed in
+    the rectangle and in the window, by emission cell; ``moments`` (K, 3) Σw, Σw²,
+    count of the rectangle's photons.
     """
 
     def __init__(self, shape: tuple[int, int, int], share: float, goal: float, n_sets: int,
@@ -253,47 +266,54 @@ class EmissionGuide:
         self.goal_per_set = float(goal) / max(1, int(n_sets))
         self.window_deg = float(window_deg)
         self.distance_m = float(distance_m)
-        self.stats: dict[tuple[float, float, float, float], _TargetStats] = {}
         self.targets = np.zeros((0, 5))
+        self.own = np.zeros((0, self.n_cells))
+        self.window = np.zeros((0, self.n_cells))
+        self.moments = np.zeros((0, 3))
+        self._learned: dict[tuple[float, ...], tuple[NDArray, NDArray, NDArray]] = {}
 
     # -- targets -------------------------------------------------------------------------
     def set_targets(self, targets: NDArray) -> None:
         """Use ``targets`` (K, 5): H₀, H₁, V₀, V₁ (deg), importance. What was learned about
         a rectangle already known is kept."""
-        self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 5)
-        for t in self.targets:
-            key = tuple(float(x) for x in t[:4])
-            if key not in self.stats:
-                self.stats[key] = _TargetStats(np.zeros(self.n_cells), np.zeros(self.n_cells))
+        targets = np.asarray(targets, dtype=np.float64).reshape(-1, 5)
+        if np.array_equal(targets, self.targets):
+            return
+        for i, t in enumerate(self.targets):  # keep what the old targets learned
+            self._learned[tuple(t[:4].tolist())] = (self.own[i], self.window[i],
+                                                    self.moments[i])
+        K = len(targets)
+        self.own, self.window = np.zeros((K, self.n_cells)), np.zeros((K, self.n_cells))
+        self.moments = np.zeros((K, 3))
+        for i, t in enumerate(targets):
+            old = self._learned.get(tuple(t[:4].tolist()))
+            if old is not None:
+                self.own[i], self.window[i], self.moments[i] = old
+        self.targets = targets
 
     def open_targets(self) -> NDArray:
         """Boolean (K,): targets that still draw guided photons (importance > 0 and fewer
         effective photons in the set than the goal)."""
-        out = np.zeros(len(self.targets), np.bool_)
-        for i, t in enumerate(self.targets):
-            m = self.stats[tuple(float(x) for x in t[:4])].moments
-            n_eff = m[0] * m[0] / m[1] if m[1] > 0 else 0.0
-            out[i] = t[4] > 0 and n_eff < self.goal_per_set
-        return out
+        m = self.moments
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n_eff = np.where(m[:, 1] > 0, m[:, 0] ** 2 / m[:, 1], 0.0)
+        return (self.targets[:, 4] > 0) & (n_eff < self.goal_per_set)
 
     # -- the density ---------------------------------------------------------------------
     def density(self) -> NDArray | None:
         """The mixture's cell probabilities (n_cells,), summing to 1, or None when nothing
         is learned for any open target (then the set samples uniformly)."""
-        g = np.zeros(self.n_cells)
-        total_imp = 0.0
-        for t, is_open in zip(self.targets, self.open_targets(), strict=True):
-            if not is_open:
-                continue
-            st = self.stats[tuple(float(x) for x in t[:4])]
-            h = st.own if st.moments[2] >= MIN_LEARNED else st.window
-            s = float(h.sum())
-            if s > 0:
-                g += t[4] * h / s
-                total_imp += t[4]
-        if total_imp <= 0:
+        is_open = self.open_targets()
+        if not is_open.any():
             return None
-        return (1.0 - self.share) / self.n_cells + self.share * g / total_imp
+        h = np.where((self.moments[:, 2] >= MIN_LEARNED)[:, None], self.own, self.window)
+        h = h[is_open]
+        s = h.sum(axis=1)
+        imp = np.where(s > 0, self.targets[is_open, 4], 0.0)
+        if not imp.sum() > 0:
+            return None
+        g = (imp / np.where(s > 0, s, 1.0)) @ h
+        return (1.0 - self.share) / self.n_cells + self.share * g / imp.sum()
 
     def warp(self, points: NDArray) -> tuple[NDArray, NDArray, NDArray]:
         """(guided points, weights 1/p, cells) for sample points (n, 5); without a learned
@@ -312,22 +332,9 @@ class EmissionGuide:
             return
         hd = np.degrees(np.arctan2(np.asarray(h_m, np.float64), self.distance_m))
         vd = np.degrees(np.arctan2(np.asarray(v_m, np.float64), self.distance_m))
-        lum = np.asarray(lum, np.float64)
-        w = 0.5 * self.window_deg
-        for t in self.targets:
-            st = self.stats[tuple(float(x) for x in t[:4])]
-            h0, h1, v0, v1 = t[:4]
-            hc, vc = 0.5 * (h0 + h1), 0.5 * (v0 + v1)
-            wh, wv = max(w, 0.5 * (h1 - h0)), max(w, 0.5 * (v1 - v0))
-            near = (np.abs(hd - hc) < wh) & (np.abs(vd - vc) < wv)
-            if not near.any():
-                continue
-            st.window += np.bincount(cells[near], weights=lum[near], minlength=self.n_cells)
-            inside = near & (hd >= h0) & (hd < h1) & (vd >= v0) & (vd < v1)
-            if inside.any():
-                li = lum[inside]
-                st.own += np.bincount(cells[inside], weights=li, minlength=self.n_cells)
-                st.moments += (float(li.sum()), float((li * li).sum()), float(len(li)))
+        _learn(np.ascontiguousarray(cells, np.int64), hd, vd,
+               np.ascontiguousarray(lum, np.float64), np.ascontiguousarray(self.targets[:, :4]),
+               0.5 * self.window_deg, self.own, self.window, self.moments)
 
 
 def warp_points(points: NDArray, p: NDArray, shape: tuple[int, int, int]
