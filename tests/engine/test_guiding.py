@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support import write_point_lamp
 
 from lightsim.engine.apertures import intensities, layout_from_config
 from lightsim.engine.config import RunConfig
@@ -22,6 +21,8 @@ from lightsim.engine.guiding import (
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.scene import SceneSettings, load_scene
+
+from support import write_point_lamp
 
 
 def _density(shape, rng, spread=3.0):
