@@ -22,6 +22,7 @@ BENCHMARKS: dict[str, str] = {
     "view": "bench_view:command",
     "peer": "bench_peer:command",
     "pipeline": "bench_pipeline:command",
+    "road": "bench_road:command",
 }
 
 

@@ -163,6 +163,8 @@ def _report_aim(console, result) -> None:
     aim = result.aim
     if aim is None:
         return
+    if aim.markers is not None and (aim.judgeable or aim.refused):
+        console.print(aim.markers["text"])
     if not aim.judgeable:
         console.print(f"[bold]AIM: {aim.statement}[/bold]")
     else:

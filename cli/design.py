@@ -137,7 +137,8 @@ def _restarts(settings: DesignSettings, start: DesignStart, out_glb: str, say: _
                 f"{res[0]}x{res[1]}, seeds {', '.join(map(str, seeds))})")
             chk = check_lamp(glb, settings.regulation, photons=settings.restart_photons,
                              resolution=res, seeds=seeds, traffic=settings.traffic,
-                             aim=settings.aim_photons == 0, note=say)
+                             aim=settings.aim_photons == 0, note=say,
+                             until=settings.until)
             say(f"restart {k + 1}/{n}: {len(chk.not_passing)} of {chk.rows} rows not "
                 f"passing, smallest margin {chk.min_margin:+.3f}")
             outs.append(out)
@@ -200,7 +201,7 @@ def _check_runs(settings: DesignSettings, out_glb: str) -> None:
         opts = SimulateOptions(out_glb, out_dir=str(Path(settings.check_dir) / rs.strip()),
                                photons=settings.check_photons, regulation=rs.strip(),
                                traffic=settings.traffic, aim=settings.aim_photons == 0,
-                               config={"seed": settings.seed + 2000})
+                               config={"seed": settings.seed + 2000}, until=settings.until)
         sim = run_simulation(opts, analyses=for_options(opts))
         Console(width=120).print(format_regulation(sim.summary["regulation"]))
 

@@ -1,6 +1,7 @@
 """``lightsim fuzz N``: run the input-fuzzing study (:mod:`lightsim.validation.fuzz`).
 
-Prints one line per failing case and a table of verdicts by input kind; exits with code 1
+Prints one line per failing case and a table of verdicts by input kind (cases, ran =
+clean exit 0, rejected = clean exit 2, then each broken-promise class); exits with code 1
 if any case broke the input-error promise (2 for bad options, as every command).
 """
 
@@ -16,8 +17,8 @@ from lightsim.validation.fuzz import KINDS, run_fuzz
 @click.command()
 @click.argument("n", type=click.IntRange(min=1))
 @click.option("--seed", type=int, default=1, show_default=True, help="Corpus seed.")
-@click.option("--kind", "kinds", multiple=True, type=click.Choice(["glb", "ies", "ldt", "photo"]),
-              help="Input kinds (repeatable; default all four, taken in turn).")
+@click.option("--kind", "kinds", multiple=True, type=click.Choice(list(KINDS)),
+              help="Input kinds (repeatable; default all, taken in turn).")
 @click.option("--photons", type=click.IntRange(min=1), default=20_000, show_default=True,
               help="Photons per simulated case.")
 @click.option("--resolution", default="64x32", show_default=True, help="Wall pixels WxH.")
@@ -32,7 +33,11 @@ from lightsim.validation.fuzz import KINDS, run_fuzz
 def fuzz(n: int, seed: int, kinds: tuple[str, ...], photons: int, resolution: str,
          timeout_s: float, headlight: bool, keep_dir: str | None, json_path: str | None,
          verbose: bool) -> None:
-    """Run N mutated GLB/glTF, IES, LDT and photo inputs through the command line."""
+    """Run N mutated inputs of every kind lightsim reads through the command line.
+
+    Kinds: GLB/glTF, IES, LDT, photos, STEP, IGES, material maps (TOML), TM-25 and Zemax
+    ray files, --points strings, the view's state.json and its WebSocket messages.
+    """
 
     def show(r) -> None:
         if verbose or not r.ok:

@@ -31,6 +31,8 @@ COMMANDS: dict[str, str] = {
     "validate": "validate:validate",
     "converge": "validate:converge",
     "report": "report:report",
+    "road": "road:road",
+    "check": "check:check",
     "photo": "photo:photo",
     "view": "view:view",
     "screen-target": "screen_target:screen_target",

@@ -36,8 +36,9 @@ def _numbers(text: str | None, n: int, name: str, kind: type = float) -> tuple |
                                                                         dir_okay=False))
 @click.option("--rotate", type=float, default=0.0, show_default=True,
               help="Camera roll: the pattern turns counter-clockwise by DEG.")
-@click.option("--scale", type=float, default=1.0, show_default=True,
-              help="Magnification, photo px per simulation px.")
+@click.option("--scale", type=float, default=None,
+              help="Magnification, photo px per simulation px  [default: 1; with --markers "
+                   "the least at which the markers are found, and --size the whole wall].")
 @click.option("--shift", default="0,0", show_default=True, metavar="DX,DY",
               help="Pattern moved right/down by DX,DY photo px.")
 @click.option("--tilt", type=float, default=0.0, show_default=True,
@@ -84,7 +85,7 @@ def photo(sim_path: Path, out: Path, markers: bool, wall_texture: int | None, am
                f"{truth['translation_px'][1]:.2f}) px")
 
 
-def _camera(rotate: float, scale: float, shift: str, tilt: float, size: str | None,
+def _camera(rotate: float, scale: float | None, shift: str, tilt: float, size: str | None,
             blur: float, noise: float, vignetting: float, gamma: float | None,
             exposure: float, saturate: float | None, bits: str, seed: int) -> CameraSettings:
     """The camera of the command's options."""

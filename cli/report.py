@@ -24,7 +24,8 @@ from lightsim.luminaires.regulations import check
               help="Two-sided level of the intervals.")
 @click.option("--mount-height", type=float, default=0.65, show_default=True,
               help="Lamp height above the road for the road view (m).")
-@click.option("--log", "log_scale", is_flag=True, help="Logarithmic colour scale in the PNG.")
+@click.option("--log/--linear", "log_scale", default=True, show_default=True,
+              help="Colour scale of wall_lux.png: logarithmic or linear.")
 @click.option("--list-rulesets", is_flag=True, help="List the available rule sets and exit.")
 def report(result_dir: str | None, regulation: str | None, confidence: float,
            mount_height: float, log_scale: bool, list_rulesets: bool) -> None:
@@ -58,14 +59,13 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     # the plot process (started with the command) draws what it takes while
     # the regulation tables are re-checked here (lightsim/io/plot_worker.py)
     plots = plot_worker.start()
-    drawn = [plots.draw("lux_png", out / "wall_lux.png", lux, wall, log=log_scale,
-                        title=f"{Path(summary.get('scene', {}).get('source', '')).name}: "
-                              f"{summary.get('photons', 0):,} photons"),
-             plots.draw("error_vs_time", out / "error_vs_time.png",
-                        summary.get("error_vs_time", []))]
+    caption = rp.plot_caption(summary)
+    drawn = [plots.draw("error_vs_time", out / "error_vs_time.png",
+                        summary.get("error_vs_time", []),
+                        caption=None if caption is None else caption.text())]
     try:
         written = _tables_and_plots(out, summary, lux, wall, regulation, confidence,
-                                    mount_height, plots, console)
+                                    mount_height, plots, console, log_scale)
         for p in drawn:
             p.result()
     except BaseException:
@@ -73,13 +73,14 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
         raise
     finally:
         plots.close()
-    written = [out / "wall_lux.png", out / "error_vs_time.png", *written]
+    written = [*written, out / "error_vs_time.png"]
     click.echo(summary["road"]["text"])
     click.echo("wrote " + ", ".join(str(p) for p in written))
 
 
 def _tables_and_plots(out: Path, summary: dict, lux, wall, regulation: str | None,
-                      confidence: float, mount_height: float, plots, console) -> list[Path]:
+                      confidence: float, mount_height: float, plots, console,
+                      log_scale: bool = True) -> list[Path]:
     """Re-check every rule set of the run, then the iso-lux and road plots; summary.json
     rewritten with both."""
     results = None
@@ -95,6 +96,7 @@ def _tables_and_plots(out: Path, summary: dict, lux, wall, regulation: str | Non
     if names:
         write_json(out / "summary.json", summary)
     written = rp.engineering_plots(out, lux, wall, results, mount_height, summary=summary,
-                                   plots=plots)
+                                   plots=plots, which=("wall_lux", "isolux", "road"),
+                                   log=log_scale)
     write_json(out / "summary.json", summary)  # noise floor and road reach
     return written

@@ -13,12 +13,14 @@ from click.core import ParameterSource
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from lightsim.analysis import StopsRun
 from lightsim.engine.config import RunConfig
 from lightsim.errors import InputError
 from lightsim.io import plot_worker
 from lightsim.luminaires.analyses import for_options
 from lightsim.luminaires.regulations.check import format_regulation, regulation_tables
 from lightsim.options import click_options
+from lightsim.road_evaluation import reach_lines
 from lightsim.simulate import SimulateOptions, read_checkpoint, run_simulation
 
 
@@ -26,8 +28,9 @@ class _Progress:
     """Progress line: photons, photons/s, frames/s, estimated error, ETA."""
 
     def __init__(self, quiet: bool, photons: int | None, seconds: float | None,
-                 target: float | None) -> None:
+                 target: float | None, status: Any = None) -> None:
         self.quiet = quiet
+        self.status = status  # () → str: the stopping rule's line (--until decided)
         self.photons, self.seconds, self.target = photons, seconds, target
         self.progress = None
         self.task = None
@@ -68,7 +71,26 @@ class _Progress:
         eta_s = f"{eta:.0f} s" if math.isfinite(eta) else "?"
         info = (f"{est.photons:,} photons  {rate / 1e3:,.0f} k/s  "
                 f"{self.frames / dt:.2f} frames/s  error {err}  ETA {eta_s}")
+        if self.status is not None:
+            info += f"  {self.status()}"
         self.progress.update(self.task, completed=frac, info=info)
+
+
+def until_text(until: dict[str, Any]) -> str:
+    """``--until decided``: what stopped the run and what is still open."""
+    looks = until.get("looks") or []
+    head = (f"until decided: {len(looks)} looks of {until.get('looks_planned')} planned "
+            f"(each at {until.get('look_level', 0):.2%}, so that every verdict holds at "
+            f"{until.get('confidence', 0.95):.0%} over all looks)")
+    if until.get("decided"):
+        return f"{head}; every verdict decided at {until.get('photons', 0):,} photons"
+    cap = {"photons": "the photon cap", "time": "the time cap",
+           "memory": "the memory"}.get(str(until.get("stopped_by")), "a cap")
+    opened = [f"{o['ruleset']} {o['name']}" for o in until.get("undecided", [])]
+    notes = "; ".join(f"{k}: {v}" for k, v in (until.get("notes") or {}).items())
+    return (f"{head}; stopped by {cap} at {until.get('photons', 0):,} photons with "
+            f"{len(opened)} rules undecided: {', '.join(opened) or '-'}"
+            + (f" ({notes})" if notes else ""))
 
 
 @click.command()
@@ -122,7 +144,9 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
     # loads and the run goes on (lightsim/io/plot_worker.py)
     plots = plot_worker.start(any(n in opts.outputs for n in plot_worker.PLOT_OUTPUTS))
     try:
-        with _Progress(quiet, opts.photons, opts.seconds, opts.target_error) as prog:
+        status = next((a.stop_progress for a in analyses if isinstance(a, StopsRun)), None)
+        with _Progress(quiet, opts.photons, opts.seconds, opts.target_error,
+                       status if opts.until else None) as prog:
             result = run_simulation(opts, progress=prog, should_stop=lambda: stop["signal"]
                                     is not None, on_plan=on_plan, resume=resume,
                                     analyses=analyses, plots=plots)
@@ -153,13 +177,24 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
         click.echo(f"energy (lm): emitted {e['emitted']:.6g} = wall {e['wall']:.6g} + "
                    f"absorbed {absorbed:.6g} + escaped {e['escaped']:.6g} + "
                    f"roulette {e['roulette']:.3g} + max depth {e['max_depth']:.3g}")
+        if "cluster" in s:  # where a Ray run's actors ran
+            c = s["cluster"]
+            click.echo(f"Ray ({c['address']}): {c['actors']} actors on {c['nodes']} node(s), "
+                       f"{c['cpus']} CPUs; {c['restarts']} replaced after a lost process "
+                       "or node")
         if "road" in s:
             click.echo(f"road view (lamp {s['road']['mount_height_m']:g} m high): "
                        f"{s['road']['text']}")
+        if "road_evaluation" in s:
+            click.echo("road evaluation (m; [95 % interval]):")
+            for line in reach_lines(s["road_evaluation"]):
+                click.echo("  " + line)
         if any(k == "regulation" or k.startswith("regulation:") for k in s):
             console = Console(width=None if sys.stdout.isatty() else 160)
             for table in regulation_tables(s):
                 console.print(format_regulation(table))
+        if "until" in s:
+            click.echo(until_text(s["until"]))
         order = ("wall_lux.exr", "wall_lux.png", "isolux.png", "road.png",
                  "error_vs_time.png", "summary.json", "probes.npz")
         wrote = sorted(s.get("outputs", []), key=lambda n: (order.index(n) if n in order

@@ -81,7 +81,9 @@ def _centre(text: str | None) -> tuple[float, float, float]:
               help="Latin-hypercube samples over the tolerance box (plus the nominal).")
 @click.option("--photons", "-n", type=int, default=1_000_000, show_default=True,
               help="Photons per sample (the same photons for every sample; the 0.15° "
-                   "apertures need ≥ 1 M for verdicts that are not 'uncertain').")
+                   "apertures need ≥ 1 M for verdicts that are not 'uncertain'); with "
+                   "--until decided, the most a sample may take.")
+@click_option(lookup(SimulateOptions, "until"))  # each sample stops when decided
 @click_option(lookup(RunConfig, "seed"))  # common to all samples
 @click.option("--design-seed", type=int, default=1, show_default=True,
               help="Seed of the Latin-hypercube design.")
@@ -123,7 +125,7 @@ def tolerance(scene_file: str, regulation: str, photons: int, out_dir: str, quie
                            config={"seed": values["seed"],
                                    "frame_photons": values["frame_photons"]},
                            regulation=regulation, traffic=values["traffic"], aim=values["aim"],
-                           aperture=values["aperture"])
+                           aperture=values["aperture"], until=values["until"])
     opts.run_config()
     box = _box(study.box_mm, tilt_deg)
     if box is None:
@@ -137,9 +139,12 @@ def tolerance(scene_file: str, regulation: str, photons: int, out_dir: str, quie
         if not quiet:
             o = s.offset
             fails = [n for n, ok in zip(s.names, s.value_pass) if not ok]
+            used = ("" if s.photons is None else f"{s.photons:>12,} photons "
+                    + ("decided  " if s.decided else "cap      "))
             click.echo(f"sample {i:3d}  d=({o[0] * 1e3:+.3f}, {o[1] * 1e3:+.3f}, "
                        f"{o[2] * 1e3:+.3f}) mm tilt=({o[3]:+.2f}, {o[4]:+.2f})°  "
-                       f"{s.seconds:5.1f} s  fails: {', '.join(fails) or '-'}", err=True)
+                       f"{s.seconds:5.1f} s  {used}fails: {', '.join(fails) or '-'}",
+                       err=True)
 
     result = run_tolerance(opts, samples=study.samples, seed=study.design_seed,
                            tilt=study.tilt, box=box, centre_m=_centre(study.centre_mm),
@@ -148,7 +153,11 @@ def tolerance(scene_file: str, regulation: str, photons: int, out_dir: str, quie
                            progress=progress)
     files = write_study(result, out)
     _print(result)
-    click.echo(f"{len(result.samples) - 1} samples + nominal, {photons:,} photons each, in "
+    used = result.photons_used()
+    each = (f"{photons:,} photons each" if used is None else
+            f"{used['min']:,}–{used['max']:,} photons each (median {used['median']:,.0f}; "
+            f"{used['decided']} of {used['samples']} decided before the cap of {photons:,})")
+    click.echo(f"{len(result.samples) - 1} samples + nominal, {each}, in "
                f"{time.perf_counter() - t0:.1f} s; wrote "
                + ", ".join(str(f.name) for f in files) + f" in {out}")
 

@@ -32,6 +32,12 @@ option                 unit   default     meaning
 ``--spt-points``       –      off         SPT aimed at the test points (coverage study)
 ``--guide``            –      off         coverage study with importance-driven emission
                                           (``points``: aimed at the test points and zones)
+``--aim-study``        –      off         the re-aim study of the photo comparison
+                                          instead (:mod:`lightsim.validation.photo_aim_
+                                          study`): does the aim interval cover the truth?
+``--aim-sim``          –      synthetic   a simulation the aim study photographs
+                                          (repeatable)
+``--reaims``           –      50          re-aims per simulation in the aim study
 =====================  =====  ==========  ================================================
 
 ``lightsim converge SCENE``
@@ -56,9 +62,10 @@ option                  unit   default          meaning
 from __future__ import annotations
 
 import math
+import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import click
@@ -81,6 +88,15 @@ from lightsim.validation.coverage import (
     coverage_study,
     shipped_study,
 )
+from lightsim.validation.photo_aim_study import (
+    AimStudySettings,
+    AimTrial,
+    aim_study,
+    refusal_counts,
+    summary_line,
+    synthetic_simulation,
+)
+from lightsim.validation.photo_io import load_simulation
 
 
 def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]]) -> None:
@@ -135,15 +151,28 @@ def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
 @click.option("--guide", type=click.Choice(["off", "points"]), default="off", show_default=True,
               help="Coverage study with importance-driven emission aimed at the test points "
                    "and zones (as simulate --guide points).")
+@click.option("--aim-study", is_flag=True,
+              help="Re-aim study of the photo comparison: random re-aims (±0.5°) "
+                   "photographed on the marker board by random cameras; does the aim "
+                   "interval cover the truth (goal 90 %)?")
+@click.option("--aim-sim", "aim_sims", multiple=True, type=click.Path(exists=True),
+              help="A simulation (result folder or wall_lux.exr) the aim study photographs "
+                   "(repeatable) [default: a synthetic low beam].")
+@click.option("--reaims", type=click.IntRange(1, 10_000), default=50, show_default=True,
+              help="Re-aims per simulation in the aim study.")
 @click.option("--quiet", "-q", is_flag=True, help="Only the table.")
 def validate(full: bool, stability: bool, run_all: bool, cases: tuple[str, ...],
              estimators: tuple[str, ...], photons: int | None, seed: int,
-             json_path: str | None, coverage: bool, quiet: bool, **study: object) -> None:
+             json_path: str | None, coverage: bool, quiet: bool, aim_study: bool,
+             aim_sims: tuple[str, ...], reaims: int, **study: object) -> None:
     """Check the simulator against exact answers (and stiff, extreme cases).
 
     Prints case, quantity, expected, measured, error, uncertainty and pass for every
     check; exits with code 1 if any check fails.
     """
+    if aim_study:
+        _aim_study(aim_sims, AimStudySettings(reaims=reaims, seed=seed), json_path, quiet)
+        return
     if coverage:  # ``study``: the coverage study's options (CoverageSettings)
         _coverage(CoverageSettings.from_options(photons, seed, **study), json_path, quiet)
         return
@@ -393,6 +422,36 @@ def _verdict_rows(rules: dict[str, VerdictCount]) -> list[list[str]]:
 
 VERDICT_HEADER = ("rule kind", "evaluations", "coverage", "pass/fail", "uncertain",
                   "wrong", "nominal", "allowed")
+
+
+def _aim_study(sims: Sequence[str], st: AimStudySettings, json_path: str | None,
+               quiet: bool) -> None:
+    """``validate --aim-study``: per simulation, the re-aim study's coverage and refusals;
+    exit code 1 when a study misses its goal."""
+    results = []
+    with tempfile.TemporaryDirectory(prefix="lightsim-aim-study-") as tmp:
+        for path in sims or [None]:
+            sim = load_simulation(path) if path is not None else synthetic_simulation(tmp)
+
+            def progress(i: int, t: AimTrial) -> None:
+                if not quiet:
+                    got = (f"{t.offset_deg:+.3f} ± {t.interval_deg:.3f}°"
+                           + (" covers" if t.covered else " MISSES") if t.read
+                           else f"refused: {t.refused}")
+                    click.echo(f"  {i + 1:>3}/{st.reaims} re-aim ΔH {t.dh_deg:+.2f}°, ΔV "
+                               f"{t.dv_deg:+.2f}°: {len(t.markers_found)} markers, {got}",
+                               err=True)
+
+            res = aim_study(sim, st, progress=progress)
+            results.append(res)
+            click.echo(summary_line(res))
+            for reason, n in refusal_counts(res).items():
+                click.echo(f"  refused {n}×: {reason}")
+    if json_path is not None:
+        write_json(json_path, {"aim_study": [r.to_dict() for r in results],
+                               "settings": asdict(st)})
+    if not all(r.passed for r in results):
+        raise SystemExit(1)
 
 
 def _coverage(st: CoverageSettings, json_path: str | None, quiet: bool) -> None:

@@ -2,7 +2,8 @@
 
 The options are :class:`~lightsim.view.settings.ViewSettings`' command-line fields; the
 session is :func:`lightsim.luminaires.live.start_view`'s. This module parses, starts the
-session and its web server, prints the address and waits for Ctrl-C.
+session and its web server, prints the address (with the session's access token) and waits
+for Ctrl-C.
 """
 
 from __future__ import annotations
@@ -38,6 +39,10 @@ def view(scene: str, **values: Any) -> None:
         live.stop()
         raise InputError(live.error)
     click.echo(f"lightsim view: {server.url}  (session folder {folder}; Ctrl-C to stop)")
+    if not server.loopback:
+        click.echo(f"lightsim view: listening on {settings.host}: anyone who can reach it "
+                   "needs the token above; traffic is unencrypted unless tunnelled "
+                   "(e.g. ssh -L)", err=True)
     try:
         while server.thread.is_alive():
             time.sleep(0.5)

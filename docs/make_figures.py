@@ -25,6 +25,9 @@ run               commands                               pictures (docs/img/…)
                   of the lamp it wrote
 ``view``          ``view`` of the shipped low beam       view-interaction, view-converged,
                   in Chromium                            view-camera
+``led-lamps``     ``simulate`` the shipped LED           led-projector-isolux,
+                  projector (R149 class B passing) and   led-matrix-isolux
+                  matrix high beam (class B driving)
 ================  =====================================  ====================================
 
 Parameters
@@ -62,6 +65,8 @@ ROOT = Path(__file__).resolve().parents[1]
 IMG = ROOT / "docs" / "img"
 LOWBEAM = ROOT / "luminaires" / "examples" / "lowbeam.glb"
 HEADLIGHT = ROOT / "luminaires" / "examples" / "headlight.glb"
+PROJECTOR = ROOT / "luminaires" / "examples" / "projector.glb"
+MATRIX = ROOT / "luminaires" / "examples" / "matrix.glb"
 CHROMIUM = "/usr/bin/chromium"
 
 FIRST_RUN_PHOTONS = 16_000_000
@@ -147,6 +152,18 @@ def design(work: Path) -> dict[str, Path]:
          "--regulation", "r112-b-passing", "--outputs", "isolux,json", "--out", "designed",
          "--quiet"], work)
     return {"design-isolux": work / "designed" / "isolux.png"}
+
+
+def led_lamps(work: Path) -> dict[str, Path]:
+    """The LED guide's runs: the projector's low beam and the matrix beam, all on."""
+    run(["simulate", str(PROJECTOR), "--photons", "48000000", "--resolution", "320x128",
+         "--regulation", "r149-b-passing", "--outputs", "isolux,json", "--out", "projector",
+         "--quiet"], work)
+    run(["simulate", str(MATRIX), "--photons", "16000000", "--resolution", "320x128",
+         "--regulation", "r149-b-driving", "--outputs", "isolux,json", "--out", "matrix",
+         "--quiet"], work)
+    return {"led-projector-isolux": work / "projector" / "isolux.png",
+            "led-matrix-isolux": work / "matrix" / "isolux.png"}
 
 
 _DRAG_JS = """async (seconds) => {
@@ -256,6 +273,7 @@ RUNS = (
     Run("compare", compare, ("compare-overlay", "compare-contours")),
     Run("tolerance", tolerance, ("tolerance",)),
     Run("design", design, ("design-isolux",)),
+    Run("led-lamps", led_lamps, ("led-projector-isolux", "led-matrix-isolux")),
     Run("view", view, ("view-interaction", "view-converged", "view-camera")),
 )
 

@@ -7,7 +7,10 @@ files: :mod:`lightsim.luminaires.analyses`) and hands it to
 
 1. :meth:`Analysis.prepare` before shooting, to add what it needs measured to the run's
    configuration (detector apertures at a rule set's test points, SPT targets);
-2. :meth:`Analysis.report` after the last frame, with the :class:`FinishedRun` (the session,
+2. (an analysis that can also stop the run, :class:`StopsRun`: ``--until decided``)
+   :meth:`StopsRun.stopping_rule` once the session exists, for the
+   :class:`~lightsim.engine.server.StoppingRule` the run is handed;
+3. :meth:`Analysis.report` after the last frame, with the :class:`FinishedRun` (the session,
    the lux map, the cut-off found on it), to measure, evaluate and write its files. Its
    :class:`AnalysisReport` goes into ``summary.json`` under :attr:`Analysis.name`.
 
@@ -33,7 +36,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Analysis", "AnalysisReport", "FinishedRun"]
+__all__ = ["Analysis", "AnalysisReport", "FinishedRun", "StopsRun"]
 
 
 @dataclass(frozen=True)
@@ -97,4 +100,24 @@ class Analysis(Protocol):
     def report(self, run: FinishedRun, out: Path) -> AnalysisReport:
         """Measure and evaluate the finished run; write files into ``out`` (the output
         set being staged) or where the user asked."""
+        ...
+
+
+@runtime_checkable
+class StopsRun(Protocol):
+    """An analysis that can decide when the run has enough photons (``--until decided``:
+    a regulation's verdicts). :func:`lightsim.simulate.run_simulation` hands the run the
+    first rule one of its analyses gives."""
+
+    def stopping_rule(self, session: Any, cap_photons: int) -> Any:
+        """A :class:`~lightsim.engine.server.StoppingRule` reading ``session`` with the
+        run's photon cap, or None (this analysis does not stop the run)."""
+        ...
+
+    def stop_summary(self) -> dict[str, Any] | None:
+        """After :meth:`Analysis.report`: ``summary.json["until"]`` (None: no rule)."""
+        ...
+
+    def stop_progress(self) -> str:
+        """One line on how far the rule is (for a progress display; "" without one)."""
         ...

@@ -37,19 +37,23 @@ off into a part of its own (:func:`split_cad_faces`)::
     match = "reflector/face-3"   # before "reflector*": the first matching rule decides
     kind = "diffuse"
 
-==============  =====  =======  =====================================================
-key             unit   default  meaning
-==============  =====  =======  =====================================================
-``match``       –      –        pattern (``*``, ``?``, ``[ab]``) on the part name
-``kind``        –      –        ``mirror``, ``glass``, ``diffuse``, ``emitter``,
-                                ``wall``, ``ignore``
-``reflectance`` –      0.88     mirror reflectance
-``ior``         –      1.5      glass refractive index
-``attenuation`` 1/m    0        glass absorption coefficient σ (Beer–Lambert)
-``albedo``      –      0.5      diffuse (and wall) reflectance
-``flux_lm``     lm     –        emitter flux (required unless ``--flux`` is given)
-``emission``    –      iso.     emitter: ``isotropic`` or ``lambertian``
-==============  =====  =======  =====================================================
+==============  =====  ==========  ==============  ===========================================
+key             unit   default     applies to      meaning
+==============  =====  ==========  ==============  ===========================================
+``match``       –      required    every rule      pattern (``*``, ``?``, ``[ab]``) on the name
+``kind``        –      required    every rule      ``mirror``, ``glass``, ``diffuse``,
+                                                   ``emitter``, ``wall``, ``ignore``
+``reflectance`` –      0.88        mirror          mirror reflectance
+``ior``         –      1.5         glass           glass refractive index
+``attenuation`` 1/m    0           glass           absorption coefficient σ (Beer–Lambert)
+``albedo``      –      0.5         diffuse, wall   diffuse reflectance
+``flux_lm``     lm     the file's  emitter         emitter flux (or ``--flux``)
+``emission``    –      isotropic   emitter         ``isotropic`` or ``lambertian``
+==============  =====  ==========  ==============  ===========================================
+
+The single declaration of these keys is :data:`RULE_KEYS` (the manual's table is
+:func:`key_table_markdown`). A key that does not apply to its rule's kind (``reflectance``
+on a diffuse rule) is refused in one line, as is an unknown key.
 """
 
 from __future__ import annotations
@@ -69,8 +73,62 @@ from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, Material
 
 SCHEMA = "lightsim-materials-1"
 KINDS = ("mirror", "glass", "diffuse", "emitter", "wall", "ignore")
-KEYS = {"match", "kind", "reflectance", "ior", "attenuation", "albedo", "flux_lm",
-        "emission"}
+
+
+@dataclass(frozen=True)
+class RuleKey:
+    """One key of a ``[[rule]]`` table: what it is and which kinds it applies to.
+
+    Attributes
+    ----------
+    key, type, unit, default, range, meaning : str
+        As printed in the manual's table (``unit`` "–" for dimensionless values).
+    kinds : tuple of str
+        The rule kinds the key applies to; empty for keys every rule has.
+    """
+
+    key: str
+    type: str
+    unit: str
+    default: str
+    range: str
+    kinds: tuple[str, ...]
+    meaning: str
+
+
+#: Every rule key (the single declaration: reader, refusal of misplaced keys, manual).
+RULE_KEYS = (
+    RuleKey("match", "string", "–", "required", "non-empty", (),
+            "shell-style pattern (`*`, `?`, `[ab]`) on the part name or face address, "
+            "case-insensitive"),
+    RuleKey("kind", "string", "–", "required", ", ".join(f"`{k}`" for k in KINDS), (),
+            "what the part is"),
+    RuleKey("reflectance", "number", "–", "0.88", "0 … 1", ("mirror",),
+            "mirror reflectance (the rest is absorbed)"),
+    RuleKey("ior", "number", "–", "1.5", "1 … 5", ("glass",), "glass refractive index"),
+    RuleKey("attenuation", "number", "1/m", "0", "≥ 0", ("glass",),
+            "glass absorption coefficient σ (Beer–Lambert: transmittance e^(−σd) over a "
+            "path d)"),
+    RuleKey("albedo", "number", "–", "0.5", "0 … 1", ("diffuse", "wall"),
+            "diffuse reflectance (a wall's, for camera views)"),
+    RuleKey("flux_lm", "number", "lm", "the file's", "> 0", ("emitter",),
+            "emitter flux; required unless the file has one or `--flux` is given"),
+    RuleKey("emission", "string", "–", "`isotropic`", "`isotropic`, `lambertian`",
+            ("emitter",), "emitter's angular emission"),
+)
+KEYS = {k.key for k in RULE_KEYS}
+_APPLIES = {k.key: k.kinds for k in RULE_KEYS}
+
+
+def key_table_markdown() -> str:
+    """The rule keys as the Markdown table of the manual's material-map reference."""
+    rows = ["| key | kind of value | unit | default | range | applies to | meaning |",
+            "|---|---|---|---|---|---|---|"]
+    for k in RULE_KEYS:
+        applies = ", ".join(f"`{x}`" for x in k.kinds) if k.kinds else "every rule"
+        rows.append(f"| `{k.key}` | {k.type} | {k.unit} | {k.default} | {k.range} | "
+                    f"{applies} | {k.meaning} |")
+    return "\n".join(rows) + "\n"
 
 
 @dataclass(frozen=True)
@@ -107,7 +165,12 @@ class MaterialMap:
     rules: tuple[MaterialRule, ...]
 
     def rule_for(self, name: str) -> MaterialRule | None:
+        """The first rule whose pattern matches ``name`` (None if none does)."""
         return next((r for r in self.rules if r.matches(name)), None)
+
+    def rule_number(self, name: str) -> int | None:
+        """The 1-based number of the first rule matching ``name`` (None if none does)."""
+        return next((i + 1 for i, r in enumerate(self.rules) if r.matches(name)), None)
 
 
 def _number(where: str, key: str, value: object, lo: float, hi: float) -> float:
@@ -149,6 +212,11 @@ def read_material_map(path: str | os.PathLike) -> MaterialMap:
         if kind not in KINDS:
             raise InputError(f"{where}: 'kind' must be one of {', '.join(KINDS)}, "
                              f"got {t.get('kind')!r}")
+        misplaced = sorted(k for k in t if _APPLIES[k] and kind not in _APPLIES[k])
+        if misplaced:
+            key = misplaced[0]
+            raise InputError(f"{where}: '{key}' does not apply to kind '{kind}' (it is for "
+                             f"{', '.join(_APPLIES[key])} rules)")
         kw: dict[str, object] = {}
         if "reflectance" in t:
             kw["reflectance"] = _number(where, "reflectance", t["reflectance"], 0.0, 1.0)

@@ -52,7 +52,7 @@ set there is no error estimate and the bounds collapse to the value.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import stdtrit
 
+from lightsim import __version__
 from lightsim.engine.apertures import (
     count_bounds,
     count_statistics,
@@ -71,7 +72,7 @@ from lightsim.engine.apertures import (
 from lightsim.engine.guiding import heaviest_weight
 from lightsim.errors import InputError
 from lightsim.io.plot_worker import InProcess
-from lightsim.io.plots import isolux_noise_floor, road_view_data
+from lightsim.io.plots import PlotCaption, isolux_noise_floor, road_view_data
 from lightsim.render.frame import luminous
 from lightsim.render.road import REACH_LEVELS
 from lightsim.sampling import SelectiveSampler, digit_permutations, halton_points, photon_keys
@@ -277,36 +278,86 @@ def aperture_values(session, shift_deg: float = 0.0, confidence: float = 0.95
             "count_stats": count}
 
 
+def plot_caption(summary: dict[str, Any] | None) -> PlotCaption | None:
+    """The caption every plot of a run carries, from its ``summary.json`` (None without
+    one): lamp, seed, photons, error figure, the rule sets with their versions, lightsim's
+    version."""
+    if summary is None:
+        return None
+    tables = ruleset_tables(summary)
+    return PlotCaption(
+        lamp=Path(str(summary.get("scene", {}).get("source", "") or "?")).name,
+        seed=int(summary.get("seed", 0) or 0), photons=int(summary.get("photons", 0) or 0),
+        error=summary.get("error_text"),
+        rulesets=tuple((str(t.get("ruleset", "?")), str(t.get("version", "?")))
+                       for t in tables),
+        version=str(summary.get("lightsim_version", __version__)))
+
+
+def ruleset_tables(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """The regulation tables of a run's summary (``regulation``, ``regulation:ID``), in
+    the order the rule sets were asked for."""
+    return [v for k, v in summary.items()
+            if (k == "regulation" or k.startswith("regulation:")) and isinstance(v, dict)]
+
+
+def isolux_file(index: int, ruleset: str) -> str:
+    """The iso-lux plot of the ``index``-th rule set: ``isolux.png`` for the first (and
+    for a run without one), ``isolux-<ID>.png`` for every further one."""
+    return "isolux.png" if index == 0 else f"isolux-{ruleset}.png"
+
+
 def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
                       results: list[dict[str, Any]] | None = None,
                       mount_height_m: float = 0.65,
                       summary: dict[str, Any] | None = None, *,
                       which: tuple[str, ...] = ("isolux", "road"),
-                      plots: Any = None) -> list[Path]:
-    """Write ``isolux.png`` (screen, H/V degrees) and ``road.png`` (bird's-eye view), or
-    those of them named in ``which``; drawn by ``plots`` (:mod:`lightsim.io.plot_worker`:
-    a plot process, or here by default).
+                      plots: Any = None, log: bool = True) -> list[Path]:
+    """Write ``wall_lux.png`` (when ``which`` names ``wall_lux``; ``log``: its scale),
+    the iso-lux plots (``isolux``) and ``road.png`` (``road``), drawn by ``plots``
+    (:mod:`lightsim.io.plot_worker`: a plot process, or here by default).
+
+    Each rule set of the run's ``summary`` gets its own iso-lux plot
+    (:func:`isolux_file`) with only its test points; without rule sets in the summary
+    ``results`` are marked on ``isolux.png``. ``wall_lux.png`` marks the first rule
+    set's points. Every plot carries the run's caption (:func:`plot_caption`).
 
     With the run's ``summary`` the iso-lux levels start at the map's noise floor, and
-    ``summary["isolux"]`` (floor, levels) and ``summary["road"]`` (reach per level) are
-    filled in — whether or not the plots are drawn.
+    ``summary["isolux"]`` (floor, levels, files) and ``summary["road"]`` (reach per
+    level) are filled in — whether or not the plots are drawn.
     """
     plots = plots if plots is not None else InProcess()
     fd = _frame_dict(frame)
     floor = noise_floor_from_summary(summary, fd) if summary is not None else None
     area_px = estimate_area_px_from_summary(summary, fd) if summary is not None else None
-    iso = rd = None
+    caption = plot_caption(summary)
+    tables = ruleset_tables(summary) if summary is not None else []
+    sets = ([(str(t.get("ruleset", "?")), str(t.get("title", "")), t.get("results"))
+             for t in tables] or [("", "", results)])
+    pending: list[tuple[Path, Any]] = []
+    caps = [None if caption is None else asdict(caption.for_ruleset(i))
+            for i in range(len(sets))]
+    if "wall_lux" in which:
+        pending.append((Path(out) / "wall_lux.png", plots.draw(
+            "wall_lux", Path(out) / "wall_lux.png", lux, fd, results=sets[0][2], log=log,
+            caption=caps[0])))
+    iso_files = [isolux_file(i, rid) for i, (rid, _, _) in enumerate(sets)]
     if "isolux" in which:
-        iso = plots.draw("isolux", Path(out) / "isolux.png", lux, fd, results=results,
-                         title="iso-lux on the screen", noise_floor_lx=floor,
-                         estimate_area_px=area_px)
+        for i, (rid, title, marks) in enumerate(sets):
+            name = iso_files[i]
+            pending.append((Path(out) / name, plots.draw(
+                "isolux", Path(out) / name, lux, fd, results=marks,
+                title=f"iso-lux on the screen — {rid}: {title}" if rid else
+                "iso-lux on the screen", noise_floor_lx=floor,
+                estimate_area_px=area_px, caption=caps[i])))
+    rd = None
     if "road" in which:
         rd = plots.draw("road", Path(out) / "road.png", lux, fd,
-                        mount_height_m=mount_height_m)
+                        mount_height_m=mount_height_m, caption=caps[0])
     paths = []
-    if iso is not None:
-        iso.result()
-        paths.append(Path(out) / "isolux.png")  # as given (the plot process's is absolute)
+    for path, p in pending:
+        p.result()
+        paths.append(path)  # as given (the plot process's is absolute)
     if rd is not None:
         road = rd.result()
         paths.append(Path(out) / "road.png")
@@ -316,7 +367,10 @@ def engineering_plots(out: Path, lux: np.ndarray, frame: Any,
         summary["isolux"] = {"noise_floor_lx": floor,
                              "noise_floor_rule": "levels where an estimate holds < 16 "
                                                  "photons (relative noise > 25 %) are "
-                                                 "not drawn"}
+                                                 "not drawn",
+                             # the file of each rule set's plot (drawn or not)
+                             "files": {rid or "none": name for (rid, _, _), name
+                                       in zip(sets, iso_files, strict=True)}}
         if road is None:  # nothing to show (the plot says why): no reach either
             summary["road"] = {"mount_height_m": mount_height_m, "reach_m": None,
                                "text": "no road illuminance to show (see road.png)"}

@@ -695,8 +695,10 @@ def add_emitters(path: Path, parts: list[Part], s: SceneSettings,
                                         s.emission)]
     emitters = [p for p in parts if p.role == EMITTER]
     if not emitters:
-        raise InputError(f"{path}: no emitter (no material with emissiveFactor); give one with "
-                         "--filament BULB --filament-at X,Y,Z")
+        raise InputError(f"{path}: no emitter among its parts ({_part_names(parts)}); give "
+                         "one kind = \"emitter\" in a material map (--materials), or a bulb "
+                         "with --filament BULB --filament-at X,Y,Z (`lightsim luminaire parts "
+                         f"{path.name}` lists the part and face names)")
     if s.flux is not None and s.filament is None and s.rayfile is None:
         own = [p.flux_lm for p in emitters]
         total = sum(f for f in own if f > 0)
@@ -709,6 +711,15 @@ def add_emitters(path: Path, parts: list[Part], s: SceneSettings,
         if not (math.isfinite(p.flux_lm) and p.flux_lm > 0):
             raise InputError(f"emitter '{p.name}': flux must be positive, got {p.flux_lm} lm")
     return parts
+
+
+def _part_names(parts: list[Part], most: int = 12) -> str:
+    """The parts' names, comma-separated, at most ``most`` of them (one error line)."""
+    names = [p.name for p in parts]
+    if not names:
+        return "none left"
+    more = f", … {len(names) - most} more" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
 
 
 def add_wall(path: Path, parts: list[Part], s: SceneSettings, warnings: list[str]

@@ -15,7 +15,10 @@ file                   content
 ``wall_lux.exr``       float32 OpenEXR, channel ``Y`` = illuminance (lx); ``R``, ``G``,
                        ``B`` too for coloured scenes; metadata: units, wall frame, photons,
                        seed, estimator, lightsim version
-``wall_lux.png``       false colour with a lux colour bar, axes H/V in degrees
+``wall_lux.png``       false colour (log scale unless ``--linear``), axes H/V in degrees,
+                       lx and cd scales, H-V lines, the first rule set's test points
+``isolux.png``         iso-lux plot of the first rule set (``isolux-ID.png`` for each
+                       further one); ``road.png`` the road view; every plot captioned
 ``summary.json``       wall frame, energy bookkeeping (lm), error vs time, plan, settings,
                        ``timings_s``: where the run's time went (load, session, sample,
                        trace, insert, estimate, final_map, outputs; s, wall clock),
@@ -28,6 +31,7 @@ file                   content
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import os
 import platform
@@ -41,11 +45,11 @@ from typing import Any
 import numpy as np
 
 from lightsim import __version__, options, report
-from lightsim.analysis import Analysis, FinishedRun
+from lightsim.analysis import Analysis, FinishedRun, StopsRun
 from lightsim.engine.config import RunConfig
 from lightsim.engine.memory import check_fits
 from lightsim.engine.server import Session
-from lightsim.errors import InputError, LightsimError
+from lightsim.errors import ClusterError, InputError, LightsimError
 from lightsim.io.atomic import STAGING_PREFIX, OutputSet, clean_stale, unfinished_set
 from lightsim.io.cad import Tessellation
 from lightsim.io.exr import wall_metadata, write_exr
@@ -57,6 +61,9 @@ from lightsim.render.frame import luminous
 from lightsim.scene import Scene, SceneSettings, load_scene
 
 CHECKPOINT = "checkpoint.json"
+UNTIL_CAP_PHOTONS = 400_000_000
+"""Photon cap of ``--until decided`` without ``--photons`` (a rule exactly at its limit
+never decides)."""
 
 
 @dataclass
@@ -77,6 +84,13 @@ class SimulateOptions:
     target_error: float | None = option(
         None, "Stop when the estimated relative error over the lit region is at most this.",
         flag=("--target-error",), low=0, high=1, low_open=True, high_open=True, resume=True)
+    until: str | None = option(
+        None, "decided: stop as soon as every rule of every --regulation rule set is pass "
+        "or fail at its confidence, with a sequential rule that keeps wrong verdicts at "
+        "their nominal rate however often it looks; --photons (default "
+        f"{UNTIL_CAP_PHOTONS:,}) and --time cap the run, which then reports what is still "
+        "undecided.", flag=("--until",), choices=(None, "decided"), resume=True,
+        default_text="the photon or time budget")
     out_dir: str = option("lightsim-out", "Output folder.", flag=("--out",), kind="dir")
     resolution: tuple[int, int] = option((640, 256), "Wall pixels WxH.", unit="px",
                                          flag=("--resolution",), kind="pair", low=1)
@@ -160,6 +174,11 @@ class SimulateOptions:
                                    flag=("--farfield-photons",), low=1)
     mount_height: float = option(0.65, "Lamp height above the road for the road view.",
                                  unit="m", flag=("--mount-height",), low=0, low_open=True)
+    road: bool = option(False, "Road evaluation after the run (lightsim road): reach at the "
+                        "road edges and glare on a straight road and 150/250 m curves, with "
+                        "intervals from the interleave sets; writes road.json, "
+                        "road_<approach>.png and wall_sets.npz.", flag=("--road",),
+                        kind="flag")
     outputs: tuple[str, ...] = option(
         ("exr", "png", "error_vs_time", "isolux", "road", "json"),
         "Files to write, comma-separated: exr (wall_lux.exr), png (wall_lux.png), "
@@ -167,8 +186,9 @@ class SimulateOptions:
         "marks a finished run); all = every one.", flag=("--outputs",), kind="names",
         choices=("exr", "png", "error_vs_time", "isolux", "road", "json"), resume=True,
         default_text="all")
-    log_scale: bool = option(False, "Logarithmic colour scale in the PNG.",
-                             flag=("--log",), kind="flag")
+    log_scale: bool = option(True, "Colour scale of wall_lux.png: logarithmic (three "
+                             "decades below the maximum) or linear.",
+                             flag=("--log/--linear",), kind="onoff")
     workers: int = option(0, "0: in-process; N: N Ray actors on this machine.",
                           flag=("--workers",), low=0, resume=True)
     address: str | None = option(None, "Ray cluster address HOST:PORT.",
@@ -311,7 +331,7 @@ def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | N
     default: here, after the map).
     """
     analyses = list(analyses or ())
-    if not analyses and (opts.regulation is not None or opts.ies or opts.ldt):
+    if not analyses and (opts.regulation is not None or opts.ies or opts.ldt or opts.road):
         raise LightsimError("run_simulation: the options ask for a regulation check or "
                             "far-field files but no analyses were given (build them with "
                             "lightsim.luminaires.analyses.for_options)")
@@ -335,6 +355,7 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     scene = load(opts)
     clock["load"] = time.perf_counter()
     config = opts.run_config()
+    check_until(opts, config)
     check_fits(opts.photons, scene.wall.resolution, config, scene.channels or 3)  # pre-flight
     for analysis in analyses:  # e.g. test points counted in detector apertures
         config = analysis.prepare(config, scene)
@@ -354,14 +375,29 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
             stopped["flag"] = bool(should_stop and should_stop())
             return stopped["flag"]
 
-        est = session.run(photons=opts.photons, seconds=opts.seconds,
-                          target_error=opts.target_error, callback=progress, should_stop=stop,
-                          probes=False)  # the outputs read the map and the apertures
-        if stopped["flag"]:
+        photons, rule = opts.photons, None
+        if opts.until is not None:  # the verdicts stop the run; the photons cap it
+            photons = opts.photons if opts.photons is not None else UNTIL_CAP_PHOTONS
+            rule = stopping_rule(analyses, session, photons)
+        try:
+            est = session.run(photons=photons, seconds=opts.seconds,
+                              target_error=opts.target_error, callback=progress,
+                              should_stop=stop, probes=False,  # outputs read map + apertures
+                              rule=rule)
+            if stopped["flag"]:
+                write_checkpoint(out, opts, session)
+                return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
+            clock["run"] = time.perf_counter()
+            result = write_outputs(out, opts, session, est, analyses, clock=clock,
+                                   plots=plots)
+        except ClusterError as exc:
+            if not getattr(session.backend, "head_lost", False):
+                raise
+            # the frames shot so far are known here: the run continues from them
             write_checkpoint(out, opts, session)
-            return SimulationResult(np.zeros((0, 0)), None, {}, out, interrupted=True)
-        clock["run"] = time.perf_counter()
-        result = write_outputs(out, opts, session, est, analyses, clock=clock, plots=plots)
+            raise ClusterError(f"{exc}: checkpoint written to {out / CHECKPOINT} — continue "
+                               f"with: lightsim simulate --resume {out} (with the cluster "
+                               "back, or --address/--workers anew)") from None
         ckpt = out / CHECKPOINT
         if ckpt.exists():
             ckpt.unlink()
@@ -370,11 +406,63 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
         session.close()
 
 
-def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
+def check_until(opts: SimulateOptions, config: RunConfig) -> None:
+    """``--until decided`` needs verdicts to decide, one stopping rule and the sets'
+    spread (one clear line otherwise)."""
+    if opts.until is None:
+        return
+    if opts.regulation is None:
+        raise InputError("--until decided stops when the regulation's verdicts are decided: "
+                         "give --regulation")
+    if opts.target_error is not None:
+        raise InputError("--until decided and --target-error are two stopping rules: give "
+                         "one of them")
+    if config.n_sets < 2:
+        raise InputError("--until decided needs at least 2 interleave sets (-M 2 or more): "
+                         "the verdicts' intervals come from their spread")
 
+
+def stopping_rule(analyses: Sequence[Analysis], session, cap_photons: int) -> Any:
+    """The first stopping rule an analysis gives (:class:`~lightsim.analysis.StopsRun`),
+    bound to ``session`` with the photon cap; None if none does."""
+    for analysis in analyses:
+        if isinstance(analysis, StopsRun):
+            rule = analysis.stopping_rule(session, cap_photons)
+            if rule is not None:
+                return rule
+    return None
+
+
+def until_summary(opts: SimulateOptions, session, summary: dict[str, Any],
+                  analyses: Sequence[Analysis]) -> dict[str, Any] | None:
+    """``summary.json["until"]``: the stopping rule's record (after the analyses reported)
+    and what ended the run — ``decided``, or the cap that came first: ``memory``,
+    ``time`` or ``photons``."""
+    for analysis in analyses:
+        if isinstance(analysis, StopsRun) and (rec := analysis.stop_summary()) is not None:
+            if rec.get("stopped") == "decided":
+                why = "decided"
+            elif session.memory_stop is not None:
+                why = "memory"
+            elif opts.seconds is not None and summary["seconds"] >= opts.seconds:
+                why = "time"
+            else:
+                why = "photons"
+            return {**rec, "stopped_by": why}
+    return None
+
+
+def write_checkpoint(out: Path, opts: SimulateOptions, session) -> Path:
+    """Write ``checkpoint.json`` into ``out`` (atomically); a disk that cannot take it
+    is one line (:class:`~lightsim.errors.LightsimError`), any earlier checkpoint kept."""
     path = out / CHECKPOINT
-    write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
-                      "session": session.checkpoint()})
+    try:
+        write_json(path, {"lightsim_version": __version__, "options": opts.to_json(),
+                          "session": session.checkpoint()})
+    except OSError as exc:
+        why = write_failure(out, exc, had_set=False).split(";", 1)[0]
+        raise LightsimError(f"{why.replace('the outputs', 'the checkpoint')}: the run "
+                            "cannot be resumed (free space and run again)") from None
     return path
 
 
@@ -435,15 +523,36 @@ def write_outputs(out: Path, opts: SimulateOptions, session, est,
             if isinstance(listed, list):
                 previous |= {str(n) for n in listed if "/" not in str(n)}
     plots = plots if plots is not None else InProcess()
-    with OutputSet(out, "summary.json", previous) as staged:
-        try:
-            result = _write_set(staged.dir, opts, session, est, analyses, clock, plots)
-        except BaseException:
-            plots.abandon()  # no plot may land in the set being given up
-            raise
-        staged.commit()
+    had_set = (out / "summary.json").is_file()
+    try:
+        with OutputSet(out, "summary.json", previous) as staged:
+            try:
+                result = _write_set(staged.dir, opts, session, est, analyses, clock, plots)
+            except BaseException:
+                plots.abandon()  # no plot may land in the set being given up
+                raise
+            staged.commit()
+    except OSError as exc:  # a full disk, a quota, a folder gone read-only
+        raise LightsimError(write_failure(out, exc, had_set)) from None
     result.out_dir = out
     return result
+
+
+def write_failure(out: Path, exc: OSError, had_set: bool) -> str:
+    """One line for outputs that could not be written: why, and what the folder holds
+    now (the staged set was dropped, so an earlier complete set is untouched)."""
+    why = {errno.ENOSPC: "no space left on the device",
+           errno.EDQUOT: "the disk quota is exceeded",
+           errno.EROFS: "the file system is read-only"}.get(exc.errno or 0,
+                                                          exc.strerror or str(exc))
+    if had_set and (out / "summary.json").is_file():
+        kept = "the previous complete set of outputs there is kept, unchanged"
+    elif had_set:
+        kept = "the previous set there is incomplete (no summary.json)"
+    else:
+        kept = "nothing was written there"
+    return (f"could not write the outputs to {out}: {why}; {kept} (free space and run "
+            "again)")
 
 
 def _write_set(out: Path, opts: SimulateOptions, session, est,
@@ -458,6 +567,7 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
     rgb = est.lux if est.lux.shape[-1] == 3 else None
     energy = session.energy()
     parts = {k: v for k, v in energy.items() if k != "emitted"}
+    placement = getattr(session.backend, "placement", None)  # Ray runs: where actors ran
     closure = (abs(sum(parts.values()) - energy["emitted"]) / energy["emitted"]
                if energy["emitted"] else 0.0)
     cfg = session.config
@@ -502,6 +612,7 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
         "plan": session.plan.to_dict(),
         "config": cfg.to_dict(),
         "workers": opts.workers,
+        **({"cluster": placement()} if placement is not None else {}),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
     meta = wall_metadata(wall, units="lx", quantity="illuminance",
@@ -513,16 +624,14 @@ def _write_set(out: Path, opts: SimulateOptions, session, est,
             channels[ch] = rgb[..., i].astype(np.float32)
     wanted = set(opts.outputs)
     drawn = []  # matplotlib is imported only where a plot is asked
-    if "png" in wanted:
-        drawn.append(plots.draw("lux_png", out / "wall_lux.png", lux, wall,
-                                log=opts.log_scale,
-                                title=f"{Path(opts.scene_path).name}: {photons:,} photons"))
-    if "error_vs_time" in wanted:
-        drawn.append(plots.draw("error_vs_time", out / "error_vs_time.png",
-                                summary["error_vs_time"]))
     if "exr" in wanted:
         write_exr(out / "wall_lux.exr", channels, meta)
     _engineering_outputs(out, opts, session, lux, summary, analyses, plots)
+    if "error_vs_time" in wanted:  # after the analyses: its caption names the rule sets
+        caption = report.plot_caption(summary)
+        drawn.append(plots.draw("error_vs_time", out / "error_vs_time.png",
+                                summary["error_vs_time"],
+                                caption=None if caption is None else caption.text()))
     for p in drawn:
         p.result()
     summary["outputs"] = sorted([p.name for p in out.iterdir() if p.is_file()
@@ -565,9 +674,13 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
             seen = {(m["name"], m.get("h_deg"), m.get("v_deg")) for m in marks or ()}
             marks = (marks or []) + [m for m in result.marks if (
                 m["name"], m.get("h_deg"), m.get("v_deg")) not in seen]
+    until = until_summary(opts, session, summary, analyses)
+    if until is not None:  # --until decided: its looks and what is still open
+        summary["until"] = until
+    drawn = {"png": "wall_lux", "isolux": "isolux", "road": "road"}
     report.engineering_plots(out, lux, frame, marks, opts.mount_height, summary=summary,
-                             which=tuple(n for n in ("isolux", "road") if n in opts.outputs),
-                             plots=plots)
+                             which=tuple(v for k, v in drawn.items() if k in opts.outputs),
+                             plots=plots, log=opts.log_scale)
 
 
 def _cutoff(lux: np.ndarray, frame, traffic: str, session=None) -> dict[str, Any]:

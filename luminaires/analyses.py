@@ -10,10 +10,13 @@ option              unit   analysis
 ==================  =====  ==========================================================
 ``regulation``      –      :class:`~.regulations.check.RegulationAnalysis` per rule set
                            of the comma list (with ``traffic``, ``aim``, ``aperture``
-                           deg, ``spt_points``)
+                           deg, ``spt_points``; ``until`` = decided: one shared
+                           :class:`~.regulations.sequential.VerdictRule`)
 ``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
                            ``ies_type``, ``farfield_photons``, ``ies_step``,
                            ``ldt_step`` deg)
+``road``            –      :class:`lightsim.road_evaluation.RoadAnalysis` (with
+                           ``mount_height`` m, ``traffic``)
 ==================  =====  ==========================================================
 """
 
@@ -22,11 +25,14 @@ from __future__ import annotations
 from typing import Any
 
 from lightsim.analysis import Analysis
+from lightsim.road_evaluation import RoadAnalysis, RoadSettings
 
 from .photometric import resolve_ies_type
 from .photometric.analysis import FarfieldAnalysis
 from .photometric.gridding import check_step
 from .regulations.check import RegulationAnalysis, split_rulesets
+from .regulations.conditions import refuse_screen_check
+from .regulations.sequential import VerdictRule
 
 __all__ = ["for_options"]
 
@@ -44,12 +50,20 @@ def for_options(opts: Any) -> list[Analysis]:
             check_step(step, kind, flag)
     out: list[Analysis] = []
     if opts.regulation is not None:
+        # --until decided: one stopping rule over every rule set's verdicts
+        until = VerdictRule() if opts.until == "decided" else None
         # `a,b`: one table per rule set, the first named "regulation"
         for i, rs in enumerate(split_rulesets(opts.regulation)):
-            out.append(RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
+            analysis = RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,
                                           opts.spt_points,
-                                          name="regulation" if i == 0 else f"regulation:{rs}"))
+                                          name="regulation" if i == 0 else f"regulation:{rs}",
+                                          until=until)
+            refuse_screen_check(analysis.rules)  # re-aim etc.: `lightsim check` instead
+            out.append(analysis)
     if opts.ies or opts.ldt:
         out.append(FarfieldAnalysis(opts.ies, opts.ldt, opts.ies_type, opts.farfield_photons,
                                     opts.ies_step, opts.ldt_step))
+    if getattr(opts, "road", False):
+        out.append(RoadAnalysis(RoadSettings(mount_height=opts.mount_height,
+                                             traffic=opts.traffic)))
     return out

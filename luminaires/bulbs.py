@@ -1,4 +1,4 @@
-"""Halogen bulb presets (UN R37 categories H1, H3, H4, H7) as data.
+"""Halogen bulb presets (UN R37 categories H1, H3, H4, H7) and LED presets as data.
 
 Each preset gives the luminous flux with its source, the filament (coil envelope) size, the
 filament position relative to the reflector focus, the filament axis, the glass envelope and
@@ -43,6 +43,11 @@ hand:
   that an opaque tip cap shades only directions that would leave the lamp without
   touching a reflector of the default size.
 
+LED presets (:data:`LEDS`): rows of square 1 mm² dies, each a flat Lambertian emitter,
+with 300 lm per die — typical of automotive headlamp LEDs at 1 A (about 95 Mcd/m²),
+an assumption rather than one product's data sheet. Used by the LED projector module
+(:mod:`lightsim.luminaires.projector`).
+
 Tip caps: UN R37 sheet H7/2 (note 7, as amended by ECE/TRANS/WP.29/2006/81) prescribes an
 obscuration covering at least the bulb top down to its cylindrical part; H4 bulbs carry such
 a black cap too (assumed here, not checked against sheet H4); H1 and H3 are modelled without.
@@ -57,12 +62,15 @@ from lightsim.errors import InputError
 
 __all__ = [
     "BULBS",
+    "LEDS",
     "BulbSpec",
     "EnvelopeSpec",
+    "LedSpec",
     "ShieldCupSpec",
     "bulb_names",
     "check_flux",
     "get_bulb",
+    "get_led",
 ]
 
 MM = 1e-3  # metres per millimetre
@@ -322,3 +330,72 @@ def get_bulb(name: str) -> BulbSpec:
     if key is None:
         raise InputError(f"unknown bulb {name!r}; known bulbs: {', '.join(BULBS)}")
     return BULBS[key]
+
+
+@dataclass(frozen=True)
+class LedSpec:
+    """An LED light source: a row of square dies, each a flat Lambertian emitter.
+
+    Attributes
+    ----------
+    name : str
+        Preset name (``"LED-2x1"``); written to each die's ``extras.lightsim.led``.
+    dies : int
+        Number of dies in the row (along the lamp's X axis).
+    die_side_m : float
+        Edge of one square die in m.
+    pitch_m : float
+        Centre distance of neighbouring dies in m.
+    flux_lm : float
+        Luminous flux of all dies together, in lm (shared equally).
+    flux_source : str
+        Where the flux comes from and how sure it is.
+    """
+
+    name: str
+    dies: int
+    die_side_m: float
+    pitch_m: float
+    flux_lm: float
+    flux_source: str
+
+    @property
+    def luminance_cd_m2(self) -> float:
+        """Luminance of the lit dies, L = Φ / (π A), in cd/m² (a Lambertian emitter)."""
+        return self.flux_lm / (math.pi * self.dies * self.die_side_m ** 2)
+
+    def with_flux(self, flux_lm: float) -> LedSpec:
+        """A copy with another luminous flux, in lm (> 0)."""
+        return replace(self, flux_lm=check_flux(flux_lm),
+                       flux_source="given by the user (--flux)")
+
+
+#: LED presets by name. Die sizes and fluxes are typical of automotive headlamp LEDs
+#: (1 mm² dies in rows of 1 to 4, 250–300 lm per die at 1 A); stated assumptions, not the
+#: data sheet of one product.
+LEDS: dict[str, LedSpec] = {
+    "LED-1x1": LedSpec(
+        "LED-1x1", 1, 1.0 * MM, 1.1 * MM, 300.0,
+        "assumption: one 1 mm² die at 300 lm, typical of automotive headlamp LEDs at 1 A "
+        "(not one product's data sheet)",
+    ),
+    "LED-2x1": LedSpec(
+        "LED-2x1", 2, 1.0 * MM, 1.1 * MM, 600.0,
+        "assumption: two 1 mm² dies at 300 lm each, typical of automotive headlamp LEDs "
+        "at 1 A (not one product's data sheet)",
+    ),
+}
+
+
+def get_led(name: str) -> LedSpec:
+    """The LED preset called ``name`` (case-insensitive).
+
+    Raises
+    ------
+    InputError
+        Unknown name (the message lists the known ones).
+    """
+    key = {k.lower(): k for k in LEDS}.get(str(name).strip().lower())
+    if key is None:
+        raise InputError(f"unknown LED {name!r}; known LEDs: {', '.join(LEDS)}")
+    return LEDS[key]

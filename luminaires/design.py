@@ -256,6 +256,12 @@ class DesignSettings:
     restart_seeds: tuple[int, ...] = option("1,2,3", f"Photon seeds of the restart check "
                                             f"runs, {_LIST}.", flag=("--restart-seeds",),
                                             cast=str, metavar="S,…", default_text="1,2,3")
+    until: str | None = option(None, "decided: every check run that reads verdicts "
+                               "(--restarts, --check-photons) stops as soon as all its "
+                               "verdicts are decided, as simulate --until decided does; "
+                               "--restart-photons and --check-photons are then the caps.",
+                               flag=("--until",), choices=(None, "decided"),
+                               default_text="the check runs' photons")
     smooth_max: float = option(2.0, "Largest allowed lux / Gaussian-smoothed lux (σ 1°).",
                                low=0, low_open=True, internal="fixed by the design")
     aim_resolution: tuple[int, int] = option((320, 128), "Wall pixels WxH of the aim and "

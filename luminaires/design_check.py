@@ -18,6 +18,8 @@ photons         –      32 000 000      photons of each check run (the README d
 resolution      px     320×128         wall pixels W×H (the README demo's)
 seeds           –      (1, 2, 3)       photon seeds of the check runs
 aperture        deg    0.15            detector aperture of the test points (simulate's)
+until           –      None            "decided": each check run stops when every verdict
+                                       is decided (``photons`` is then its cap)
 ==============  =====  ==============  ================================================
 """
 
@@ -57,19 +59,22 @@ class LampCheck:
         Rows with a limit checked (over all runs).
     seconds : list of float
         Simulation time of each run, s.
+    photons : list of int
+        Photons of each run (less than the budget where ``until`` stopped it).
     """
 
     not_passing: list[tuple[int, str, str, str]] = field(default_factory=list)
     min_margin: float = math.inf
     rows: int = 0
     seconds: list[float] = field(default_factory=list)
+    photons: list[int] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         # JSON has no infinities: an unbounded margin is kept as the text "inf"/"-inf"
         m = self.min_margin
         return {"not_passing": [list(t) for t in self.not_passing],
                 "min_margin": m if math.isfinite(m) else str(m),
-                "rows": self.rows, "seconds": self.seconds}
+                "rows": self.rows, "seconds": self.seconds, "photons": self.photons}
 
 
 def rule_margin(row: dict[str, Any]) -> float:
@@ -94,9 +99,13 @@ def rule_margin(row: dict[str, Any]) -> float:
 def check_lamp(glb: str | Path, regulation: str, *, photons: int = 32_000_000,
                resolution: tuple[int, int] = (320, 128), seeds: Sequence[int] = (1, 2, 3),
                traffic: str = "right", aperture: float = 0.15, aim: bool = False,
-               note: Callable[[str], None] | None = None) -> LampCheck:
+               note: Callable[[str], None] | None = None, until: str | None = None
+               ) -> LampCheck:
     """``lightsim simulate GLB --photons … --resolution … --regulation … --seed S`` for
-    every seed (in this process, nothing written but a temporary folder), collected."""
+    every seed (in this process, nothing written but a temporary folder), collected;
+    ``until="decided"``: each run stops when its verdicts are decided (``--until
+    decided``, ``photons`` the cap — deterministic for a seed, so a design stays
+    reproducible)."""
     out = LampCheck()
     work = Path(tempfile.mkdtemp(prefix="lightsim-check-"))
     try:
@@ -104,7 +113,7 @@ def check_lamp(glb: str | Path, regulation: str, *, photons: int = 32_000_000,
             opts = SimulateOptions(str(glb), out_dir=str(work / f"seed{s}"), photons=photons,
                                    resolution=tuple(resolution), regulation=regulation,
                                    traffic=traffic, aperture=aperture, aim=aim,
-                                   outputs=("json",), config={"seed": int(s)})
+                                   outputs=("json",), config={"seed": int(s)}, until=until)
             try:
                 sim = run_simulation(opts, analyses=for_options(opts))
             except InputError as exc:  # e.g. no cut-off to aim at: the worst lamp
@@ -115,6 +124,7 @@ def check_lamp(glb: str | Path, regulation: str, *, photons: int = 32_000_000,
                 continue
             summary = sim.summary
             out.seconds.append(float(summary.get("seconds") or 0.0))
+            out.photons.append(int(summary.get("photons") or 0))
             bad = 0
             for key in (k for k in summary if k.startswith("regulation")):
                 table = summary[key]
@@ -135,7 +145,8 @@ def check_lamp(glb: str | Path, regulation: str, *, photons: int = 32_000_000,
                 out.not_passing.append((int(s), "annex 9", "linearity",
                                         f"fail ({float(cut.get('spread_deg') or 0):.3f}°)"))
             if note is not None:
-                note(f"check seed {s}: {bad} rows not passing, {out.seconds[-1]:.0f} s")
+                note(f"check seed {s}: {bad} rows not passing, {out.seconds[-1]:.0f} s, "
+                     f"{out.photons[-1]:,} photons")
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return out

@@ -9,7 +9,8 @@ piece                 what
 bulb presets          every bulb of :mod:`~lightsim.luminaires.bulbs` as a filament mesh
                       builder (:func:`bulb_presets`)
 regulation table      the rule set's probes estimated from every set, with intervals and
-                      verdicts (:func:`regulation_hook`)
+                      verdicts decided as ``simulate --until decided`` decides them, each
+                      row decided or open (:func:`regulation_hook`)
 save run              a normal ``simulate`` run folder plus ``scene.glb`` (the edited scene)
                       and ``controls.json`` (:func:`save_hook`)
 ====================  =========================================================================
@@ -30,10 +31,9 @@ from lightsim.io.summary import write_json
 from lightsim.luminaires import bulbs, filament
 from lightsim.luminaires.analyses import for_options
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
-from lightsim.luminaires.regulations import load_ruleset, probe_points
-from lightsim.luminaires.regulations.check import evaluate_probe_values
+from lightsim.luminaires.regulations import load_ruleset, unevaluated_rules
+from lightsim.luminaires.regulations.sequential import VerdictRule
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR, Material
-from lightsim.render.frame import luminous
 from lightsim.scene import EMITTER, WALL, Part, Scene, SceneSettings, load_scene
 from lightsim.simulate import SimulateOptions, write_outputs
 from lightsim.view.app import Hub, ViewServer, serve
@@ -77,41 +77,67 @@ def bulb_presets() -> dict[str, BulbPreset]:
     return out
 
 
-def regulation_hook(ruleset: str, traffic: str) -> RegulationHook:
+def regulation_hook(ruleset: str, traffic: str, cap_photons: int | None = None
+                    ) -> RegulationHook:
     """Regulation table of a live session: every set estimates the rule set's probes
-    (intensities in cd at the rule set's points for ``traffic``-hand traffic)."""
-    rs = load_ruleset(ruleset)
-    cache: dict[float, tuple[Any, np.ndarray]] = {}
+    (intensities in cd at the rule set's points for ``traffic``-hand traffic), and the
+    verdicts are decided as ``simulate --until decided`` decides them.
+
+    The table looks at the verdicts on the rule's schedule
+    (:class:`~lightsim.luminaires.regulations.sequential.VerdictRule`): first at the
+    photons of its first call, then at every doubling, the error budget split over the
+    looks up to ``cap_photons`` (where accumulation stops; default the view's
+    ``max_photons``). A row is ``decided`` once its
+    running interval clears or misses its limit, and stays so; a call between looks
+    shows the last look's table. An edit (or a new session) starts the looks again."""
+    cap = int(ViewSettings().max_photons if cap_photons is None else cap_photons)
+    state: dict[str, Any] = {"key": None, "rule": None, "table": None}
+    load_ruleset(ruleset)  # an unknown rule set fails here, before any look
 
     def evaluate(session) -> RegulationTable:
-        frame = session.scene.wall
-        d = float(frame.distance_m)
-        if d not in cache:
-            probes = probe_points(rs, traffic, frame=frame.to_dict())
-            hv = np.stack([d * np.tan(np.radians(probes.h_deg)),
-                           d * np.tan(np.radians(probes.v_deg))], axis=1)
-            cache.clear()
-            cache[d] = (probes, hv)
-        probes, hv = cache[d]
-        values = luminous(session.probe(hv).values) if len(hv) else np.zeros((1, 0))
-        results, unevaluated, _ = evaluate_probe_values(rs, probes, hv, values, d, traffic)
-        rows, points = [], []
-        for r in results:
-            lim = r.get("limit") or {}
-            text = " ".join(f"{'≥' if k == 'min' else '≤'} {v:,.0f}" for k, v in lim.items()
-                            if k in ("min", "max"))
-            rows.append({"name": r["name"], "kind": r.get("kind"), "limit": text or "–",
-                         "value": number_or_none(r.get("value_cd")),
-                         "interval": [number_or_none(x) for x in r["interval_cd"]]
-                         if r.get("interval_cd") else None,
-                         "verdict": r.get("verdict")})
-            if r.get("kind") == "point" and r.get("h_deg") is not None:
-                points.append({"name": r["name"], "h_deg": float(r["h_deg"]),
-                               "v_deg": float(r["v_deg"]), "verdict": r.get("verdict")})
-        return RegulationTable(f"{rs.id} ({traffic}-hand traffic)", rows, points,
-                               len(unevaluated))
+        photons = int(session.photons_emitted())
+        # the photons the looks have seen are gone after an edit or with a new session
+        key = (id(session), sum(1 for e in session.log if e.get("event") == "update"))
+        rule = state["rule"]
+        if rule is None or state["key"] != key or photons < rule.last_photons:
+            rule = VerdictRule()
+            rule.add(ruleset, traffic)
+            rule.bind(session, max(cap, 2 * max(photons, 1)),
+                      first_photons=max(photons, 1), from_photons=0)
+            state.update(key=key, rule=rule, table=None)
+        if rule.due(photons) or state["table"] is None:
+            if rule.due(photons):
+                rule.look(photons)
+            state["table"] = live_table(rule, traffic, photons)
+        return state["table"]
 
     return evaluate
+
+
+def live_table(rule: VerdictRule, traffic: str, photons: int) -> RegulationTable:
+    """The page's table of the rule's first rule set after its last look: every row with
+    ``decided`` (True: pass or fail for good; False: still open)."""
+    rows, points = [], []
+    results = rule.rows(0)
+    for r in results:
+        lim = r.get("limit") or {}
+        text = " ".join(f"{'≥' if k == 'min' else '≤'} {v:,.0f}" for k, v in lim.items()
+                        if k in ("min", "max"))
+        rows.append({"name": r["name"], "kind": r.get("kind"), "limit": text or "–",
+                     "value": number_or_none(r.get("value_cd")),
+                     "interval": [number_or_none(x) for x in r["interval_cd"]]
+                     if r.get("interval_cd") else None,
+                     "verdict": r.get("verdict"), "decided": bool(r.get("decided"))})
+        if r.get("kind") == "point" and r.get("h_deg") is not None:
+            points.append({"name": r["name"], "h_deg": float(r["h_deg"]),
+                           "v_deg": float(r["v_deg"]), "verdict": r.get("verdict")})
+    chk = rule.checks[0]
+    done = sum(r["decided"] for r in rows)
+    looked = rule.looks[-1]["photons"] if rule.looks else photons
+    title = (f"{chk.rules.id} ({traffic}-hand traffic): {done} of {len(rows)} decided at "
+             f"{looked:,} photons (look {len(rule.looks)} of {rule.schedule.looks})")
+    unevaluated = len(unevaluated_rules(chk.rules, chk.probes))
+    return RegulationTable(title, rows, points, unevaluated)
 
 
 def number_or_none(x: Any) -> float | None:
@@ -183,8 +209,8 @@ def save_hook(scene_path: str, settings: ViewSettings) -> SaveHook:
 def view_hooks(scene_path: str, settings: ViewSettings) -> ViewHooks:
     """The bulb presets, the regulation table (none without ``settings.regulation``) and
     the run writer of a live session of ``scene_path``."""
-    regulation = regulation_hook(settings.regulation, settings.traffic) \
-        if settings.regulation else None
+    regulation = regulation_hook(settings.regulation, settings.traffic,
+                                 settings.max_photons) if settings.regulation else None
     return ViewHooks(bulb_presets(), regulation, save_hook(scene_path, settings))
 
 
@@ -205,12 +231,12 @@ def build_live(scene_path: str, settings: ViewSettings | None = None, *,
 def start_view(scene_path: str, settings: ViewSettings | None = None, *,
                folder: Path | None = None, state: dict[str, Any] | None = None
                ) -> tuple[LiveSession, ViewServer]:
-    """Start the live session and the web server on ``settings.port``; returns
-    (live, server)."""
+    """Start the live session and the web server on ``settings.host``:``settings.port``
+    behind a new access token (``server.url`` carries it); returns (live, server)."""
     settings = settings if settings is not None else ViewSettings()
     hub = Hub()
     live = build_live(scene_path, settings, folder=folder, state=state, publish=hub.publish)
     res = tuple(settings.resolution)
     server = serve(live, hub, lambda path: load_scene(path, SceneSettings(resolution=res)),
-                   settings.port)
+                   settings)
     return live, server

@@ -35,10 +35,21 @@ def _unshare_prefix() -> list[str]:
     raise AssertionError  # unreachable
 
 
-def run_in_netns(script: str, timeout: float = 300, env: dict[str, str] | None = None
+def run_in_netns(script: str, timeout: float = 300, env: dict[str, str | None] | None = None
                  ) -> subprocess.CompletedProcess:
-    """Run a bash ``script`` inside a loopback-only network namespace."""
-    full_env = {**os.environ, **RAY_ENV, **(env or {})}
-    full_env.pop("RAY_ADDRESS", None)
+    """Run a bash ``script`` inside a loopback-only network namespace.
+
+    ``env`` adds variables to :data:`RAY_ENV` (Ray's token authentication off); a value of
+    None removes one (``{"RAY_AUTH_MODE": None}``: Ray's own default, token authentication
+    where a token exists)."""
+    full_env = {**os.environ, **RAY_ENV}
+    for k, v in (env or {}).items():
+        if v is None:
+            full_env.pop(k, None)
+        else:
+            full_env[k] = v
+    for k in ("RAY_ADDRESS", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
+        if k not in (env or {}):
+            full_env.pop(k, None)
     cmd = [*_unshare_prefix(), "bash", "-c", "ip link set lo up && " + script]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=full_env)

@@ -60,7 +60,15 @@ from skimage.transform import ProjectiveTransform, warp
 from lightsim import __version__
 from lightsim.errors import InputError
 from lightsim.io.summary import read_json, write_json
-from lightsim.validation.photo_aim import AimResult, AngleSampler, cutoff_offset, test_points
+from lightsim.render.cutoff import find_cutoff
+from lightsim.validation.photo_aim import (
+    AimResult,
+    AngleSampler,
+    aim_geometry_problem,
+    cutoff_offset,
+    marker_search,
+    test_points,
+)
 from lightsim.validation.photo_io import PhotoImage, Simulation, load_simulation, read_photo
 from lightsim.validation.photo_lamps import find_lamps, keep_lamp
 from lightsim.validation.photo_metrics import (
@@ -83,7 +91,12 @@ from lightsim.validation.photo_register import (
     registration_dict,
 )
 from lightsim.validation.screen_geometry import ScreenGeometry, fit_screen, parse_points, sim_matrix
-from lightsim.validation.screen_target import detect_markers, load_layout, marker_mask
+from lightsim.validation.screen_target import (
+    DEFAULT_LAYOUT,
+    detect_markers,
+    load_layout,
+    marker_mask,
+)
 
 __all__ = [
     "OUTPUTS",
@@ -211,7 +224,7 @@ class Comparison:
                             "units": {"psnr_db": "dB", "hotspot_offset_deg": "deg",
                                       "hotspot_dh_deg": "deg", "hotspot_dv_deg": "deg",
                                       "cutoff_v_photo_deg": "deg", "cutoff_v_sim_deg": "deg",
-                                      "cutoff_offset_deg": "deg"}},
+                                      "cutoff_shape_gap_deg": "deg"}},
             "geometry": (self.geometry.to_dict() if self.geometry is not None else
                          {"source": "given transform" if self.registration is None
                           else "beam registration"}),
@@ -373,6 +386,9 @@ def screen_geometry(photo: PhotoImage, sim: Simulation, opts: CompareOptions
     layout = None if opts.markers == "auto" else load_layout(opts.markers)
     geo = detect_markers(photo.luminance, layout, distance)
     name = Path(photo.path).name
+    photo.info["markers"] = marker_search(
+        [] if geo is None else geo.details["marker_ids"],
+        [m[0] for m in (layout or DEFAULT_LAYOUT).markers])
     if geo is None:
         return None
     warnings = photo.info.setdefault("warnings", [])
@@ -404,15 +420,20 @@ def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
     of the photo onto the beam when the geometry comes from the screen)."""
     sampler = AngleSampler(photo.luminance, photo.clipped, matrix, sim.lux, sim.frame)
     sigma = geometry.sigma_deg if geometry is not None else None
-    cut = cutoff_offset(sampler, opts.traffic, sigma, geometry)
-    norm, points = test_points(sampler, opts.traffic, opts.normalise_at)
     spots, spot_deg = _hotspot_offset(photo, sim, matrix)
+    cut = cutoff_offset(sampler, opts.traffic, sigma, geometry, dh_deg=spots[0] or 0.0)
+    norm, points = test_points(sampler, opts.traffic, opts.normalise_at)
     if geometry is not None and spot_deg is not None:
         x, y = geometry.deg_to_photo(np.array([spot_deg[0]]), np.array([spot_deg[1]]))
         sig = geometry.sigma_at(x, y)
         if sig is not None:
             sigma = float(math.hypot(sig[0][0], sig[1][0]))
-    if geometry is not None:
+    markers = photo.info.get("markers")
+    refused = (aim_geometry_problem(geometry, sim_cutoff_v(sim, opts.traffic))
+               if geometry is not None else None)
+    if refused is not None:
+        judge, statement = False, f"aim not read: {refused}"
+    elif geometry is not None:
         judge = True
         statement = (f"aim measured through the screen geometry from {len(geometry.photo_xy)} "
                      f"{'control points' if geometry.source == 'points' else 'marker corners'}"
@@ -425,12 +446,20 @@ def measure_aim(photo: PhotoImage, sim: Simulation, matrix: NDArray,
                      "it is only as good as the transform's source")
     else:
         judge, statement = False, _NOT_JUDGEABLE
+        if markers is not None:  # searched, but too few to use
+            statement = f"{markers['text']}; {statement}"
     # the core match resolves about a quarter of a simulation pixel; the geometry adds σ
     step = float(np.mean(np.abs(np.diff(sim.wall.v_deg())))) if sim.wall.height > 1 else 0.0
     h_int = 1.96 * math.hypot(sigma or 0.0, 0.25 * step) if judge else None
     return AimResult(judge, statement, geometry.source if geometry is not None else
                      ("given transform" if reg is None else "beam registration"), cut,
-                     spots[0], spots[1], h_int, norm, points)
+                     spots[0], spots[1], h_int, norm, points, markers, refused)
+
+
+def sim_cutoff_v(sim: Simulation, traffic: str) -> float | None:
+    """The simulation's cut-off position V (deg), None where it has none."""
+    res = find_cutoff(np.nan_to_num(sim.lux), sim.frame, traffic)
+    return res.v_cutoff_deg if res.found else None
 
 
 def _hotspot_offset(photo: PhotoImage, sim: Simulation, matrix: NDArray,

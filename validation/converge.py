@@ -130,6 +130,11 @@ ANALYTIC_TARGETS: dict[str, Callable[[], an.AnalyticScene]] = {
     "slab-absorbing": lambda: an.slab_case(sigma=10.0),
     "lambertian": an.lambertian_case,
     "shield": an.shield_case,
+    # a point source at the focus of a small paraboloid mirror (f = 20 mm, rim 30 mm),
+    # 0.94 mm pixels: the beam's interior converges long before its rim
+    "paraboloid-fine": lambda: an.paraboloid_case(
+        f=0.02, rim=0.03, reflectance=0.88, wall_distance=0.5, wall_size=0.06,
+        resolution=(64, 64), radial=128, azimuthal=512),
 }
 
 

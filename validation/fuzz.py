@@ -1,15 +1,36 @@
-"""Input fuzzing: a seeded mutation corpus of GLB/glTF, IES, LDT and photo files, each run
-through the real command line, each result judged by the input-error promise.
+"""Input fuzzing: a seeded mutation corpus of every input lightsim reads, each run through the
+real command line, each result judged by the input-error promise.
 
-The promise (README, *Commands*): bad input gives **one** stderr line and exit code 2,
-never a traceback, and leaves no files in ``--out``; good input exits 0 with finite,
-closed results. Every case here is a real file made from a valid seed by one mutation —
-byte flips, truncation, chunk duplication, JSON edits of the glTF document (targeted at
-the fields the loader reads, or at a random leaf), header-number edits of IES/LDT files,
-tag and byte damage of JPEG/PNG/TIFF photos — and is run as ``lightsim simulate`` (meshes
-and photometric files) or ``lightsim compare`` (photos) in a worker process, with stdout
-and stderr captured at the file-descriptor level (so C libraries' and numpy's warning
-lines count too) and a time limit per case.
+Input kinds (``KINDS``) and how each case runs:
+
+==============  ===========================================  ================================
+kind            seed and mutations                           run as
+==============  ===========================================  ================================
+``glb``         a small lamp (and the shipped headlight);    ``simulate CASE``
+                bytes, BIN chunk, targeted and random
+                glTF JSON edits, ``.gltf`` text
+``ies``/``ldt``  the shipped IES sample (and it as LDT);      ``simulate CASE``
+                header numbers, deleted lines, bytes
+``photo``       synthetic JPEG/PNG/TIFF photos; bytes, TIFF  ``compare CASE --sim …``
+                tags
+``step``        the example CAD headlamp (OpenCASCADE);      ``simulate CASE --materials …``
+``iges``        numbers, entity lines deleted or doubled,
+                bytes
+``materials``   a material map (TOML) of the small lamp;     ``simulate lamp --materials CASE``
+                values, keys, TOML syntax, bytes
+``tm25``        a Lambertian square as a TM-25 ray file /    ``simulate CASE``; ``simulate
+``zemax``       a Zemax binary source file; header fields,   lamp --rayfile CASE`` (the ray
+                ray records, bytes                           file is the light source)
+``points``      ``--points`` control points of a synthetic   ``compare PHOTO --points CASE``
+                photo; numbers, separators, counts
+``state``       a view ``state.json``; JSON edits, bytes     ``view lamp --state CASE`` (a
+                                                             process, :mod:`.fuzz_view`)
+``ws``          WebSocket messages of the page (edits,       sent to a running ``view``
+                tabs, saves); JSON edits, bytes, nesting     (:mod:`.fuzz_view`)
+==============  ===========================================  ================================
+
+Commands run in a worker process, with stdout and stderr captured at the file-descriptor
+level (so C libraries' and numpy's warning lines count too) and a time limit per case.
 
 A case **passes** when either
 
@@ -19,6 +40,10 @@ A case **passes** when either
   compare: every number in ``comparison.json`` finite), or
 * exit 2, exactly one stderr line ``lightsim: error: …``, no traceback, no file in
   ``--out``.
+
+For the view the same promise in its terms (:mod:`lightsim.validation.fuzz_view`): a bad
+state file exits 2 with one line, a good one starts the session; a bad message gets one
+error line in the page, a good one is acted on (a saved run with a closed energy budget).
 
 Everything else is a failure with a class: ``traceback``, ``lines`` (exit 2 with more or
 fewer than one line), ``leftover`` (files after an error), ``stray`` (extra stderr lines
@@ -30,7 +55,7 @@ parameter                     unit   default     meaning
 ============================  =====  ==========  ===========================================
 ``n``                         –      –           number of cases
 ``seed``                      –      1           corpus seed (case i depends on seed and i)
-``kinds``                     –      all four    ``glb``, ``ies``, ``ldt``, ``photo``
+``kinds``                     –      all         ``KINDS`` (taken in turn)
 ``photons``                   –      20 000      ``simulate --photons`` (and per frame)
 ``resolution``                px     64x32       ``simulate --resolution``
 ``timeout_s``                 s      180         per case; the worker is restarted after it
@@ -77,10 +102,23 @@ import trimesh
 from lightsim.errors import InputError
 from lightsim.io.atomic import STAGING_PREFIX, TEMP_RE
 from lightsim.io.exr import read_exr
+from lightsim.io.rayfile import (
+    TM25_FILE_HEADER,
+    TM25_FLAGS,
+    TM25_TEXT_BYTES,
+    TM25_TEXTS,
+    ZEMAX_HEADER,
+    write_tm25,
+    write_zemax,
+)
+from lightsim.luminaires.cad_example import write_example
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, glb_bytes
 from lightsim.luminaires.headlight import example_headlight
 from lightsim.luminaires.photometric import SAMPLE_IES, read_ies, write_ldt
+from lightsim.luminaires.rayfiles import lambertian_square
+from lightsim.scene import SceneSettings, load_scene
 from lightsim.simulate import folder_notes
+from lightsim.validation.fuzz_view import MessageTarget, judge_state
 from lightsim.validation.synthetic_photo import (
     CameraSettings,
     lowbeam_lux,
@@ -89,8 +127,12 @@ from lightsim.validation.synthetic_photo import (
     write_photo,
     write_result,
 )
+from lightsim.view.editor import SceneEditor
 
-KINDS = ("glb", "ies", "ldt", "photo")
+KINDS = ("glb", "ies", "ldt", "photo", "step", "iges", "materials", "tm25", "zemax",
+         "points", "state", "ws")
+VIEW_KINDS = ("state", "ws")
+TM25_BLOCK = TM25_FILE_HEADER + TM25_FLAGS + TM25_TEXTS * TM25_TEXT_BYTES  # before the rays
 SIM_OUTPUTS = frozenset({"summary.json", "wall_lux.exr", "wall_lux.png", "error_vs_time.png",
                          "isolux.png", "road.png"})
 COMPARE_OUTPUTS = frozenset({"comparison.json", "overlay.png", "difference.png",
@@ -271,6 +313,94 @@ def photo_seeds(workdir: Path) -> tuple[Path, dict[str, bytes]]:
         out[suffix] = path.read_bytes()
         side.unlink()
     return sim, out
+
+
+def material_map_seed() -> str:
+    """A material map (TOML) of :func:`small_scene_glb`'s parts: the optics it gives them
+    are those of the GLB, the filament's flux another (800 lm)."""
+    return """schema = "lightsim-materials-1"
+title = "small lamp"
+
+[[rule]]
+match = "filament*"
+kind = "emitter"
+flux_lm = 800
+emission = "isotropic"
+
+[[rule]]
+match = "lens"
+kind = "glass"
+ior = 1.5
+attenuation = 1.05
+
+[[rule]]
+match = "reflector"
+kind = "mirror"
+reflectance = 0.9
+"""
+
+
+def cad_seeds(workdir: Path, kinds: Sequence[str]) -> dict[str, tuple[bytes, Path]]:
+    """The example CAD headlamp as STEP and/or IGES (OpenCASCADE's writers): {kind:
+    (file bytes, its material map)}."""
+    out = {}
+    for kind in ("step", "iges"):
+        if kind in kinds:
+            mmap = write_example(workdir / f"seed.{kind}")
+            out[kind] = ((workdir / f"seed.{kind}").read_bytes(), mmap)
+    return out
+
+
+def rayfile_seeds(workdir: Path, kinds: Sequence[str]) -> dict[str, bytes]:
+    """A 1 mm Lambertian square of 400 rays (1000 lm) as a TM-25 and a Zemax ray file."""
+    pos, dirs, flux = lambertian_square(1e-3, 400, 1000.0)
+    out = {}
+    if "tm25" in kinds:
+        out["tm25"] = write_tm25(workdir / "seed.tm25ray", pos, dirs, flux).read_bytes()
+    if "zemax" in kinds:
+        out["zemax"] = write_zemax(workdir / "seed.dat", pos, dirs, flux).read_bytes()
+    return out
+
+
+def points_seed(photo_size: tuple[int, int], matrix: Any, frame: dict[str, Any]) -> str:
+    """``--points`` of a synthetic photo: the four points at a quarter of its width and
+    height from its corners, each with the screen angles its known transform (photo px →
+    simulation px) and the wall frame (:func:`wall_frame`'s dict) give."""
+    w, h = photo_size
+    m = np.asarray(matrix, float)
+    hr, vr, d = frame["h_range_m"], frame["v_range_m"], frame["distance_m"]
+    nx, ny = frame["resolution"]
+    parts = []
+    for x, y in ((w / 4, h / 4), (3 * w / 4, h / 4), (3 * w / 4, 3 * h / 4), (w / 4, 3 * h / 4)):
+        sx, sy, sw = m @ (x, y, 1.0)
+        u, v = (sx / sw + 0.5) / nx, (sy / sw + 0.5) / ny  # pixel centres; row 0 at the top
+        hm = hr[0] + u * (hr[1] - hr[0])
+        vm = vr[1] - v * (vr[1] - vr[0])
+        parts.append(f"{x:g},{y:g}={math.degrees(math.atan2(hm, d)):.3f},"
+                     f"{math.degrees(math.atan2(vm, d)):.3f}")
+    return "; ".join(parts)
+
+
+def view_state_seed(controls: dict[str, Any], scene: str) -> bytes:
+    """A ``state.json`` as the view writes it (scene and controls)."""
+    return json.dumps({"scene": scene, "controls": controls}, indent=2).encode("utf-8")
+
+
+def view_message_seeds(controls: dict[str, Any]) -> list[dict[str, Any]]:
+    """Messages the page sends: an edit of each numeric control (a small step from the
+    scene's value), a bulb change, both tabs, a save."""
+    out: list[dict[str, Any]] = []
+    for k, v in controls.items():
+        if isinstance(v, bool):
+            continue
+        if isinstance(v, int | float):
+            step = 1 if isinstance(v, int) else 0.1 * (abs(v) or 1.0)
+            out.append({"type": "set", "changes": {k: v + step}, "token": len(out) + 1})
+        elif isinstance(v, str):
+            out.append({"type": "set", "changes": {k: v}, "token": len(out) + 1})
+    out += [{"type": "view", "tab": "camera"}, {"type": "view", "tab": "wall"},
+            {"type": "save"}]
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -560,21 +690,221 @@ def _mutate_photo(data: bytes, suffix: str, rng: np.random.Generator) -> tuple[b
     return _bytes_mutation(data, rng, header=64 if suffix != ".jpg" else 600)
 
 
+def _mutate_cad(data: bytes, kind: str, rng: np.random.Generator) -> tuple[bytes, str]:
+    """A STEP or IGES file: a number, whole entity lines deleted or doubled, or bytes."""
+    r = rng.random()
+    text = data.decode("latin-1")
+    lines = text.splitlines()
+    if r < 0.45:
+        new, what = _mutate_text_numbers(text, rng, list(range(len(lines))))
+        return new.encode("latin-1"), what
+    if r < 0.7:
+        i = int(rng.integers(0, max(len(lines), 1)))
+        n = int(rng.integers(1, 4))
+        if rng.random() < 0.5:
+            del lines[i:i + n]
+            what = f"lines {i + 1}+{n} deleted"
+        else:
+            lines[i:i] = lines[i:i + n]
+            what = f"lines {i + 1}+{n} doubled"
+        return ("\n".join(lines) + "\n").encode("latin-1"), what
+    return _bytes_mutation(data, rng, header=2000)
+
+
+def _mutate_toml(text: str, rng: np.random.Generator) -> tuple[bytes, str]:
+    """A material map: a value replaced (palette), a key renamed or removed, TOML syntax
+    broken, or bytes."""
+    r = rng.random()
+    lines = text.splitlines()
+    values = [i for i, ln in enumerate(lines) if "=" in ln]
+    if r < 0.5:
+        i = _pick(rng, values)
+        key = lines[i].split("=")[0].strip()
+        new = _pick(rng, ('"mirror"', '"glass"', '"emitter"', '"ignore"', '"wall"', '"bogus"',
+                          "nan", "inf", "-inf", "-1", "0", "1e30", "1e-30", "2", "true",
+                          "[1, 2]", '""', '"*"', '"[a-"', "{}", "99999999999999999999"))
+        lines[i] = f"{key} = {new}"
+        what = f"{key} = {new}"
+    elif r < 0.65:
+        i = _pick(rng, values)
+        key = lines[i].split("=")[0].strip()
+        if rng.random() < 0.5:
+            del lines[i]
+            what = f"{key} removed"
+        else:
+            lines[i] = "colour" + lines[i][len(lines[i]) - len(lines[i].lstrip()):] + \
+                lines[i][lines[i].index("="):]
+            what = f"{key} renamed colour"
+    elif r < 0.8:
+        i = int(rng.integers(0, max(len(lines), 1)))
+        broken = _pick(rng, ("[[rule]", "[rule]", "match = ", 'match = "unterminated',
+                             "= 3", "[[rule]]\n[[rule]]", "schema = \"other\"", "\x00"))
+        lines.insert(i, broken)
+        what = f"line {i + 1} inserted: {broken!r}"
+    else:
+        raw, what = _bytes_mutation(text.encode("utf-8"), rng, header=len(text))
+        return raw, what
+    return ("\n".join(lines) + "\n").encode("utf-8"), what
+
+
+# (offset, struct format, field) of the header fields a ray-file reader trusts
+_TM25_FIELDS = ((4, "<i", "version"), (8, "<i", "creation method"), (12, "<f", "luminous flux"),
+                (20, "<Q", "ray count"), (56, "<i", "start position"),
+                (60, "<i", "spectrum type"),
+                (76, "<i", "spectral tables"), (80, "<i", "extra items"),
+                (84, "<i", "extra text bytes"), (256, "<i", "position flag"),
+                (260, "<i", "direction flag"), (264, "<i", "radiant flag"),
+                (268, "<i", "wavelength flag"), (272, "<i", "luminous flag"),
+                (276, "<i", "Stokes flag"))
+_ZEMAX_FIELDS = ((0, "<i", "identifier"), (4, "<I", "ray count"), (108, "<f", "source flux"),
+                 (112, "<f", "ray-set flux"), (136, "<I", "units"), (164, "<f", "scale x"),
+                 (192, "<i", "ray format"), (196, "<i", "flux type"))
+_FIELD_VALUES = {"<i": (0, -1, 1, 2, 3, 4, 2**31 - 1, -2**31), "<I": (0, 1, 2**32 - 1, 10**6),
+                 "<Q": (0, 1, 2**64 - 1, 10**12, 399, 401),
+                 "<f": (0.0, -1.0, math.nan, math.inf, 1e30, 1e-30, 1.0)}
+
+
+def _mutate_rayfile(data: bytes, kind: str, rng: np.random.Generator) -> tuple[bytes, str]:
+    """A ray file: a header field (count, flux, units, flags, …), ray records (NaN, zero
+    directions, huge or negative flux), truncation or bytes."""
+    r = rng.random()
+    header = TM25_BLOCK if kind == "tm25" else ZEMAX_HEADER
+    if r < 0.4:
+        off, fmt, name = _pick(rng, _TM25_FIELDS if kind == "tm25" else _ZEMAX_FIELDS)
+        value = _pick(rng, _FIELD_VALUES[fmt])
+        b = bytearray(data)
+        struct.pack_into(fmt, b, off, value)
+        return bytes(b), f"header {name} = {value}"
+    if r < 0.65:
+        n_items = 7
+        rays = (len(data) - header) // (4 * n_items)
+        if rays <= 0:
+            return _bytes_mutation(data, rng, header)
+        i = int(rng.integers(0, rays))
+        col = int(rng.integers(0, n_items))
+        value = float(_pick(rng, (math.nan, math.inf, -1.0, 0.0, 1e30, -1e30, 1e-30)))
+        b = bytearray(data)
+        struct.pack_into("<f", b, header + 4 * (n_items * i + col), value)
+        return bytes(b), f"ray {i} column {col} = {value}"
+    return _bytes_mutation(data, rng, header)
+
+
+def _mutate_points(text: str, rng: np.random.Generator) -> tuple[bytes, str]:
+    """``--points``: a number replaced, a separator changed, points dropped or repeated."""
+    r = rng.random()
+    parts = [p.strip() for p in text.split(";")]
+    if r < 0.4:
+        toks = list(re.finditer(r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?", text))
+        t = _pick(rng, toks)
+        new = _pick(rng, (*_NUM_TOKENS, "89", "-89.5", "1e308", "0x10", "١٢"))
+        out, what = text[:t.start()] + new + text[t.end():], f"{t.group()!r} → {new!r}"
+    elif r < 0.6:
+        seps = [m.start() for m in re.finditer(r"[;,=]", text)]
+        i = _pick(rng, seps)
+        new = _pick(rng, (";", ",", "=", " ", "", "==", ";;", ":"))
+        out, what = text[:i] + new + text[i + 1:], f"separator {i} {text[i]!r} → {new!r}"
+    elif r < 0.8:
+        k = int(rng.integers(0, len(parts) + 1))
+        out, what = "; ".join(parts[:k]), f"first {k} of {len(parts)} points"
+    else:
+        i = int(rng.integers(0, len(parts)))
+        extra = parts[i] if rng.random() < 0.5 else parts[i].split("=")[0] + "=" + \
+            parts[(i + 1) % len(parts)].split("=")[1]
+        out, what = "; ".join([*parts, extra]), f"point {i + 1} repeated or crossed"
+    return out.encode("utf-8"), what
+
+
+def _mutate_json_doc(doc: Any, rng: np.random.Generator) -> tuple[bytes, str]:
+    """A JSON document: a leaf set to a palette value, a key removed or added, the
+    document replaced by another type, or bytes of its text."""
+    r = rng.random()
+    if r < 0.55:
+        d = json.loads(json.dumps(doc))
+        leaves = list(_leaves(d))
+        path = _pick(rng, leaves) if leaves else ()
+        value = _pick(rng, _PALETTE)
+        if path:
+            _set(d, path, value)
+        return json.dumps(d, allow_nan=True).encode("utf-8"), \
+            f"{'/'.join(map(str, path))} = {value!r}"
+    if r < 0.7:
+        d = json.loads(json.dumps(doc))
+        if isinstance(d, dict) and d:
+            target = d
+            inner = [v for v in d.values() if isinstance(v, dict) and v]
+            if inner and rng.random() < 0.7:
+                target = _pick(rng, inner)
+            if rng.random() < 0.5:
+                key = _pick(rng, sorted(target))
+                target.pop(key)
+                return json.dumps(d).encode("utf-8"), f"{key} removed"
+            target["path" if rng.random() < 0.5 else "bogus"] = "../../outside"
+            return json.dumps(d).encode("utf-8"), "an unknown field added"
+    if r < 0.8:
+        other = _pick(rng, ([], "text", 3, None, [doc], {"type": None}))
+        return json.dumps(other).encode("utf-8"), f"document replaced by {other!r}"[:80]
+    return _bytes_mutation(json.dumps(doc).encode("utf-8"), rng, header=64)
+
+
+def _mutate_message(msg: dict[str, Any], rng: np.random.Generator) -> tuple[bytes, str]:
+    """A page message: as a JSON document, or deep nesting, a huge value, binary."""
+    r = rng.random()
+    if r < 0.85:
+        raw, what = _mutate_json_doc(msg, rng)
+        return raw, f"{msg.get('type')}: {what}"
+    if r < 0.9:
+        n = int(rng.integers(30, 100_000))
+        return ("[" * n + "]" * n).encode(), f"nested {n} deep"
+    if r < 0.95:
+        return json.dumps({"type": "set", "changes": {"k": "9" * 100_000}}).encode(), \
+            "a 100 000-digit value"
+    return b"\x00\xff binary", "binary frame"
+
+
+@dataclass
+class CorpusFiles:
+    """The files the cases run against: the photo cases' result folder (and the photo
+    the ``--points`` cases use), the small lamp (material maps, view), the CAD material
+    maps, the folder of the view's cases."""
+
+    root: Path
+    sim: Path | None = None
+    photo: Path | None = None
+    lamp: Path | None = None
+    cad_maps: dict[str, Path] = field(default_factory=dict)
+
+
 def build_corpus(n: int, seed: int, workdir: Path, kinds: Sequence[str] = KINDS,
-                 headlight: bool = False) -> tuple[list[FuzzCase], Path | None]:
-    """``n`` mutated inputs (round robin over ``kinds``) and the photo cases' result folder.
+                 headlight: bool = False) -> tuple[list[FuzzCase], CorpusFiles]:
+    """``n`` mutated inputs (round robin over ``kinds``) and the files they run against.
 
     Case i is a function of (seed, i) only, so a failure is reproduced by its index.
     """
     for k in kinds:
         if k not in KINDS:
             raise InputError(f"fuzz kind must be one of {', '.join(KINDS)}, got '{k}'")
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    files = CorpusFiles(workdir)
     glb_seeds = [split_glb(small_scene_glb())]
     if headlight:
         glb_seeds.append(split_glb(headlight_glb()))
     ies = sample_ies() if "ies" in kinds else b""
     ldt = sample_ldt(workdir) if "ldt" in kinds else b""
-    sim, photos = photo_seeds(workdir) if "photo" in kinds else (None, {})
+    photos: dict[str, bytes] = {}
+    points = ""
+    if "photo" in kinds or "points" in kinds:
+        files.sim, photos, points = photo_seeds_with_points(workdir)
+        files.photo = workdir / "points-photo.png"
+        files.photo.write_bytes(photos[".png"])
+    if {"materials", "zemax", "state", "ws"} & set(kinds):
+        files.lamp = workdir / "lamp.glb"
+        files.lamp.write_bytes(small_scene_glb())
+    cad = cad_seeds(workdir, kinds)
+    files.cad_maps = {k: v[1] for k, v in cad.items()}
+    rays = rayfile_seeds(workdir, kinds)
+    controls = lamp_controls(files.lamp) if {"state", "ws"} & set(kinds) else {}
+    messages = view_message_seeds(controls) if "ws" in kinds else []
     cases = []
     for i in range(n):
         rng = np.random.default_rng([seed, i])
@@ -586,24 +916,70 @@ def build_corpus(n: int, seed: int, workdir: Path, kinds: Sequence[str] = KINDS,
         elif kind in ("ies", "ldt"):
             raw, what = _mutate_photometric(ies if kind == "ies" else ldt, kind, rng)
             suffix = "." + kind
-        else:
+        elif kind == "photo":
             suffix = _pick(rng, sorted(photos))
             raw, what = _mutate_photo(photos[suffix], suffix, rng)
             what = f"{suffix[1:]}: {what}"
+        elif kind in ("step", "iges"):
+            raw, what = _mutate_cad(cad[kind][0], kind, rng)
+            suffix = "." + kind
+        elif kind == "materials":
+            raw, what = _mutate_toml(material_map_seed(), rng)
+            suffix = ".toml"
+        elif kind in ("tm25", "zemax"):
+            raw, what = _mutate_rayfile(rays[kind], kind, rng)
+            suffix = ".tm25ray" if kind == "tm25" else ".dat"
+        elif kind == "points":
+            raw, what = _mutate_points(points, rng)
+            suffix = ".txt"
+        elif kind == "state":
+            raw, what = _mutate_json_doc(json.loads(view_state_seed(controls, "lamp.glb")),
+                                         rng)
+            suffix = ".json"
+        else:
+            raw, what = _mutate_message(_pick(rng, messages), rng)
+            suffix = ".msg"
         cases.append(FuzzCase(i, kind, what, f"case{i}{suffix}", raw))
-    return cases, sim
+    return cases, files
+
+
+def photo_seeds_with_points(workdir: Path) -> tuple[Path, dict[str, bytes], str]:
+    """:func:`photo_seeds` and the ``--points`` of its PNG (:func:`points_seed`)."""
+    sim, photos = photo_seeds(workdir)
+    shot = render_photo(lowbeam_lux(wall_frame((96, 40))),
+                        CameraSettings(rotate_deg=2.0, noise=0.01, bits=8, seed=3))
+    frame = wall_frame((96, 40))
+    return sim, photos, points_seed((96, 40), shot.matrix, frame)
+
+
+def lamp_controls(lamp: Path) -> dict[str, Any]:
+    """The view's controls of ``lamp`` as its ``state.json`` holds them."""
+    scene = load_scene(lamp, SceneSettings(resolution=(32, 16)))
+    return SceneEditor(scene, {}).defaults().to_dict()
 
 
 # --------------------------------------------------------------------------------------
 # running and judging
 # --------------------------------------------------------------------------------------
 
-def case_argv(case: FuzzCase, input_path: Path, out: Path, sim: Path | None,
+def case_argv(case: FuzzCase, input_path: Path, out: Path, files: CorpusFiles,
               photons: int, resolution: str) -> list[str]:
+    """The command line of a file case (not the view's kinds)."""
     if case.kind == "photo":
-        return ["compare", str(input_path), "--sim", str(sim), "--out", str(out), "-q"]
-    return ["simulate", str(input_path), "--photons", str(photons), "--frame-photons",
-            str(photons), "--resolution", resolution, "--quiet", "--out", str(out)]
+        return ["compare", str(input_path), "--sim", str(files.sim), "--out", str(out), "-q"]
+    if case.kind == "points":
+        return ["compare", str(files.photo), "--sim", str(files.sim), "--points",
+                case.data.decode("utf-8", "replace"), "--out", str(out), "-q"]
+    sim = ["--photons", str(photons), "--frame-photons", str(photons), "--resolution",
+           resolution, "--quiet", "--out", str(out)]
+    if case.kind in ("step", "iges"):
+        return ["simulate", str(input_path), "--materials", str(files.cad_maps[case.kind]),
+                *sim]
+    if case.kind == "materials":
+        return ["simulate", str(files.lamp), "--materials", str(input_path), *sim]
+    if case.kind == "zemax":  # ".dat" names no scene: the ray file replaces the emitter
+        return ["simulate", str(files.lamp), "--rayfile", str(input_path), *sim]
+    return ["simulate", str(input_path), *sim]
 
 
 def _all_finite(obj: Any) -> bool:
@@ -633,14 +1009,15 @@ def judge(case: FuzzCase, code: int | None, stderr: list[str], out: Path) -> tup
     stray = [ln for ln in stderr if not ln.startswith("lightsim: warning: ")]
     if stray:
         return "stray", stray[0][:120]
-    expected = COMPARE_OUTPUTS if case.kind == "photo" else SIM_OUTPUTS
+    compared = case.kind in ("photo", "points")
+    expected = COMPARE_OUTPUTS if compared else SIM_OUTPUTS
     top = {f for f in files if "/" not in f}
     if not expected <= top:
         return "incomplete", "missing " + ", ".join(sorted(expected - top))
     extra = sorted(f for f in files if f not in expected)
-    if extra and case.kind != "photo":
+    if extra and not compared:
         return "leftover", "extra " + ", ".join(extra[:4])
-    if case.kind == "photo":
+    if compared:
         doc = json.loads((out / "comparison.json").read_text())
         return ("ran", "") if _all_finite(doc) else ("nonfinite", "comparison.json")
 
@@ -756,6 +1133,14 @@ class _Worker:
             self.proc.join(5)
 
 
+def _message_text(data: bytes) -> str | bytes:
+    """A message case as the page would send it: text when it is UTF-8, else binary."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data
+
+
 def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, command: Command,
              photons: int = 20_000, resolution: str = "64x32", timeout_s: float = 180.0,
              headlight: bool = False, workdir: str | os.PathLike | None = None,
@@ -769,7 +1154,7 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, command: Co
     seed : int
         Corpus seed.
     kinds : sequence of str
-        Input kinds (``glb``, ``ies``, ``ldt``, ``photo``), taken in turn.
+        Input kinds (:data:`KINDS`), taken in turn.
     command : callable
         The command line's entry point (:data:`Command`), run in the worker process.
     photons : int
@@ -789,28 +1174,37 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, command: Co
     root = Path(tempfile.mkdtemp(prefix="lightsim-fuzz-")) if owned else Path(workdir)
     root.mkdir(parents=True, exist_ok=True)
     report = FuzzReport(seed)
-    worker = None
+    worker: _Worker | None = None
+    target: MessageTarget | None = None
     try:
-        cases, sim = build_corpus(n, seed, root, tuple(kinds), headlight)
-        worker = _Worker(command)
+        cases, files = build_corpus(n, seed, root, tuple(kinds), headlight)
         for case in cases:
             case_dir = root / f"case{case.index}"
             case_dir.mkdir(exist_ok=True)
             inp = case_dir / case.filename
             inp.write_bytes(case.data)
             out = case_dir / "out"
-            argv = case_argv(case, inp, out, sim, photons, resolution)
             t0 = time.perf_counter()
-            code, lines, failure = worker.run(argv, timeout_s)
-            dt = time.perf_counter() - t0
-            if failure:
-                verdict, detail = failure, f"after {dt:.0f} s"
-                worker.proc.kill()
-                worker.proc.join(5)
-                worker = _Worker(command)
+            if case.kind == "state":
+                code, lines, verdict, detail = judge_state(files.lamp, inp, out)
+            elif case.kind == "ws":
+                if target is None:
+                    target = MessageTarget(files.lamp, root / "ws")
+                    (root / "ws").mkdir(exist_ok=True)
+                code, lines, verdict, detail = target.judge(_message_text(case.data))
             else:
-                verdict, detail = judge(case, code, lines, out)
-            result = CaseResult(case, code, lines, dt, verdict, detail)
+                if worker is None:
+                    worker = _Worker(command)
+                argv = case_argv(case, inp, out, files, photons, resolution)
+                code, lines, failure = worker.run(argv, timeout_s)
+                if failure:
+                    verdict, detail = failure, f"after {time.perf_counter() - t0:.0f} s"
+                    worker.proc.kill()
+                    worker.proc.join(5)
+                    worker = _Worker(command)
+                else:
+                    verdict, detail = judge(case, code, lines, out)
+            result = CaseResult(case, code, lines, time.perf_counter() - t0, verdict, detail)
             report.results.append(result)
             if progress is not None:
                 progress(result)
@@ -819,6 +1213,8 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, command: Co
     finally:
         if worker is not None:
             worker.close()
+        if target is not None:
+            target.close()
         if owned:
             shutil.rmtree(root, ignore_errors=True)
     return report

@@ -15,10 +15,13 @@ Cut-off offset (:func:`cutoff_offset`)
     fit that ends at that cap is reported (``blur_at_cap``), as the offset then depends on
     the cap. Photo samples that are clipped or outside the photo take no part. The offset is
     the mean over the scans found; its **interval** (≈95 %) is ``±1.96·√(σ_scan² +
-    σ_geometry²)`` with ``σ_scan`` the standard error of the scans' mean (at least half a
-    resampling step) and ``σ_geometry`` the screen geometry's uncertainty in V **at the
-    cut-off** (the homography's covariance carried there, so a cut-off far from the
-    markers — an extrapolation — gets a wider interval).
+    σ_geometry² + σ_resolution²)`` with ``σ_scan`` the standard error of the scans' mean
+    (at least half a resampling step), ``σ_geometry`` the screen geometry's uncertainty in
+    V **at the cut-off** (the homography's covariance carried there, so a cut-off far from
+    the markers — an extrapolation — gets a wider interval) and ``σ_resolution`` a
+    quarter of the simulation's pixel in V (``RESOLUTION_SHARE``): the profile match
+    compares the photo with a resampled map and resolves no finer (the re-aim study,
+    :mod:`lightsim.validation.photo_aim_study`, finds errors of ~0.15 px without it).
 
 Test points (:func:`test_points`)
     75R, 50V and B50L (UN R112, mirrored for left-hand traffic) read off the photo as
@@ -141,6 +144,7 @@ class CutoffOffset:
     sigma_scan_deg: float | None
     sigma_geometry_deg: float | None
     message: str
+    sigma_resolution_deg: float | None = None
 
 
 @dataclass
@@ -169,29 +173,88 @@ class AimResult:
     hotspot_interval_deg: float | None
     normalised_at: dict[str, Any]
     points: list[PointReading] = field(default_factory=list)
+    markers: dict[str, Any] | None = None
+    refused: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return asdict(self)
 
 
-def _band(sampler: AngleSampler, h: float, v: NDArray, band_deg: float = 0.1
-          ) -> tuple[NDArray, NDArray, NDArray]:
+RESOLUTION_SHARE = 0.25
+"""σ of the cut-off match, in simulation pixels (V)."""
+MIN_AIM_MARKERS = 4
+"""Markers (or control points) the aim is read through at the least."""
+COLLINEAR_DEG = 0.5
+"""Markers whose centres all lie within this of one line (deg) do not fix the screen
+across that line: the aim is not read through them."""
+FAR_FROM_CUTOFF_DEG = 6.0
+"""When every marker is farther than this from the cut-off (deg), the cut-off is read by
+extrapolating the screen geometry: the aim is not read through them."""
+
+
+def marker_search(found: list[int], layout_ids: list[int]) -> dict[str, Any]:
+    """What a marker search on a photo found: ``found``/``missing`` ids of the layout's
+    ``of`` markers, and one line saying so."""
+    found = sorted(int(i) for i in found)
+    missing = sorted(int(i) for i in layout_ids if int(i) not in found)
+    n = len(layout_ids)
+    text = (f"markers: {len(found)} of {n} found"
+            + (f" (ids {', '.join(map(str, found))})" if found else "")
+            + (f"; missing {', '.join(map(str, missing))}" if missing else ""))
+    return {"of": n, "found": found, "missing": missing, "text": text}
+
+
+def aim_geometry_problem(geometry: Any, cutoff_v_deg: float | None) -> str | None:
+    """Why a screen geometry does not constrain the aim, or None when it does.
+
+    The aim is not read through fewer than :data:`MIN_AIM_MARKERS` markers (control
+    points), through markers that lie nearly on one line (:data:`COLLINEAR_DEG`), or
+    through markers all farther than :data:`FAR_FROM_CUTOFF_DEG` from the cut-off at
+    ``cutoff_v_deg`` (deg; None: not checked).
+    """
+    pts = np.asarray(geometry.screen_deg, np.float64).reshape(-1, 2)
+    if geometry.source == "markers":
+        ids = list(geometry.details.get("marker_ids", []))
+        centres = pts.reshape(-1, 4, 2).mean(axis=1) if len(pts) % 4 == 0 else pts
+        what = f"{len(centres)} marker(s) (ids {', '.join(map(str, ids))})"
+    else:
+        centres = pts
+        what = f"{len(centres)} control point(s)"
+    if len(centres) < MIN_AIM_MARKERS:
+        return f"only {what}; at least {MIN_AIM_MARKERS} are needed to read the aim"
+    d = centres - centres.mean(axis=0)
+    _, sv, vt = np.linalg.svd(d, full_matrices=False)
+    off_line = np.abs(d @ vt[-1]) if len(sv) > 1 else np.zeros(len(d))
+    if off_line.max() < COLLINEAR_DEG:
+        return (f"the {what} lie nearly on one line (within {off_line.max():.2f}° of it): "
+                "they do not fix the screen across it")
+    if cutoff_v_deg is not None and np.isfinite(cutoff_v_deg):
+        near = float(np.min(np.abs(centres[:, 1] - cutoff_v_deg)))
+        if near > FAR_FROM_CUTOFF_DEG:
+            return (f"the {what} are all more than {FAR_FROM_CUTOFF_DEG:g}° from the cut-off "
+                    f"(nearest {near:.1f}°): reading it would extrapolate the screen")
+    return None
+
+
+def _band(sampler: AngleSampler, h: float, v: NDArray, band_deg: float = 0.1,
+          sim_dh: float = 0.0) -> tuple[NDArray, NDArray, NDArray]:
     hs = h + band_deg * np.linspace(-0.5, 0.5, 5)
     hh, vv = np.meshgrid(hs, v, indexing="ij")
     p, c = sampler.photo_at(hh, vv)
-    s = sampler.sim_at(hh, vv)
+    s = sampler.sim_at(hh - sim_dh, vv)
     return np.mean(p, axis=0), np.any(c, axis=0), np.mean(s, axis=0)
 
 
 def _scan_offset(sampler: AngleSampler, h: float, step: float, window: float,
-                 max_offset: float, max_blur: float) -> tuple[float, float, bool] | None:
+                 max_offset: float, max_blur: float, dh: float = 0.0
+                 ) -> tuple[float, float, bool] | None:
     """(dv, blur σ, blur at cap) of one scan, or None when the scan shows no cut-off."""
     n_pad = round((max_offset + window + 3 * max_blur) / step) + 2
     v = np.arange(-3.0, 1.5 + step / 2, step)
     v_wide = -3.0 + step * np.arange(-n_pad, len(v) + n_pad)
     p, clip, _ = _band(sampler, h, v)
-    _, _, s_wide = _band(sampler, h, v_wide)
+    _, _, s_wide = _band(sampler, h, v_wide, sim_dh=dh)
     usable = np.isfinite(p) & ~clip
     if usable.sum() < 20 or not np.any(np.isfinite(s_wide)):
         return None
@@ -285,7 +348,7 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
                   sigma_geometry_deg: float | None = None, geometry: Any = None,
                   step_deg: float = 0.01,
                   window_deg: float = 1.0, max_offset_deg: float = 2.0,
-                  max_blur_deg: float = 1.0) -> CutoffOffset:
+                  max_blur_deg: float = 1.0, dh_deg: float = 0.0) -> CutoffOffset:
     """Vertical offset of the photo's cut-off from the simulation's (module docstring).
 
     Returns
@@ -296,7 +359,7 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
     """
     sign = -1.0 if traffic == "right" else 1.0
     found = [_scan_offset(sampler, sign * h, step_deg, window_deg, max_offset_deg,
-                          max_blur_deg) for h in SCANS_DEG]
+                          max_blur_deg, dh_deg) for h in SCANS_DEG]
     scans = [f[0] if f else None for f in found]
     good = [f for f in found if f]
     if not good:
@@ -317,14 +380,16 @@ def cutoff_offset(sampler: AngleSampler, traffic: str = "right",
     s_scan = float(np.std(dvs, ddof=1) / math.sqrt(len(dvs))) if len(dvs) > 1 else 0.0
     s_scan = max(s_scan, 0.5 * step_deg)
     s_geo = sigma_geometry_deg or 0.0
-    interval = 1.96 * math.hypot(s_scan, s_geo)
+    v = sampler.wall.v_deg()
+    s_res = RESOLUTION_SHARE * (float(np.mean(np.abs(np.diff(v)))) if len(v) > 1 else 0.0)
+    interval = 1.96 * math.sqrt(s_scan ** 2 + s_geo ** 2 + s_res ** 2)
     msg = f"{len(good)} of {len(SCANS_DEG)} scans"
     if at_cap:
         msg += f"; fitted blur reached its cap of {max_blur_deg:g}° (offset depends on it)"
     if sigma_geometry_deg is None:
         msg += "; screen geometry residual unknown (exactly 4 points), not in the interval"
     return CutoffOffset(float(dvs.mean()), interval, scans, blur, at_cap, s_scan,
-                        sigma_geometry_deg, msg)
+                        sigma_geometry_deg, msg, s_res)
 
 
 def parse_normalise_at(text: str | None, traffic: str = "right") -> tuple[str, float, float]:

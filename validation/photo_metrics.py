@@ -43,7 +43,11 @@ name                            unit   better  definition
                                                as much as the registration found the photo
                                                blurrier (blur moves the inflection of
                                                log E upwards)
-``cutoff_offset_deg``           deg    lower   abs(photo − blurred simulation) cut-off
+``cutoff_shape_gap_deg``       deg    lower   abs(photo − blurred simulation) cut-off
+                                               position after registration: a shape
+                                               check, **not the aim** (a beam-registered
+                                               photo is moved onto the beam; the aim is
+                                               ``cutoff_dv_deg`` of the aim section)
 ==============================  =====  ======  ===========================================
 
 Parameters
@@ -94,7 +98,7 @@ LEVELS = (0.1, 0.3, 0.6)
 #: Metrics where a larger value means a closer match.
 HIGHER_IS_BETTER = ("zncc", "ssim", "psnr_db", "nmi", "iou_10", "iou_30", "iou_60")
 #: Metrics where a smaller value means a closer match.
-LOWER_IS_BETTER = ("rel_rmse", "hotspot_offset_deg", "cutoff_offset_deg", "cutoff_dv_abs_deg")
+LOWER_IS_BETTER = ("rel_rmse", "hotspot_offset_deg", "cutoff_shape_gap_deg", "cutoff_dv_abs_deg")
 #: Every metric name in ``comparison.json["metrics"]``.
 METRICS = (*HIGHER_IS_BETTER, *LOWER_IS_BETTER, "hotspot_dh_deg", "hotspot_dv_deg",
            "cutoff_v_photo_deg", "cutoff_v_sim_deg", "cutoff_v_sim_blurred_deg",
@@ -272,7 +276,7 @@ def _cutoffs(photo: NDArray, sim: NDArray, overlap: NDArray, wall: WallFrame, fr
     else:
         out["cutoff_v_photo_deg"], out["photo_message"] = position(np.where(overlap, photo, 0.0))
     a, b = out["cutoff_v_photo_deg"], out["cutoff_v_sim_blurred_deg"]
-    out["cutoff_offset_deg"] = abs(a - b) if a is not None and b is not None else None
+    out["cutoff_shape_gap_deg"] = abs(a - b) if a is not None and b is not None else None
     return out
 
 
@@ -346,7 +350,7 @@ def compute_metrics(photo_lux: NDArray, sim: NDArray, overlap: NDArray, clipped:
         details.update(hotspot_photo_deg=[hp, vp], hotspot_sim_deg=[hs, vs])
     cut = _cutoffs(photo_f, np.nan_to_num(sim), overlap, wall, frame, traffic, sim_blur_px)
     for key in ("cutoff_v_photo_deg", "cutoff_v_sim_deg", "cutoff_v_sim_blurred_deg",
-                "cutoff_offset_deg"):
+                "cutoff_shape_gap_deg"):
         metrics[key] = cut[key]
     details.update(cutoff_photo=cut["photo_message"], cutoff_sim=cut["sim_message"],
                    sim_blur_px=sim_blur_px)

@@ -32,11 +32,13 @@ Parameters
 name           unit  default      meaning
 =============  ====  ===========  ============================================================
 rotate_deg     deg   0            camera roll: pattern turned counter-clockwise in the photo
-scale          1     1            magnification, photo px per simulation px
+scale          1     1            magnification, photo px per simulation px (None: 1, or
+                                  with markers the least whose markers span MARKER_MIN_PX)
 shift_px       px    (0, 0)       pattern moved right/down from the photo's centre
 tilt_deg       deg   0            camera yaw about the vertical axis (perspective)
 focal_px       px    1.4·width    focal length used for the tilt
-size           px    sim size     photo size (W, H)
+size           px    sim size     photo size (W, H); with markers and scale None the
+                                  whole wall at that scale
 blur_px        px    0            Gaussian optics blur σ
 noise          1     0            noise σ at full scale (fraction of full scale)
 vignetting     1     0            light fall-off in the corners (0–1)
@@ -329,7 +331,7 @@ class CameraSettings:
     """How the synthetic camera sees the wall (units in the module's table)."""
 
     rotate_deg: float = 0.0
-    scale: float = 1.0
+    scale: float | None = 1.0
     shift_px: tuple[float, float] = (0.0, 0.0)
     tilt_deg: float = 0.0
     focal_px: float | None = None
@@ -345,7 +347,7 @@ class CameraSettings:
 
     def check(self) -> None:
         """Raise :class:`InputError` for impossible settings."""
-        if not (self.scale > 0 and math.isfinite(self.scale)):
+        if self.scale is not None and not (self.scale > 0 and math.isfinite(self.scale)):
             raise InputError(f"--scale must be positive, got {self.scale}")
         if not abs(self.tilt_deg) < 60:
             raise InputError(f"--tilt must be within ±60°, got {self.tilt_deg}")
@@ -486,6 +488,8 @@ def render_photo(lux: NDArray, cam: CameraSettings | None = None) -> SyntheticPh
     """
     cam = cam or CameraSettings()
     cam.check()
+    if cam.scale is None:
+        cam = replace(cam, scale=1.0)
     lux = np.asarray(lux, np.float64)
     e_max = float(np.nanmax(lux)) if np.any(np.isfinite(lux)) else 0.0
     if not e_max > 0:
@@ -637,6 +641,22 @@ def write_photo(path: str | os.PathLike, photo: SyntheticPhoto,
     return p, side
 
 
+MARKER_MIN_PX = 44.0
+"""Marker edge (photo px) from which OpenCV's ArUco detector finds every marker of the
+default board on a synthetic photo blurred by σ = 1 px with 0.5 % noise (4×4 cells plus
+the border: about 7 px a cell)."""
+
+
+def marker_scale(frame: Any, size_deg: float = DEFAULT_LAYOUT.size_deg,
+                 min_px: float = MARKER_MIN_PX) -> float:
+    """The least whole magnification (photo px per simulation px, ≥ 1) at which a marker
+    ``size_deg`` wide spans ``min_px`` photo pixels on a wall of this frame."""
+    wf = WallFrame.from_any(frame)
+    h = wf.h_deg()
+    px_per_deg = (len(h) - 1) / max(float(np.ptp(h)), 1e-9)
+    return float(max(1.0, math.ceil(min_px / (size_deg * px_per_deg) - 1e-9)))
+
+
 def photograph_simulation(sim: Simulation, path: str | os.PathLike, cam: CameraSettings,
                           reaim_deg: tuple[float, float] | None = None, markers: bool = False,
                           wall_texture: int | None = None, ambient_lx: float = 0.5
@@ -670,6 +690,12 @@ def photograph_simulation(sim: Simulation, path: str | os.PathLike, cam: CameraS
         The photo; ``shot.matrix`` maps photo px to the simulation's px.
     """
     lux, extra = sim.lux, {"simulation": sim.source}
+    cam.check()
+    if cam.scale is None:  # the default camera: 1, or close enough for the markers
+        scale = marker_scale(sim.frame) if markers else 1.0
+        size = cam.size or (None if not markers else (
+            round(sim.lux.shape[1] * scale), round(sim.lux.shape[0] * scale)))
+        cam = replace(cam, scale=scale, size=size)
     if reaim_deg is not None:
         lux = apply_shift(np.nan_to_num(lux), sim.frame, reaim_deg[0], reaim_deg[1])
         extra["reaim_deg"] = {"dh": reaim_deg[0], "dv": reaim_deg[1]}

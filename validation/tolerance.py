@@ -85,9 +85,10 @@ from lightsim.io.atomic import write_bytes
 from lightsim.io.summary import write_json
 from lightsim.luminaires.regulations import load_ruleset
 from lightsim.luminaires.regulations.check import aperture_config, regulation_check, split_rulesets
+from lightsim.luminaires.regulations.sequential import VerdictRule
 from lightsim.render.frame import luminous
 from lightsim.scene import EMITTER, Scene
-from lightsim.simulate import load
+from lightsim.simulate import UNTIL_CAP_PHOTONS, check_until, load
 
 __all__ = [
     "TOLERANCE_BOXES",
@@ -234,6 +235,11 @@ class SampleResult:
         The regulation table's verdicts.
     seconds : float
         Wall-clock time of the sample, in s.
+    photons : int or None
+        ``--until decided``: photons the sample took until every verdict was decided (or
+        its cap); None without it.
+    decided : bool or None
+        ``--until decided``: every verdict decided (False: the cap came first).
     """
 
     offset: list[float]
@@ -246,6 +252,13 @@ class SampleResult:
     verdicts: list[str]
     limits: list[dict[str, float]] = field(default_factory=list)
     seconds: float = 0.0
+    photons: int | None = None
+    decided: bool | None = None
+
+
+#: what a sample records only with ``--until decided`` (tolerance.json keeps its form
+#: without it)
+UNTIL_FIELDS = ("photons", "decided")
 
 
 def _meets(value: float, limit: dict[str, float]) -> bool:
@@ -270,17 +283,26 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
         offsets.append(len(config.apertures))
         config = aperture_config(config, rs, opts.traffic, moved.wall, opts.aperture,
                                  opts.aim, opts.spt_points)
+    check_until(opts, config)
     session = Session(moved, config, workers=0, regulation=opts.regulation,
                       farfield=bool(opts.ies or opts.ldt))
+    rule, photons = None, opts.photons
+    if opts.until is not None:  # each sample stops when its verdicts are decided
+        photons = opts.photons if opts.photons is not None else UNTIL_CAP_PHOTONS
+        rule = VerdictRule()
+        for rs, off in zip(rulesets, offsets, strict=True):
+            rule.add(rs, opts.traffic, opts.aim, off)
+        rule.bind(session, photons)
     try:
-        est = session.run(photons=opts.photons, seconds=opts.seconds,
-                          target_error=opts.target_error)
+        est = session.run(photons=photons, seconds=opts.seconds,
+                          target_error=opts.target_error, rule=rule)
         lux = luminous(est.lux)
         failed = None
         rows = []
-        for rs, off in zip(rulesets, offsets):
+        for i, (rs, off) in enumerate(zip(rulesets, offsets)):
             try:
-                reg = regulation_check(session, lux, rs, opts.traffic, opts.aim, offset=off)
+                reg = (rule.check(i, session, lux) if rule is not None else
+                       regulation_check(session, lux, rs, opts.traffic, opts.aim, offset=off))
             except InputError as exc:
                 if not opts.aim:
                     raise
@@ -291,6 +313,8 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
             prefix = f"{rs}:" if len(rulesets) > 1 else ""
             rows += [dict(r, name=prefix + str(r["name"])) for r in reg["results"]
                      if r.get("limit") and r.get("verdict") != "info"]
+        used = int(session.photons_emitted()) if rule is not None else None
+        decided = (failed is None and rule.decided()) if rule is not None else None
     finally:
         session.close()
     if failed is not None:
@@ -301,7 +325,7 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
             hi_cd=[float(r["interval_cd"][1]) for r in rows],
             value_pass=[False] * len(rows), sure_pass=[False] * len(rows),
             verdicts=[failed] * len(rows), limits=[dict(r["limit"]) for r in rows],
-            seconds=time.perf_counter() - t0)
+            seconds=time.perf_counter() - t0, photons=used, decided=decided)
     return SampleResult(
         offset=[float(v) for v in offset],
         names=[str(r["name"]) for r in rows],
@@ -312,7 +336,7 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
         sure_pass=[r["verdict"] == "pass" for r in rows],
         verdicts=[str(r["verdict"]) for r in rows],
         limits=[dict(r["limit"]) for r in rows],
-        seconds=time.perf_counter() - t0,
+        seconds=time.perf_counter() - t0, photons=used, decided=decided,
     )
 
 
@@ -508,6 +532,7 @@ class ToleranceStudy:
     seconds: float = 0.0
     workers: int = 0
     aperture_deg: float | None = None
+    until: str | None = None
 
     @property
     def nominal(self) -> SampleResult:
@@ -534,7 +559,27 @@ class ToleranceStudy:
                           "reach": "mm"},
                 "all_points_pass_rate": rate, "all_points_pass_interval": list(ci),
                 "points": [asdict(p) for p in self.points],
-                "samples": [asdict(s) for s in self.samples]}
+                "samples": [self._sample_dict(s) for s in self.samples],
+                **({"until": self.until, "photons_used": self.photons_used()}
+                   if self.until else {})}
+
+    def _sample_dict(self, s: SampleResult) -> dict[str, Any]:
+        d = asdict(s)
+        if not self.until:  # without --until decided the samples keep their form
+            for k in UNTIL_FIELDS:
+                d.pop(k, None)
+        return d
+
+    def photons_used(self) -> dict[str, Any] | None:
+        """``--until decided``: photons per sample (min, median, max, total) and how
+        many samples decided every verdict before the cap; None without it."""
+        used = [s.photons for s in self.samples if s.photons is not None]
+        if not self.until or not used:
+            return None
+        return {"min": int(min(used)), "median": float(np.median(used)),
+                "max": int(max(used)), "total": int(sum(used)),
+                "decided": int(sum(bool(s.decided) for s in self.samples)),
+                "samples": len(self.samples)}
 
 
 def study_from_dict(doc: dict[str, Any]) -> ToleranceStudy:
@@ -554,7 +599,7 @@ def study_from_dict(doc: dict[str, Any]) -> ToleranceStudy:
             photons=doc["photons"], confidence=conf, samples=samples,
             points=summarise(samples, limits, conf), limits=limits,
             seconds=float(doc.get("seconds", 0.0)), workers=int(doc.get("workers", 0)),
-            aperture_deg=doc.get("aperture_deg"))
+            aperture_deg=doc.get("aperture_deg"), until=doc.get("until"))
     except (KeyError, TypeError, IndexError, ValueError) as exc:
         raise InputError(f"not a tolerance study ({type(exc).__name__}: {exc})") from None
 
@@ -635,7 +680,8 @@ def run_tolerance(opts: Any, *, samples: int = 50, seed: int = 1, tilt: bool = F
         raise InputError("a tolerance study needs --regulation RULESET")
     for rs in split_rulesets(opts.regulation):
         load_ruleset(rs)
-    if opts.photons is None and opts.seconds is None and opts.target_error is None:
+    if (opts.photons is None and opts.seconds is None and opts.target_error is None
+            and opts.until is None):
         raise InputError("a tolerance study needs a photon budget (--photons N)")
     if opts.seconds is not None:
         raise InputError("--time makes samples differ in photon count: use --photons")
@@ -644,7 +690,7 @@ def run_tolerance(opts: Any, *, samples: int = 50, seed: int = 1, tilt: bool = F
     if workers < 0:
         raise InputError(f"--workers must be ≥ 0, got {workers}")
     opts = replace(opts, workers=0, address=None)
-    opts.run_config()
+    check_until(opts, opts.run_config())
     t0 = time.perf_counter()
     scene = load(opts)
     box = box or box_for_scene(scene)
@@ -664,7 +710,8 @@ def run_tolerance(opts: Any, *, samples: int = 50, seed: int = 1, tilt: bool = F
                            confidence=confidence, samples=results,
                            points=summarise(results, limits, confidence), limits=limits,
                            seconds=time.perf_counter() - t0, workers=workers,
-                           aperture_deg=float(opts.aperture) if opts.aperture else None)
+                           aperture_deg=float(opts.aperture) if opts.aperture else None,
+                           until=opts.until)
     return study
 
 

@@ -69,6 +69,8 @@ class RaySource:
         self.axis = tuple(float(x) for x in axis)
         self.rotation = rotation_z_to(np.asarray(axis, float))
         rf = self.file
+        self.n_rays = rf.n_rays
+        self._check_flux_column()  # a NaN or negative ray flux is named as such, first
         own = rf.luminous_flux()
         if flux_lm is not None:
             if not (math.isfinite(flux_lm) and flux_lm > 0):
@@ -79,8 +81,6 @@ class RaySource:
         else:
             raise InputError(f"{rf.path}: the ray file gives no luminous flux (radiant "
                              "only): give --flux LM")
-        self.n_rays = rf.n_rays
-        self._check_flux_column()
 
     # -- state not pickled (Ray ships scenes): the memmap and the table are rebuilt -------
     def __getstate__(self) -> dict[str, Any]:
@@ -142,7 +142,7 @@ class RaySource:
         pos = rows[:, :3] * self.file.unit_m
         k = rows[:, 3:6]
         norm = np.linalg.norm(k, axis=1, keepdims=True)
-        if np.any(~(norm > 0)) or not np.all(np.isfinite(pos)):
+        if np.any(~((norm > 0) & np.isfinite(norm))) or not np.all(np.isfinite(pos)):
             raise InputError(f"{self.path}: a drawn ray has a zero or invalid direction")
         k = k / norm
         if not np.array_equal(self.rotation, np.eye(3)):

@@ -8,8 +8,9 @@ A :class:`Session` is the Python API of lightsim (the CLI is a thin layer over i
     session.walkthrough()                # queries only (no shooting)
     result = session.run(photons=2_000_000, target_error=0.02)
 
-Backends (``workers``): 0 → clients in this process; N ≥ 1 → N Ray actors on a local Ray
-runtime; ``address`` → the same actors on an existing Ray cluster. Results are
+Backends (``workers``): 0 → clients in this process; N ≥ 1 → N Ray actors on a private
+local Ray instance; ``address`` → actors on an existing Ray cluster, N of them or, without
+``workers``, one per CPU of the cluster (at most one per interleave set). Results are
 bit-identical between backends for the same seed and photon count, because every set's
 photons depend only on (seed, set, index) and the server combines sets in set order.
 
@@ -65,7 +66,7 @@ from lightsim.engine.guiding import run_targets, target_rows
 from lightsim.engine.local import LocalBackend
 from lightsim.engine.numba_start import lazy_target_setup
 from lightsim.engine.plan import Plan, make_plan
-from lightsim.engine.ray_backend import RayBackend
+from lightsim.engine.ray_backend import RayBackend, actor_count, connect
 from lightsim.engine.results import (
     Estimate,
     FrameResult,
@@ -297,7 +298,8 @@ class Session:
     scene : Scene
     config : RunConfig
     workers : int
-        0: in-process clients; N ≥ 1: N Ray actors.
+        0: in-process clients (with ``address``: one Ray actor per CPU of the cluster);
+        N ≥ 1: N Ray actors.
     address : str, optional
         Ray cluster address (``HOST:PORT`` or ``auto``); implies Ray.
     camera, farfield, regulation :
@@ -337,14 +339,16 @@ class Session:
         # the written map and its error figure from the sets' ICI rungs
         self.map_estimator = MapEstimator(self.config.ici_gamma, self.config.error_region,
                                           grid, self.config.probe_grid)
-        n_clients = max(1, workers) if (workers or address) else 1
-        n_clients = min(n_clients, self.pattern.n_sets)
-        self.assignment = self.pattern.assign(n_clients)
         self.backend: Backend
-        if workers or address:
+        if workers or address:  # as many actors as asked, or the cluster's CPUs
+            cluster = connect(address, workers or 1)
+            n_clients, notes = actor_count(cluster, workers, self.pattern.n_sets)
+            scene.warnings.extend(notes)
+            self.assignment = self.pattern.assign(n_clients)
             self.backend = RayBackend(scene, self.config, self.plan, self.assignment,
-                                      self.probes_hv, address=address)
+                                      self.probes_hv, cluster=cluster)
         else:
+            self.assignment = self.pattern.assign(1)
             self.backend = LocalBackend(scene, self.config, self.plan, self.assignment,
                                         self.probes_hv, caster=caster)
         self.log: list[dict[str, Any]] = []

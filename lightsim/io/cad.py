@@ -33,11 +33,14 @@ parameter          unit   default  meaning
 
 from __future__ import annotations
 
+import faulthandler
 import math
 import os
+import pickle
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -187,6 +190,51 @@ def _has_ocp() -> bool:
 BACKENDS = ("auto", "xcaf", "cascadio")
 
 
+def _read_in_child(path: Path, tess: Tessellation) -> tuple[bool, Any]:
+    try:
+        return True, read_xcaf(path, tess)
+    except InputError as exc:
+        return False, str(exc)
+    except Exception as exc:  # the parent reports it in one line
+        return False, (f"{path}: OpenCASCADE cannot read the file "
+                       f"({type(exc).__name__}: {exc})")
+
+
+def read_isolated(path: Path, tess: Tessellation) -> list:
+    """:func:`~lightsim.io.cad_xcaf.read_xcaf` in a forked child process: OpenCASCADE's
+    readers can crash the process on a damaged file (a segmentation fault in the STEP or
+    IGES parser), which becomes one line here. Where fork is not available, in process."""
+    if not hasattr(os, "fork"):
+        return read_xcaf(path, tess)
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: read, send the parts, leave without the parent's clean-up
+        code = 1
+        try:
+            os.close(r)
+            faulthandler.disable()  # a crash is reported by the parent, in one line
+            data = pickle.dumps(_read_in_child(path, tess), pickle.HIGHEST_PROTOCOL)
+            view = memoryview(data)
+            while view:
+                view = view[os.write(w, view):]
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(w)
+    chunks = []
+    with os.fdopen(r, "rb") as fh:
+        while block := fh.read(1 << 20):
+            chunks.append(block)
+    _, status = os.waitpid(pid, 0)
+    if not chunks or os.waitstatus_to_exitcode(status) != 0:
+        raise InputError(f"{path}: OpenCASCADE crashed reading the file (exit "
+                         f"{os.waitstatus_to_exitcode(status)}): the file is damaged")
+    ok, value = pickle.loads(b"".join(chunks))
+    if not ok:
+        raise InputError(value)
+    return value
+
+
 def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
              backend: str = "auto") -> list:
     """Parts of a STEP/IGES file as :class:`lightsim.io.gltf.GltfPrimitive` records.
@@ -220,7 +268,7 @@ def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
         raise InputError("the XCAF CAD reader needs OpenCASCADE's Python binding: pip "
                          "install 'lightsim[cad-names]' (cadquery-ocp)")
     if backend == "xcaf" or (backend == "auto" and ocp):
-        return read_xcaf(p, tess)
+        return read_isolated(p, tess)
     glb = tessellate(p, tess)
     try:
         parts = read_gltf(glb)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numbers
 import os
+import textwrap
 from collections.abc import Sequence
 from typing import Any
 
@@ -26,8 +27,9 @@ def _loggable(*values: object) -> bool:
 
 
 def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
-                       title: str | None = None) -> None:
-    """Write the error-vs-time plot from ``summary.json["error_vs_time"]`` entries."""
+                       title: str | None = None, caption: str | None = None) -> None:
+    """Write the error-vs-time plot from ``summary.json["error_vs_time"]`` entries;
+    ``caption`` (the run's, :class:`lightsim.io.plots.PlotCaption` text) goes under it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -79,7 +81,18 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
         fig.suptitle(title)
     # fixed margins for this fixed size and these labels: tight_layout would draw the
     # figure once more only to measure them
-    fig.subplots_adjust(left=0.062, right=0.988, bottom=0.14, top=0.86 if title else 0.955,
-                        wspace=0.19)
+    bottom = 0.14
+    if caption:  # wrapped to the figure's width, with room made below the axes
+        lines = [w for line in caption.splitlines()
+                 for w in textwrap.wrap(line, int(fig.get_figwidth() * 17),
+                                        subsequent_indent="  ")]
+        extra = 0.06 + 0.14 * len(lines)
+        height = fig.get_figheight()
+        fig.set_figheight(height + extra)
+        fig.text(0.01, 0.01, "\n".join(lines), fontsize=7, color="0.3", ha="left",
+                 va="bottom")
+        bottom = (0.14 * height + extra) / (height + extra)
+    fig.subplots_adjust(left=0.062, right=0.988, bottom=bottom,
+                        top=0.86 if title else 0.955, wspace=0.19)
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, format="png", dpi=100)

@@ -66,6 +66,7 @@ PATIENCE_S = 5.0
 #: the path of the file written)
 JOBS = {
     "lux_png": "lightsim.io.png:write_lux_png",
+    "wall_lux": "lightsim.io.plots:wall_lux_plot",
     "error_vs_time": "lightsim.io.errorplot:error_vs_time_plot",
     "isolux": "lightsim.io.plots:isolux_plot",
     "road": "lightsim.io.plots:road_view_plot",

@@ -87,6 +87,23 @@ class RoadIlluminance:
             return None
         return float(self.x_m[lit[0]]), float(self.x_m[lit[-1]])
 
+    def lit_box_m(self, level_lux: float = 1.0, margin: float = 0.15
+                  ) -> tuple[float, float, float] | None:
+        """The view fitted to the road lit to at least ``level_lux`` lx: (left, right, far)
+        in m — the lit area's extent widened by ``margin`` of its size, rounded out to
+        whole metres (2 m across, 5 m ahead) and kept inside the grid; None if nothing
+        is lit."""
+        lit = np.nan_to_num(self.lux, nan=0.0) >= level_lux
+        if not lit.any():
+            return None
+        rows, cols = np.flatnonzero(lit.any(axis=1)), np.flatnonzero(lit.any(axis=0))
+        far = float(self.z_m[rows[-1]])
+        x0, x1 = float(self.x_m[cols[0]]), float(self.x_m[cols[-1]])
+        half = max(abs(x0), abs(x1), 1.0) * (1.0 + margin)
+        half = min(2.0 * np.ceil(half / 2.0), max(abs(self.x_m[0]), abs(self.x_m[-1])))
+        far = min(5.0 * np.ceil(max(far * (1.0 + margin), 5.0) / 5.0), float(self.z_m[-1]))
+        return -float(half), float(half), float(far)
+
     def reach_text(self, levels: tuple[float, ...] = REACH_LEVELS) -> str:
         """One line, e.g. ``reach 1 lx 61 m, 3 lx 42 m, 10 lx 25 m`` ("–": never
         reached; "≥ 100 m": still lit at the far end of the view)."""

@@ -80,8 +80,10 @@ WARM_BATCH = 50_000  # photons of the warm-up's timed accumulation batch
 class RegulationTable:
     """What the page shows of a rule set: rows and the points to draw.
 
-    ``rows``: name, kind, limit, value (cd), interval (cd), verdict; ``points``: name,
-    h_deg, v_deg, verdict (test points drawn on the pattern).
+    ``rows``: name, kind, limit, value (cd), interval (cd), verdict, decided (True: the
+    verdict is pass or fail for good — the table decides verdicts as ``simulate --until
+    decided`` does, its intervals holding over every look; False: still open);
+    ``points``: name, h_deg, v_deg, verdict (test points drawn on the pattern).
     """
 
     title: str

@@ -209,24 +209,35 @@ class ThreadChoice:
         self.still_batches = 0
 
     def timed(self, frame_times: dict[int, float], batch_times: dict[int, float],
-              batch: int) -> None:
-        """The warm-up's times at each thread count (``batch`` photons per batch): the
-        faster count for frames and for batches."""
+              batch: int | None) -> None:
+        """The warm-up's times at each thread count (``batch`` photons per batch; None:
+        a whole frame, as with Selective Photon Tracing, whose passes are always whole
+        and whose photons the caller does not count): the faster count for frames and
+        for batches. Without ``batch`` the rates are left to the still batches, which
+        then run once at each count (:meth:`for_batch`)."""
         self.frame_times.update(frame_times)
         self.batch_times.update(batch_times)
         self.frame = min(self.frame_times, key=self.frame_times.get)
         self.accumulate = min(self.batch_times, key=self.batch_times.get)
-        self.rates = {n: batch / t for n, t in self.batch_times.items() if t > 0}
+        self.rates = {} if batch is None else \
+            {n: batch / t for n, t in self.batch_times.items() if t > 0}
 
     def for_batch(self, still: bool) -> int | None:
         """numba threads of the next accumulation batch: the faster count by the rates
         measured so far (the warm-up's batch, then the still batches'). A still scene's
         first batch and one in ``THREAD_TRIAL`` after it run at the other count: the
         warm-up times one 50 000-photon batch at start-up, and the faster count moves
-        with the batch size and the machine's load."""
+        with the batch size and the machine's load. Without the warm-up's rates (whole
+        frames timed), the still batches first run once at each count not yet rated."""
         rates = self.rates
-        if self.fixed is not None or len(rates) < 2:
+        if self.fixed is not None or len(self.batch_times) < 2:
             return self.accumulate
+        if len(rates) < 2:
+            if not still:
+                return self.accumulate
+            self.still_batches += 1
+            return next((n for n in sorted(self.batch_times) if n not in rates),
+                        self.accumulate)
         best = max(rates, key=rates.get)
         if not still:
             return best
@@ -238,7 +249,10 @@ class ThreadChoice:
     def note_rate(self, threads: int | None, rate: float) -> None:
         """A still batch's photons/s at ``threads`` (moving average, weight
         ``RATE_WEIGHT`` on the new batch; a still scene's first two set it)."""
-        if threads is None or threads not in self.rates:
+        if threads is None or threads not in self.batch_times:
+            return
+        if threads not in self.rates:  # first rated by a still batch (whole-frame warm-up)
+            self.rates[threads] = rate
             return
         old = self.rates[threads]
         fresh = self.still_batches <= 2  # a still scene's first batches: now's rate

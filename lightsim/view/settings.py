@@ -112,8 +112,15 @@ class ViewSettings:
     workers: int = shared(SimulateOptions, "workers")
     address: str | None = option(None, "Ray cluster address HOST:PORT (instead of --workers).",
                                  flag=("--address",))
-    port: int = option(8765, "Port on 127.0.0.1 (0 = any free port).", flag=("--port",),
+    host: str = option("127.0.0.1", "Address to listen on: 127.0.0.1 (this machine only), "
+                       "or an address or name of this machine (0.0.0.0 = all) to open the "
+                       "page from another one; always with the printed access token, "
+                       "unencrypted unless tunnelled.", flag=("--host",))
+    port: int = option(8765, "Port to listen on (0 = any free port).", flag=("--port",),
                        low=0, high=65535)
+    max_upload_mb: float = option(512.0, "Largest scene upload; a larger one is refused "
+                                  "before it is read.", unit="MB", flag=("--max-upload",),
+                                  low=0, low_open=True)
     regulation: str | None = option("r112-b-passing", "Rule set drawn on the pattern "
                                     "('none' for no table).", flag=("--regulation",))
     traffic: str = shared(SimulateOptions, "traffic")
@@ -179,6 +186,8 @@ class ViewSettings:
 
     def __post_init__(self) -> None:
         options.check_fields(self)  # choices and ranges, from the declarations above
+        if not self.host.strip() or any(c.isspace() or c in "/?#@" for c in self.host):
+            raise InputError(f"--host must be an address or a host name, got {self.host!r}")
         if self.workers and self.address:
             raise InputError("give --workers or --address, not both")
         if self.threads != "auto" and (isinstance(self.threads, bool)

@@ -216,36 +216,72 @@ def regulation_check(session, lux: np.ndarray, ruleset: str, traffic: str = "rig
     """
     frame = session.scene.wall
     rs, probes, aim_info, hv = regulation_probes(ruleset, traffic, frame, lux, aim)
+    m = measure_probes(session, rs, probes, hv, aim_info, confidence, offset)
+    results, unevaluated, cd = evaluate_probe_values(rs, probes, hv, m.values_lux,
+                                                     frame.distance_m, traffic, confidence,
+                                                     m.count_stats)
+    return {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,
+            "confidence": confidence, "aim": aim_info, "method": m.method,
+            "results": results + m.extra, "unevaluated": unevaluated, "_probes": probes,
+            "_hv": hv, "_values_lux": m.values_lux, "_cd": cd,
+            "_count_stats": m.count_stats}
+
+
+@dataclass(frozen=True)
+class ProbeMeasure:
+    """What a session measured at a rule set's probes (:func:`measure_probes`).
+
+    Attributes
+    ----------
+    values_lux : ndarray, shape (S, P)
+        Per-set values at the probes as wall lux (a point source's lux for apertures).
+    count_stats : ndarray, shape (4, P), or None
+        The apertures' photon statistics (None for kNN estimates).
+    extra : list of dict
+        The HV and Imax rows (apertures only).
+    method : dict
+        ``summary.json``'s ``method`` of the table (aperture layout or kNN).
+    shift_deg : float
+        The vertical shift the apertures were read at (deg; −aim, rounded to a bin).
+    """
+
+    values_lux: np.ndarray
+    count_stats: np.ndarray | None
+    extra: list[dict[str, Any]]
+    method: dict[str, Any]
+    shift_deg: float = 0.0
+
+
+def measure_probes(session, rs: RuleSet, probes: Any, hv: np.ndarray,
+                   aim_info: dict[str, Any], confidence: float = 0.95, offset: int = 0
+                   ) -> ProbeMeasure:
+    """Per-set values at rule set ``rs``'s probes now: the detector apertures from aperture
+    ``offset`` on when the run counts them (shifted by the aim ``aim_info["dv_deg"]``,
+    which gains ``aperture_dv_deg``), else every set's kNN estimate at ``hv`` (wall m
+    from H-V)."""
+    frame = session.scene.wall
     cfg = session.config
-    extra: list[dict[str, Any]] = []
     if cfg.apertures and len(cfg.apertures) >= offset + len(probes) + 1:
         ap = _own_apertures(aperture_values(session, -aim_info["dv_deg"], confidence),
                             offset, len(probes))
         # the aimed value at v is the unaimed one at v − dv: apertures shift by −dv,
         # rounded to a strip bin (aperture / AIM_SUBSTEPS)
-        if aim:
+        if aim_info.get("applied"):
             aim_info["aperture_dv_deg"] = -ap["shift_deg"]
         cd = ap["cd"][:, :-1]
-        count_stats = ap["count_stats"][:, :-1]
         values = lux_equivalent(cd, hv, frame.distance_m)
         taken = {g.name for g in rs.geometries}
         extra = [r if r["name"] not in taken else {**r, "name": f"{r['name']} (measured)"}
                  for r in measure_rows(ap, -ap["shift_deg"], confidence)]
         method = {"name": "aperture", **ap["layout"].to_dict(),
                   "spt_targets": len(cfg.aperture_targets)}
-    else:
-        count_stats = None
-        # probes take wall coordinates (from the wall centre), hv is from H-V
-        stats = session.probe(hv + np.asarray(frame.hv_offset_m)) if len(hv) else None
-        values = (luminous(stats.values) if stats is not None
-                  else np.zeros((session.config.n_sets, 0)))
-        method = {"name": "knn"}
-    results, unevaluated, cd = evaluate_probe_values(rs, probes, hv, values, frame.distance_m,
-                                                     traffic, confidence, count_stats)
-    return {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,
-            "confidence": confidence, "aim": aim_info, "method": method,
-            "results": results + extra, "unevaluated": unevaluated, "_probes": probes,
-            "_hv": hv, "_values_lux": values, "_cd": cd, "_count_stats": count_stats}
+        return ProbeMeasure(values, ap["count_stats"][:, :-1], extra, method,
+                            float(ap["shift_deg"]))
+    # probes take wall coordinates (from the wall centre), hv is from H-V
+    stats = session.probe(hv + np.asarray(frame.hv_offset_m)) if len(hv) else None
+    values = (luminous(stats.values) if stats is not None
+              else np.zeros((session.config.n_sets, 0)))
+    return ProbeMeasure(values, None, [], {"name": "knn"})
 
 
 def lux_equivalent(cd: np.ndarray, hv: np.ndarray, distance_m: float) -> np.ndarray:
@@ -312,11 +348,22 @@ def recheck_from_probes(out: Path, summary: dict[str, Any], lux: np.ndarray,
         count)
     prev = summary.get(regulation_key(rs.id, summary), {})
     measures = [r for r in prev.get("results", []) if r.get("kind") == "measure"]
-    return {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,
-            "confidence": confidence,
-            "aim": prev.get("aim", {"applied": dv != 0.0, "dh_deg": 0.0, "dv_deg": dv}),
-            "method": prev.get("method", {"name": "knn"}),
-            "results": results + measures, "unevaluated": unevaluated}
+    out = {"ruleset": rs.id, "title": rs.title, "version": rs.version, "traffic": traffic,
+           "confidence": confidence,
+           "aim": prev.get("aim", {"applied": dv != 0.0, "dh_deg": 0.0, "dv_deg": dv}),
+           "method": prev.get("method", {"name": "knn"}),
+           "results": results + measures, "unevaluated": unevaluated}
+    seq = prev.get("sequential") if prev.get("ruleset") == rs.id else None
+    if seq is not None:
+        if float(prev.get("confidence", 0.95)) == float(confidence):
+            # --until decided: the verdicts were decided over the run's looks, which the
+            # final photons alone cannot repeat: the run's table stands
+            return {**out, "results": prev["results"], "sequential": seq}
+        out["sequential_note"] = (
+            f"re-evaluated at {confidence:.0%} from the run's final photons as one fixed "
+            "sample: the run's --until decided verdicts hold at "
+            f"{float(prev.get('confidence', 0.95)):.0%} over its looks, these do not")
+    return out
 
 
 def format_regulation(reg: dict[str, Any]):
@@ -326,9 +373,15 @@ def format_regulation(reg: dict[str, Any]):
     ci = aim.get("cutoff_interval_deg")
     if aim.get("applied") and ci:
         note += f" (cut-off found at {0.5 * (ci[0] + ci[1]):+.3f}° ± {0.5 * (ci[1] - ci[0]):.3f}°)"
-    return format_table(reg["results"], title=f"{reg['ruleset']} ({reg['traffic']}-hand "
-                        f"traffic{note}; {int(reg['confidence'] * 100)}% intervals)",
-                        unevaluated=reg.get("unevaluated"))
+    seq = reg.get("sequential")
+    if seq:  # --until decided: the intervals hold over every look of the run
+        note += (f"; decided {seq['decided']} of {seq['decided'] + len(seq['open'])} "
+                 f"over {seq['looks']} looks")
+    title = (f"{reg['ruleset']} ({reg['traffic']}-hand traffic{note}; "
+             f"{int(reg['confidence'] * 100)}% intervals)")
+    if reg.get("sequential_note"):
+        title += f"\n{reg['sequential_note']}"
+    return format_table(reg["results"], title=title, unevaluated=reg.get("unevaluated"))
 
 
 def regulation_key(ruleset: str, summary: dict[str, Any]) -> str:
@@ -361,6 +414,11 @@ class RegulationAnalysis:
     Several rule sets in one run are several analyses: the first is named
     ``regulation`` and writes ``probes.npz``, a further one ``regulation:ID`` and
     ``probes-ID.npz``; each counts its own apertures, appended to the run's.
+
+    ``until`` (``--until decided``): the :class:`~lightsim.luminaires.regulations.
+    sequential.VerdictRule` every rule set of the run shares. Each analysis registers its
+    rule set with it in :meth:`prepare`, the run is handed it (:meth:`stopping_rule`), and
+    the table then holds its running verdicts (:meth:`report`).
     """
 
     ruleset: str
@@ -370,8 +428,10 @@ class RegulationAnalysis:
     spt_points: bool = False
     confidence: float = 0.95
     name: str = "regulation"
+    until: Any = None
     rules: RuleSet = field(init=False, repr=False)
     offset: int = field(default=0, init=False)  # where this set's apertures start
+    index: int = field(default=-1, init=False)  # this rule set's place in ``until``
 
     def __post_init__(self) -> None:
         self.rules = load_ruleset(self.ruleset)
@@ -383,15 +443,38 @@ class RegulationAnalysis:
                 else probes_file(self.name.split(":", 1)[1]))
 
     def prepare(self, config: Any, scene: Any) -> Any:
-        """Detector apertures (and SPT targets) at the test points."""
+        """Detector apertures (and SPT targets) at the test points; the rule set joins
+        the stopping rule (``until``)."""
         self.offset = len(config.apertures)
+        if self.until is not None:
+            self.index = self.until.add(self.ruleset, self.traffic, self.aim, self.offset)
         return aperture_config(config, self.ruleset, self.traffic, scene.wall,
                                self.aperture_deg, self.aim, self.spt_points)
 
+    def stopping_rule(self, session: Any, cap_photons: int) -> Any:
+        """The run's stopping rule bound to ``session`` (None without ``until``; the
+        first rule set of the run binds the shared rule, the others return it too)."""
+        if self.until is None:
+            return None
+        if self.until.session is not session:
+            self.until.bind(session, cap_photons)
+        return self.until
+
+    def stop_summary(self) -> dict[str, Any] | None:
+        """``summary.json["until"]`` (None without ``until``)."""
+        return None if self.until is None else self.until.summary()
+
+    def stop_progress(self) -> str:
+        """The stopping rule's progress line ("" without ``until``)."""
+        return "" if self.until is None else self.until.progress_text()
+
     def report(self, run: FinishedRun, out: Path) -> AnalysisReport:
         """Verdicts with intervals; the probe file in ``out``."""
-        reg = regulation_check(run.session, run.lux, self.ruleset, self.traffic, self.aim,
-                               self.confidence, self.offset)
+        if self.until is not None and self.index >= 0 and self.until.session is run.session:
+            reg = self.until.check(self.index, run.session, run.lux)
+        else:
+            reg = regulation_check(run.session, run.lux, self.ruleset, self.traffic,
+                                   self.aim, self.confidence, self.offset)
         path = save_probes(out, reg, self.probes_name)
         summary = public(reg)
         if summary.get("aim", {}).get("applied"):

@@ -81,6 +81,7 @@ __all__ = [
     "evaluate",
     "format_position",
     "format_table",
+    "limit_verdict",
     "probe_points",
     "unevaluated_rules",
 ]
@@ -301,6 +302,13 @@ def _combine_all(states: Iterable[str]) -> str:
     if "fail" in s:
         return "fail"
     return "pass" if all(x == "pass" for x in s) else "uncertain"
+
+
+def limit_verdict(lo: float, hi: float, min_: float | None, max_: float | None) -> str:
+    """The verdict of an interval [lo, hi] against a minimum and/or a maximum: "pass"
+    when it lies wholly on the allowed side of every limit, "fail" when wholly beyond
+    one, else "uncertain" (the rule of every row, module docstring)."""
+    return _combine_all(_limit_state(lo, hi, min_, max_))
 
 
 def _limit_dict(min_: float | None, max_: float | None) -> dict[str, float]:

@@ -37,6 +37,8 @@ from typing import Any, Literal
 
 from lightsim.errors import InputError
 
+from .conditions import MeasuringConditions, parse_conditions
+
 SCHEMA = "lightsim-ruleset-1"
 BUILTIN_DIR = Path(__file__).resolve().parent
 ENV_VAR = "LIGHTSIM_RULESETS"
@@ -160,6 +162,8 @@ class RuleSet:
     notes: tuple[str, ...] = ()
     path: str = ""
     meta: Mapping[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    # how the points are measured (re-aim, aim, angles, distance): ``[measurement]``
+    measurement: MeasuringConditions | None = None
 
     def geometry(self, name: str) -> Geometry:
         """The point or zone called ``name``."""
@@ -173,6 +177,9 @@ class RuleSet:
         traffic = check_traffic(traffic)
         if traffic == self.traffic:
             return self
+        if self.measurement is not None and not self.measurement.mirror:
+            raise InputError(f"rule set {self.id} applies to {self.traffic}-hand traffic "
+                             f"only; {traffic}-hand traffic does not apply")
         return replace(self, traffic=traffic,
                        geometries=tuple(g.mirrored() for g in self.geometries))
 
@@ -264,7 +271,8 @@ def load_ruleset(name_or_path: str | os.PathLike) -> RuleSet:
 
 # ---- parsing and validation ---------------------------------------------------------------
 _TOP_KEYS = {"schema", "id", "title", "version", "source", "traffic", "regulation", "beam",
-             "distance_m", "notes", "point", "zone", "sum", "relation", "meta"}
+             "distance_m", "notes", "point", "zone", "sum", "relation", "meta",
+             "measurement"}
 _COMMON = {"name", "certainty", "note", "source"}
 _POINT_KEYS = _COMMON | {"h", "v", "min", "max"}
 _ZONE_KEYS = _COMMON | {"polygon", "line", "min", "max", "stat", "complete"}
@@ -522,13 +530,16 @@ def _load_file(path: Path) -> RuleSet:
     meta = doc.get("meta", {})
     if not isinstance(meta, dict):
         raise ctx.fail("'meta' must be a table")
+    measurement = (parse_conditions(doc["measurement"], ctx.fail, source)
+                   if "measurement" in doc else None)
     return RuleSet(id=ident, title=_str(ctx, "top level", "title", doc.get("title")),
                    version=_str(ctx, "top level", "version", doc.get("version")),
                    source=source, traffic=traffic, geometries=tuple(geoms),
                    sums=tuple(sums), relations=tuple(rels),
                    regulation=_str(ctx, "top level", "regulation", doc.get("regulation"), ""),
                    beam=_str(ctx, "top level", "beam", doc.get("beam"), ""),
-                   distance_m=distance, notes=tuple(notes), path=str(path), meta=meta)
+                   distance_m=distance, notes=tuple(notes), path=str(path), meta=meta,
+                   measurement=measurement)
 
 
 def iter_rule_names(ruleset: RuleSet) -> Iterable[str]:

@@ -252,7 +252,7 @@ def interrupted(lamp, tmp_path):
     (["-k", "32"], "-k 64 (not 32)"),
     (["--estimator", "knn"], "--estimator bin (not knn)"),
     (["--resolution", "32x8"], "--resolution 16,8 (not 32,8)"),
-    (["--seed", "2", "--log"], "--log False (not True), --seed 1 (not 2)"),
+    (["--seed", "2", "--linear"], "--log True (not False), --seed 1 (not 2)"),
 ])
 def test_resume_refuses_options_that_conflict_with_the_checkpoint(interrupted, capsys,
                                                                    extra, match):

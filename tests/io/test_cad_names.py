@@ -22,7 +22,9 @@ pytest.importorskip("OCP", reason="the XCAF CAD reader needs cadquery-ocp (the '
 from lightsim.errors import InputError
 from lightsim.io.cad import Tessellation, read_cad
 from lightsim.io.cad_xcaf import FaceLabels
+from lightsim.materialmap import read_material_map
 from lightsim.materials import DIELECTRIC, DIFFUSE, MIRROR
+from lightsim.partlist import list_parts
 from lightsim.scene import EMITTER, SceneSettings, load_scene
 
 COARSE = Tessellation(0.1, 10.0)
@@ -248,3 +250,48 @@ def test_cli_face_rule_runs(tmp_path, capsys):
     assert code in (0, None), err
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["energy_lm"]["emitted"] == pytest.approx(100.0)
+
+
+def test_parts_lists_solids_and_face_addresses_a_map_can_use(tmp_path):
+    cad = write_named_cad(tmp_path / "lamp.step")
+    entries = {e.name: e for e in list_parts(cad, tess=COARSE)}
+    assert set(entries) == {"housing", "filament"}
+    housing = entries["housing"]
+    assert [f.address for f in housing.faces] == [
+        "housing/face-1", "housing/lid", "housing/face-3", "housing/face-4",
+        "housing/window", "housing/face-6"]
+    assert sum(f.triangles for f in housing.faces) == housing.triangles
+    assert housing.size_mm == pytest.approx(BOX_MM, abs=1e-6)
+    # every listed address is one a run accepts: naming it splits that face off
+    scene = load_scene(cad, SceneSettings(
+        tessellation=COARSE, part_materials={"filament": "ignore"} | {
+            f.address: "mirror" for f in housing.faces[:2]},
+        filament="H7", filament_at=(0.02, 0.015, 0.05)))
+    assert {"housing/face-1", "housing/lid"} <= {p.name for p in scene.parts}
+
+
+def test_parts_shows_the_rule_each_name_gets(tmp_path):
+    cad = write_named_cad(tmp_path / "lamp.step")
+    mmap = read_material_map(_map(tmp_path, '[[rule]]\nmatch = "housing/lid"\nkind = "mirror"\n'
+                                            '[[rule]]\nmatch = "housing*"\nkind = "diffuse"\n'))
+    entries = {e.name: e for e in list_parts(cad, mmap, COARSE)}
+    assert entries["housing"].rule == 2 and entries["filament"].rule == 3
+    faces = {f.address: f for f in entries["housing"].faces}
+    assert faces["housing/lid"].rule == 1 and faces["housing/lid"].split
+    assert faces["housing/window"].rule == 2 and not faces["housing/window"].split
+
+
+def test_cli_parts_and_no_emitter_error_name_the_parts(tmp_path, capsys):
+    cad = write_named_cad(tmp_path / "lamp.step")
+    code, out, _ = run_cli(["luminaire", "parts", str(cad)], capsys)
+    assert code in (0, None)
+    assert "housing/window" in out and "filament" in out and "no part emits light" in out
+    code, out, err = run_cli(["simulate", str(cad), "--part-material", "filament=diffuse",
+                              "--photons", "100", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "Traceback" not in err
+    line = [x for x in err.splitlines() if "no emitter" in x]
+    assert len(line) == 1 and "(housing, filament)" in line[0]
+    assert "luminaire parts lamp.step" in line[0]
+    assert not (tmp_path / "o" / "summary.json").exists()
+    code, _, err = run_cli(["luminaire", "parts", str(tmp_path / "lamp.obj")], capsys)
+    assert code == 2 and "no such file" in err

@@ -136,7 +136,7 @@ def test_same_lamp_scores_better_on_every_metric(lux_a, sim_a, tmp_path):
         assert good[name] > bad[name], (name, good[name], bad[name])
     for name in LOWER_IS_BETTER:
         assert bad[name] is None or good[name] < bad[name], (name, good[name], bad[name])
-    assert good["cutoff_offset_deg"] < 0.05 and good["hotspot_offset_deg"] < 0.2
+    assert good["cutoff_shape_gap_deg"] < 0.05 and good["hotspot_offset_deg"] < 0.2
 
 
 def test_cli_writes_outputs_and_reports_the_transform(sim_dir, lux_a, tmp_path, capsys):
@@ -233,9 +233,9 @@ def test_fail_thresholds_are_parsed_and_judged():
     for text in ("zncc", "nope=1", "zncc=abc", "zncc=nan"):
         with pytest.raises(InputError):
             parse_threshold(text)
-    metrics = {"zncc": 0.9, "rel_rmse": 0.2, "cutoff_offset_deg": None}
+    metrics = {"zncc": 0.9, "rel_rmse": 0.2, "cutoff_shape_gap_deg": None}
     assert failed_thresholds(metrics, [("zncc", 0.8)], [("rel_rmse", 0.3)]) == []
-    fails = failed_thresholds(metrics, [("zncc", 0.95), ("cutoff_offset_deg", 0.1)],
+    fails = failed_thresholds(metrics, [("zncc", 0.95), ("cutoff_shape_gap_deg", 0.1)],
                               [("rel_rmse", 0.1)])
     assert len(fails) == 3 and "undefined" in fails[1]
 

@@ -338,13 +338,28 @@ def test_cli_photo_of_a_marker_screen_with_the_lamp_aimed_half_a_degree_up(sim, 
                            str(tmp_path / "c")], capsys)
     assert code == 0, err
     doc = json.loads((tmp_path / "c" / "comparison.json").read_text())
+    # only three markers of the lower row are in this photo: they do not fix the screen
+    # across their row, so the aim is refused, in one line, with the markers named
+    assert doc["geometry"]["marker_ids"] == [6, 7, 8]
+    assert doc["aim"]["markers"]["found"] == [6, 7, 8]
+    assert doc["aim"]["markers"]["missing"] == [0, 1, 2, 3, 4, 5, 9]
+    assert not doc["aim"]["judgeable"] and "only 3 marker(s)" in doc["aim"]["refused"]
+    assert "markers: 3 of 10 found (ids 6, 7, 8); missing 0, 1, 2, 3, 4, 5, 9" in out
+    assert "AIM: aim not read: only 3 marker(s)" in out
+    # the photo command's defaults frame the whole marker board: all ten are found, and
+    # the aim interval covers the 0.5° re-aim
+    photo = tmp_path / "default.jpg"
+    code, _, err = _run(["photo", str(folder), str(photo), "--markers", "--reaim", "0,0.5",
+                         "--blur", "1", "--noise", "0.005", "--seed", "5"], capsys)
+    assert code == 0, err
+    code, out, err = _run(["compare", str(photo), "--sim", str(folder), "--out",
+                           str(tmp_path / "d")], capsys)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "d" / "comparison.json").read_text())
+    assert doc["aim"]["markers"]["found"] == list(range(10)) and doc["aim"]["judgeable"]
     cut = doc["aim"]["cutoff"]
     assert abs(cut["offset_deg"] - 0.5) <= cut["interval_deg"]
     assert f"AIM: cut-off {cut['offset_deg']:+.3f}° ± {cut['interval_deg']:.3f}°" in out
-    # only the lower row of markers is in this photo: the cut-off, 4° above them, is an
-    # extrapolation of the screen geometry and its interval is wider for it
-    assert doc["geometry"]["marker_ids"] == [6, 7, 8]
-    assert cut["sigma_geometry_deg"] > 1.5 * doc["geometry"]["sigma_deg"]
 
 
 def test_photo_against_photo_uses_exif_exposure(lux, sim, tmp_path, capsys):

@@ -143,3 +143,23 @@ def test_kill_study(tmp_path):
     print({s: states.count(s) for s in set(states)},
           sum(r.in_write_phase for r in results), "kills in the write phase")
     assert all(r.ok for r in results), [(r.delay_s, r.problems) for r in results if not r.ok]
+
+
+def test_fuzz_new_kinds_keep_the_promise(tmp_path):
+    """Material maps, TM-25 and Zemax ray files, --points strings and the view's
+    state.json: each case exits 0 with closed results or 2 with one line."""
+    kinds = ("materials", "tm25", "zemax", "points", "state")
+    report = run_fuzz(10, seed=3, kinds=kinds, command=main, photons=5000,
+                      resolution="32x16", timeout_s=240, workdir=tmp_path)
+    assert len(report.results) == 10
+    assert not report.failures, "\n".join(r.describe() for r in report.failures)
+    assert {r.verdict for r in report.results} >= {"ran", "rejected"}
+
+
+def test_fuzz_corpus_of_every_kind_is_built(tmp_path):
+    cases, files = build_corpus(12, 2, tmp_path, kinds=("tm25", "zemax", "points",
+                                                        "materials", "state", "ws"))
+    assert [c.kind for c in cases[:6]] == ["tm25", "zemax", "points", "materials",
+                                          "state", "ws"]
+    assert files.lamp.is_file() and files.photo.is_file() and files.sim.is_dir()
+    assert all(c.data for c in cases if c.kind != "points")

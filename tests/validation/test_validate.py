@@ -267,16 +267,10 @@ def test_validate_cli_bad_input_exits_2(argv, capsys):
 # The long study
 # ------------------------------------------------------------------------------------------
 
-# A known engine bug (test_stability.py::test_photons_hitting_box_edges_stay_inside):
-# with 2 M photons one photon leaves the closed box through an edge.
-KNOWN_ENGINE_FAILURES = {("box ρ=0.7", "escaped flux")}
-
-
 @pytest.mark.slow
 def test_full_suite_passes():
     res = va.run_suite(va.SuiteSettings.full_run())
-    failed = [c.to_dict() for c in res.checks
-              if not c.passed and (c.case, c.quantity) not in KNOWN_ENGINE_FAILURES]
+    failed = [c.to_dict() for c in res.checks if not c.passed]
     assert not failed, failed
     assert any(c.case == "slab-absorbing/bin" for c in res.checks)
     assert any(c.case == "lambertian/radius" for c in res.checks)

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 import pytest
+import trimesh
 
 from lightsim import raycast
 from lightsim.cli.main import main
@@ -24,12 +25,12 @@ from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.io.summary import read_json
-from lightsim.luminaires.gltf_writer import write_glb
+from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 from lightsim.luminaires.live import build_live, bulb_presets, scene_gltf_parts, start_view
 from lightsim.render.frame import ErrorEstimate
 from lightsim.scene import SceneSettings, load_scene
 from lightsim.validation.bench.view import error_law
-from lightsim.view.app import Connection, check_glb, same_origin
+from lightsim.view.app import Connection, check_glb
 from lightsim.view.controls import Controls
 from lightsim.view.editor import SceneEditor, aim_matrix
 from lightsim.view.encode import decode_image, encode_image
@@ -44,7 +45,7 @@ from lightsim.view.schedule import (
 from lightsim.view.settings import ViewSettings
 
 from netns import run_in_netns
-from support import run_cli
+from support import run_cli, write_point_lamp
 
 try:  # the browser test's driver (an optional extra): the other tests run without it
     from playwright.sync_api import sync_playwright
@@ -287,13 +288,6 @@ def test_save_run_writes_a_run_folder_and_the_edit_log(tmp_path):
     back = load_scene(run / "scene.glb", SceneSettings(resolution=(48, 24)))
     assert back.total_flux == pytest.approx(1000.0)
     assert {"frame:wall", "status", "regulation"} <= set(published)
-
-
-def test_same_origin_rule():
-    assert same_origin({"host": "127.0.0.1:8765"})
-    assert same_origin({"host": "127.0.0.1:8765", "origin": "http://127.0.0.1:8765"})
-    assert not same_origin({"host": "127.0.0.1:8765", "origin": "https://evil.example"})
-    assert not same_origin({"host": "127.0.0.1:8765", "origin": "http://127.0.0.1:9999"})
 
 
 # -- end to end in a real browser ----------------------------------------------------------------
@@ -655,6 +649,59 @@ def test_still_batches_revise_the_thread_choice():
     assert choice.rates[1] == 500_000.0
     choice.fixed = 1  # a fixed count is never revised
     assert choice.for_batch(still=True) == 1
+
+
+def test_thread_choice_of_a_whole_frame_warm_up():
+    """With Selective Photon Tracing a batch is a whole frame (``batch`` None): the
+    warm-up's times choose the counts, and the still batches rate each count once before
+    the faster by its photons/s takes over (no rates of unknown photons)."""
+    choice = ThreadChoice()
+    choice.timed({1: 0.01, 2: 0.02}, {1: 0.3, 2: 0.2}, None)
+    assert (choice.frame, choice.accumulate) == (1, 2) and choice.rates == {}
+    assert choice.batch_threads() == 2 and choice.for_batch(still=False) == 2
+    first = choice.for_batch(still=True)
+    choice.note_rate(first, 100_000.0)
+    second = choice.for_batch(still=True)
+    choice.note_rate(second, 300_000.0)
+    assert {first, second} == {1, 2} and choice.rates == {first: 1e5, second: 3e5}
+    assert choice.batch_threads() == second == choice.for_batch(still=False)
+    choice.note_rate(None, 1.0)  # nothing to note
+    choice.note_rate(7, 1.0)  # a count never timed: ignored
+    assert set(choice.rates) == {1, 2}
+
+
+@pytest.mark.timeout(300)
+def test_live_session_whose_plan_uses_selective_photon_tracing(tmp_path):
+    """A small mirror beside a point source: the plan's pilot finds few caustic paths and
+    turns Selective Photon Tracing on, whose passes are whole frames. The warm-up times
+    them and the session accumulates (it used to stop in the warm-up's thread timing)."""
+    m = trimesh.creation.box((0.02, 0.02, 0.002))
+    m.apply_translation((0.0, 0.0, -0.05))
+    scene = write_point_lamp(tmp_path / "spt.glb", GltfPart(
+        "mirror", np.asarray(m.vertices), np.asarray(m.faces), None,
+        GltfMaterial("chrome", base_color=(0.9, 0.9, 0.9), metallic=1.0)))
+    got: list[tuple[str, object]] = []
+    live = build_live(str(scene), ViewSettings(
+        resolution=(32, 16), frame_photons=5000, camera=False, regulation=None),
+        folder=tmp_path / "session", publish=lambda k, p: got.append((k, p)))
+    live.start()
+    try:
+        assert live.ready.wait(240) and live.error is None
+        assert live.session.plan.spt
+        assert live.threads.batch_times and all(
+            t > 0 for t in live.threads.batch_times.values())
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end and not any(
+                k == "status" and p["mode"] == "accumulation" and p["photons"] >= 20_000
+                and p["rel_error"] is not None for k, p in list(got)):
+            time.sleep(0.1)
+        acc = [p for k, p in got if k == "status" and p["mode"] == "accumulation"]
+        assert acc and acc[-1]["photons"] >= 20_000, acc[-1:]
+        assert math.isfinite(acc[-1]["rel_error"])
+        assert not [p for k, p in got if k == "message" and p["level"] == "error"]
+        assert live._thread.is_alive()
+    finally:
+        live.stop()
 
 
 def test_view_settings_are_one_table_of_checked_options():

@@ -155,7 +155,9 @@ function showRegulation(r) {
   $("reg").querySelector("tbody").innerHTML = r.rows.map((row) =>
     `<tr><td>${row.name}</td><td>${row.limit}</td><td>${fmt(row.value)}</td>` +
     `<td>${row.interval ? fmt(row.interval[0]) + " … " + fmt(row.interval[1]) : "–"}</td>` +
-    `<td class="${row.verdict}">${row.verdict}</td></tr>`).join("");
+    `<td class="${row.verdict}">${row.verdict}</td>` +
+    `<td class="${row.decided ? "decided" : "open"}">${row.decided ? "decided" : "open"}</td></tr>`
+  ).join("");
   if (lastWall) drawWall(lastWall);
 }
 

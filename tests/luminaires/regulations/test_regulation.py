@@ -28,7 +28,8 @@ from lightsim.luminaires.regulations import (
 )
 from lightsim.luminaires.regulations import ruleset as ruleset_mod
 
-BUILTIN = ["r112-a-passing", "r112-b-driving", "r112-b-passing", "r149-01-a-driving",
+BUILTIN = ["fmvss-lb1v-lower", "fmvss-ub1-upper",
+           "r112-a-passing", "r112-b-driving", "r112-b-passing", "r149-01-a-driving",
            "r149-01-b-driving", "r149-01-c-passing", "r149-a-driving", "r149-a-passing",
            "r149-b-driving", "r149-b-passing", "r149-d-driving", "sae-j1383-low"]
 REQUIRED_KEYS = {"name", "h_deg", "v_deg", "value_cd", "interval_cd", "limit", "verdict"}

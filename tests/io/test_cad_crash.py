@@ -1,0 +1,29 @@
+"""A damaged STEP or IGES file that crashes OpenCASCADE's reader (a segmentation fault in
+its parser) gives one line and exit 2: the reader runs in a child process."""
+
+from __future__ import annotations
+
+import pytest
+
+from lightsim.io.cad_xcaf import have_ocp
+from lightsim.luminaires.cad_example import write_example
+
+from support import run_cli
+
+
+@pytest.mark.skipif(not have_ocp(), reason="needs cadquery-ocp")
+def test_a_step_file_that_crashes_the_reader_is_one_line(tmp_path, capsys):
+    mmap = write_example(tmp_path / "lamp.step")
+    lines = (tmp_path / "lamp.step").read_text(encoding="latin-1").splitlines()
+    # line 96 of the example: its entity number 33 made 3 (a segmentation fault in
+    # OpenCASCADE's STEP reader, found by lightsim fuzz --kind step, seed 1, case 32)
+    assert "33" in lines[95]
+    lines[95] = lines[95].replace("33", "3", 1)
+    bad = tmp_path / "bad.step"
+    bad.write_text("\n".join(lines) + "\n", encoding="latin-1")
+    out = tmp_path / "out"
+    code, _, err = run_cli(["simulate", str(bad), "--materials", str(mmap), "--photons",
+                            "2000", "--resolution", "16x8", "-q", "--out", str(out)], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "lightsim: error:" in err
+    assert not out.exists() or not any(out.iterdir())

@@ -1,0 +1,68 @@
+"""``--until decided``: the look schedule, the running intervals and wrong-verdict counts."""
+
+from __future__ import annotations
+
+import pytest
+
+from lightsim.errors import InputError
+from lightsim.luminaires.regulations.sequential import LookSchedule, merge_row
+from lightsim.validation.sequential_study import simulated_looks
+from tests.support import run_cli, write_point_lamp
+
+
+def test_schedule_splits_the_budget_over_doubling_looks():
+    s = LookSchedule(200_000, 400_000_000)
+    assert s.planned()[:3] == (200_000, 400_000, 800_000)
+    assert s.looks == 12  # 11 doublings below the cap and the last look
+    assert s.level(0.95) == pytest.approx(1 - 0.05 / 12)
+    assert s.due(400_000, 200_000) and not s.due(399_999, 200_000)
+    with pytest.raises(InputError):
+        LookSchedule(0, 10)
+
+
+def _row(lo: float, hi: float) -> dict:
+    return {"name": "p", "kind": "point", "interval_cd": [lo, hi], "limit": {"min": 100.0}}
+
+
+def test_running_interval_is_the_intersection_and_a_decision_stays():
+    r1 = merge_row(None, _row(50.0, 300.0), 10)
+    assert r1["verdict"] == "uncertain" and not r1["decided"]
+    r2 = merge_row(r1, _row(120.0, 400.0), 20)
+    assert r2["interval_cd"] == [120.0, 300.0] and r2["decided"]
+    assert r2["decided_at_photons"] == 20
+    r3 = merge_row(r2, _row(90.0, 250.0), 40)  # a wider look cannot undo the decision
+    assert r3["interval_cd"] == [120.0, 250.0] and r3["verdict"] == "pass"
+    assert r3["decided_at_photons"] == 20
+    r4 = merge_row(r3, _row(10.0, 60.0), 80)  # disjoint: some bound was wrong, restart
+    assert r4["resets"] == 1 and r4["verdict"] == "fail" and r4["decided_at_photons"] == 80
+
+
+def test_wrong_decisions_stay_within_the_nominal_rate():
+    """Rules at, inside and outside their limits, looked at on the schedule: every rule's
+    wrong verdicts within what Binomial(runs, α/2) explains at 99.9 %."""
+    study = simulated_looks(40, looks=6, seed=5)
+    allowed = study.allowed()
+    assert sum(study.decided.values()) > 0
+    for name, wrong in study.wrong.items():
+        assert wrong <= allowed, (name, wrong, allowed)
+
+
+@pytest.mark.slow
+def test_wrong_decisions_over_many_runs():
+    study = simulated_looks(400, seed=11)
+    for name, wrong in study.wrong.items():
+        assert wrong <= study.allowed(), (name, wrong)
+
+
+@pytest.mark.parametrize("extra, text", [
+    ([], "--regulation"),
+    (["--regulation", "r112-b-passing", "--photons", "0"], "photons"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, extra, text):
+    glb = write_point_lamp(tmp_path / "lamp.glb")
+    code, _out, err = run_cli(["simulate", str(glb), "--until", "decided",
+                              "--out", str(tmp_path / "o"), *extra], capsys)
+    assert code == 2
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and text in lines[0], err
+    assert "Traceback" not in err
