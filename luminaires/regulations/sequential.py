@@ -68,6 +68,7 @@ from typing import Any
 
 import numpy as np
 
+from lightsim.engine.guiding import run_targets, targets_at
 from lightsim.errors import InputError
 from lightsim.render.frame import luminous
 from lightsim.simulate import UNTIL_CAP_PHOTONS
@@ -154,6 +155,9 @@ class OpenRule:
         any aim).
     points_deg : tuple of (h, v)
         The probe directions (deg, the aimed pattern's).
+    regions_deg : tuple of (h0, h1, v0, v1)
+        One rectangle per test point or zone the rule reads (a zone's: the box around
+        its samples' apertures), in wall degrees: where ``--guide points`` sends photons.
     """
 
     ruleset: str
@@ -162,12 +166,14 @@ class OpenRule:
     apertures: tuple[int, ...]
     rects_deg: tuple[tuple[float, float, float, float], ...]
     points_deg: tuple[tuple[float, float], ...]
+    regions_deg: tuple[tuple[float, float, float, float], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return {"ruleset": self.ruleset, "name": self.name, "kind": self.kind,
                 "apertures": list(self.apertures),
                 "rects_deg": [list(r) for r in self.rects_deg],
-                "points_deg": [list(p) for p in self.points_deg]}
+                "points_deg": [list(p) for p in self.points_deg],
+                "regions_deg": [list(r) for r in self.regions_deg]}
 
 
 def _verdict_interval(row: dict[str, Any]) -> tuple[str, float | None, float | None]:
@@ -262,6 +268,7 @@ class VerdictRule:
         self.schedule: LookSchedule | None = None
         self.last_photons = 0  # photons of the last look (or of the session when bound)
         self.looks: list[dict[str, Any]] = []
+        self.steered: list[dict[str, Any]] = []  # guide targets set at the looks
         self.final_done = False
 
     # -- set-up ------------------------------------------------------------------------
@@ -289,12 +296,26 @@ class VerdictRule:
         self.schedule = LookSchedule(first, int(cap_photons), self.growth)
         self.last_photons = int(session.photons_emitted() if from_photons is None
                                 else from_photons)
-        self.looks, self.final_done = [], False
+        self.looks, self.steered, self.final_done = [], [], False
         frame = session.scene.wall
         for chk in self.checks:
             chk.probes = probe_points(chk.rules, chk.traffic, frame=frame.to_dict())
             chk.rows, chk.shift_deg, chk.note, chk.hv = {}, None, None, None
+        if int(getattr(session, "frames", 0)) == 0:  # a resumed run keeps its guide rows
+            self.steer_regions(self.all_regions())
         return self
+
+    def all_regions(self) -> list[tuple[float, float, float, float]]:
+        """Every test point's aperture and every zone's box of the rule sets (wall deg,
+        unaimed): what the guide aims at before the first look."""
+        size = float(self.session.config.aperture_deg)
+        out = []
+        for chk in self.checks:
+            labels = np.asarray(chk.probes.labels, dtype=object)
+            for name in dict.fromkeys(chk.probes.labels):
+                i = np.flatnonzero(labels == name)
+                out.append(_region(chk.probes.h_deg[i], chk.probes.v_deg[i], size))
+        return out
 
     # -- the StoppingRule protocol -------------------------------------------------------
     def satisfied(self, est: Any, frames: int) -> bool:
@@ -369,8 +390,36 @@ class VerdictRule:
             chk.rows = {str(r["name"]): merge_row(chk.rows.get(str(r["name"])), r, photons)
                         for r in results}
         self.last_photons = int(photons)
+        opened = self.undecided()
         self.looks.append({"photons": int(photons), "look": len(self.looks) + 1,
-                           "level": level, "open": len(self.undecided())})
+                           "level": level, "open": len(opened)})
+        self.steer(opened)
+
+    def steer(self, opened: list[OpenRule]) -> None:
+        """With ``--guide points``, aim the photons of the next frames at the apertures
+        the open rules read (points, a sum's points, a zone's samples, a relation's two
+        sides); a decided rule's apertures stop drawing guided photons. Whatever the
+        guide does, every look's intervals stay valid: the guide of a frame is fixed
+        before the frame is shot, so each set's estimate stays unbiased and the sets'
+        errors uncorrelated (the module docstring of :mod:`lightsim.engine.guiding`)."""
+        self.steer_regions([r for o in opened for r in o.regions_deg])
+
+    def steer_regions(self, regions: list[tuple[float, float, float, float]]) -> None:
+        """Guide targets: ``regions`` (wall deg) from the session's next frame on, with
+        ``--guide points`` (nothing otherwise, or when ``regions`` is empty: all decided,
+        or no look could evaluate yet)."""
+        cfg = getattr(self.session, "config", None)
+        if (self.final_done or cfg is None or getattr(cfg, "guide", "off") != "points"
+                or not cfg.apertures):
+            return  # the last look steers nothing: no frame follows it
+        rects = sorted(set(regions))
+        now = targets_at(run_targets(cfg), int(self.session.frames))
+        if not rects or (len(now) == len(rects) and np.array_equal(
+                now, np.column_stack([np.asarray(rects), np.ones(len(rects))]))):
+            return  # nothing open, or the targets in force already
+        self.session.guide(np.asarray(rects, np.float64))
+        self.steered.append({"photons": int(self.session.photons_emitted()),
+                             "targets": len(rects)})
 
     def final_look(self, photons: int, lux: np.ndarray | None) -> None:
         """The last look, at the run's final photons, unless a look saw them already."""
@@ -437,11 +486,14 @@ class VerdictRule:
                 rects = tuple((float(a - size / 2), float(a + size / 2), float(b - size / 2),
                                float(b + size / 2)) for a, b in zip(h, v, strict=True)
                               ) if counted else ()
+                regions = tuple(_region(chk.probes.h_deg[i], chk.probes.v_deg[i] + shift,
+                                        size) for i in _probe_groups(chk, row)
+                                if len(i)) if counted else ()
                 out.append(OpenRule(chk.rules.id, name, str(row.get("kind")),
                                     tuple(int(chk.offset + i) for i in idx) if counted
                                     else (), rects,
                                     tuple((float(a), float(b)) for a, b in
-                                          zip(h, v, strict=True))))
+                                          zip(h, v, strict=True)), regions))
         return out
 
     def progress_text(self) -> str:
@@ -469,14 +521,30 @@ class VerdictRule:
                 "looks": list(self.looks),
                 "photons": self.last_photons,
                 "undecided": [o.to_dict() for o in self.undecided()],
+                "guided": [dict(g) for g in self.steered],
                 "notes": {c.rules.id: c.note for c in self.checks if c.note}}
 
 
-def _probe_indices(chk: _Check, row: dict[str, Any]) -> np.ndarray:
-    """Indices of the probes a rule's row reads (a point's, a zone's, a sum's points, a
-    relation's two sides)."""
+def _probe_groups(chk: _Check, row: dict[str, Any]) -> list[np.ndarray]:
+    """Indices of the probes a rule's row reads, one array per test point or zone (a
+    point's, a zone's samples, a sum's points, a relation's two sides)."""
     names = {"sum": row.get("points") or [],
              "relation": [row.get("lhs"), row.get("reference")]}.get(
         str(row.get("kind")), [row["name"]])
-    idx = [chk.probes.indices(str(n)) for n in names if n is not None]
+    return [np.asarray(chk.probes.indices(str(n)), np.int64) for n in names
+            if n is not None]
+
+
+def _probe_indices(chk: _Check, row: dict[str, Any]) -> np.ndarray:
+    """Indices of every probe a rule's row reads (:func:`_probe_groups` joined)."""
+    idx = _probe_groups(chk, row)
     return np.concatenate(idx).astype(np.int64) if idx else np.zeros(0, np.int64)
+
+
+def _region(h_deg: np.ndarray, v_deg: np.ndarray, size_deg: float
+            ) -> tuple[float, float, float, float]:
+    """The box (H₀, H₁, V₀, V₁ in deg) around apertures of side ``size_deg`` centred on
+    the probes (``h_deg``, ``v_deg``): one point's aperture, or a zone's extent."""
+    a = 0.5 * float(size_deg)
+    return (float(np.min(h_deg) - a), float(np.max(h_deg) + a),
+            float(np.min(v_deg) - a), float(np.max(v_deg) + a))

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import math
+
 import pytest
 
 from lightsim.errors import InputError
@@ -66,3 +69,49 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, extra, text):
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
     assert len(lines) == 1 and text in lines[0], err
     assert "Traceback" not in err
+
+
+def _verdicts(summary: dict) -> dict[str, tuple[str, bool]]:
+    return {r["name"]: (r["verdict"], r.get("decided", False))
+            for r in summary["regulation"]["results"] if r.get("kind") != "measure"}
+
+
+def test_guided_until_steers_to_the_open_rules_and_decides_truly(tmp_path, capsys):
+    """A 1000 lm isotropic source (79.6 cd in every direction): with --guide points the
+    rule aims the photons at every test point and zone before the first look, then only
+    at the open rules' ones; each decided verdict is the true one, in both runs."""
+    glb = write_point_lamp(tmp_path / "lamp.glb")
+    truth = 1000.0 / (4 * math.pi)
+    got = {}
+    for guide in ("off", "points"):
+        out = tmp_path / guide
+        code, _o, err = run_cli(["simulate", str(glb), "--until", "decided", "--regulation",
+                                 "r112-b-passing", "--photons", "800000", "--resolution",
+                                 "80x32", "--guide", guide, "--seed", "3", "--out", str(out),
+                                 "--quiet"], capsys)
+        assert code == 0, err
+        summary = json.loads((out / "summary.json").read_text())
+        got[guide] = summary
+        for r in summary["regulation"]["results"]:
+            if r.get("kind") != "point" or not r.get("decided"):
+                continue
+            lim = r["limit"]
+            ok = (lim.get("min") is None or truth >= lim["min"]) and (
+                lim.get("max") is None or truth <= lim["max"])
+            assert r["verdict"] == ("pass" if ok else "fail"), r
+            lo, hi = r["interval_cd"]
+            assert lo <= truth <= hi, r
+    steered = got["points"]["until"]["guided"]
+    assert got["off"]["until"]["guided"] == []
+    assert steered and steered[0]["photons"] == 0  # every point and zone, from frame 0
+    rows = got["points"]["config"]["guide_targets"]
+    assert len({r[0] for r in rows}) == len({s["photons"] for s in steered})
+    opened = len(got["points"]["until"]["undecided"])
+    assert steered[-1]["targets"] <= steered[0]["targets"]
+    # decided rules drop out: the last targets cover only the rules open before it
+    assert opened <= steered[-1]["targets"] or opened == 0
+    # the same decisions where both decided (the truth is far from most limits)
+    a, b = _verdicts(got["off"]), _verdicts(got["points"])
+    for name in a:
+        if a[name][1] and b[name][1]:
+            assert a[name][0] == b[name][0], name
