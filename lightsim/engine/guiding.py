@@ -43,6 +43,11 @@ distributed (their spread stays an honest error) and every photon stays a functi
 (seed, set, index, frames shot) — a lost client or a resumed run replays its frames to
 the same guide. Targets may change between frames: they are rows (first frame, h₀, h₁,
 v₀, v₁, importance) of the run's configuration, so the history travels with checkpoints.
+They may be chosen from what all sets showed so far (``--until decided`` aims them at the
+rules still open, :meth:`~lightsim.luminaires.regulations.sequential.VerdictRule.steer`):
+every frame's density is still fixed before the frame is shot, so given the past each
+frame adds an unbiased estimate to each set, drawn independently of the other sets' —
+the sets' estimates stay unbiased and uncorrelated, and their spread an honest error.
 
 Parameters
 ----------

@@ -22,7 +22,7 @@ from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.scene import SceneSettings, load_scene
 
-from support import write_point_lamp
+from support import run_cli, write_point_lamp
 
 
 def _density(shape, rng, spread=3.0):
@@ -216,3 +216,19 @@ def test_guide_refuses_bad_targets(lamp):
             s.guide([[1.0, 0.0, 0.0, 1.0]])
     finally:
         s.close()
+
+
+@pytest.mark.parametrize("extra, text", [
+    ([], "--regulation"),
+    (["--regulation", "r112-b-passing", "--guide", "sideways"], "--guide"),
+])
+def test_guide_option_errors_are_one_line_and_exit_2(tmp_path, capsys, extra, text):
+    glb = write_point_lamp(tmp_path / "lamp.glb")
+    argv = ["simulate", str(glb), "--out", str(tmp_path / "o"), *extra]
+    if "--guide" not in extra:
+        argv += ["--guide", "points"]
+    code, _out, err = run_cli(argv, capsys)
+    assert code == 2 and "Traceback" not in err
+    lines = [ln for ln in err.strip().splitlines() if ln.strip() and "planning" not in ln]
+    assert len(lines) == 1 and text in lines[0], err
+    assert not (tmp_path / "o").exists()  # nothing half-written
