@@ -9,7 +9,7 @@ import pytest
 
 from lightsim.errors import InputError
 from lightsim.luminaires.regulations.sequential import LookSchedule, merge_row
-from lightsim.validation.sequential_study import simulated_looks
+from lightsim.validation.sequential_study import simulated_looks, until_study
 from tests.support import run_cli, write_point_lamp
 
 
@@ -115,3 +115,21 @@ def test_guided_until_steers_to_the_open_rules_and_decides_truly(tmp_path, capsy
     for name in a:
         if a[name][1] and b[name][1]:
             assert a[name][0] == b[name][0], name
+
+
+@pytest.mark.parametrize("guide", [False, True])
+def test_traced_lamps_decide_wrongly_no_more_than_nominal(guide):
+    """Synthetic Type A lamps of known intensities, traced with --until decided (and with
+    --guide points): every decided verdict against the exact one, the wrong ones within
+    what Binomial(decided, α/2) explains at 99.9 %."""
+    study = until_study(2, 1, cap_photons=400_000, resolution=(80, 32), guide=guide)
+    assert study.decisive > 10
+    assert study.wrong <= study.allowed(), study.to_dict()
+    assert all(r.photons <= 400_000 for r in study.runs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("guide", [False, True])
+def test_traced_lamps_many_seeds(guide):
+    study = until_study(6, 3, cap_photons=4_000_000, guide=guide, seed=4)
+    assert study.wrong <= study.allowed(), study.to_dict()
