@@ -87,17 +87,31 @@ def guide_shape(emitters) -> tuple[int, int, int]:
 
     A single goniometric source reads u₀, u₁ only (one cell in u₂); a ray file reads u₀
     only (its rays in direction order, :meth:`~lightsim.emitters.rayfile.RaySource.
-    order_by_direction`: 4096 cells along u₀); triangles and mixtures read u₂ too (the
-    triangle or source, 4 cells) at a coarser direction grid, so the tables stay small.
+    direction_order`, through :func:`guide_remap`: 4096 cells along u₀); triangles and
+    mixtures read u₂ too (the triangle or source, 4 cells) at a coarser direction grid,
+    so the tables stay small.
     """
     mesh = emitters.mesh if isinstance(emitters, EmitterMix) else (
         emitters if isinstance(emitters, MeshEmitter) else None)
     sources = emitters.sources if isinstance(emitters, EmitterMix) else []
     if mesh is None and len(sources) == 1:
-        if hasattr(sources[0], "order_by_direction"):
+        if hasattr(sources[0], "file_sample"):
             return (1, 4096, 1)
         return (1, 64, 64)
     return (4, 32, 32)
+
+
+def guide_remap(emitters):
+    """A single ray file's map from u₀ in direction order to u₀ in file order
+    (:meth:`~lightsim.emitters.rayfile.RaySource.file_sample`), applied after the warp so
+    that the guide's u₀ cells are direction ranges; None for every other emitter. The
+    map keeps every ray's probability (∝ its flux), so the weights stay 1/p."""
+    sources = emitters.sources if isinstance(emitters, EmitterMix) else []
+    mesh = emitters.mesh if isinstance(emitters, EmitterMix) else emitters
+    if isinstance(emitters, EmitterMix) and mesh is None and len(sources) == 1 and hasattr(
+            sources[0], "file_sample"):
+        return sources[0].file_sample
+    return None
 
 
 def run_targets(config) -> tuple:

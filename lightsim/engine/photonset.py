@@ -37,7 +37,13 @@ import numpy as np
 from lightsim.engine.apertures import counter_from_config
 from lightsim.engine.config import RunConfig
 from lightsim.engine.frame_insert import insert_wall
-from lightsim.engine.guiding import EmissionGuide, guide_shape, run_targets, targets_at
+from lightsim.engine.guiding import (
+    EmissionGuide,
+    guide_remap,
+    guide_shape,
+    run_targets,
+    targets_at,
+)
 from lightsim.engine.memory import write_pages
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
@@ -304,6 +310,7 @@ class PhotonSets:
         self._wall_part_ids = np.flatnonzero([p.role == "wall" for p in scene.surfaces])
         self._grid_shape = tuple(int(n) for n in self.config.probe_grid)
         self._guide_shape = guide_shape(self.tracer.emitters)
+        self._guide_remap = guide_remap(self.tracer.emitters)
         self._guide_rows = run_targets(self.config)
 
     def reset(self) -> None:
@@ -457,8 +464,11 @@ class PhotonSets:
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             hi = lo + len(owners[g])
-            st.guide.set_targets(targets_at(self._guide_rows, st.frames))
+            live = targets_at(self._guide_rows, st.frames)
+            st.guide.set_targets(live)
             pts, w, c = st.guide.warp(points[lo:hi])
+            if self._guide_remap is not None and len(live):  # a ray file's direction order
+                pts[:, 0] = self._guide_remap(pts[:, 0])
             points[lo:hi] = pts
             weights[g] = weights[g] * w
             cells[lo:hi] = c
