@@ -68,7 +68,8 @@ from typing import Any
 
 import numpy as np
 
-from lightsim.engine.guiding import run_targets, targets_at
+from lightsim.analysis import AnalysisReport
+from lightsim.engine.guiding import run_targets, target_rows, targets_at
 from lightsim.errors import InputError
 from lightsim.render.frame import luminous
 from lightsim.simulate import UNTIL_CAP_PHOTONS
@@ -78,8 +79,8 @@ from .check import evaluate_probe_values, measure_probes, regulation_check, regu
 from .evaluate import limit_verdict, probe_points
 from .ruleset import RuleSet, load_ruleset
 
-__all__ = ["DEFAULT_CAP_PHOTONS", "UNTIL_CHOICES", "LookSchedule", "OpenRule", "VerdictRule",
-           "merge_row"]
+__all__ = ["DEFAULT_CAP_PHOTONS", "UNTIL_CHOICES", "GuideTargets", "LookSchedule", "OpenRule",
+           "VerdictRule", "merge_row", "probe_regions"]
 
 UNTIL_CHOICES = ("decided",)
 """What ``--until`` may name."""
@@ -309,13 +310,7 @@ class VerdictRule:
         """Every test point's aperture and every zone's box of the rule sets (wall deg,
         unaimed): what the guide aims at before the first look."""
         size = float(self.session.config.aperture_deg)
-        out = []
-        for chk in self.checks:
-            labels = np.asarray(chk.probes.labels, dtype=object)
-            for name in dict.fromkeys(chk.probes.labels):
-                i = np.flatnonzero(labels == name)
-                out.append(_region(chk.probes.h_deg[i], chk.probes.v_deg[i], size))
-        return out
+        return [r for chk in self.checks for r in probe_regions(chk.probes, size)]
 
     # -- the StoppingRule protocol -------------------------------------------------------
     def satisfied(self, est: Any, frames: int) -> bool:
@@ -525,6 +520,36 @@ class VerdictRule:
                 "notes": {c.rules.id: c.note for c in self.checks if c.note}}
 
 
+@dataclass
+class GuideTargets:
+    """``--guide points`` with ``--regulation`` (an :class:`~lightsim.analysis.Analysis`):
+    before the run, the guide targets become one box per test point or zone of every
+    requested rule set (:func:`probe_regions`) instead of one per detector aperture — a
+    zone is one target, not hundreds, so the guide's tables stay small; after it,
+    ``summary.json["guide"]`` records them. ``--until decided`` then narrows them to the
+    open rules at every look (:meth:`VerdictRule.steer`)."""
+
+    rulesets: tuple[str, ...]
+    traffic: str = "right"
+    name: str = "guide"
+    regions: list[tuple[float, float, float, float]] = field(default_factory=list)
+
+    def prepare(self, config: Any, scene: Any) -> Any:
+        if config.guide != "points" or config.guide_targets or not config.apertures:
+            return config
+        frame = scene.wall.to_dict()
+        self.regions = [r for rs in self.rulesets for r in probe_regions(
+            probe_points(load_ruleset(rs), self.traffic, frame=frame),
+            float(config.aperture_deg))]
+        if not self.regions:
+            return config
+        return config.with_(guide_targets=target_rows(np.asarray(sorted(set(self.regions)))))
+
+    def report(self, run: Any, out: Any) -> AnalysisReport:
+        return AnalysisReport({"mode": "points", "targets": len(set(self.regions)),
+                               "regions_deg": [list(r) for r in sorted(set(self.regions))]})
+
+
 def _probe_groups(chk: _Check, row: dict[str, Any]) -> list[np.ndarray]:
     """Indices of the probes a rule's row reads, one array per test point or zone (a
     point's, a zone's samples, a sum's points, a relation's two sides)."""
@@ -539,6 +564,16 @@ def _probe_indices(chk: _Check, row: dict[str, Any]) -> np.ndarray:
     """Indices of every probe a rule's row reads (:func:`_probe_groups` joined)."""
     idx = _probe_groups(chk, row)
     return np.concatenate(idx).astype(np.int64) if idx else np.zeros(0, np.int64)
+
+
+def probe_regions(probes: Any, size_deg: float) -> list[tuple[float, float, float, float]]:
+    """One box (H₀, H₁, V₀, V₁ in deg) per test point or zone of ``probes`` (a
+    :func:`~lightsim.luminaires.regulations.probe_points` result): a point's aperture of
+    side ``size_deg``, a zone's samples' apertures together — the guide targets of
+    ``--guide points``."""
+    labels = np.asarray(probes.labels, dtype=object)
+    return [_region(probes.h_deg[i], probes.v_deg[i], size_deg)
+            for i in (np.flatnonzero(labels == name) for name in dict.fromkeys(probes.labels))]
 
 
 def _region(h_deg: np.ndarray, v_deg: np.ndarray, size_deg: float

@@ -102,12 +102,14 @@ def test_guided_until_steers_to_the_open_rules_and_decides_truly(tmp_path, capsy
             lo, hi = r["interval_cd"]
             assert lo <= truth <= hi, r
     steered = got["points"]["until"]["guided"]
-    assert got["off"]["until"]["guided"] == []
-    assert steered and steered[0]["photons"] == 0  # every point and zone, from frame 0
+    assert got["off"]["until"]["guided"] == [] and "guide" not in got["off"]
     rows = got["points"]["config"]["guide_targets"]
-    assert len({r[0] for r in rows}) == len({s["photons"] for s in steered})
+    first = [r for r in rows if r[0] == 0]  # every point and zone, from frame 0
+    assert len(first) == got["points"]["guide"]["targets"] == len(
+        got["points"]["guide"]["regions_deg"])
+    assert steered and len({r[0] for r in rows}) == 1 + len(steered)
     opened = len(got["points"]["until"]["undecided"])
-    assert steered[-1]["targets"] <= steered[0]["targets"]
+    assert steered[-1]["targets"] <= len(first)
     # decided rules drop out: the last targets cover only the rules open before it
     assert opened <= steered[-1]["targets"] or opened == 0
     # the same decisions where both decided (the truth is far from most limits)
