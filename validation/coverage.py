@@ -84,6 +84,7 @@ from lightsim.luminaires.regulations.check import (
     regulation_check,
     split_rulesets,
 )
+from lightsim.luminaires.regulations.sequential import GuideTargets
 from lightsim.render.frame import luminous
 from lightsim.report import aperture_values
 from lightsim.scene import SceneSettings, load_scene
@@ -319,6 +320,8 @@ def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
     for rs_name in names_rs:
         offsets.append(len(cfg.apertures))
         cfg = aperture_config(cfg, rs_name, traffic, scene.wall, aperture_deg, spt=spt)
+    if guide:  # one target per point or zone, as simulate --guide points aims
+        cfg = GuideTargets(tuple(names_rs), traffic).prepare(cfg, scene)
     names, h, v, idx = point_apertures(names_rs[0], traffic, scene.wall)
     t0 = time.perf_counter()
     session = Session(scene, cfg)
