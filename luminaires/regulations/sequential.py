@@ -36,6 +36,15 @@ On a rule that needs N photons at the plain 95 % level, the looks cost about 3.0
 6/(π²k²) sequence costs 4.4 × and 6.0 ×, and looking without a budget — invalid — 1.4 ×
 (the doubling schedule's own overshoot).
 
+Guiding
+-------
+With ``--guide points`` (:mod:`lightsim.engine.guiding`) the looks also steer the
+photons: before the first frame towards every test point and zone (:class:`GuideTargets`,
+one box each), after every look only towards the boxes of the rules still open
+(:meth:`VerdictRule.steer`); a decided rule draws no more guided photons. The guide of a
+frame is fixed before the frame is shot and every photon carries 1/p, so each look's
+bounds hold at their level as without guiding, and the budget above is unchanged.
+
 What a look cannot promise
 --------------------------
 * The per-look bounds are the table's (:class:`lightsim.report.IntensityEvidence`): the
