@@ -25,6 +25,7 @@ BENCHMARKS: dict[str, str] = {
     "road": "bench_road:command",
     "adb": "bench_adb:command",
     "provenance": "bench_provenance:command",
+    "verdicts": "bench_verdicts:command",
 }
 
 

@@ -30,6 +30,8 @@ option                 unit   default     meaning
                                           ``lightsim-coverage`` in the temp directory)
 ``--aperture``         deg    0.15        detector aperture of the coverage study
 ``--spt-points``       –      off         SPT aimed at the test points (coverage study)
+``--guide``            –      off         coverage study with importance-driven emission
+                                          (``points``: aimed at the test points and zones)
 ``--aim-study``        –      off         the re-aim study of the photo comparison
                                           instead (:mod:`lightsim.validation.photo_aim_
                                           study`): does the aim interval cover the truth?
@@ -155,6 +157,9 @@ def _print_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
 @click.option("--aperture", type=float, default=0.15, show_default=True,
               help="Detector aperture (deg) of the coverage study.")
 @click.option("--spt-points", is_flag=True, help="Coverage study with SPT aimed at the points.")
+@click.option("--guide", type=click.Choice(["off", "points"]), default="off", show_default=True,
+              help="Coverage study with importance-driven emission aimed at the test points "
+                   "and zones (as simulate --guide points).")
 @click.option("--aim-study", is_flag=True,
               help="Re-aim study of the photo comparison: random re-aims (±0.5°) "
                    "photographed on the marker board by random cameras; does the aim "
@@ -463,19 +468,20 @@ class CoverageSettings:
     aperture: float = 0.15
     spt: bool = False
     seed: int = 1
+    guide: bool = False
 
     @classmethod
     def from_options(cls, photons: int | None, seed: int, *, lamps: int, counts: str | None,
                      lamp_files: tuple[str, ...], seeds: int, reference_photons: str,
                      reference_dir: str | None, aperture: float,
-                     spt_points: bool) -> CoverageSettings:
+                     spt_points: bool, guide: str = "off") -> CoverageSettings:
         """The settings from ``validate``'s options (photon counts parsed)."""
         return cls(lamps=lamps,
                    counts=_photon_budgets(counts) if counts else [photons or 1_000_000],
                    lamp_files=lamp_files, seeds=seeds,
                    reference_photons=_photon_budgets(reference_photons)[0],
                    reference_dir=reference_dir, aperture=aperture, spt=spt_points,
-                   seed=seed)
+                   seed=seed, guide=guide == "points")
 
 
 def _verdict_rows(rules: dict[str, VerdictCount]) -> list[list[str]]:
@@ -553,7 +559,7 @@ def _coverage(st: CoverageSettings, json_path: str | None, quiet: bool) -> None:
         if not st.lamps:
             break
         res = coverage_study(st.lamps, photons, aperture_deg=st.aperture, spt=st.spt,
-                             seed=st.seed, progress=lambda n, run, p=photons: note(
+                             seed=st.seed, guide=st.guide, progress=lambda n, run, p=photons: note(
                                  f"lamp {n + 1}/{st.lamps} ({p:,} photons): "
                                  f"{run.seconds:.1f} s"))
         lo, hi = res.band()
@@ -563,7 +569,8 @@ def _coverage(st: CoverageSettings, json_path: str | None, quiet: bool) -> None:
         rows = [[name, f"{p['coverage']:.1%}", f"{p['mean_bias_halfwidths']:+.2f}"]
                 for name, p in res.per_point.items()]
         _print_table(f"lightsim validate --coverage: {res.lamps} lamps × {photons:,} "
-                     f"photons, aperture {st.aperture:g}°{' with SPT' if st.spt else ''} "
+                     f"photons, aperture {st.aperture:g}°{' with SPT' if st.spt else ''}"
+                     f"{' guided' if st.guide else ''} "
                      f"(truth: the file's bilinear intensity), {res.seconds:.0f} s",
                      ["point", "coverage", "mean bias (half-widths)"], rows)
         click.echo(f"coverage {res.covered}/{res.evaluations} = {res.rate:.1%} "
@@ -584,7 +591,8 @@ def _coverage(st: CoverageSettings, json_path: str | None, quiet: bool) -> None:
             res = shipped_study(lamp, photons, st.seeds,
                                 reference_photons=int(st.reference_photons),
                                 cache_dir=st.reference_dir or DEFAULT_CACHE,
-                                aperture_deg=st.aperture, progress=note)
+                                aperture_deg=st.aperture, progress=note,
+                                guide=st.guide)
             good = all(c.wrong <= c.allowed() for c in res.rules.values())
             ok &= good
             _print_table(f"{Path(lamp).name}: {st.seeds} runs × {photons:,} photons "

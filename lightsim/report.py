@@ -69,6 +69,7 @@ from lightsim.engine.apertures import (
     midp_poisson,
     raster_tiles,
 )
+from lightsim.engine.guiding import heaviest_weight
 from lightsim.errors import InputError
 from lightsim.io.plot_worker import InProcess
 from lightsim.io.plots import PlotCaption, isolux_noise_floor, road_view_data
@@ -228,15 +229,16 @@ def heaviest_photon(config: Any, spt: bool) -> float:
     SelectiveSampler`): a cell that keeps the fewest photons per pass (one in caustic SPT,
     the base share when aiming at test points) weighs the most.
     """
+    guided = heaviest_weight(config)  # a guided photon weighs up to 1/(1 − share) more
     if not (spt or config.aperture_targets):
-        return 1.0
+        return guided
     share = None if spt else float(config.aperture_spt_share)
     sampler = SelectiveSampler(int(config.seed), 0, refine_share=share,
                                pass_photons=config.photons_per_set)
     cells, per_pass = sampler.n_cells, sampler.pass_photons
     fewest = 1 if share is None else max(1, int((1.0 - share) * per_pass) // cells)
     plain = max(1, per_pass // cells)  # passes before anything is refined
-    return max(per_pass / (cells * fewest), per_pass / (cells * plain))
+    return guided * max(per_pass / (cells * fewest), per_pass / (cells * plain))
 
 
 def aperture_values(session, shift_deg: float = 0.0, confidence: float = 0.95

@@ -66,6 +66,9 @@ CHECKPOINT = "checkpoint.json"
 UNTIL_CAP_PHOTONS = 400_000_000
 """Photon cap of ``--until decided`` without ``--photons`` (a rule exactly at its limit
 never decides)."""
+UNTIL_GUIDE_PHOTONS = 1e18
+"""``--until decided --guide points``: a guide target's photon goal, out of reach — an
+open rule's apertures draw guided photons until the rule decides."""
 
 
 @dataclass
@@ -378,6 +381,10 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     check_fits(opts.photons, scene.wall.resolution, config, scene.channels or 3)  # pre-flight
     for analysis in analyses:  # e.g. test points counted in detector apertures
         config = analysis.prepare(config, scene)
+    if opts.until is not None and config.guide == "points":
+        # the verdicts steer the guide: a target closes when its rules decide, not at a
+        # photon count (luminaires.regulations.sequential.VerdictRule.steer)
+        config = config.with_(guide_photons=UNTIL_GUIDE_PHOTONS)
     if resume is not None:  # the photons are replayed with the settings they were shot with
         config = resumed_config(resume, config, out)
     scene.warnings.extend(folder_notes(out))  # printed with the scene's warnings

@@ -11,7 +11,9 @@ option              unit   analysis
 ``regulation``      –      :class:`~.regulations.check.RegulationAnalysis` per rule set
                            of the comma list (with ``traffic``, ``aim``, ``aperture``
                            deg, ``spt_points``; ``until`` = decided: one shared
-                           :class:`~.regulations.sequential.VerdictRule`)
+                           :class:`~.regulations.sequential.VerdictRule`; with
+                           ``--guide points`` also :class:`~.regulations.sequential.
+                           GuideTargets`)
 ``ies``, ``ldt``    –      :class:`~.photometric.analysis.FarfieldAnalysis` (with
                            ``ies_type``, ``farfield_photons``, ``ies_step``,
                            ``ldt_step`` deg)
@@ -36,7 +38,7 @@ from .photometric.gridding import check_step
 from .provenance_report import ProvenanceAnalysis
 from .regulations.check import RegulationAnalysis, split_rulesets
 from .regulations.conditions import refuse_screen_check
-from .regulations.sequential import VerdictRule
+from .regulations.sequential import GuideTargets, VerdictRule
 
 __all__ = ["for_options"]
 
@@ -64,6 +66,8 @@ def for_options(opts: Any) -> list[Analysis]:
                                           until=until)
             refuse_screen_check(analysis.rules)  # re-aim etc.: `lightsim check` instead
             out.append(analysis)
+        if opts.run_config().guide == "points":  # one guide target per point or zone
+            out.append(GuideTargets(tuple(split_rulesets(opts.regulation)), opts.traffic))
     if getattr(opts, "provenance", False):
         regs = [a for a in out if isinstance(a, RegulationAnalysis)]
         if not regs:

@@ -46,6 +46,8 @@ aperture_deg        deg    0.15              detector aperture side
 ruleset             –      r112-b-passing,   rule sets tested (the first one's points and
                            r149-b-passing    H-V make the point-coverage table)
 spt                 –      False             Selective Photon Tracing aimed at the points
+guide               –      False             importance-driven emission aimed at the test
+                                             points and zones (``--guide points``)
 quad                –      64                midpoints per aperture side for a point's truth
 zone_quad           –      16                the same for zone samples
 seed                –      1                 lamp parameters and photon sequences
@@ -82,6 +84,7 @@ from lightsim.luminaires.regulations.check import (
     regulation_check,
     split_rulesets,
 )
+from lightsim.luminaires.regulations.sequential import GuideTargets
 from lightsim.render.frame import luminous
 from lightsim.report import aperture_values
 from lightsim.scene import SceneSettings, load_scene
@@ -303,17 +306,22 @@ def point_apertures(ruleset: str, traffic: str, frame: Any
 def run_lamp(path: str | Path, photons: int, *, aperture_deg: float = 0.15,
              ruleset: str = DEFAULT_RULESETS, traffic: str = "right", spt: bool = False,
              seed: int = 1, quad: int = 64, config: RunConfig | None = None,
-             confidence: float = 0.95, zone_quad: int = 16) -> LampRun:
+             confidence: float = 0.95, zone_quad: int = 16, guide: bool = False) -> LampRun:
     """Simulate the IES file at ``path`` as a point source, measure its test points and
     judge every rule of ``ruleset`` (one id or several, comma-separated) as
-    ``lightsim simulate --regulation`` does, next to the exact answers."""
+    ``lightsim simulate --regulation`` does, next to the exact answers (``guide``: with
+    ``--guide points``)."""
     scene = load_scene(str(path), SceneSettings(resolution=(160, 64)))
     cfg = config or RunConfig(seed=seed, estimator="bin", frame_photons=250_000)
+    if guide:
+        cfg = cfg.with_(guide="points")
     names_rs = split_rulesets(ruleset)
     offsets = []
     for rs_name in names_rs:
         offsets.append(len(cfg.apertures))
         cfg = aperture_config(cfg, rs_name, traffic, scene.wall, aperture_deg, spt=spt)
+    if guide:  # one target per point or zone, as simulate --guide points aims
+        cfg = GuideTargets(tuple(names_rs), traffic).prepare(cfg, scene)
     names, h, v, idx = point_apertures(names_rs[0], traffic, scene.wall)
     t0 = time.perf_counter()
     session = Session(scene, cfg)
@@ -406,6 +414,7 @@ class CoverageResult:
     per_point: dict[str, dict[str, float]] = field(default_factory=dict)
     rules: dict[str, VerdictCount] = field(default_factory=dict)
     wrong_examples: list[RuleOutcome] = field(default_factory=list)
+    guide: bool = False
 
     @property
     def rate(self) -> float:
@@ -424,7 +433,7 @@ class CoverageResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"lamps": self.lamps, "photons": self.photons,
-                "aperture_deg": self.aperture_deg, "spt": self.spt,
+                "aperture_deg": self.aperture_deg, "spt": self.spt, "guide": self.guide,
                 "evaluations": self.evaluations, "covered": self.covered,
                 "rate": self.rate, "worst_bias_halfwidths": self.worst_bias,
                 "worst_bias_point": self.worst_bias_point,
@@ -439,9 +448,10 @@ class CoverageResult:
 def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: float = 0.15,
                    ruleset: str = DEFAULT_RULESETS, spt: bool = False, seed: int = 1,
                    confidence: float = 0.95, quad: int = 64, zone_quad: int = 16,
-                   progress: Callable[[int, LampRun], None] | None = None) -> CoverageResult:
+                   progress: Callable[[int, LampRun], None] | None = None,
+                   guide: bool = False) -> CoverageResult:
     """Run ``lamps`` synthetic lamps and count interval coverage and wrong verdicts (see
-    the module docstring)."""
+    the module docstring); ``guide``: every run with ``--guide points``."""
     if lamps < 1 or photons < 1000:
         raise ValueError("coverage study needs ≥ 1 lamp and ≥ 1000 photons")
     rng = np.random.default_rng([seed, 0xC0FE])
@@ -455,7 +465,7 @@ def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: f
             write_ies(path, grid)
             run = run_lamp(path, photons, aperture_deg=aperture_deg, ruleset=ruleset,
                            spt=spt, seed=seed + n, quad=quad, confidence=confidence,
-                           zone_quad=zone_quad)
+                           zone_quad=zone_quad, guide=guide)
             mean = run.per_set_cd.mean(axis=0)
             lo, hi = run.interval_cd[:, 0], run.interval_cd[:, 1]
             err = mean - run.truth_cd
@@ -488,7 +498,7 @@ def coverage_study(lamps: int = 40, photons: int = 1_000_000, *, aperture_deg: f
                           int(cov.sum()), float(abs(b_all[k])), str(names[k]),
                           float(per_point[worst_pt]["mean_bias_halfwidths"]), worst_pt,
                           time.perf_counter() - t0, per_point, count_verdicts(outcomes),
-                          [o for o in outcomes if o.wrong])
+                          [o for o in outcomes if o.wrong], guide)
 
 
 # ---- shipped lamps against a long reference run -------------------------------------------
@@ -505,14 +515,16 @@ SHIPPED_RESOLUTION = (320, 128)
 def simulate_checks(lamp: str | Path, photons: int, *, ruleset: str = DEFAULT_RULESETS,
                     seed: int = 1, confidence: float = 0.95,
                     resolution: tuple[int, int] = SHIPPED_RESOLUTION,
-                    aperture_deg: float = 0.15) -> dict[str, dict[str, Any]]:
+                    aperture_deg: float = 0.15, guide: bool = False
+                    ) -> dict[str, dict[str, Any]]:
     """``lightsim simulate LAMP --photons N --regulation RULESET --seed S`` in this
     process, with the binning estimator (the apertures and verdicts do not depend on the
     map's estimator): every rule set's regulation check
     (:func:`~lightsim.luminaires.regulations.check.regulation_check`) by rule set id."""
     opts = SimulateOptions(str(lamp), photons=int(photons), resolution=tuple(resolution),
                            regulation=ruleset, aperture=aperture_deg,
-                           config={"seed": int(seed), "estimator": "bin"})
+                           config={"seed": int(seed), "estimator": "bin",
+                                   "guide": "points" if guide else "off"})
     scene = load(opts)
     config, offsets = opts.run_config(), []
     rulesets = split_rulesets(ruleset)
@@ -614,7 +626,8 @@ def shipped_study(lamp: str | Path, photons: int, seeds: int = 8, *,
                   ruleset: str = DEFAULT_RULESETS,
                   reference_photons: int = REFERENCE_PHOTONS,
                   cache_dir: str | Path | None = None, aperture_deg: float = 0.15,
-                  progress: Callable[[str], None] | None = None) -> ShippedStudy:
+                  progress: Callable[[str], None] | None = None,
+                  guide: bool = False) -> ShippedStudy:
     """Run a shipped lamp ``seeds`` times at ``photons`` and judge every verdict against
     the reference run's (see the module docstring). ``cache_dir`` keeps the reference
     (default: a folder in the system's temporary directory)."""
@@ -627,7 +640,7 @@ def shipped_study(lamp: str | Path, photons: int, seeds: int = 8, *,
     outcomes: list[RuleOutcome] = []
     for seed in range(1, seeds + 1):
         res = simulate_checks(lamp, photons, ruleset=ruleset, seed=seed,
-                              aperture_deg=aperture_deg)
+                              aperture_deg=aperture_deg, guide=guide)
         outcomes += distinct([o for rs, reg in res.items()
                               for o in rule_outcomes(rs, reg["results"], truths.get(rs, {}))])
         if progress is not None:

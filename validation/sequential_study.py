@@ -29,6 +29,7 @@ first_count         –      4         photons a probe of :data:`STUDY_LIMIT_CD`
 looks               –      10        planned looks (doubling) + the last
 confidence          –      0.95      the verdicts' confidence
 lamps, seeds        –      4, 2      synthetic lamps × photon seeds (:func:`until_study`)
+guide               –      False     with ``--guide points`` (:func:`until_study`)
 cap_photons         –      4·10⁶     photon cap of every lamp run
 ==================  =====  ========  ====================================================
 """
@@ -311,10 +312,11 @@ class UntilStudy:
 
 def until_study(lamps: int = 4, seeds: int = 2, *, cap_photons: int = 4_000_000,
                 ruleset: str = DEFAULT_RULESETS, seed: int = 1, zone_quad: int = 16,
-                resolution: tuple[int, int] = (160, 64),
+                resolution: tuple[int, int] = (160, 64), guide: bool = False,
                 progress: Callable[[UntilRun], None] | None = None) -> UntilStudy:
     """Simulate ``lamps`` synthetic lamps at ``seeds`` photon seeds each with ``--until
-    decided`` (capped at ``cap_photons``) and judge every verdict against the exact one."""
+    decided`` (capped at ``cap_photons``; ``guide``: with ``--guide points``) and judge
+    every verdict against the exact one."""
     if lamps < 1 or seeds < 1 or cap_photons < 1000:
         raise ValueError("an until study needs ≥ 1 lamp, ≥ 1 seed and ≥ 1000 photons")
     rng = np.random.default_rng([seed, 0xDEC1])
@@ -330,7 +332,8 @@ def until_study(lamps: int = 4, seeds: int = 2, *, cap_photons: int = 4_000_000,
                                        regulation=ruleset, until="decided",
                                        outputs=("json",),
                                        config={"seed": int(seed + 100 * n + s),
-                                               "estimator": "bin"})
+                                               "estimator": "bin",
+                                               "guide": "points" if guide else "off"})
                 summary = run_simulation(opts, analyses=for_options(opts)).summary
                 outcomes = []
                 for key in (k for k in summary if k.startswith("regulation")):

@@ -21,6 +21,7 @@ parameter       unit   default    meaning
 ``axis``        –      (0, 0, 1)  where the file's +Z points
 ``flux_lm``     lm     the file's total luminous flux (sum of per-ray lumens, else
                                   the header's); required for radiant-only files
+``ORDER_CELLS`` –      64         direction cells per side of the guide's ray order
 ==============  =====  =========  =================================================
 """
 
@@ -36,6 +37,25 @@ from lightsim.errors import InputError
 from lightsim.io.rayfile import CHUNK, RayFile, read_rayfile
 
 EQUAL_FLUX_RTOL = 1e-6  # rays whose fluxes agree to this are drawn without a table
+ORDER_CELLS = 64  # octahedral direction cells per side of the guide's ray order
+
+
+def direction_key(k: np.ndarray, cells: int = ORDER_CELLS) -> np.ndarray:
+    """Cell of unit directions ``k`` (n, 3) in a ``cells``² octahedral grid (+Z at the
+    centre), as a Z-order (Morton) key: near directions get near keys (int64)."""
+    k = np.asarray(k, dtype=np.float64)
+    norm = np.abs(k).sum(axis=1)
+    norm = np.where(norm > 0, norm, 1.0)
+    x, y, z = k[:, 0] / norm, k[:, 1] / norm, k[:, 2] / norm
+    back = z < 0  # the lower half folded out to the corners
+    fx = np.where(back, (1 - np.abs(y)) * np.sign(x + 0.0), x)
+    fy = np.where(back, (1 - np.abs(x)) * np.sign(y + 0.0), y)
+    i = np.clip(((fx + 1) * 0.5 * cells).astype(np.int64), 0, cells - 1)
+    j = np.clip(((fy + 1) * 0.5 * cells).astype(np.int64), 0, cells - 1)
+    key = np.zeros(len(k), np.int64)
+    for b in range(int(cells - 1).bit_length()):
+        key |= ((i >> b) & 1) << (2 * b) | ((j >> b) & 1) << (2 * b + 1)
+    return key
 
 
 def rotation_z_to(axis: np.ndarray) -> np.ndarray:
@@ -84,7 +104,8 @@ class RaySource:
 
     # -- state not pickled (Ray ships scenes): the memmap and the table are rebuilt -------
     def __getstate__(self) -> dict[str, Any]:
-        return {k: v for k, v in self.__dict__.items() if k not in ("_file", "_cdf")}
+        return {k: v for k, v in self.__dict__.items()
+                if k not in ("_file", "_cdf", "_perm", "_perm_cdf")}
 
     @property
     def file(self) -> RayFile:
@@ -131,6 +152,44 @@ class RaySource:
         else:
             idx = np.searchsorted(self._table(), u, side="right")
         return np.clip(idx, 0, self.n_rays - 1)
+
+    def direction_order(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The rays in direction order, for importance-driven emission
+        (:mod:`lightsim.engine.guiding`): (permutation, its cumulative flux or None for
+        equal-flux files). Rays are keyed by the cell of their scene direction in a
+        :data:`ORDER_CELLS`² octahedral grid, cells in Z (Morton) order so that near
+        directions lie near in the order; a cell's rays keep their file order."""
+        if "_perm" not in self.__dict__:
+            mm = self.file.rays()
+            keys = np.empty(self.n_rays, np.int64)
+            for i in range(0, self.n_rays, CHUNK):
+                k = np.asarray(mm[i:i + CHUNK, 3:6], dtype=np.float64) @ self.rotation.T
+                keys[i:i + len(k)] = direction_key(k, ORDER_CELLS)
+            perm = np.argsort(keys, kind="stable")
+            cdf = None
+            if not self.equal_flux:
+                j = self.file.column(self.file.flux_item)
+                cdf = np.cumsum(np.asarray(mm[:, j], dtype=np.float64)[perm])
+                cdf /= cdf[-1]
+                cdf[-1] = 1.0
+            self._perm, self._perm_cdf = perm, cdf
+        return self._perm, self._perm_cdf
+
+    def file_sample(self, u_ordered: np.ndarray) -> np.ndarray:
+        """Sample values u₀ in direction order (:meth:`direction_order`) carried to file
+        order: the ray u_ordered draws from the ordered rays is the ray the returned value
+        draws in :meth:`ray_indices`. Flux-preserving: uniform u_ordered gives every ray
+        with probability ∝ its flux, as uniform u does."""
+        perm, pcdf = self.direction_order()
+        u = np.asarray(u_ordered, dtype=np.float64)
+        if pcdf is None:
+            j = np.clip(np.floor(u * self.n_rays).astype(np.int64), 0, self.n_rays - 1)
+            return (perm[j] + 0.5) / self.n_rays
+        j = np.clip(np.searchsorted(pcdf, u, side="right"), 0, self.n_rays - 1)
+        ray = perm[j]
+        cdf = self._table()
+        lo = np.where(ray > 0, cdf[np.maximum(ray - 1, 0)], 0.0)
+        return 0.5 * (lo + cdf[ray])
 
     def sample_rays(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Origins (n, 3) m and unit directions (n, 3) for sample points u (n, ≥ 1)."""

@@ -121,9 +121,23 @@ class Client:
         self._new_estimator()
 
     def apply(self, changes: list[tuple]) -> None:
-        """Apply interaction changes (see :func:`apply_changes`) and discard the photons."""
-        scene, geometry = apply_changes(self.photons.scene, changes)
-        self.update(scene, geometry)
+        """Apply interaction changes (see :func:`apply_changes`) and discard the photons.
+
+        ``("guide", rows)`` is no interaction: it replaces the run's guide targets
+        (:attr:`RunConfig.guide_targets <lightsim.engine.config.RunConfig.guide_targets>`,
+        rows that say from which frame on each holds) and keeps the photons."""
+        guides = [c for c in changes if c[0] == "guide"]
+        changes = [c for c in changes if c[0] != "guide"]
+        for _, rows in guides:
+            self.guide(rows)
+        if changes:
+            scene, geometry = apply_changes(self.photons.scene, changes)
+            self.update(scene, geometry)
+
+    def guide(self, rows: tuple) -> None:
+        """Use the guide target rows ``rows`` (the whole history, from frame 0)."""
+        self.config = self.config.with_(guide_targets=tuple(tuple(r) for r in rows))
+        self.photons.set_config(self.config)
 
     # -- a frame -------------------------------------------------------------------------
     def shoot(self, total: int | None = None) -> ShootResult:

@@ -169,6 +169,24 @@ class RunConfig:
     aperture_spt_share: float = option(0.5, "Share of each SPT pass given to refined "
                                        "cells.", low=0, high=1, low_open=True,
                                        high_open=True, internal=_APERTURES)
+    guide: str = option(
+        "off", "Importance-driven emission: points = send extra photons towards the "
+        "requested rule sets' test points and zones until each is counted well "
+        "(lightsim.engine.guiding); weights keep every estimate unbiased.",
+        flag=("--guide",), choices=("off", "points"))
+    guide_targets: tuple[tuple[float, ...], ...] = option(
+        (), "Guide targets as rows (first frame, H0, H1, V0, V1, importance).",
+        unit="deg", kind="tuple", internal="set by --guide or Session.guide")
+    guide_share: float = option(0.5, "Share of photons drawn from the learned density "
+                                "(the rest uniform: a defensive mixture).", low=0, high=1,
+                                low_open=True, high_open=True,
+                                internal="fixed: every photon weighs at most 1/(1 − share)")
+    guide_photons: float = option(400.0, "Effective photons (pooled over the sets) at which "
+                                  "a guide target stops drawing photons.", low=1,
+                                  internal="fixed: about ±10 % at 95 %")
+    guide_window_deg: float = option(1.0, "Side of the learning window around a guide "
+                                     "target.", unit="deg", low=0, high=10, low_open=True,
+                                     internal="fixed by the guiding study")
     aperture_raster: tuple[float, float, float, float] | None = option(
         None, "(H lo, H hi, V lo, V hi) tiled with apertures for the beam maximum Imax.",
         unit="deg", kind="tuple", internal=_APERTURES)
@@ -187,6 +205,14 @@ class RunConfig:
         if not is_supported(settings):
             raise InputError(f"the estimator settings {'/'.join(settings)} are not "
                              f"supported; supported {supported_text()}")
+        for row in self.guide_targets:
+            if len(row) != 6 or not all(isinstance(x, int | float) and x == x
+                                        and abs(x) != float("inf") for x in row):
+                raise InputError("a guide target is (first frame, H0, H1, V0, V1, "
+                                 f"importance) in finite numbers, got {row}")
+            if row[0] < 0 or row[5] < 0 or row[2] <= row[1] or row[4] <= row[3]:
+                raise InputError(f"a guide target needs a first frame ≥ 0, H0 < H1, V0 < V1 "
+                                 f"and importance ≥ 0, got {row}")
         if self.frame_photons < self.n_sets:
             raise InputError(f"photons per frame ({self.frame_photons}) must be at least the "
                              f"number of interleave sets ({self.n_sets})")

@@ -38,6 +38,13 @@ import numpy as np
 from lightsim.engine.apertures import counter_from_config
 from lightsim.engine.config import RunConfig
 from lightsim.engine.frame_insert import insert_wall
+from lightsim.engine.guiding import (
+    EmissionGuide,
+    guide_remap,
+    guide_shape,
+    run_targets,
+    targets_at,
+)
 from lightsim.engine.memory import write_pages
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ShootResult
@@ -228,6 +235,7 @@ class SetState:
     wall_moments: np.ndarray | None = None  # ΣΦ (lm), ΣΦ² (lm²), count of wall photons
     paths: PathCounter | None = None  # aperture flux per path signature (--provenance)
     path_map: np.ndarray | None = None  # (H·W, C) flux of one path class (--provenance-map)
+    guide: EmissionGuide | None = None  # importance-driven emission (engine.guiding)
 
     def __post_init__(self) -> None:
         if self.ledger is None:
@@ -286,6 +294,18 @@ class PhotonSets:
         self.reset()
 
     # -- scene and state ------------------------------------------------------------------
+    def set_config(self, config: RunConfig) -> None:
+        """Use ``config`` from the next frame on; only the guide targets may differ (sets
+        that had no guide get one now, knowing nothing yet)."""
+        self.config = config
+        self._guide_rows = run_targets(config)
+        if self._guide_rows:
+            for st in self.sets.values():
+                if st.guide is None:
+                    st.guide = EmissionGuide(self._guide_shape, config.guide_share,
+                                             config.guide_photons, config.n_sets,
+                                             config.guide_window_deg, self.frame.distance_m)
+
     def set_scene(self, scene: Scene, caster=None) -> None:
         """Use ``scene`` (keeping ``caster``, the embree scene, when only materials or
         emitters changed)."""
@@ -309,6 +329,9 @@ class PhotonSets:
         # --per-source: every emitter group's wall photons per pixel (lightsim.persource)
         self.per_source = (PerSourceSums(EmitterGroups.of(scene, self.tracer.emitters),
                                          scene.wall) if self.plan.per_source else None)
+        self._guide_shape = guide_shape(self.tracer.emitters)
+        self._guide_remap = guide_remap(self.tracer.emitters)
+        self._guide_rows = run_targets(self.config)
 
     def reset(self) -> None:
         """Discard all photons (interaction mode: the next frame starts afresh)."""
@@ -353,6 +376,10 @@ class PhotonSets:
             share = None if self.plan.spt else self.config.aperture_spt_share
             st.sampler = SelectiveSampler(self.config.seed, s, refine_share=share,
                                           pass_photons=self.config.photons_per_set)
+        if self._guide_rows:
+            c = self.config
+            st.guide = EmissionGuide(self._guide_shape, c.guide_share, c.guide_photons,
+                                     c.n_sets, c.guide_window_deg, self.frame.distance_m)
         if self.config.apertures:
             st.apertures = counter_from_config(self.config, self.frame, self.channels)
             if self.config.path_length:
@@ -409,6 +436,7 @@ class PhotonSets:
         group = np.concatenate(groups)
         # every set's Halton points in one parallel pass (one thread launch per frame)
         points = halton_points_grouped(np.concatenate(owners), group, np.stack(perms))
+        cells = self._guide_points(points, weights, owners)
         t1 = time.perf_counter()
         # the records in photon order (a stable sort by photon index, each chunk's on the
         # tracer's threads): a set's photons are one index range, so its records are one
@@ -433,6 +461,9 @@ class PhotonSets:
         if self.per_source is not None:  # the group from the emitted photon's sample point
             self.per_source.add(self.per_source.groups.of_points(points)[rec.source[wall.index]],
                                 wall.h, wall.v, luminous(rec.power[wall.index]))
+        if cells is not None:
+            self._guide_learn(rec, bounds, offsets, cells,
+                              wall if wall is not None else _WallHits(self, rec))
         for g, s in enumerate(self.set_indices):
             st = self.sets[s]
             lo, hi = offsets[g], offsets[g + 1]
@@ -453,6 +484,37 @@ class PhotonSets:
                 st.sampler.update(owners[g], trigger)
         return ShootResult(len(points), len(rec), int(res.rays), time.perf_counter() - t0,
                            t1 - t0, t2 - t1)
+
+    def _guide_points(self, points: np.ndarray, weights: list[np.ndarray],
+                      owners: list[np.ndarray]) -> np.ndarray | None:
+        """Carry each guided set's points through its guide (in place) and multiply its
+        weights by 1/p; the photons' guide cells (None: no set is guided). A set's guide
+        holds only what its own earlier frames taught it (:mod:`lightsim.engine.guiding`)."""
+        if not self._guide_rows:
+            return None
+        cells = np.zeros(len(points), np.int64)
+        lo = 0
+        for g, s in enumerate(self.set_indices):
+            st = self.sets[s]
+            hi = lo + len(owners[g])
+            live = targets_at(self._guide_rows, st.frames)
+            st.guide.set_targets(live)
+            pts, w, c = st.guide.warp(points[lo:hi])
+            if self._guide_remap is not None and len(live):  # a ray file's direction order
+                pts[:, 0] = self._guide_remap(pts[:, 0])
+            points[lo:hi] = pts
+            weights[g] = weights[g] * w
+            cells[lo:hi] = c
+            lo = hi
+        return cells
+
+    def _guide_learn(self, rec: PhotonRecords, bounds: np.ndarray, offsets: np.ndarray,
+                     cells: np.ndarray, wall: _WallHits) -> None:
+        """Teach each set's guide where its wall photons of this frame landed."""
+        for g, s in enumerate(self.set_indices):
+            sl, idx = wall.span(int(bounds[g]), int(bounds[g + 1]))
+            lum = luminous(rec.power[idx].astype(np.float64))
+            self.sets[s].guide.learn(cells[rec.source[idx]], wall.h[sl], wall.v[sl], lum)
 
     def _perms(self, s: int) -> np.ndarray:
         if s not in self._perm_cache:

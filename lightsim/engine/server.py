@@ -64,6 +64,7 @@ from lightsim.engine.backend import Backend
 from lightsim.engine.client import apply_changes
 from lightsim.engine.config import RunConfig
 from lightsim.engine.estimator import effective_radii, normalise_flux
+from lightsim.engine.guiding import run_targets, target_rows
 from lightsim.engine.local import LocalBackend
 from lightsim.engine.numba_start import lazy_target_setup
 from lightsim.engine.plan import Plan, make_plan
@@ -623,6 +624,19 @@ class Session:
         self.partial = {}
         self.directional_map = None  # a new scene: its first map chooses again
         self.log.append({"event": "update", "seconds": self.elapsed})
+
+    def guide(self, rects: np.ndarray, importance: np.ndarray | None = None) -> None:
+        """Send photons towards wall apertures from the next frame on
+        (:mod:`lightsim.engine.guiding`): ``rects`` (K, 4) H₀, H₁, V₀, V₁ in degrees,
+        ``importance`` (K,) ≥ 0 (default 1; 0 = decided, draws no more photons). Replaces
+        the targets; the photons are kept, and the history goes into checkpoints."""
+        try:
+            rows = target_rows(rects, importance, self.frames)
+        except ValueError as exc:
+            raise InputError(f"guide targets: {exc}") from None
+        kept = tuple(r for r in run_targets(self.config) if r[0] < self.frames)
+        self.config = self.config.with_(guide_targets=kept + rows)
+        self.backend.apply([("guide", self.config.guide_targets)])
 
     # -- accounting ----------------------------------------------------------------------
     @property

@@ -36,6 +36,15 @@ On a rule that needs N photons at the plain 95 % level, the looks cost about 3.0
 6/(π²k²) sequence costs 4.4 × and 6.0 ×, and looking without a budget — invalid — 1.4 ×
 (the doubling schedule's own overshoot).
 
+Guiding
+-------
+With ``--guide points`` (:mod:`lightsim.engine.guiding`) the looks also steer the
+photons: before the first frame towards every test point and zone (:class:`GuideTargets`,
+one box each), after every look only towards the boxes of the rules still open
+(:meth:`VerdictRule.steer`); a decided rule draws no more guided photons. The guide of a
+frame is fixed before the frame is shot and every photon carries 1/p, so each look's
+bounds hold at their level as without guiding, and the budget above is unchanged.
+
 What a look cannot promise
 --------------------------
 * The per-look bounds are the table's (:class:`lightsim.report.IntensityEvidence`): the
@@ -68,6 +77,8 @@ from typing import Any
 
 import numpy as np
 
+from lightsim.analysis import AnalysisReport
+from lightsim.engine.guiding import run_targets, target_rows, targets_at
 from lightsim.errors import InputError
 from lightsim.render.frame import luminous
 from lightsim.simulate import UNTIL_CAP_PHOTONS
@@ -77,8 +88,8 @@ from .check import evaluate_probe_values, measure_probes, regulation_check, regu
 from .evaluate import limit_verdict, probe_points
 from .ruleset import RuleSet, load_ruleset
 
-__all__ = ["DEFAULT_CAP_PHOTONS", "UNTIL_CHOICES", "LookSchedule", "OpenRule", "VerdictRule",
-           "merge_row"]
+__all__ = ["DEFAULT_CAP_PHOTONS", "UNTIL_CHOICES", "GuideTargets", "LookSchedule", "OpenRule",
+           "VerdictRule", "merge_row", "probe_regions"]
 
 UNTIL_CHOICES = ("decided",)
 """What ``--until`` may name."""
@@ -154,6 +165,9 @@ class OpenRule:
         any aim).
     points_deg : tuple of (h, v)
         The probe directions (deg, the aimed pattern's).
+    regions_deg : tuple of (h0, h1, v0, v1)
+        One rectangle per test point or zone the rule reads (a zone's: the box around
+        its samples' apertures), in wall degrees: where ``--guide points`` sends photons.
     """
 
     ruleset: str
@@ -162,12 +176,14 @@ class OpenRule:
     apertures: tuple[int, ...]
     rects_deg: tuple[tuple[float, float, float, float], ...]
     points_deg: tuple[tuple[float, float], ...]
+    regions_deg: tuple[tuple[float, float, float, float], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return {"ruleset": self.ruleset, "name": self.name, "kind": self.kind,
                 "apertures": list(self.apertures),
                 "rects_deg": [list(r) for r in self.rects_deg],
-                "points_deg": [list(p) for p in self.points_deg]}
+                "points_deg": [list(p) for p in self.points_deg],
+                "regions_deg": [list(r) for r in self.regions_deg]}
 
 
 def _verdict_interval(row: dict[str, Any]) -> tuple[str, float | None, float | None]:
@@ -262,6 +278,7 @@ class VerdictRule:
         self.schedule: LookSchedule | None = None
         self.last_photons = 0  # photons of the last look (or of the session when bound)
         self.looks: list[dict[str, Any]] = []
+        self.steered: list[dict[str, Any]] = []  # guide targets set at the looks
         self.final_done = False
 
     # -- set-up ------------------------------------------------------------------------
@@ -289,12 +306,20 @@ class VerdictRule:
         self.schedule = LookSchedule(first, int(cap_photons), self.growth)
         self.last_photons = int(session.photons_emitted() if from_photons is None
                                 else from_photons)
-        self.looks, self.final_done = [], False
+        self.looks, self.steered, self.final_done = [], [], False
         frame = session.scene.wall
         for chk in self.checks:
             chk.probes = probe_points(chk.rules, chk.traffic, frame=frame.to_dict())
             chk.rows, chk.shift_deg, chk.note, chk.hv = {}, None, None, None
+        if int(getattr(session, "frames", 0)) == 0:  # a resumed run keeps its guide rows
+            self.steer_regions(self.all_regions())
         return self
+
+    def all_regions(self) -> list[tuple[float, float, float, float]]:
+        """Every test point's aperture and every zone's box of the rule sets (wall deg,
+        unaimed): what the guide aims at before the first look."""
+        size = float(self.session.config.aperture_deg)
+        return [r for chk in self.checks for r in probe_regions(chk.probes, size)]
 
     # -- the StoppingRule protocol -------------------------------------------------------
     def satisfied(self, est: Any, frames: int) -> bool:
@@ -369,8 +394,36 @@ class VerdictRule:
             chk.rows = {str(r["name"]): merge_row(chk.rows.get(str(r["name"])), r, photons)
                         for r in results}
         self.last_photons = int(photons)
+        opened = self.undecided()
         self.looks.append({"photons": int(photons), "look": len(self.looks) + 1,
-                           "level": level, "open": len(self.undecided())})
+                           "level": level, "open": len(opened)})
+        self.steer(opened)
+
+    def steer(self, opened: list[OpenRule]) -> None:
+        """With ``--guide points``, aim the photons of the next frames at the apertures
+        the open rules read (points, a sum's points, a zone's samples, a relation's two
+        sides); a decided rule's apertures stop drawing guided photons. Whatever the
+        guide does, every look's intervals stay valid: the guide of a frame is fixed
+        before the frame is shot, so each set's estimate stays unbiased and the sets'
+        errors uncorrelated (the module docstring of :mod:`lightsim.engine.guiding`)."""
+        self.steer_regions([r for o in opened for r in o.regions_deg])
+
+    def steer_regions(self, regions: list[tuple[float, float, float, float]]) -> None:
+        """Guide targets: ``regions`` (wall deg) from the session's next frame on, with
+        ``--guide points`` (nothing otherwise, or when ``regions`` is empty: all decided,
+        or no look could evaluate yet)."""
+        cfg = getattr(self.session, "config", None)
+        if (self.final_done or cfg is None or getattr(cfg, "guide", "off") != "points"
+                or not cfg.apertures):
+            return  # the last look steers nothing: no frame follows it
+        rects = sorted(set(regions))
+        now = targets_at(run_targets(cfg), int(self.session.frames))
+        if not rects or (len(now) == len(rects) and np.array_equal(
+                now, np.column_stack([np.asarray(rects), np.ones(len(rects))]))):
+            return  # nothing open, or the targets in force already
+        self.session.guide(np.asarray(rects, np.float64))
+        self.steered.append({"photons": int(self.session.photons_emitted()),
+                             "targets": len(rects)})
 
     def final_look(self, photons: int, lux: np.ndarray | None) -> None:
         """The last look, at the run's final photons, unless a look saw them already."""
@@ -437,11 +490,14 @@ class VerdictRule:
                 rects = tuple((float(a - size / 2), float(a + size / 2), float(b - size / 2),
                                float(b + size / 2)) for a, b in zip(h, v, strict=True)
                               ) if counted else ()
+                regions = tuple(_region(chk.probes.h_deg[i], chk.probes.v_deg[i] + shift,
+                                        size) for i in _probe_groups(chk, row)
+                                if len(i)) if counted else ()
                 out.append(OpenRule(chk.rules.id, name, str(row.get("kind")),
                                     tuple(int(chk.offset + i) for i in idx) if counted
                                     else (), rects,
                                     tuple((float(a), float(b)) for a, b in
-                                          zip(h, v, strict=True))))
+                                          zip(h, v, strict=True)), regions))
         return out
 
     def progress_text(self) -> str:
@@ -469,14 +525,70 @@ class VerdictRule:
                 "looks": list(self.looks),
                 "photons": self.last_photons,
                 "undecided": [o.to_dict() for o in self.undecided()],
+                "guided": [dict(g) for g in self.steered],
                 "notes": {c.rules.id: c.note for c in self.checks if c.note}}
 
 
-def _probe_indices(chk: _Check, row: dict[str, Any]) -> np.ndarray:
-    """Indices of the probes a rule's row reads (a point's, a zone's, a sum's points, a
-    relation's two sides)."""
+@dataclass
+class GuideTargets:
+    """``--guide points`` with ``--regulation`` (an :class:`~lightsim.analysis.Analysis`):
+    before the run, the guide targets become one box per test point or zone of every
+    requested rule set (:func:`probe_regions`) instead of one per detector aperture — a
+    zone is one target, not hundreds, so the guide's tables stay small; after it,
+    ``summary.json["guide"]`` records them. ``--until decided`` then narrows them to the
+    open rules at every look (:meth:`VerdictRule.steer`)."""
+
+    rulesets: tuple[str, ...]
+    traffic: str = "right"
+    name: str = "guide"
+    regions: list[tuple[float, float, float, float]] = field(default_factory=list)
+
+    def prepare(self, config: Any, scene: Any) -> Any:
+        if config.guide != "points" or config.guide_targets or not config.apertures:
+            return config
+        frame = scene.wall.to_dict()
+        self.regions = [r for rs in self.rulesets for r in probe_regions(
+            probe_points(load_ruleset(rs), self.traffic, frame=frame),
+            float(config.aperture_deg))]
+        if not self.regions:
+            return config
+        return config.with_(guide_targets=target_rows(np.asarray(sorted(set(self.regions)))))
+
+    def report(self, run: Any, out: Any) -> AnalysisReport:
+        return AnalysisReport({"mode": "points", "targets": len(set(self.regions)),
+                               "regions_deg": [list(r) for r in sorted(set(self.regions))]})
+
+
+def _probe_groups(chk: _Check, row: dict[str, Any]) -> list[np.ndarray]:
+    """Indices of the probes a rule's row reads, one array per test point or zone (a
+    point's, a zone's samples, a sum's points, a relation's two sides)."""
     names = {"sum": row.get("points") or [],
              "relation": [row.get("lhs"), row.get("reference")]}.get(
         str(row.get("kind")), [row["name"]])
-    idx = [chk.probes.indices(str(n)) for n in names if n is not None]
+    return [np.asarray(chk.probes.indices(str(n)), np.int64) for n in names
+            if n is not None]
+
+
+def _probe_indices(chk: _Check, row: dict[str, Any]) -> np.ndarray:
+    """Indices of every probe a rule's row reads (:func:`_probe_groups` joined)."""
+    idx = _probe_groups(chk, row)
     return np.concatenate(idx).astype(np.int64) if idx else np.zeros(0, np.int64)
+
+
+def probe_regions(probes: Any, size_deg: float) -> list[tuple[float, float, float, float]]:
+    """One box (H₀, H₁, V₀, V₁ in deg) per test point or zone of ``probes`` (a
+    :func:`~lightsim.luminaires.regulations.probe_points` result): a point's aperture of
+    side ``size_deg``, a zone's samples' apertures together — the guide targets of
+    ``--guide points``."""
+    labels = np.asarray(probes.labels, dtype=object)
+    return [_region(probes.h_deg[i], probes.v_deg[i], size_deg)
+            for i in (np.flatnonzero(labels == name) for name in dict.fromkeys(probes.labels))]
+
+
+def _region(h_deg: np.ndarray, v_deg: np.ndarray, size_deg: float
+            ) -> tuple[float, float, float, float]:
+    """The box (H₀, H₁, V₀, V₁ in deg) around apertures of side ``size_deg`` centred on
+    the probes (``h_deg``, ``v_deg``): one point's aperture, or a zone's extent."""
+    a = 0.5 * float(size_deg)
+    return (float(np.min(h_deg) - a), float(np.max(h_deg) + a),
+            float(np.min(v_deg) - a), float(np.max(v_deg) + a))

@@ -11,8 +11,11 @@ from pathlib import Path
 
 import pytest
 
+from lightsim.engine.config import RunConfig
 from lightsim.luminaires.design_check import LampCheck, check_lamp, choose, rule_margin
 from lightsim.luminaires.design_lamp import read_design
+
+from support import write_point_lamp
 
 LOWBEAM = Path(__file__).parents[2] / "luminaires" / "examples" / "lowbeam.glb"
 TINY = ["--regulation", "r112-b-passing", "--rings", "1", "--sectors", "4",
@@ -118,3 +121,16 @@ def test_bad_restart_options_are_one_line_and_exit_2(extra, needle, tmp_path):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and needle in lines[0], r.stderr
     assert not (tmp_path / "o.glb").exists()
+
+
+def test_check_lamp_until_decided_stops_each_run_at_its_decision(tmp_path):
+    """``until="decided"`` (``design --until decided``): each check run stops at the look
+    that decides every verdict — fewer photons than the cap, no "uncertain" row left."""
+    lamp = write_point_lamp(tmp_path / "lamp.glb")  # 79.6 cd everywhere
+    cap = 12_800_000
+    chk = check_lamp(lamp, "r112-b-passing", photons=cap, resolution=(80, 32), seeds=[1],
+                     aperture=1.5, until="decided")
+    assert len(chk.photons) == 1 and chk.photons[0] < cap
+    first = RunConfig().frame_photons
+    assert chk.photons[0] in {first * 2 ** k for k in range(6)}
+    assert chk.rows > 0 and not [r for r in chk.not_passing if r[3] == "uncertain"]

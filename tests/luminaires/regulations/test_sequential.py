@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import json
+import math
+
 import pytest
 
 from lightsim.errors import InputError
 from lightsim.luminaires.regulations.sequential import LookSchedule, merge_row
-from lightsim.validation.sequential_study import simulated_looks
+from lightsim.validation.sequential_study import simulated_looks, until_study
 from tests.support import run_cli, write_point_lamp
 
 
@@ -66,3 +69,69 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, extra, text):
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
     assert len(lines) == 1 and text in lines[0], err
     assert "Traceback" not in err
+
+
+def _verdicts(summary: dict) -> dict[str, tuple[str, bool]]:
+    return {r["name"]: (r["verdict"], r.get("decided", False))
+            for r in summary["regulation"]["results"] if r.get("kind") != "measure"}
+
+
+def test_guided_until_steers_to_the_open_rules_and_decides_truly(tmp_path, capsys):
+    """A 1000 lm isotropic source (79.6 cd in every direction): with --guide points the
+    rule aims the photons at every test point and zone before the first look, then only
+    at the open rules' ones; each decided verdict is the true one, in both runs."""
+    glb = write_point_lamp(tmp_path / "lamp.glb")
+    truth = 1000.0 / (4 * math.pi)
+    got = {}
+    for guide in ("off", "points"):
+        out = tmp_path / guide
+        code, _o, err = run_cli(["simulate", str(glb), "--until", "decided", "--regulation",
+                                 "r112-b-passing", "--photons", "800000", "--resolution",
+                                 "80x32", "--guide", guide, "--seed", "3", "--out", str(out),
+                                 "--quiet"], capsys)
+        assert code == 0, err
+        summary = json.loads((out / "summary.json").read_text())
+        got[guide] = summary
+        for r in summary["regulation"]["results"]:
+            if r.get("kind") != "point" or not r.get("decided"):
+                continue
+            lim = r["limit"]
+            ok = (lim.get("min") is None or truth >= lim["min"]) and (
+                lim.get("max") is None or truth <= lim["max"])
+            assert r["verdict"] == ("pass" if ok else "fail"), r
+            lo, hi = r["interval_cd"]
+            assert lo <= truth <= hi, r
+    steered = got["points"]["until"]["guided"]
+    assert got["off"]["until"]["guided"] == [] and "guide" not in got["off"]
+    rows = got["points"]["config"]["guide_targets"]
+    first = [r for r in rows if r[0] == 0]  # every point and zone, from frame 0
+    assert len(first) == got["points"]["guide"]["targets"] == len(
+        got["points"]["guide"]["regions_deg"])
+    assert steered and len({r[0] for r in rows}) == 1 + len(steered)
+    opened = len(got["points"]["until"]["undecided"])
+    assert steered[-1]["targets"] <= len(first)
+    # decided rules drop out: the last targets cover only the rules open before it
+    assert opened <= steered[-1]["targets"] or opened == 0
+    # the same decisions where both decided (the truth is far from most limits)
+    a, b = _verdicts(got["off"]), _verdicts(got["points"])
+    for name in a:
+        if a[name][1] and b[name][1]:
+            assert a[name][0] == b[name][0], name
+
+
+@pytest.mark.parametrize("guide", [False, True])
+def test_traced_lamps_decide_wrongly_no_more_than_nominal(guide):
+    """Synthetic Type A lamps of known intensities, traced with --until decided (and with
+    --guide points): every decided verdict against the exact one, the wrong ones within
+    what Binomial(decided, α/2) explains at 99.9 %."""
+    study = until_study(2, 1, cap_photons=400_000, resolution=(80, 32), guide=guide)
+    assert study.decisive > 10
+    assert study.wrong <= study.allowed(), study.to_dict()
+    assert all(r.photons <= 400_000 for r in study.runs)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("guide", [False, True])
+def test_traced_lamps_many_seeds(guide):
+    study = until_study(6, 3, cap_photons=4_000_000, guide=guide, seed=4)
+    assert study.wrong <= study.allowed(), study.to_dict()
