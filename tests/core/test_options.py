@@ -59,7 +59,8 @@ TINY = ["--photons", "8000", "--frame-photons", "4000", "-M", "2", "--resolution
 # -- a valid value other than the default, and nonsense, for any record ---------------------
 STRUCTURED = {  # internal settings holding tuples of tuples (set by the regulation check)
     "extra_probes": ((0.5, -0.25), (1.0, 0.0)), "apertures": ((-1.5, 0.5), (0.0, 0.0)),
-    "aperture_targets": (0, 1), "aperture_raster": (-5.0, 5.0, -2.0, 1.0)}
+    "aperture_targets": (0, 1), "aperture_raster": (-5.0, 5.0, -2.0, 1.0),
+    "guide_targets": ((0, -3.0, -1.0, -1.0, 0.5, 1.0),)}
 
 
 def _other(opt: Option) -> Any:
