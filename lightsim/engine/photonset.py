@@ -13,7 +13,10 @@ What a set accumulates depends on what the estimator reads
 ==================  ===========  ====================================================
 store               unit         kept when
 ==================  ===========  ====================================================
-``photonmap``       lm           kNN and radius estimators (built when first queried)
+``photonmap``       lm           kNN and radius estimators (built when first queried);
+                                 with ``keep_photons`` off (``simulate``'s default) a
+                                 :class:`~lightsim.engine.pointstore.PointStore`: the
+                                 probes' kNN sums, photons dropped after each frame
 ``bins``            lm           ``estimator=bin``: power per wall pixel
 ``windows``         lm           kNN/radius without ICI: power in the pixel window of
                                  each grid probe (the kNN figure's blur reference)
@@ -39,6 +42,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.engine.frame_insert import insert_wall
 from lightsim.engine.memory import write_pages
 from lightsim.engine.plan import Plan
+from lightsim.engine.pointstore import PointSpec, PointStore
 from lightsim.engine.results import ShootResult
 from lightsim.photonmap.common import r_floor
 from lightsim.photonmap.density import PhotonMap
@@ -210,7 +214,7 @@ class SetState:
     ledger: np.ndarray = field(default=None)  # type: ignore[assignment]
     emitted_power: np.ndarray = field(default=None)  # type: ignore[assignment]
     sampler: SelectiveSampler | None = None
-    photonmap: DeferredPhotonMap | None = None
+    photonmap: DeferredPhotonMap | PointStore | None = None
     bins: np.ndarray | None = None  # (H, W, C) power per wall pixel
     windows: np.ndarray | None = None  # (G, C) power in the pixel window of each grid probe
     apertures: Any = None  # ApertureCounter of the run's detector apertures, if any
@@ -263,12 +267,18 @@ class PhotonSets:
         The interleave sets this client owns (static assignment).
     caster : RayCaster, optional
         The scene's embree scene when the caller already built it.
+    points : PointSpec, optional
+        Where the kNN estimates are read when the photons are not kept: every set then
+        accumulates a :class:`~lightsim.engine.pointstore.PointStore` there instead of a
+        photon map (None: every photon is kept).
     """
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
-                 set_indices: list[int], caster=None) -> None:
+                 set_indices: list[int], caster=None, points: PointSpec | None = None
+                 ) -> None:
         self.config = config
         self.plan = plan
+        self.points = points
         self.set_indices = list(set_indices)
         self._perm_cache: dict[int, np.ndarray] = {}
         self.set_scene(scene, caster)
@@ -338,7 +348,8 @@ class PhotonSets:
             st.bins = np.zeros((H, W, self.channels))
         else:
             structure = "hash" if self.config.estimator == "radius" else self.config.structure
-            st.photonmap = DeferredPhotonMap(structure, self.channels)
+            st.photonmap = (DeferredPhotonMap(structure, self.channels) if self.points is None
+                            else self.points.store(self.channels))
             nh, nv = self._grid_shape
             if not self.config.uses_ici:  # the ICI figure reads the lattice instead
                 st.windows = np.zeros((nh * nv, self.channels))
