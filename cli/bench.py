@@ -23,6 +23,7 @@ BENCHMARKS: dict[str, str] = {
     "peer": "bench_peer:command",
     "pipeline": "bench_pipeline:command",
     "road": "bench_road:command",
+    "memory": "bench_memory:command",
 }
 
 

@@ -4,9 +4,12 @@ import numpy as np
 import pytest
 
 from lightsim.engine import pointstore
+from lightsim.engine.config import RunConfig
 from lightsim.engine.pointstore import PointStore, floor_holds
+from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.photonmap.density import PhotonMap
+from lightsim.validation.bench.peer import CASES
 
 NORMAL = np.array([0.0, 0.0, 1.0])
 
@@ -120,3 +123,25 @@ def test_floor_holds():
     assert floor_holds(0.01, 30.0)
     assert not floor_holds(1e-6, 30.0)
     assert not floor_holds(1e-3, 1e30)
+
+
+def test_session_without_kept_photons_probes_as_one_that_keeps_them():
+    """A run that keeps no photon answers the per-set estimates at its registered points
+    bit for bit as one that keeps them all, and refuses any other point in one line."""
+    scene = CASES["paraboloid"](16).scene
+    (h0, h1), (v0, v1) = scene.wall.h_range_m, scene.wall.v_range_m
+    rng = np.random.default_rng(2)
+    hv = np.column_stack([rng.uniform(h0, h1, 200), rng.uniform(v0, v1, 200)])
+    values = {}
+    for keep in (True, False):
+        cfg = RunConfig(frame_photons=20_000, spt=False, keep_photons=keep)
+        with Session(scene, cfg, extra_probes=hv) as s:
+            s.run(photons=4 * cfg.frame_photons, probes=False)
+            values[keep] = s.probe(hv).values
+            if not keep:
+                stores = [st.photonmap for c in s.backend.clients
+                          for st in c.photons.sets.values()]
+                assert all(isinstance(p, PointStore) for p in stores)
+                with pytest.raises(InputError, match="--keep-photons"):
+                    s.probe(hv[:1] + 1e-3)
+    assert np.array_equal(values[True], values[False]) and values[True].max() > 0
