@@ -1,6 +1,13 @@
 """Memory of a run: bytes per stored photon, a pre-flight estimate, the check against RAM.
 
-A run keeps every photon it stores on the wall (one photon map per interleave set, photons
+``simulate``'s default run keeps no photon: what its outputs read is accumulated per
+frame (the ICI lattice, detector apertures, and the kNN estimates at the cut-off scans
+in :mod:`lightsim.engine.pointstore`), so its estimate does not grow with the photons
+(:attr:`MemoryEstimate.grows` empty; the point stores counted at their bound). A run
+that keeps every photon (``--keep-photons``, the ``knn`` bandwidth, …; the estimate's
+``keeper``) is modelled as below.
+
+Such a run keeps every photon it stores on the wall (one photon map per interleave set, photons
 accumulated by insertion, paper section 5.4), per-set images (bins or the ICI lattice and
 the probe windows) and, per frame, the tracer's wavefront. The estimate adds these up
 from the run's settings before any work, and :func:`check_fits` turns a run that cannot
