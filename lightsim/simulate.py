@@ -428,8 +428,9 @@ def photon_keeper(opts: SimulateOptions, config: RunConfig,
     """The option that makes the run keep every photon, or None: the run's outputs read
     its kNN estimates only at points known before it (the cut-off scans), so the sets
     accumulate those per frame and drop the photons (memory that does not grow with
-    ``--photons``). Kept for ``--keep-photons``, a written map by the ``knn`` bandwidth
-    or the ``radius`` estimator (every pixel reads the photons), and an analysis that
+    ``--photons``). Kept for ``--keep-photons``, a written map by the ``knn`` bandwidth,
+    the ``radius`` estimator or ``--final interleaved`` (every pixel reads the photons),
+    and an analysis that
     reads estimates anywhere (its ``reads_photons``: the option that makes it)."""
     if config.estimator == "bin":
         return None  # bins, no photon map at all
@@ -439,6 +440,8 @@ def photon_keeper(opts: SimulateOptions, config: RunConfig,
         return f"--estimator {config.estimator}"
     if not config.uses_ici:
         return f"--bandwidth {config.bandwidth}"
+    if config.final != "pooled":  # the sets' sub-images are kNN estimates at every pixel
+        return f"--final {config.final}"
     for analysis in analyses:
         reads = getattr(analysis, "reads_photons", f"the {analysis.name} analysis")
         if reads:

@@ -94,13 +94,13 @@ def point_spec(config: RunConfig, frame: WallFrame, probes_hv: np.ndarray,
     """The fixed points (the probes: wall h, v in m) where the sets accumulate their kNN
     estimates frame by frame instead of keeping every photon
     (:mod:`lightsim.engine.pointstore`), or None where the photons are kept: asked for
-    (``keep_photons``), or read elsewhere than at points (the ``knn`` bandwidth's written
-    map, the ``radius`` and ``bin`` estimators), or a radius floor below the photon
-    map's own (``scale_m``: the largest coordinate of the scene, m). The error grid's
-    probes come first in ``probes_hv`` and are not among the points: the ICI figure reads
-    the lattice, not their kNN estimates."""
-    if config.keep_photons or not config.uses_ici:
-        return None
+    (``keep_photons``), or read elsewhere than at points (the written map of the ``knn``
+    bandwidth, of ``final="interleaved"``, of the ``radius`` and ``bin`` estimators), or
+    a radius floor below the photon map's own (``scale_m``: the largest coordinate of the
+    scene, m). The error grid's probes come first in ``probes_hv`` and are not among the
+    points: the ICI figure reads the lattice, not their kNN estimates."""
+    if config.keep_photons or not config.uses_ici or config.final != "pooled":
+        return None  # the written map reads the photons at every pixel
     r_min, r_max = effective_radii(config, frame, config.final)
     if not floor_holds(r_min, scale_m):
         return None
