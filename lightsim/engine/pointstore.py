@@ -160,29 +160,40 @@ class PointStore:
         """Add the pool's new photons to the r_lo-sums of every point, then keep of the
         pool only each unresolved point's k nearest photons within r_max: all its
         estimate can ever read of them (later photons only push them out)."""
-        if self._pool_n == 0:
-            return
-        pts, nrm, pw, summed = (np.concatenate(parts) for parts in zip(*self._pool,
-                                                                       strict=True))
-        new = np.flatnonzero(~summed)
-        if len(new):
-            self._sum_within_r_lo(pts[new], nrm[new], pw[new])
-            summed[:] = True
+        pm, pts, nrm, pw = self._sum_pool()
         open_ = np.flatnonzero(~self.resolved)
         self._open = len(open_) > 0
-        if not self._open:
+        if not self._open or pm is None:
             self._pool, self._pool_n = [], 0
         else:
-            pm = PhotonMap("middle", channels=self.channels)
-            pm.add(pts, nrm, pw)
             _, idx = pm.query(self.points[open_], self.k, max_radius=self.max_radius,
                               normals=np.broadcast_to(self._normal32, (len(open_), 3)),
                               normal_cos=self.normal_cos)
             keep = np.unique(idx[idx >= 0])  # ascending: insertion order
-            self._pool = ([(pts[keep], nrm[keep], pw[keep], summed[keep])] if len(keep)
-                          else [])
+            self._pool = ([(pts[keep], nrm[keep], pw[keep], np.ones(len(keep), np.bool_))]
+                          if len(keep) else [])
             self._pool_n = len(keep)
         self._pool_cut = self._pool_n
+
+    def _sum_pool(self) -> tuple:
+        """Add the pool's photons not yet summed to the r_lo-sums; the pool becomes one
+        block, all summed. Returns (photon map of the pool, positions, normals, powers),
+        or Nones for an empty pool."""
+        if self._pool_n == 0:
+            return None, None, None, None
+        pts, nrm, pw, summed = (np.concatenate(parts) for parts in zip(*self._pool,
+                                                                       strict=True))
+        pm = PhotonMap("middle", channels=self.channels)
+        pm.add(pts, nrm, pw)
+        new = np.flatnonzero(~summed)
+        if len(new) == len(pts):  # the pool's map serves the sums too
+            self._sum_within_r_lo(pm, pts, pw)
+        elif len(new):
+            sub = PhotonMap("middle", channels=self.channels)
+            sub.add(pts[new], nrm[new], pw[new])
+            self._sum_within_r_lo(sub, pts[new], pw[new])
+        self._pool = [(pts, nrm, pw, np.ones(len(pts), np.bool_))]
+        return pm, pts, nrm, pw
 
     def _near_cells(self, pos: np.ndarray, reach: float) -> np.ndarray:
         """Indices of the photons at ``pos`` in a cell (side ≥ ``reach``, m) holding or
@@ -198,28 +209,23 @@ class PointStore:
             for off in np.ndindex(3, 3, 3):
                 at = np.clip(ijk + np.array(off) - 1, 0, shape - 1)
                 mask[at[:, 0], at[:, 1], at[:, 2]] = True
-            self._cells = (reach, lo, cell, shape, mask)
-        _, lo, cell, shape, mask = self._cells
-        ijk = np.floor((pos - lo) / cell)
-        inside = np.all((ijk >= 0) & (ijk < shape), axis=1)
-        idx = np.flatnonzero(inside)
-        c = ijk[idx].astype(np.int64)
+            # float32 bounds a little wider than the cells' reach around the points
+            box = np.concatenate([self.points.min(axis=0) - 1.5 * reach,
+                                  self.points.max(axis=0) + 1.5 * reach]).astype(np.float32)
+            self._cells = (reach, lo, cell, shape, mask, box)
+        _, lo, cell, shape, mask, box = self._cells
+        # the points' box first (six compares a photon: most of a frame lies outside it)
+        x, y, z = pos[:, 0], pos[:, 1], pos[:, 2]
+        idx = np.flatnonzero((x >= box[0]) & (x < box[3]) & (y >= box[1]) & (y < box[4])
+                             & (z >= box[2]) & (z < box[5]))
+        c = np.floor((pos[idx] - lo) / cell).astype(np.int64)
+        c = np.minimum(np.maximum(c, 0), shape - 1)  # the box is inside the cells
         return idx[mask[c[:, 0], c[:, 1], c[:, 2]]]
 
-    def _pool_map(self) -> PhotonMap:
-        """A photon map of the pooled photons (insertion order)."""
-        pm = PhotonMap("middle", channels=self.channels)
-        if self._pool_n:
-            pts, nrm, pw, _ = (np.concatenate(parts) for parts in zip(*self._pool,
-                                                                      strict=True))
-            pm.add(pts, nrm, pw)
-        return pm
-
-    def _sum_within_r_lo(self, pts: np.ndarray, nrm: np.ndarray, pw: np.ndarray) -> None:
-        """Add photons to the r_lo-sums of every point (the density kernels' test: the
-        photon map's radius search, d² ≤ r_lo², the normal filter)."""
-        pm = PhotonMap("middle", channels=self.channels)
-        pm.add(pts, nrm, pw)
+    def _sum_within_r_lo(self, pm: PhotonMap, pts: np.ndarray, pw: np.ndarray) -> None:
+        """Add the photons of ``pm`` (positions ``pts``, powers ``pw``, in its insertion
+        order) to the r_lo-sums of every point (the density kernels' test: the photon
+        map's radius search, d² ≤ r_lo², the normal filter)."""
         nb = pm.query_radius(self.points, self.r_lo,
                              normals=np.broadcast_to(self._normal32, self.points.shape),
                              normal_cos=self.normal_cos)
@@ -268,16 +274,16 @@ class PointStore:
             raise InputError("these estimates need photons that were not kept (other "
                              "radii, k or kernel): run with --keep-photons")
         idx = self.lookup(points)
-        self.compact()  # every photon in the sums, the pool cut to what the estimate reads
+        pm, _, _, _ = self._sum_pool()  # every photon in the sums (no cut: not needed)
         E = np.zeros((len(idx), self.channels))
         r = np.full(len(idx), self.r_lo)
         count = self.count[idx].copy()
         done = self.resolved[idx]
         E[done] = self.acc[idx[done]] * kernel_norm(self.kernel, self.r_lo)
         rest = np.flatnonzero(~done)
-        if len(rest) and self._pool_n:
+        if len(rest) and pm is not None:
             at = self.points[idx[rest]]
-            res = self._pool_map().estimate(
+            res = pm.estimate(
                 at.astype(np.float32), np.broadcast_to(self._normal32, at.shape),
                 k=self.k, max_radius=self.max_radius, min_radius=self.min_radius,
                 kernel=self.kernel)
