@@ -52,7 +52,8 @@ def command(scene_file: str | None, quick: bool, photons_text: str | None,
 
     def show(row) -> None:
         click.echo(f"  {row['path']:>8} {row['photons']:>13,} photons: peak "
-                   f"{row['peak_rss_mb']:,.0f} MB, {row['photons_per_s'] / 1e3:,.0f} k/s",
+                   f"{row['peak_rss_mb']:,.0f} MB, {row['photons_per_s'] / 1e3:,.0f} k/s, "
+                   f"{row['photons_per_cpu_s'] / 1e3:,.0f} k per CPU-s",
                    err=True)
 
     rows = bench_memory(scene, tuple(sorted(counts)), keep_all_max, progress=show,
@@ -60,7 +61,8 @@ def command(scene_file: str | None, quick: bool, photons_text: str | None,
     title = (f"memory: {scene}, peak RSS against photons, load average {before} before, "
              f"{load_average()} after")
     print_table(title, rows, ["path", "photons", "peak_rss_mb", "rss_vs_first",
-                              "rss_vs_default", "photons_per_s", "run_s", "rel_error"])
+                              "rss_vs_default", "photons_per_s", "photons_per_cpu_s", "run_s",
+                              "rel_error"])
     plot_memory(rows, plot_path, title)
     click.echo(f"wrote {plot_path}")
     if json_path:

@@ -11,8 +11,8 @@ from lightsim.validation.bench.peer import CASES, write_scene_glb
 
 def test_child_peak_rss_and_the_plot(tmp_path):
     """The fast variant: one child process's own peak RSS, and the plot of rows."""
-    code, seconds, rss = run_child(["--help"])
-    assert code == 0 and seconds > 0 and 10 * 2**20 < rss < 8 * 2**30
+    code, seconds, rss, cpu = run_child(["--help"])
+    assert code == 0 and seconds > 0 and cpu > 0 and 10 * 2**20 < rss < 8 * 2**30
     rows = [{"path": p, "photons": n, "peak_rss_mb": m}
             for p, n, m in (("default", 10**6, 300), ("default", 4 * 10**6, 305),
                             ("keep-all", 10**6, 320), ("keep-all", 4 * 10**6, 400))]

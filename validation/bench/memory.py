@@ -2,7 +2,9 @@
 
 ``lightsim simulate`` runs as a child process per (photons, path), one after the other;
 each child's peak resident set (``ru_maxrss`` of its own ``wait4``) is its peak RSS, and
-``summary.json``'s ``seconds`` over its photons its rate. The default run accumulates
+``summary.json``'s ``seconds`` over its photons its rate, and its CPU seconds (user +
+system, the whole process) its rate per CPU-second — on a loaded machine the steadier
+of the two. The default run accumulates
 what its outputs read frame by frame (:mod:`lightsim.engine.pointstore`), so its peak
 should stay flat as the photons grow; ``--keep-photons`` keeps every photon (the kNN
 bandwidth's path) and grows by tens of bytes per photon. Both paths are timed in the
@@ -42,8 +44,9 @@ REGULATION = "r112-b-passing,r149-b-passing"
 _CHILD = "import sys; from lightsim.cli.main import main; sys.argv[0] = 'lightsim'; main()"
 
 
-def run_child(args: list[str]) -> tuple[int, float, int]:
-    """Run ``lightsim ARGS`` as a child: (exit code, wall seconds, peak RSS in bytes)."""
+def run_child(args: list[str]) -> tuple[int, float, int, float]:
+    """Run ``lightsim ARGS`` as a child: (exit code, wall seconds, peak RSS in bytes,
+    CPU seconds of the whole process: user + system, every thread)."""
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-c", _CHILD, *args],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -55,7 +58,8 @@ def run_child(args: list[str]) -> tuple[int, float, int]:
     if proc.returncode:
         last = err.strip().splitlines()[-1:] or [""]
         raise RuntimeError(f"lightsim {' '.join(args)} failed ({proc.returncode}): {last[0]}")
-    return proc.returncode, time.perf_counter() - t0, int(usage.ru_maxrss) * 1024
+    return (proc.returncode, time.perf_counter() - t0, int(usage.ru_maxrss) * 1024,
+            float(usage.ru_utime + usage.ru_stime))
 
 
 def measure(scene: str, photons: int, keep: bool, resolution: str = "320x128",
@@ -69,12 +73,14 @@ def measure(scene: str, photons: int, keep: bool, resolution: str = "320x128",
             args += ["--regulation", regulation]
         if keep:
             args.append("--keep-photons")
-        _, wall_s, rss = run_child(args)
+        _, wall_s, rss, cpu_s = run_child(args)
         summary = json.loads((out / "summary.json").read_text())
     seconds = float(summary.get("seconds") or wall_s)
     return {"path": "keep-all" if keep else "default", "photons": int(photons),
             "peak_rss_mb": rss / 2**20, "run_s": seconds, "wall_s": wall_s,
             "photons_per_s": photons / seconds if seconds > 0 else float("nan"),
+            # the whole process's CPU time: less moved by other jobs than the clock
+            "photons_per_cpu_s": photons / cpu_s if cpu_s > 0 else float("nan"),
             "rel_error": summary.get("rel_error")}
 
 
