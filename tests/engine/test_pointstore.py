@@ -1,5 +1,7 @@
 """Estimates at fixed points from per-frame sums and a bounded pool equal a full map's."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,10 @@ from lightsim.engine.pointstore import PointStore, floor_holds
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.photonmap.density import PhotonMap
+from lightsim.simulate import SimulateOptions, photon_keeper
 from lightsim.validation.bench.peer import CASES
+
+from support import run_cli, write_point_lamp
 
 NORMAL = np.array([0.0, 0.0, 1.0])
 
@@ -148,3 +153,49 @@ def test_session_without_kept_photons_probes_as_one_that_keeps_them():
                 with pytest.raises(InputError, match="--keep-photons"):
                     s.probe(hv[:1] + 1e-3)
     assert np.array_equal(values[True], values[False]) and values[True].max() > 0
+
+
+class _Reads:
+    name = "reads"
+    reads_photons = "--road"
+
+
+class _ReadsNone:
+    name = "quiet"
+    reads_photons = None
+
+
+class _Unknown:
+    name = "custom"
+
+
+def test_photon_keeper_names_the_option_that_keeps_photons():
+    opts = SimulateOptions(scene_path="x.glb")
+    cfg = opts.run_config()
+    assert photon_keeper(opts, cfg, []) is None
+    assert photon_keeper(opts, cfg, [_ReadsNone()]) is None
+    assert photon_keeper(opts, cfg, [_ReadsNone(), _Reads()]) == "--road"
+    assert photon_keeper(opts, cfg, [_Unknown()]) == "the custom analysis"
+    keep = SimulateOptions(scene_path="x.glb", keep_photons=True)
+    assert photon_keeper(keep, cfg, []) == "--keep-photons"
+    assert photon_keeper(opts, cfg.with_(bandwidth="knn"), []) == "--bandwidth knn"
+    assert photon_keeper(opts, cfg.with_(final="interleaved"), []) == \
+        "--final interleaved"
+    assert photon_keeper(keep, cfg.with_(estimator="bin"), []) is None  # no map at all
+
+
+def test_explain_says_what_grows_with_photons(tmp_path, capsys):
+    lamp = write_point_lamp(tmp_path / "point.glb")
+    for extra, grows in (([], "nothing"), (["--keep-photons"], "--keep-photons")):
+        out = tmp_path / f"run{len(extra)}"
+        code, stdout, err = run_cli(["simulate", str(lamp), "--photons", "20000",
+                                     "--frame-photons", "20000", "--resolution", "16x16",
+                                     "--wall-distance", "2", "--explain", *extra,
+                                     "--out", str(out), "--quiet"], capsys)
+        assert code == 0, err
+        lines = stdout.splitlines()
+        at = lines.index("memory:")
+        assert lines[at + 1].startswith("  grows with photons:") and grows in lines[at + 1]
+        assert lines[at + 2].startswith("  predicted peak: about")
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["config"]["keep_photons"] is bool(extra)
