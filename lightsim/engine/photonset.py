@@ -459,10 +459,6 @@ class PhotonSets:
             self._lattice_ready.result()
             self._lattice_ready = None
         fr, C = self.frame, self.channels
-        for g, st in enumerate(sets):
-            a, b = int(bounds[g]), int(bounds[g + 1])
-            if b > a:
-                st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
         none = np.zeros(len(sets), np.bool_)
         (h0, h1), (v0, v1) = fr.h_range_m, fr.v_range_m
         nh, nv = self._grid_shape
@@ -487,7 +483,13 @@ class PhotonSets:
 
         def insert(g0: int, g1: int, name: str) -> tuple:
             """Sets g0..g1-1 into their stores (the rows of those sets only, with work
-            arrays of their own): :func:`insert_wall`'s outputs, then the apertures."""
+            arrays of their own): their photon maps or point stores, :func:`insert_wall`'s
+            outputs, then the apertures."""
+            for g in range(g0, g1):
+                a, b = int(bounds[g]), int(bounds[g + 1])
+                if b > a:
+                    sets[g].photonmap.add(rec.position[a:b], rec.normal[a:b],
+                                          rec.power[a:b])
             win_work = self._blocks.get(f"windows work {name}")
             if win_work is None or win_work.shape != (n_slots, windows.shape[1], C):
                 win_work = self._blocks[f"windows work {name}"] = np.zeros(
