@@ -459,6 +459,11 @@ class PhotonSets:
             self._lattice_ready.result()
             self._lattice_ready = None
         fr, C = self.frame, self.channels
+        # point stores (every set's at the same points): the frame's photons near them
+        # found once, each set's share passed on
+        near = (sets[0].photonmap.near(rec.position)
+                if isinstance(sets[0].photonmap, PointStore) else None)
+        near_bounds = None if near is None else np.searchsorted(near, bounds)
         none = np.zeros(len(sets), np.bool_)
         (h0, h1), (v0, v1) = fr.h_range_m, fr.v_range_m
         nh, nv = self._grid_shape
@@ -487,9 +492,12 @@ class PhotonSets:
             outputs, then the apertures."""
             for g in range(g0, g1):
                 a, b = int(bounds[g]), int(bounds[g + 1])
-                if b > a:
+                if b > a and near is None:
                     sets[g].photonmap.add(rec.position[a:b], rec.normal[a:b],
                                           rec.power[a:b])
+                elif b > a:
+                    sets[g].photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b],
+                                          near[near_bounds[g]:near_bounds[g + 1]] - a)
             win_work = self._blocks.get(f"windows work {name}")
             if win_work is None or win_work.shape != (n_slots, windows.shape[1], C):
                 win_work = self._blocks[f"windows work {name}"] = np.zeros(

@@ -105,7 +105,7 @@ class PointStore:
         self.acc = np.zeros((P, self.channels))  # ΣΦ·w within r_lo (lm)
         self.count = np.zeros(P, np.int64)  # photons within r_lo
         self._tree = cKDTree(self.points) if P else None
-        self._cells: tuple | None = None  # (reach, unresolved count, lo, cell, shape, mask)
+        self._cells: dict[float, tuple] = {}  # reach → (lo, cell, shape, mask, box)
         # pooled photons: positions, normals, powers, already in the r_lo-sums
         self._pool: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._open = P > 0  # some point not yet resolved (at the last cut)
@@ -132,11 +132,22 @@ class PointStore:
         return int(self.acc.nbytes + self.count.nbytes + pool)
 
     # -- a frame's photons ----------------------------------------------------------------
-    def add(self, positions: np.ndarray, normals: np.ndarray, powers: np.ndarray) -> None:
+    def near(self, positions: np.ndarray) -> np.ndarray:
+        """Indices (ascending) of the photons at ``positions`` (m, (n, 3) float32) that
+        may lie within r_max of a point: a superset, for :meth:`add` of any store with
+        the same points (one lookup for a whole frame of several sets)."""
+        pos = np.asarray(positions, dtype=np.float32).reshape(-1, 3)
+        if self._tree is None:
+            return np.zeros(0, np.int64)
+        return self._near_cells(pos, self.max_radius * (1 + 1e-6) + 1e-9)
+
+    def add(self, positions: np.ndarray, normals: np.ndarray, powers: np.ndarray,
+            near: np.ndarray | None = None) -> None:
         """Add a frame's photons (positions m float32 (n, 3), unit normals (n, 3), powers
         lm (n, C)): those near a point join the pool, the rest are dropped at once. The
         pool is summed and cut back (:meth:`compact`) whenever it has grown
-        ``POOL_SLACK`` times, and at least by ``POOL_MIN`` photons."""
+        ``POOL_SLACK`` times, and at least by ``POOL_MIN`` photons. ``near``: the
+        photons' indices :meth:`near` gave, when already known."""
         n = len(positions)
         self.added += n
         if n == 0 or self._tree is None:
@@ -146,7 +157,12 @@ class PointStore:
         # a photon in a cell next to a point's (cells of the reach's size: a photon within
         # reach of a point lies in its cell or a neighbour); most photons of a frame are
         # far from every point and cost one lookup
-        cand = self._near_cells(pos, reach * (1 + 1e-6) + 1e-9)
+        if near is None:
+            cand = self._near_cells(pos, reach * (1 + 1e-6) + 1e-9)
+        else:
+            cand = np.asarray(near, dtype=np.int64)
+            if reach < self.max_radius and len(cand):  # every point resolved: r_lo only
+                cand = cand[self._near_cells(pos[cand], reach * (1 + 1e-6) + 1e-9)]
         if len(cand) == 0:
             return
         nrm = as_unit_normals(np.asarray(normals).reshape(-1, 3)[cand], len(cand))
@@ -197,9 +213,10 @@ class PointStore:
 
     def _near_cells(self, pos: np.ndarray, reach: float) -> np.ndarray:
         """Indices of the photons at ``pos`` in a cell (side ≥ ``reach``, m) holding or
-        next to a point: the only ones that can lie within ``reach`` of one. The cells
-        are remade when the reach changes (once: when every point is resolved)."""
-        if self._cells is None or self._cells[0] != reach:
+        next to a point: the only ones that can lie within ``reach`` of one (ascending).
+        The cells are made once per reach (r_max, and r_lo once every point is
+        resolved)."""
+        if reach not in self._cells:
             lo = self.points.min(axis=0) - 2 * reach
             span = self.points.max(axis=0) + 2 * reach - lo
             cell = max(reach, float(span.max()) / 256.0)  # at most 256³ cells
@@ -212,8 +229,8 @@ class PointStore:
             # float32 bounds a little wider than the cells' reach around the points
             box = np.concatenate([self.points.min(axis=0) - 1.5 * reach,
                                   self.points.max(axis=0) + 1.5 * reach]).astype(np.float32)
-            self._cells = (reach, lo, cell, shape, mask, box)
-        _, lo, cell, shape, mask, box = self._cells
+            self._cells[reach] = (lo, cell, shape, mask, box)
+        lo, cell, shape, mask, box = self._cells[reach]
         # the points' box first (six compares a photon: most of a frame lies outside it)
         x, y, z = pos[:, 0], pos[:, 1], pos[:, 2]
         idx = np.flatnonzero((x >= box[0]) & (x < box[3]) & (y >= box[1]) & (y < box[4])

@@ -199,3 +199,21 @@ def test_explain_says_what_grows_with_photons(tmp_path, capsys):
         assert lines[at + 2].startswith("  predicted peak: about")
         summary = json.loads((out / "summary.json").read_text())
         assert summary["config"]["keep_photons"] is bool(extra)
+
+
+def test_near_indices_from_one_store_serve_another(monkeypatch):
+    """A frame's photons near the points, found once (:meth:`PointStore.near`), give
+    every store with the same points the state its own lookup gives."""
+    monkeypatch.setattr(pointstore, "POOL_MIN", 1000)
+    rng = np.random.default_rng(9)
+    pts = _points(rng, 100)[:-1]  # not the point far from every photon
+    args = dict(k=8, max_radius=0.1, min_radius=0.03)
+    own, shared = PointStore(pts, NORMAL, 1, **args), PointStore(pts, NORMAL, 1, **args)
+    for pos, nrm, pw in _frames(rng, 30, 3000):
+        own.add(pos, nrm, pw)
+        shared.add(pos, nrm, pw, own.near(pos))
+    assert own.resolved.all()  # the r_lo-only lookup after every point resolved, too
+    q = pts.astype(np.float32)
+    n = np.broadcast_to(NORMAL, q.shape).astype(np.float32)
+    np.testing.assert_array_equal(own.estimate(q, n, **args).E, shared.estimate(q, n, **args).E)
+    assert np.array_equal(own.count, shared.count) and len(own) == len(shared)
