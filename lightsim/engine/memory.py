@@ -180,7 +180,7 @@ class MemoryEstimate:
         gb = 1e9
         kept = (f"{self.photons:,} photons × {self.photon_bytes / max(self.photons, 1):.0f}"
                 f" B kept = {self.photon_bytes / gb:.2f} GB" if self.grows else
-                f"no photon kept, point sums {self.photon_bytes / gb:.2f} GB")
+                f"no photon kept, point stores ≤ {self.photon_bytes / gb:.2f} GB")
         return (f"about {self.total / gb:.1f} GB ({kept}, images "
                 f"{self.image_bytes / gb:.2f} GB, frame {self.frame_bytes / gb:.2f} GB, "
                 f"process {self.base_bytes / gb:.2f} GB, ×{HEADROOM:g} margin)")
