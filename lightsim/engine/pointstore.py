@@ -49,9 +49,10 @@ from lightsim.photonmap.common import R_FLOOR_REL, Estimate, as_unit_normals
 from lightsim.photonmap.density import PhotonMap
 
 POOL_SLACK = 2.0
-#: photons the pool may gain before it is cut back (per set): the cut's kNN queries
-#: cost about one frame's insertion, so they run every few hundred frames, not every one
-POOL_MIN = 2**18
+#: photons the pool may gain before it is cut back (per set; 3.8 MB of pool): the cut's
+#: kNN queries cost about one frame's insertion, so they run every few hundred frames
+#: (the README lamp's scan points gain ~1 700 pooled photons per set and million shot)
+POOL_MIN = 2**17
 #: bytes one pooled photon takes (position, normal, power per channel: float32)
 POOL_PHOTON_BYTES = 24
 KERNELS = ("box", "cone", "epanechnikov")
