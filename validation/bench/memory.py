@@ -29,6 +29,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import textwrap
 import time
 from pathlib import Path
 from typing import Any
@@ -127,7 +128,7 @@ def plot_memory(rows: list[dict[str, Any]], path: str | Path, title: str) -> Pat
     ax.set_ylim(bottom=0)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    ax.set_title(title, fontsize=9)
+    ax.set_title("\n".join(textwrap.wrap(title, 90)), fontsize=8)
     fig.tight_layout()
     path = Path(path)
     with atomic_path(path) as tmp:
