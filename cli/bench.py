@@ -26,6 +26,7 @@ BENCHMARKS: dict[str, str] = {
     "adb": "bench_adb:command",
     "provenance": "bench_provenance:command",
     "verdicts": "bench_verdicts:command",
+    "memory": "bench_memory:command",
 }
 
 

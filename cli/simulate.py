@@ -140,6 +140,10 @@ def simulate(scene_file: str | None, resume_dir: str | None, explain: bool, quie
             click.echo("plan:")
             for line in session.plan.explain():
                 click.echo(f"  {line}")
+            if session.memory_estimate is not None:
+                click.echo("memory:")
+                for line in session.memory_estimate.explain():
+                    click.echo(f"  {line}")
 
     # the plot process starts now: matplotlib is imported and warmed up while the scene
     # loads and the run goes on (lightsim/io/plot_worker.py)

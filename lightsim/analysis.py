@@ -91,6 +91,9 @@ class Analysis(Protocol):
     """A check or product of a run (see the module docstring)."""
 
     name: str
+    # Optional: ``reads_photons`` (str or None), the option that makes the analysis read
+    # kNN estimates (``session.probe``) after the run; None: it reads none, so the run
+    # may drop its photons. An analysis without it counts as reading them.
 
     def prepare(self, config: Any, scene: Any) -> Any:
         """The run's :class:`~lightsim.engine.config.RunConfig` with what this analysis

@@ -461,6 +461,8 @@ class RoadAnalysis:
 
     settings: RoadSettings = field(default_factory=RoadSettings)
     name: str = "road_evaluation"
+    #: the per-set maps (``wall_sets.npz``) are kNN estimates at every few pixels
+    reads_photons = "--road"
 
     def prepare(self, config: Any, scene: Any) -> Any:
         """Check the road lies on the wall before any photon (the maps are read after the

@@ -50,6 +50,7 @@ from lightsim import __version__, options, report
 from lightsim.analysis import Analysis, FinishedRun, StopsRun
 from lightsim.engine.config import RunConfig
 from lightsim.engine.memory import check_fits
+from lightsim.engine.pointstore import store_peak_bytes
 from lightsim.engine.server import STOP_ALPHA, Session
 from lightsim.errors import ClusterError, InputError, LightsimError
 from lightsim.io.atomic import STAGING_PREFIX, OutputSet, clean_stale, unfinished_set
@@ -163,6 +164,10 @@ class SimulateOptions:
         "name holds this text (a part, a facet, 'TIR', 'Fresnel reflection', 'diffuse') — "
         "as provenance-map.exr (lx) and provenance-map.png.", flag=("--provenance-map",),
         metavar="CLASS")
+    keep_photons: bool = option(
+        False, "Keep every photon for kNN estimates anywhere after the run (memory grows "
+        "with --photons). Without it the run keeps none: the estimates its outputs read "
+        "are accumulated per frame.", flag=("--keep-photons",), kind="flag")
     spt_points: bool = option(False, "Aim Selective Photon Tracing at the regulation's "
                               "test points.", flag=("--spt-points/--no-spt-points",),
                               kind="onoff")
@@ -378,7 +383,17 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     clock["load"] = time.perf_counter()
     config = opts.run_config()
     check_until(opts, config)
-    check_fits(opts.photons, scene.wall.resolution, config, scene.channels or 3)  # pre-flight
+    keeper = photon_keeper(opts, config, analyses)
+    config = config.with_(keep_photons=keeper is not None)
+    # the kNN estimates read after the run: the cut-off scans (accumulated per frame at
+    # these points when no photon is kept)
+    extra = cutoff_points(scene.wall, opts.traffic, config)
+    channels = scene.channels or 3
+    points = len(extra)  # the stores' points (the error grid reads the ICI lattice)
+    estimate = check_fits(opts.photons, scene.wall.resolution, config, channels,  # pre-flight
+                          keeper=keeper or "--keep-photons",
+                          point_bytes=config.n_sets * store_peak_bytes(points, config.k,
+                                                                       channels))
     for analysis in analyses:  # e.g. test points counted in detector apertures
         config = analysis.prepare(config, scene)
     if opts.until is not None and config.guide == "points":
@@ -391,7 +406,8 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     session = Session(scene, config, workers=opts.workers, address=opts.address,
                       checkpoint=(resume or {}).get("session"),
                       regulation=opts.regulation, farfield=bool(opts.ies or opts.ldt),
-                      per_source=opts.per_source)
+                      per_source=opts.per_source, extra_probes=extra)
+    session.memory_estimate = estimate
     clock["session"] = time.perf_counter()
     try:
         if on_plan is not None:
@@ -431,6 +447,41 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
         return result
     finally:
         session.close()
+
+
+def photon_keeper(opts: SimulateOptions, config: RunConfig,
+                  analyses: Sequence[Analysis]) -> str | None:
+    """The option that makes the run keep every photon, or None: the run's outputs read
+    its kNN estimates only at points known before it (the cut-off scans), so the sets
+    accumulate those per frame and drop the photons (memory that does not grow with
+    ``--photons``). Kept for ``--keep-photons``, a written map by the ``knn`` bandwidth,
+    the ``radius`` estimator or ``--final interleaved`` (every pixel reads the photons),
+    and an analysis that
+    reads estimates anywhere (its ``reads_photons``: the option that makes it)."""
+    if config.estimator == "bin":
+        return None  # bins, no photon map at all
+    if opts.keep_photons:
+        return "--keep-photons"
+    if config.estimator != "knn":
+        return f"--estimator {config.estimator}"
+    if not config.uses_ici:
+        return f"--bandwidth {config.bandwidth}"
+    if config.final != "pooled":  # the sets' sub-images are kNN estimates at every pixel
+        return f"--final {config.final}"
+    for analysis in analyses:
+        reads = getattr(analysis, "reads_photons", f"the {analysis.name} analysis")
+        if reads:
+            return str(reads)
+    return None
+
+
+def cutoff_points(frame: Any, traffic: str, config: RunConfig) -> np.ndarray:
+    """Wall points (h, v in m) of the cut-off scans every set estimates after the run
+    (:func:`_cutoff`; none with a single set, which has no spread)."""
+    if config.n_sets < 2:
+        return np.zeros((0, 2))
+    hv, _, _ = scan_sample_points(frame.to_dict(), traffic)
+    return np.asarray(hv, dtype=np.float64).reshape(-1, 2)
 
 
 def check_until(opts: SimulateOptions, config: RunConfig) -> None:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from lightsim.engine.config import RunConfig
-from lightsim.engine.estimator import SetEstimator
+from lightsim.engine.estimator import SetEstimator, point_spec, scene_scale
 from lightsim.engine.photonset import PhotonSets
 from lightsim.engine.plan import Plan
 from lightsim.engine.results import ClientFrame, RenderRequest, ShootResult
@@ -93,7 +93,9 @@ class Client:
                  probes_hv: np.ndarray, caster=None) -> None:
         self.config = config
         self.probes_hv = np.asarray(probes_hv, dtype=np.float64).reshape(-1, 2)
-        self.photons = PhotonSets(scene, config, plan, set_indices, caster=caster)
+        spec = point_spec(config, scene.wall, self.probes_hv, scene_scale(scene))
+        self.photons = PhotonSets(scene, config, plan, set_indices, caster=caster,
+                                  points=spec)
         self._new_estimator()
 
     def _new_estimator(self) -> None:

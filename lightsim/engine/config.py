@@ -150,6 +150,10 @@ class RunConfig:
                                   internal=_PLAN)
     threads: int | None = option(None, "numba threads per client.", low=1,
                                  internal="set by the Ray backend per actor")
+    keep_photons: bool = option(
+        True, "Keep every photon for kNN estimates anywhere after the run; off: only what "
+        "the estimates at the probe points read (lightsim.engine.pointstore), in memory "
+        "that does not grow with the photons.", internal="set by simulate (--keep-photons)")
     extra_probes: tuple[tuple[float, float], ...] = option(
         (), "More probe points (h, v).", unit="m", kind="tuple",
         internal="set by callers (view, tests)")

@@ -29,6 +29,7 @@ import numpy as np
 
 from lightsim.engine.config import MAX_RADIUS_FACTOR, RunConfig
 from lightsim.engine.photonset import SetState
+from lightsim.engine.pointstore import PointSpec, floor_holds
 from lightsim.engine.results import RenderRequest, SetFrame
 from lightsim.render import ici
 from lightsim.render.camera import eye_hits
@@ -79,6 +80,34 @@ def set_k(config: RunConfig) -> int:
     every set keeps the full k; the radius bounds keep the blur in check.
     """
     return config.k
+
+
+def scene_scale(scene: Scene) -> float:
+    """The largest |coordinate| (m) of the scene's surfaces and wall: no photon record
+    lies farther out, so it bounds every photon map's radius floor."""
+    return max((float(np.abs(p.vertices).max()) for p in scene.surfaces
+                if len(p.vertices)), default=1.0)
+
+
+def point_spec(config: RunConfig, frame: WallFrame, probes_hv: np.ndarray,
+               scale_m: float) -> PointSpec | None:
+    """The fixed points (the probes: wall h, v in m) where the sets accumulate their kNN
+    estimates frame by frame instead of keeping every photon
+    (:mod:`lightsim.engine.pointstore`), or None where the photons are kept: asked for
+    (``keep_photons``), or read elsewhere than at points (the written map of the ``knn``
+    bandwidth, of ``final="interleaved"``, of the ``radius`` and ``bin`` estimators), or
+    a radius floor below the photon map's own (``scale_m``: the largest coordinate of the
+    scene, m). The error grid's probes come first in ``probes_hv`` and are not among the
+    points: the ICI figure reads the lattice, not their kNN estimates."""
+    if config.keep_photons or not config.uses_ici or config.final != "pooled":
+        return None  # the written map reads the photons at every pixel
+    r_min, r_max = effective_radii(config, frame, config.final)
+    if not floor_holds(r_min, scale_m):
+        return None
+    grid = int(np.prod(config.probe_grid))
+    hv = np.asarray(probes_hv, dtype=np.float64).reshape(-1, 2)[grid:]
+    return PointSpec(frame.to_world(hv[:, 0], hv[:, 1]), np.asarray(frame.normal, float),
+                     set_k(config), r_max, r_min, config.kernel)
 
 
 class SetEstimator:

@@ -1,6 +1,13 @@
 """Memory of a run: bytes per stored photon, a pre-flight estimate, the check against RAM.
 
-A run keeps every photon it stores on the wall (one photon map per interleave set, photons
+``simulate``'s default run keeps no photon: what its outputs read is accumulated per
+frame (the ICI lattice, detector apertures, and the kNN estimates at the cut-off scans
+in :mod:`lightsim.engine.pointstore`), so its estimate does not grow with the photons
+(:attr:`MemoryEstimate.grows` empty; the point stores counted at their bound). A run
+that keeps every photon (``--keep-photons``, the ``knn`` bandwidth, …; the estimate's
+``keeper``) is modelled as below.
+
+Such a run keeps every photon it stores on the wall (one photon map per interleave set, photons
 accumulated by insertion, paper section 5.4), per-set images (bins or the ICI lattice and
 the probe windows) and, per frame, the tracer's wavefront. The estimate adds these up
 from the run's settings before any work, and :func:`check_fits` turns a run that cannot
@@ -146,30 +153,49 @@ def index_bytes(index: Any) -> int:
 
 @dataclass
 class MemoryEstimate:
-    """Pre-flight estimate of a run's peak memory (bytes)."""
+    """Pre-flight estimate of a run's peak memory (bytes).
+
+    ``keeper`` names the option that makes the run keep every photon (None: it keeps
+    none, its photon bytes are the bounded point stores of
+    :mod:`lightsim.engine.pointstore`, the same at any photon count)."""
 
     photons: int           # photons the run shoots (an upper bound of those it keeps)
-    photon_bytes: float    # photon maps at their peak
+    photon_bytes: float    # photon maps at their peak, or the bounded point stores
     image_bytes: float     # per-set images and the final map's query buffers
     frame_bytes: float     # one frame's wavefront
     base_bytes: float      # the process itself
+    keeper: str | None = "--keep-photons"
 
     @property
     def total(self) -> float:
         return HEADROOM * (self.photon_bytes + self.image_bytes + self.frame_bytes
                            + self.base_bytes)
 
+    @property
+    def grows(self) -> tuple[str, ...]:
+        """The parts that grow with the photons (none when no photon is kept)."""
+        return ("photon maps",) if self.keeper is not None and self.photon_bytes else ()
+
     def describe(self) -> str:
         gb = 1e9
-        return (f"about {self.total / gb:.1f} GB ({self.photons:,} photons × "
-                f"{self.photon_bytes / max(self.photons, 1):.0f} B kept "
-                f"= {self.photon_bytes / gb:.2f} GB, images {self.image_bytes / gb:.2f} GB, "
-                f"frame {self.frame_bytes / gb:.2f} GB, process "
-                f"{self.base_bytes / gb:.2f} GB, ×{HEADROOM:g} margin)")
+        kept = (f"{self.photons:,} photons × {self.photon_bytes / max(self.photons, 1):.0f}"
+                f" B kept = {self.photon_bytes / gb:.2f} GB" if self.grows else
+                f"no photon kept, point stores ≤ {self.photon_bytes / gb:.2f} GB")
+        return (f"about {self.total / gb:.1f} GB ({kept}, images "
+                f"{self.image_bytes / gb:.2f} GB, frame {self.frame_bytes / gb:.2f} GB, "
+                f"process {self.base_bytes / gb:.2f} GB, ×{HEADROOM:g} margin)")
+
+    def explain(self) -> list[str]:
+        """Lines for ``simulate --explain``: what grows with the photons, the peak."""
+        grows = (f"{', '.join(self.grows)} ({self.keeper} keeps every photon)"
+                 if self.grows else "nothing (photons dropped after each frame)")
+        return [f"grows with photons: {grows}",
+                f"predicted peak: {self.describe()}"]
 
 
 def estimate_run(photons: int, resolution: tuple[int, int], channels: int = 1,
                  n_sets: int = 16, frame_photons: int = 200_000, photon_map: bool = True,
+                 keeper: str | None = "--keep-photons", point_bytes: float = 0.0,
                  ) -> MemoryEstimate:
     """Peak memory of a run that shoots ``photons`` photons (all assumed kept: the wall
     yield is not known before tracing, and a photon is stored at most once on the wall).
@@ -188,14 +214,23 @@ def estimate_run(photons: int, resolution: tuple[int, int], channels: int = 1,
         Photons per frame (all sets).
     photon_map : bool
         False for the ``bin`` estimator, which stores no photons.
+    keeper : str or None
+        The option that keeps every photon; None: none is kept (the sets accumulate
+        point stores of ``point_bytes`` bytes in all instead).
+    point_bytes : float
+        Bytes of all sets' point stores (:meth:`~lightsim.engine.pointstore.PointSpec.
+        peak_bytes`), when no photon is kept.
     """
     W, H = resolution
     px = float(W) * float(H)
-    kept = int(photons) if photon_map else 0
+    kept = int(photons) if photon_map and keeper is not None else 0
+    photon_bytes = (kept * stored_photon_bytes(channels, n_sets) if keeper is not None
+                    else float(point_bytes) if photon_map else 0.0)
     return MemoryEstimate(
-        int(photons), kept * stored_photon_bytes(channels, n_sets),
+        int(photons), photon_bytes,
         px * channels * PIXEL_BYTES * n_sets + px * FINAL_PIXEL_BYTES,
-        min(int(photons), int(frame_photons)) * WAVEFRONT_BYTES, BASE_BYTES)
+        min(int(photons), int(frame_photons)) * WAVEFRONT_BYTES, BASE_BYTES,
+        keeper if photon_map else None)
 
 
 KEEP_BELOW = 32 * 2**20
@@ -325,7 +360,7 @@ def photon_budget(resolution: tuple[int, int], config: Any, channels: int = 1,
     its kept photons would pass it: a time or error budget cannot be checked before it
     starts, and would otherwise run on into the kernel's OOM killer.
     """
-    if config.estimator == "bin":
+    if config.estimator == "bin" or not config.keep_photons:
         return None
     avail = usable_bytes(available)
     if avail is None:
@@ -337,19 +372,30 @@ def photon_budget(resolution: tuple[int, int], config: Any, channels: int = 1,
 
 
 def check_fits(photons: int | None, resolution: tuple[int, int], config: Any,
-               channels: int = 1, available: int | None = None) -> MemoryEstimate | None:
+               channels: int = 1, available: int | None = None,
+               keeper: str | None = "--keep-photons", point_bytes: float = 0.0,
+               ) -> MemoryEstimate | None:
     """Raise :class:`InputError` (one line) when the run cannot fit in memory.
 
     ``photons`` None (a time or error budget) checks one frame. ``config`` is the run's
     :class:`~lightsim.engine.config.RunConfig`. ``LIGHTSIM_MEMORY_LIMIT`` (bytes) caps
     the available memory (e.g. a container's limit that /proc/meminfo does not show).
+    ``keeper``: the option that keeps every photon (named in the refusal), None when
+    the run keeps none (then ``point_bytes``: its point stores, which do not grow).
     """
     n = int(photons) if photons is not None else int(config.frame_photons)
+    keeps = keeper if config.keep_photons else None
     est = estimate_run(n, resolution, channels, config.n_sets, config.frame_photons,
-                       photon_map=config.estimator != "bin")
+                       photon_map=config.estimator != "bin", keeper=keeps,
+                       point_bytes=point_bytes)
     avail = usable_bytes(available)
     if avail is not None and est.total > avail:
+        if est.grows:
+            raise InputError(f"{est.keeper} keeps every photon and this run would not fit "
+                             f"in memory: it needs {est.describe()}, but only "
+                             f"{avail / 1e9:.1f} GB is available; shoot fewer --photons, "
+                             f"leave out {est.keeper} or use --estimator bin")
         raise InputError(f"this run would not fit in memory: it needs {est.describe()}, "
-                         f"but only {avail / 1e9:.1f} GB is available; shoot fewer "
-                         "--photons, use --estimator bin or a smaller --resolution")
+                         f"but only {avail / 1e9:.1f} GB is available; use a smaller "
+                         "--resolution or fewer --interleave sets")
     return est

@@ -13,7 +13,10 @@ What a set accumulates depends on what the estimator reads
 ==================  ===========  ====================================================
 store               unit         kept when
 ==================  ===========  ====================================================
-``photonmap``       lm           kNN and radius estimators (built when first queried)
+``photonmap``       lm           kNN and radius estimators (built when first queried);
+                                 with ``keep_photons`` off (``simulate``'s default) a
+                                 :class:`~lightsim.engine.pointstore.PointStore`: the
+                                 probes' kNN sums, photons dropped after each frame
 ``bins``            lm           ``estimator=bin``: power per wall pixel
 ``windows``         lm           kNN/radius without ICI: power in the pixel window of
                                  each grid probe (the kNN figure's blur reference)
@@ -47,6 +50,7 @@ from lightsim.engine.guiding import (
 )
 from lightsim.engine.memory import write_pages
 from lightsim.engine.plan import Plan
+from lightsim.engine.pointstore import PointSpec, PointStore
 from lightsim.engine.results import ShootResult
 from lightsim.persource import EmitterGroups, PerSourceSums
 from lightsim.photonmap.common import r_floor
@@ -226,7 +230,7 @@ class SetState:
     ledger: np.ndarray = field(default=None)  # type: ignore[assignment]
     emitted_power: np.ndarray = field(default=None)  # type: ignore[assignment]
     sampler: SelectiveSampler | None = None
-    photonmap: DeferredPhotonMap | None = None
+    photonmap: DeferredPhotonMap | PointStore | None = None
     bins: np.ndarray | None = None  # (H, W, C) power per wall pixel
     windows: np.ndarray | None = None  # (G, C) power in the pixel window of each grid probe
     apertures: Any = None  # ApertureCounter of the run's detector apertures, if any
@@ -282,12 +286,18 @@ class PhotonSets:
         The interleave sets this client owns (static assignment).
     caster : RayCaster, optional
         The scene's embree scene when the caller already built it.
+    points : PointSpec, optional
+        Where the kNN estimates are read when the photons are not kept: every set then
+        accumulates a :class:`~lightsim.engine.pointstore.PointStore` there instead of a
+        photon map (None: every photon is kept).
     """
 
     def __init__(self, scene: Scene, config: RunConfig, plan: Plan,
-                 set_indices: list[int], caster=None) -> None:
+                 set_indices: list[int], caster=None, points: PointSpec | None = None
+                 ) -> None:
         self.config = config
         self.plan = plan
+        self.points = points
         self.set_indices = list(set_indices)
         self._perm_cache: dict[int, np.ndarray] = {}
         self.set_scene(scene, caster)
@@ -389,7 +399,8 @@ class PhotonSets:
             st.bins = np.zeros((H, W, self.channels))
         else:
             structure = "hash" if self.config.estimator == "radius" else self.config.structure
-            st.photonmap = DeferredPhotonMap(structure, self.channels)
+            st.photonmap = (DeferredPhotonMap(structure, self.channels) if self.points is None
+                            else self.points.store(self.channels))
             nh, nv = self._grid_shape
             if not self.config.uses_ici:  # the ICI figure reads the lattice instead
                 st.windows = np.zeros((nh * nv, self.channels))
@@ -543,10 +554,11 @@ class PhotonSets:
             self._lattice_ready.result()
             self._lattice_ready = None
         fr, C = self.frame, self.channels
-        for g, st in enumerate(sets):
-            a, b = int(bounds[g]), int(bounds[g + 1])
-            if b > a:
-                st.photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b])
+        # point stores (every set's at the same points): the frame's photons near them
+        # found once, each set's share passed on
+        near = (sets[0].photonmap.near(rec.position)
+                if isinstance(sets[0].photonmap, PointStore) else None)
+        near_bounds = None if near is None else np.searchsorted(near, bounds)
         none = np.zeros(len(sets), np.bool_)
         (h0, h1), (v0, v1) = fr.h_range_m, fr.v_range_m
         nh, nv = self._grid_shape
@@ -571,7 +583,16 @@ class PhotonSets:
 
         def insert(g0: int, g1: int, name: str) -> tuple:
             """Sets g0..g1-1 into their stores (the rows of those sets only, with work
-            arrays of their own): :func:`insert_wall`'s outputs, then the apertures."""
+            arrays of their own): their photon maps or point stores, :func:`insert_wall`'s
+            outputs, then the apertures."""
+            for g in range(g0, g1):
+                a, b = int(bounds[g]), int(bounds[g + 1])
+                if b > a and near is None:
+                    sets[g].photonmap.add(rec.position[a:b], rec.normal[a:b],
+                                          rec.power[a:b])
+                elif b > a:
+                    sets[g].photonmap.add(rec.position[a:b], rec.normal[a:b], rec.power[a:b],
+                                          near[near_bounds[g]:near_bounds[g + 1]] - a)
             win_work = self._blocks.get(f"windows work {name}")
             if win_work is None or win_work.shape != (n_slots, windows.shape[1], C):
                 win_work = self._blocks[f"windows work {name}"] = np.zeros(

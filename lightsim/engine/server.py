@@ -412,6 +412,7 @@ class Session:
         # maps live on this machine (a cluster's nodes have memories of their own)
         self.memory_checked = address is None
         self.memory_stop: MemoryStop | None = None  # set when a run stopped for memory
+        self.memory_estimate: memory.MemoryEstimate | None = None  # simulate's pre-flight
         self.frame_records = 0  # photon records of the largest frame so far
         self.frames = 0
         self.partial: dict[int, int] = {}  # frame index → photons of a partial frame

@@ -115,6 +115,9 @@ class FarfieldAnalysis:
     ldt_step: float | None = None
     name: str = "farfield"
 
+    #: the far field reads the beam bins, apertures and counters, no kNN estimate
+    reads_photons = None
+
     def __post_init__(self) -> None:
         resolve_ies_type(self.ies_type, None)
         if self.ies_step is not None:

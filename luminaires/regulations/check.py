@@ -439,6 +439,12 @@ class RegulationAnalysis:
         self.rules = load_ruleset(self.ruleset)
 
     @property
+    def reads_photons(self) -> str | None:
+        """The option that makes the check read kNN estimates at its test points after
+        the run (``--aperture 0``; None: it reads its detector apertures only)."""
+        return "--aperture 0" if not self.aperture_deg else None
+
+    @property
     def probes_name(self) -> str:
         """The probe file this analysis writes."""
         return (PROBES_FILE if self.name == "regulation"

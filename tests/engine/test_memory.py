@@ -79,17 +79,49 @@ def test_available_bytes_reads_meminfo():
     assert avail is None or avail > 0
 
 
-def test_simulate_refuses_before_it_starts(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("keeper", [["--keep-photons"], ["--bandwidth", "knn"]])
+def test_simulate_refuses_before_it_starts(tmp_path, monkeypatch, capsys, keeper):
     glb = write_scene_glb(CASES["paraboloid"](8), tmp_path / "p.glb")
     out = tmp_path / "out"
     monkeypatch.setenv("LIGHTSIM_MEMORY_LIMIT", str(10**9))
     with pytest.raises(SystemExit) as exc:
         main(["simulate", str(glb), "--photons", "100000000", "--resolution", "8x8",
-              "--out", str(out), "--quiet"])
+              *keeper, "--out", str(out), "--quiet"])
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "would not fit in memory" in err[0]
+    assert " ".join(keeper) in err[0] and "keeps every photon" in err[0]
     assert not out.exists()
+
+
+def test_two_billion_photons_refused_only_where_photons_are_kept(tmp_path, capsys):
+    """The keep-all path with 2·10⁹ photons is refused in one line naming its option;
+    the default run keeps no photon, so its estimate does not grow with them."""
+    cfg = RunConfig(keep_photons=False)
+    small = memory.check_fits(4 * 10**6, (320, 128), cfg, 3, available=int(24.6e9),
+                              point_bytes=1e8)
+    big = memory.check_fits(2 * 10**9, (320, 128), cfg, 3, available=int(24.6e9),
+                            point_bytes=1e8)
+    assert big.grows == () and big.photon_bytes == small.photon_bytes == 1e8
+    assert big.total - small.total < 0.05e9  # one frame's wavefront at most
+    assert any("nothing" in line for line in big.explain())
+    keep = RunConfig()
+    with pytest.raises(InputError) as exc:
+        memory.check_fits(2 * 10**9, (320, 128), keep, 3, available=int(24.6e9),
+                          keeper="--keep-photons")
+    assert "--keep-photons keeps every photon" in str(exc.value)
+    assert "\n" not in str(exc.value)
+    est = memory.check_fits(10**6, (64, 64), keep, 1, available=10**12)
+    assert est.grows == ("photon maps",) and "--keep-photons" in est.explain()[0]
+    # the command: one line, exit 2, before any output
+    glb = write_scene_glb(CASES["paraboloid"](8), tmp_path / "p.glb")
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as stop:
+        main(["simulate", str(glb), "--photons", "2000000000", "--keep-photons",
+              "--out", str(out), "--quiet"])
+    assert stop.value.code == 2 and not out.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--keep-photons" in err[0]
 
 
 def test_keep_freed_memory_reuses_freed_blocks_in_a_process_of_its_own():
@@ -201,9 +233,9 @@ def test_simulate_with_a_time_budget_stops_for_memory_and_says_so(tmp_path, monk
     """`--time` cannot be checked before the run: it stops short of the memory with
     one warning, writes its outputs, and summary.json records the stop."""
     glb = write_scene_glb(CASES["paraboloid"](16), tmp_path / "p.glb")
-    argv = ["--resolution", "16x16", "--frame-photons", "20000"]
-    opts = SimulateOptions(scene_path=str(glb), resolution=(16, 16),
-                           config={"frame_photons": 20_000})
+    argv = ["--resolution", "16x16", "--frame-photons", "20000", "--keep-photons"]
+    opts = SimulateOptions(scene_path=str(glb), resolution=(16, 16), keep_photons=True,
+                           config={"frame_photons": 20_000, "keep_photons": True})
     cfg, scene = opts.run_config(), load(opts)
     C = scene.channels or 3
     # a budget for about 2.5 frames of every photon kept at the peak (the pre-flight
