@@ -164,7 +164,7 @@ class SimulateOptions:
         "name holds this text (a part, a facet, 'TIR', 'Fresnel reflection', 'diffuse') — "
         "as provenance-map.exr (lx) and provenance-map.png.", flag=("--provenance-map",),
         metavar="CLASS")
-    keep_photons: bool = option(
+    keep_all_photons: bool = option(
         False, "Keep every photon for kNN estimates anywhere after the run (memory grows "
         "with --photons). Without it the run keeps none: the estimates its outputs read "
         "are accumulated per frame.", flag=("--keep-photons",), kind="flag")
@@ -460,7 +460,7 @@ def photon_keeper(opts: SimulateOptions, config: RunConfig,
     reads estimates anywhere (its ``reads_photons``: the option that makes it)."""
     if config.estimator == "bin":
         return None  # bins, no photon map at all
-    if opts.keep_photons:
+    if opts.keep_all_photons:
         return "--keep-photons"
     if config.estimator != "knn":
         return f"--estimator {config.estimator}"

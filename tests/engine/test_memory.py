@@ -234,7 +234,7 @@ def test_simulate_with_a_time_budget_stops_for_memory_and_says_so(tmp_path, monk
     one warning, writes its outputs, and summary.json records the stop."""
     glb = write_scene_glb(CASES["paraboloid"](16), tmp_path / "p.glb")
     argv = ["--resolution", "16x16", "--frame-photons", "20000", "--keep-photons"]
-    opts = SimulateOptions(scene_path=str(glb), resolution=(16, 16), keep_photons=True,
+    opts = SimulateOptions(scene_path=str(glb), resolution=(16, 16), keep_all_photons=True,
                            config={"frame_photons": 20_000, "keep_photons": True})
     cfg, scene = opts.run_config(), load(opts)
     C = scene.channels or 3
