@@ -31,9 +31,11 @@ ORDER = ("lightsim", "lightsim.luminaires", "lightsim.validation", "lightsim.cli
 #: libraries a function may import where it needs them: optional extras (OpenCASCADE,
 #: Mitsuba, the web stack, Playwright, MkDocs, the photometric reference readers) and heavy
 #: ones only some commands or inputs use (Ray 0.6 s, matplotlib 0.3–0.7 s, OpenCV, LibRaw,
-#: scipy.optimize 0.6 s, trimesh 0.8 s: only OBJ/STL/PLY scenes)
+#: scipy.optimize 0.6 s, trimesh 0.8 s: only OBJ/STL/PLY scenes, scipy.spatial: only
+#: runs with registered estimate points)
 LAZY_OK = ("ray", "matplotlib", "OCP", "cascadio", "mitsuba", "drjit", "starlette", "uvicorn",
-           "websockets", "playwright", "cv2", "rawpy", "scipy.optimize", "mkdocs",
+           "websockets", "playwright", "cv2", "rawpy", "scipy.optimize", "scipy.spatial",
+           "mkdocs",
            "photompy", "eulumdat", "trimesh")
 
 

@@ -42,7 +42,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from lightsim.errors import InputError
 from lightsim.photonmap.common import R_FLOOR_REL, Estimate, as_unit_normals
@@ -105,7 +104,11 @@ class PointStore:
         P = len(self.points)
         self.acc = np.zeros((P, self.channels))  # ΣΦ·w within r_lo (lm)
         self.count = np.zeros(P, np.int64)  # photons within r_lo
-        self._tree = cKDTree(self.points) if P else None
+        self._tree = None
+        if P:  # scipy.spatial pulls scipy.linalg in: only runs that register points pay it
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(self.points)
         self._cells: dict[float, tuple] = {}  # reach → (lo, cell, shape, mask, box)
         # pooled photons: positions, normals, powers, already in the r_lo-sums
         self._pool: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []

@@ -176,7 +176,7 @@ def test_photon_keeper_names_the_option_that_keeps_photons():
     assert photon_keeper(opts, cfg, [_ReadsNone()]) is None
     assert photon_keeper(opts, cfg, [_ReadsNone(), _Reads()]) == "--road"
     assert photon_keeper(opts, cfg, [_Unknown()]) == "the custom analysis"
-    keep = SimulateOptions(scene_path="x.glb", keep_photons=True)
+    keep = SimulateOptions(scene_path="x.glb", keep_all_photons=True)
     assert photon_keeper(keep, cfg, []) == "--keep-photons"
     assert photon_keeper(opts, cfg.with_(bandwidth="knn"), []) == "--bandwidth knn"
     assert photon_keeper(opts, cfg.with_(final="interleaved"), []) == \
