@@ -123,7 +123,8 @@ class SimulateOptions:
         kind="triple")
     materials: str | None = option(
         None, "Material map (TOML): part-name pattern → mirror/glass/diffuse/emitter/"
-        "ignore, for CAD files without optics.", flag=("--materials",), kind="file")
+        "ignore, for CAD files without optics (`lightsim luminaire parts FILE` lists the "
+        "part and face names).", flag=("--materials",), kind="file")
     cad_linear_tol_mm: float = option(
         0.01, "STEP/IGES tessellation: largest facet-to-surface distance.", unit="mm",
         flag=("--cad-linear-tol",), low=0, low_open=True)

@@ -63,3 +63,11 @@ def test_cad_time_limit_must_be_positive():
         Tessellation(time_limit_s=math.nan)
     with pytest.raises(InputError, match="time limit"):
         read_cad(Path("x.step"), Tessellation(time_limit_s=-1.0))
+
+
+def test_simulate_help_names_the_parts_lister(capsys):
+    """A CAD lamp needs a material map by part name: simulate's help says where the
+    names come from (the no-emitter error says it too, tests/io/test_cad_names.py)."""
+    code, out, _ = run_cli(["simulate", "--help"], capsys)
+    assert code == 0
+    assert "luminaire parts FILE" in " ".join(out.split())
