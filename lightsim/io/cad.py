@@ -232,7 +232,9 @@ def read_isolated(path: Path, tess: Tessellation) -> list:
     read that does not end, becomes one :class:`InputError` line."""
     fd, result = tempfile.mkstemp(suffix=".pickle", prefix="lightsim-cad-")
     os.close(fd)
-    cmd = [sys.executable, "-m", "lightsim.io.cad", str(path), repr(tess.linear_tol_mm),
+    # -P: the working folder is not put on the module path (a folder named like a
+    # package there must not shadow lightsim)
+    cmd = [sys.executable, "-P", "-m", "lightsim.io.cad", str(path), repr(tess.linear_tol_mm),
            repr(tess.angular_tol_deg), result]
     try:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
