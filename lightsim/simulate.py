@@ -132,8 +132,8 @@ class SimulateOptions:
         2.0, "STEP/IGES tessellation: largest angle between facet normals.", unit="deg",
         flag=("--cad-angular-tol",), low=0, high=90, low_open=True, high_open=True)
     cad_time_limit_s: float = option(
-        600.0, "STEP/IGES: longest the CAD reader may take (a damaged file can make it "
-        "loop).", unit="s", flag=("--cad-time-limit",), low=0, low_open=True)
+        600.0, "STEP/IGES: processor time the CAD reader may use (a damaged file can make "
+        "it loop).", unit="s", flag=("--cad-time-limit",), low=0, low_open=True)
     part_materials: dict[str, str] = option(  # noqa: RUF009 - a dataclasses.field
         help="NAME=mirror[:R]|glass[:n]|diffuse[:ρ]|wall|ignore (repeatable).",
         default_factory=dict, flag=("--part-material",), kind="assign",

@@ -25,17 +25,20 @@ angular one the angle between neighbouring facet normals; both are given in CAD 
 
 The XCAF reader runs in a child process (a fresh interpreter, ``python -m
 lightsim.io.cad``): OpenCASCADE's parsers can crash on a damaged file (a segmentation
-fault) or loop on it, and either becomes one line here. The child gets a time limit;
-a file that is sound but large needs a larger one (``simulate --cad-time-limit``). A
-fresh interpreter rather than a fork: a fork of a process whose threads (the tracer's,
-the plot process's pipes) hold locks can deadlock in the child.
+fault) or loop on it, and either becomes one line here. The child gets a time limit in
+processor seconds (its own CPU time, ``RLIMIT_CPU``, so that a busy machine does not cut
+a sound read short), and, as a safety net, ``WALL_FACTOR`` times that in wall-clock
+time; a file that is sound but large needs a larger one (``simulate
+--cad-time-limit``). A fresh interpreter rather than a fork: a fork of a process whose
+threads (the tracer's, the plot process's pipes) hold locks can deadlock in the child.
 
 =================  =====  =======  =====================================================
 parameter          unit   default  meaning
 =================  =====  =======  =====================================================
 ``linear_tol``     mm     0.01     largest facet-to-surface distance
 ``angular_tol``    deg    2        largest angle between neighbouring facet normals
-``time_limit``     s      600      longest a CAD read may take before it is given up
+``time_limit``     s      600      processor time a CAD read may use before it is given up
+``WALL_FACTOR``    –      10       wall-clock limit = WALL_FACTOR × time_limit + 60 s
 =================  =====  =======  =====================================================
 """
 
@@ -45,6 +48,7 @@ import faulthandler
 import math
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import tempfile
@@ -53,6 +57,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+try:  # processor-time limits (POSIX); elsewhere the wall-clock limit alone
+    import resource
+except ImportError:  # pragma: no cover - Windows
+    resource = None  # type: ignore[assignment]
 
 from lightsim.errors import InputError
 from lightsim.io.cad_xcaf import have_ocp, read_xcaf
@@ -64,6 +73,7 @@ CAD_SUFFIXES = STEP_SUFFIXES + IGES_SUFFIXES
 DEFAULT_LINEAR_TOL_MM = 0.01
 DEFAULT_ANGULAR_TOL_DEG = 2.0
 DEFAULT_TIME_LIMIT_S = 600.0
+WALL_FACTOR = 10.0
 # IGES global parameter 14: unit flag → metres per unit
 IGES_UNITS_M = {1: 0.0254, 2: 1e-3, 3: None, 4: 0.3048, 5: 1609.344, 6: 1.0, 7: 1000.0,
                 8: 0.0254e-3, 9: 1e-6, 10: 0.01, 11: 0.0254e-6}
@@ -215,11 +225,24 @@ def _read_in_child(path: Path, tess: Tessellation) -> tuple[bool, Any]:
                        f"({type(exc).__name__}: {exc})")
 
 
+def _limit_cpu(seconds: float) -> None:
+    """Let this process use ``seconds`` more processor time, then SIGXCPU ends it."""
+    if resource is None:
+        return
+    use = resource.getrusage(resource.RUSAGE_SELF)
+    soft = math.ceil(use.ru_utime + use.ru_stime + seconds)
+    _, hard = resource.getrlimit(resource.RLIMIT_CPU)
+    if hard != resource.RLIM_INFINITY and soft > hard:
+        return
+    resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
+
+
 def _child_main(argv: list[str]) -> int:
-    """The child process: ``PATH LINEAR_TOL ANGULAR_TOL RESULT``; the parts (or the
-    one-line reason) go pickled to RESULT."""
-    path, lin, ang, result = argv
+    """The child process: ``PATH LINEAR_TOL ANGULAR_TOL CPU_LIMIT RESULT``; the parts (or
+    the one-line reason) go pickled to RESULT."""
+    path, lin, ang, cpu, result = argv
     faulthandler.disable()  # a crash is reported by the parent, in one line
+    _limit_cpu(float(cpu))  # counted from here: the imports are not the reader's
     payload = _read_in_child(Path(path), Tessellation(float(lin), float(ang)))
     with open(result, "wb") as fh:
         pickle.dump(payload, fh, pickle.HIGHEST_PROTOCOL)
@@ -235,19 +258,21 @@ def read_isolated(path: Path, tess: Tessellation) -> list:
     # -P: the working folder is not put on the module path (a folder named like a
     # package there must not shadow lightsim)
     cmd = [sys.executable, "-P", "-m", "lightsim.io.cad", str(path), repr(tess.linear_tol_mm),
-           repr(tess.angular_tol_deg), result]
+           repr(tess.angular_tol_deg), repr(tess.time_limit_s), result]
+    too_long = (f"{path}: OpenCASCADE did not finish reading the file within "
+                f"{tess.time_limit_s:g} s of processor time (a damaged file can make its "
+                "reader loop; for a large sound file raise --cad-time-limit)")
+    wall_s = WALL_FACTOR * tess.time_limit_s + 60.0
     try:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)
         try:
-            code = proc.wait(tess.time_limit_s)
+            code = proc.wait(wall_s)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-            raise InputError(
-                f"{path}: OpenCASCADE did not finish reading the file within "
-                f"{tess.time_limit_s:g} s (a damaged file can make its reader loop; for a "
-                f"large sound file raise --cad-time-limit)") from None
+            raise InputError(f"{too_long[:-1]}; given up after {wall_s:g} s on the "
+                             "clock)") from None
         except BaseException:  # Ctrl-C: the child goes too
             proc.kill()
             proc.wait()
@@ -255,6 +280,8 @@ def read_isolated(path: Path, tess: Tessellation) -> list:
         raw = Path(result).read_bytes() if code == 0 else b""
     finally:
         Path(result).unlink(missing_ok=True)
+    if code == -signal.SIGXCPU:
+        raise InputError(too_long)
     if not raw:
         how = f"signal {-code}" if code < 0 else f"exit {code}"
         raise InputError(f"{path}: OpenCASCADE crashed reading the file ({how}): the file "

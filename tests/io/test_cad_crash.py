@@ -49,7 +49,7 @@ def test_a_cad_read_over_its_time_limit_is_one_line(tmp_path, capsys, monkeypatc
                             str(mmap), "--cad-time-limit", "0.05", "--photons", "2000",
                             "--resolution", "16x8", "-q", "--out", str(out)], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1, err
-    assert "did not finish reading the file within 0.05 s" in err
+    assert "did not finish reading the file within 0.05 s of processor time" in err
     assert "--cad-time-limit" in err
     assert not out.exists() or not any(out.iterdir())
     # the killed child's result file is removed

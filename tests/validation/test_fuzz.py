@@ -167,7 +167,7 @@ def test_fuzz_corpus_of_every_kind_is_built(tmp_path):
     assert all(c.data for c in cases if c.kind != "points")
 
 
-def test_cad_cases_give_the_reader_half_the_case_limit(tmp_path):
+def test_cad_cases_give_the_reader_its_own_limit(tmp_path):
     """A STEP/IGES case's reader is stopped (one line, exit 2) well within the case's own
     time limit, so a file that keeps OpenCASCADE reading is judged, not timed out."""
     case = FuzzCase(0, "step", "test", "x.step", b"")
