@@ -11,6 +11,7 @@ import pytest
 
 import lightsim
 from lightsim.io.caption import read_caption, run_text
+from lightsim.io.plots import PlotCaption, isolux_plot, wall_lux_plot
 from lightsim.report import plot_caption
 from lightsim.validation.converge import ConvergeResult, Point
 from lightsim.validation.converge import plot as converge_plot
@@ -18,6 +19,7 @@ from lightsim.validation.fuzz import photo_seeds, small_scene_glb
 from lightsim.validation.photo_plots import plot_pair_difference
 from lightsim.validation.stop_study import StopRun, StopStudy
 from lightsim.validation.stop_study import plot as stop_plot
+from lightsim.validation.synthetic_photo import wall_frame
 
 from support import run_cli
 
@@ -102,3 +104,12 @@ def test_study_plots_carry_their_caption(tmp_path):
     stop_plot(StopStudy(runs), tmp_path / "stop.png")
     cap = read_caption(tmp_path / "stop.png")
     assert "disc" in cap and "seeds 1–2" in cap and VERSION in cap
+
+
+def test_a_plot_with_nothing_to_show_keeps_its_caption(tmp_path):
+    """Dark maps give a placeholder image that says why; it still says what run it is."""
+    cap = PlotCaption("lamp.glb", 3, 5000, None, (("r112-b-passing", "01"),))
+    frame = wall_frame((32, 16))
+    for draw in (isolux_plot, wall_lux_plot):
+        p = draw(tmp_path / f"{draw.__name__}.png", np.zeros((16, 32)), frame, caption=cap)
+        assert read_caption(p) == cap.text()
