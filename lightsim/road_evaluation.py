@@ -81,6 +81,7 @@ from lightsim.render.road_course import (
     exceedance,
     sensor_curves,
 )
+from lightsim.report import plot_caption
 from lightsim.wall import WallFrame
 
 __all__ = ["DEFAULT_APPROACHES", "ROAD_FILE", "SENSITIVITY", "WALL_SETS_FILE", "FarField",
@@ -419,15 +420,27 @@ def write_road(out: Path, ev: RoadEvaluation, plots: bool = True) -> list[Path]:
     each written atomically."""
     written: list[Path] = []
     if plots:
+        caption = run_caption(out)
         for name, curves in ev.curves.items():
             path = out / f"road_{name}.png"
             plot_approach(path, curves, ev.settings.lamps(), ev.settings.lane_width,
-                          ev.settings.glare_limit, ev.settings.confidence)
+                          ev.settings.glare_limit, ev.settings.confidence, caption)
             written.append(path)
     ev.files = [p.name for p in written] + [ROAD_FILE]
     write_json(out / ROAD_FILE, ev.to_dict())
     written.append(out / ROAD_FILE)
     return written
+
+
+def run_caption(run_dir: Path) -> str | None:
+    """The caption of the run in ``run_dir`` (:func:`lightsim.report.plot_caption` of its
+    ``summary.json``), None when it has no readable one."""
+    try:
+        summary = read_json(run_dir / "summary.json")
+        cap = plot_caption(summary) if isinstance(summary, dict) else None
+    except (InputError, OSError, ValueError, TypeError, AttributeError):
+        return None
+    return None if cap is None else cap.text()
 
 
 def reach_lines(table: dict[str, Any]) -> list[str]:

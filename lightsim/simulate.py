@@ -130,13 +130,17 @@ class SimulateOptions:
         kind="triple")
     materials: str | None = option(
         None, "Material map (TOML): part-name pattern → mirror/glass/diffuse/emitter/"
-        "ignore, for CAD files without optics.", flag=("--materials",), kind="file")
+        "ignore, for CAD files without optics (`lightsim luminaire parts FILE` lists the "
+        "part and face names).", flag=("--materials",), kind="file")
     cad_linear_tol_mm: float = option(
         0.01, "STEP/IGES tessellation: largest facet-to-surface distance.", unit="mm",
         flag=("--cad-linear-tol",), low=0, low_open=True)
     cad_angular_tol_deg: float = option(
         2.0, "STEP/IGES tessellation: largest angle between facet normals.", unit="deg",
         flag=("--cad-angular-tol",), low=0, high=90, low_open=True, high_open=True)
+    cad_time_limit_s: float = option(
+        600.0, "STEP/IGES: processor time the CAD reader may use (a damaged file can make "
+        "it loop).", unit="s", flag=("--cad-time-limit",), low=0, low_open=True)
     part_materials: dict[str, str] = option(  # noqa: RUF009 - a dataclasses.field
         help="NAME=mirror[:R]|glass[:n]|diffuse[:ρ]|wall|ignore (repeatable).",
         default_factory=dict, flag=("--part-material",), kind="assign",
@@ -338,7 +342,8 @@ def load(opts: SimulateOptions) -> Scene:
                       rayfile_at=opts.rayfile_at, rayfile_axis=opts.rayfile_axis,
                       materials=opts.materials,
                       tessellation=Tessellation(opts.cad_linear_tol_mm,
-                                                opts.cad_angular_tol_deg)))
+                                                opts.cad_angular_tol_deg,
+                                                opts.cad_time_limit_s)))
 
 
 def run_simulation(opts: SimulateOptions, *, progress: Callable[[Any], None] | None = None,

@@ -80,7 +80,12 @@ from lightsim.validation.photo_metrics import (
     fit_photometric,
     to_lux,
 )
-from lightsim.validation.photo_plots import plot_contours, plot_difference, plot_overlay
+from lightsim.validation.photo_plots import (
+    comparison_caption,
+    plot_contours,
+    plot_difference,
+    plot_overlay,
+)
 from lightsim.validation.photo_register import (
     Registration,
     RegistrationOptions,
@@ -544,13 +549,14 @@ def write_outputs(result: Comparison, out_dir: str | os.PathLike) -> dict[str, P
              f" ZNCC {fmt['zncc']}, SSIM {fmt['ssim']}, IoU30 {fmt['iou_30']}")
     credit = result.options.credit
     sim, frame = result.sim.lux, result.sim.frame
+    caption = comparison_caption(result.photo.path, result.sim.source)
     paths = {
         "overlay.png": plot_overlay(out / "overlay.png", result.photo_lux, sim, frame, title,
-                                    credit),
+                                    credit, caption=caption),
         "difference.png": plot_difference(out / "difference.png", result.photo_lux, sim,
-                                          frame, result.clipped, credit),
+                                          frame, result.clipped, credit, caption=caption),
         "contours.png": plot_contours(out / "contours.png", result.photo_lux, sim, frame,
-                                      credit=credit),
+                                      credit=credit, caption=caption),
     }
     write_json(out / "comparison.json", result.to_json())
     paths["comparison.json"] = out / "comparison.json"

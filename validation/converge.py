@@ -57,6 +57,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path, write_text
+from lightsim.io.caption import add_caption, png_metadata, run_text
 from lightsim.io.summary import write_json
 from lightsim.materials import DIFFUSE
 from lightsim.render.frame import luminous
@@ -555,9 +556,20 @@ def plot(result: ConvergeResult, path: str | Path) -> None:
     ax2.xaxis.set_minor_formatter(NullFormatter())  # minor labels overlap on a short span
     ax2.yaxis.set_minor_formatter(NullFormatter())
     ax2.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    caption = converge_caption(result)
+    add_caption(fig, caption)
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
+        fig.savefig(tmp, format="png", dpi=100, metadata=png_metadata(caption))
+
+
+def converge_caption(result: ConvergeResult) -> str:
+    """The plot's caption: target, what the error is against, runs and photons."""
+    photons = [p.photons for p in result.points]
+    span = f"{min(photons):,}–{max(photons):,} photons" if photons else "no runs"
+    against = "a reference run" if result.mode == "reference" else "the exact answer"
+    return run_text(result.target, f"convergence study against {against}",
+                    f"{len(result.points)} runs · {span} · error figure: relative RMSE, "
+                    "lit region")
 
 
 def write_outputs(result: ConvergeResult, out_dir: str | Path) -> dict[str, Path]:

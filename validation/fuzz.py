@@ -59,6 +59,11 @@ parameter                     unit   default     meaning
 ``photons``                   –      20 000      ``simulate --photons`` (and per frame)
 ``resolution``                px     64x32       ``simulate --resolution``
 ``timeout_s``                 s      180         per case; the worker is restarted after it
+                                                 (a CAD case's reader gets a sixth of
+                                                 it in processor seconds, ``simulate
+                                                 --cad-time-limit``: on a busy machine
+                                                 the wall clock runs several times
+                                                 faster than a process's CPU time)
 ``headlight``                 –      False       also mutate the shipped headlight GLB (slow)
 ``command``                   –      –           the command line's entry point, run in the
                                                  worker process (:data:`Command`)
@@ -963,8 +968,9 @@ def lamp_controls(lamp: Path) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------
 
 def case_argv(case: FuzzCase, input_path: Path, out: Path, files: CorpusFiles,
-              photons: int, resolution: str) -> list[str]:
-    """The command line of a file case (not the view's kinds)."""
+              photons: int, resolution: str, cad_time_limit_s: float = 90.0) -> list[str]:
+    """The command line of a file case (not the view's kinds); a CAD case gives the
+    reader ``cad_time_limit_s`` (processor s), well within the case's own time limit."""
     if case.kind == "photo":
         return ["compare", str(input_path), "--sim", str(files.sim), "--out", str(out), "-q"]
     if case.kind == "points":
@@ -974,7 +980,7 @@ def case_argv(case: FuzzCase, input_path: Path, out: Path, files: CorpusFiles,
            resolution, "--quiet", "--out", str(out)]
     if case.kind in ("step", "iges"):
         return ["simulate", str(input_path), "--materials", str(files.cad_maps[case.kind]),
-                *sim]
+                "--cad-time-limit", f"{cad_time_limit_s:g}", *sim]
     if case.kind == "materials":
         return ["simulate", str(files.lamp), "--materials", str(input_path), *sim]
     if case.kind == "zemax":  # ".dat" names no scene: the ray file replaces the emitter
@@ -1195,7 +1201,8 @@ def run_fuzz(n: int, seed: int = 1, kinds: Sequence[str] = KINDS, *, command: Co
             else:
                 if worker is None:
                     worker = _Worker(command)
-                argv = case_argv(case, inp, out, files, photons, resolution)
+                argv = case_argv(case, inp, out, files, photons, resolution,
+                                 cad_time_limit_s=timeout_s / 6)
                 code, lines, failure = worker.run(argv, timeout_s)
                 if failure:
                     verdict, detail = failure, f"after {time.perf_counter() - t0:.0f} s"

@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import binary_dilation, gaussian_filter, map_coordinates
 
 from lightsim.errors import InputError
+from lightsim.io.caption import run_text
 from lightsim.io.summary import write_json
 from lightsim.luminaires.regulations.ruleset import load_ruleset
 from lightsim.validation.photo_io import PhotoImage, read_photo, srgb_encode
@@ -371,10 +372,11 @@ def write_pair(result: PairComparison, out_dir: str | os.PathLike, credit: str |
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
+    a, b = Path(result.paths[0]).name, Path(result.paths[1]).name
+    caption = run_text(f"photo B {b} against photo A {a}", "relative difference (B − A) / A")
     png = plot_pair_difference(out / "relative_difference.png", result.rel_diff,
-                               result.points, result.geometry,
-                               f"{Path(result.paths[1]).name} vs {Path(result.paths[0]).name}",
-                               credit)
+                               result.points, result.geometry, f"{b} vs {a}", credit,
+                               caption=caption)
     write_json(out / "pair.json", result.to_json())
     return {"pair.json": out / "pair.json", "relative_difference.png": png}
 

@@ -28,12 +28,16 @@ sim        lx    required  simulated illuminance
 frame      –     required  wall frame (``docs/reference/conventions.md``)
 credit     –     None      attribution line printed under every figure (e.g. a photo's
                            licence)
+caption    –     None      the run's caption (lamp, seed, photons, error figure, rule sets,
+                           lightsim version) and the photo, under every figure and in its
+                           PNG metadata (:func:`comparison_caption`)
 dpi        px/in 110       resolution
 =========  ====  ========  =================================================================
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -45,13 +49,21 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from numpy.typing import NDArray
 
+import lightsim
+from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.io.caption import add_caption, png_metadata, run_text
+from lightsim.io.exr import read_exr
+from lightsim.io.plots import PlotCaption
 from lightsim.io.png import wall_angles
+from lightsim.io.summary import read_json
+from lightsim.report import plot_caption
 from lightsim.validation.photo_io import srgb_encode
 from lightsim.validation.photo_metrics import LEVELS
 from lightsim.wall import WallFrame
 
-__all__ = ["plot_contours", "plot_difference", "plot_overlay", "plot_pair_difference"]
+__all__ = ["comparison_caption", "plot_contours", "plot_difference", "plot_overlay",
+           "plot_pair_difference", "simulation_caption"]
 
 
 def _figure(size: tuple[float, float]) -> Figure:
@@ -60,13 +72,46 @@ def _figure(size: tuple[float, float]) -> Figure:
     return fig
 
 
-def _save(fig: Figure, path: str | os.PathLike, dpi: int, credit: str | None) -> Path:
-    if credit:
+def _save(fig: Figure, path: str | os.PathLike, dpi: int, credit: str | None,
+          caption: str | None = None) -> Path:
+    """Save atomically with the caption under the axes and in the PNG's metadata (the
+    credit joins the caption, or stands alone in the corner without one)."""
+    if caption:
+        caption = f"{caption}\n{credit}" if credit else caption
+        add_caption(fig, caption)
+    elif credit:
         fig.text(0.995, 0.002, credit, ha="right", va="bottom", fontsize=7, color="0.35")
     p = Path(path)
     with atomic_path(p, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
+        fig.savefig(tmp, format="png", dpi=dpi, metadata=png_metadata(caption))
     return p
+
+
+def simulation_caption(source: str | os.PathLike) -> PlotCaption | None:
+    """The caption of the run a comparison is against: from its ``summary.json`` (lamp,
+    seed, photons, error figure, rule sets, lightsim version) or, without one, from the
+    ``wall_lux.exr`` metadata (lamp, seed, photons, version); None when neither says."""
+    src = Path(source)
+    exr = src if src.suffix.lower() == ".exr" else src / "wall_lux.exr"
+    with contextlib.suppress(InputError, OSError, ValueError, TypeError, AttributeError):
+        summary = read_json(exr.parent / "summary.json")
+        if isinstance(summary, dict):
+            return plot_caption(summary)
+    with contextlib.suppress(InputError, OSError, ValueError, TypeError, KeyError):
+        meta = read_exr(exr)[1]
+        return PlotCaption(lamp=Path(str(meta["source"])).name, seed=int(meta["seed"]),
+                           photons=int(meta["photons"]),
+                           version=str(meta.get("lightsim_version", lightsim.__version__)))
+    return None
+
+
+def comparison_caption(photo: str | os.PathLike, source: str | os.PathLike) -> str:
+    """Caption of a photo comparison's figures: the run's caption and the photo."""
+    cap = simulation_caption(source)
+    photo_line = f"photo: {Path(photo).name}"
+    if cap is None:
+        return run_text(f"simulation {Path(source).name}", "no run metadata", photo_line)
+    return f"{cap.text()}\n{photo_line}"
 
 
 def _axes(frame: dict[str, Any], sim: NDArray) -> tuple[NDArray, NDArray, float, float]:
@@ -102,8 +147,9 @@ def _outline(ax: Any, frame: dict[str, Any], mask: NDArray, **style: Any) -> Non
 
 def plot_overlay(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
                  frame: dict[str, Any], title: str = "", credit: str | None = None,
-                 dpi: int = 110) -> Path:
-    """Write ``overlay.png``: photo, simulation and their colour blend (see module).
+                 dpi: int = 110, caption: str | None = None) -> Path:
+    """Write ``overlay.png``: photo, simulation and their colour blend (see module);
+    ``caption`` (:func:`comparison_caption`) goes under it and into its metadata.
 
     Returns
     -------
@@ -127,13 +173,14 @@ def plot_overlay(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
     _label(axes[2], "blend: simulation green, photo magenta (dashed: edge of the photo)")
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path, dpi, credit)
+    return _save(fig, path, dpi, credit, caption)
 
 
 def plot_difference(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
                     frame: dict[str, Any], clipped: NDArray, credit: str | None = None,
-                    dpi: int = 110) -> Path:
-    """Write ``difference.png``: signed (photo − simulation) in % of the peak.
+                    dpi: int = 110, caption: str | None = None) -> Path:
+    """Write ``difference.png``: signed (photo − simulation) in % of the peak, with
+    ``caption``.
 
     Returns
     -------
@@ -154,13 +201,15 @@ def plot_difference(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
     cbar.set_label("photo − simulation (% of simulation peak)")
     _label(ax, f"signed difference (peak {peak:.3g} lx; grey: no photo or clipped, "
                "outlined: clipped)")
-    return _save(fig, path, dpi, credit)
+    return _save(fig, path, dpi, credit, caption)
 
 
 def plot_contours(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
                   frame: dict[str, Any], levels: Sequence[float] = LEVELS,
-                  credit: str | None = None, dpi: int = 110) -> Path:
-    """Write ``contours.png``: isolux contours of photo (dashed) and simulation (solid).
+                  credit: str | None = None, dpi: int = 110,
+                  caption: str | None = None) -> Path:
+    """Write ``contours.png``: isolux contours of photo (dashed) and simulation (solid),
+    with ``caption``.
 
     Returns
     -------
@@ -184,13 +233,15 @@ def plot_contours(path: str | os.PathLike, photo_lux: NDArray, sim: NDArray,
                 Line2D([], [], color="k", ls="dashed", label="photo")]
     ax.legend(handles=handles, fontsize=8, loc="upper right")
     _label(ax, "isolux contours (levels relative to the simulation's peak)")
-    return _save(fig, path, dpi, credit)
+    return _save(fig, path, dpi, credit, caption)
 
 
 def plot_pair_difference(path: str | os.PathLike, rel_diff: NDArray,
                          points: Sequence[dict[str, Any]] = (), geometry: Any = None,
-                         title: str = "", credit: str | None = None, dpi: int = 110) -> Path:
-    """Write ``relative_difference.png`` of photo B against photo A (``--against``).
+                         title: str = "", credit: str | None = None, dpi: int = 110,
+                         caption: str | None = None) -> Path:
+    """Write ``relative_difference.png`` of photo B against photo A (``--against``),
+    with ``caption`` (the two photos, :func:`lightsim.io.caption.run_text`).
 
     The map is ``(k·B − A)/A`` in % on A's pixel grid (x right, y down, photo px),
     diverging colour map clipped at ±50 %, grey where A is dark or either photo clipped;
@@ -213,4 +264,4 @@ def plot_pair_difference(path: str | os.PathLike, rel_diff: NDArray,
     ax.set_title(title or "relative difference", fontsize=10)
     ax.set_xlabel("x (photo A px)")
     ax.set_ylabel("y (photo A px)")
-    return _save(fig, path, dpi, credit)
+    return _save(fig, path, dpi, credit, caption)

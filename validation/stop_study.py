@@ -46,6 +46,7 @@ from lightsim.engine.config import RunConfig
 from lightsim.engine.server import STOP_ALPHA, MapErrorRule, Session
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path, write_text
+from lightsim.io.caption import add_caption, png_metadata, run_text
 from lightsim.io.summary import write_json
 from lightsim.render.frame import luminous
 from lightsim.render.region import REGIONS, interior
@@ -298,9 +299,15 @@ def plot(study: StopStudy, path: str | Path) -> None:
                  fontsize=9)
     ax.legend(fontsize=8, loc="lower right")
     ax.grid(True, axis="y", alpha=0.3)
-    fig.tight_layout()
+    seeds = sorted({r.seed for r in study.runs})
+    photons = [r.photons for r in study.runs]
+    caption = run_text(", ".join(sorted({r.case for r in study.runs})) or "no case",
+                       "--target-error stopping study",
+                       (f"seeds {seeds[0]}–{seeds[-1]} · {min(photons):,}–{max(photons):,} "
+                        "photons at the stops" if seeds else ""))
+    add_caption(fig, caption)
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
+        fig.savefig(tmp, format="png", dpi=100, metadata=png_metadata(caption))
 
 
 def write_outputs(study: StopStudy, out_dir: str | Path) -> dict[str, Path]:

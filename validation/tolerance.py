@@ -82,6 +82,7 @@ from lightsim.engine.ray_backend import import_ray, init_ray
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
 from lightsim.io.atomic import write_bytes
+from lightsim.io.caption import add_caption, png_metadata, run_text
 from lightsim.io.summary import write_json
 from lightsim.luminaires.regulations import load_ruleset
 from lightsim.luminaires.regulations.check import aperture_config, regulation_check, split_rulesets
@@ -743,6 +744,21 @@ def write_study(study: ToleranceStudy, out_dir: str | os.PathLike) -> list[Path]
     return [out / "tolerance.json", out / "tolerance.csv", out / "tolerance.png"]
 
 
+def tolerance_caption(study: ToleranceStudy) -> str:
+    """The plot's caption: lamp, rule set and version, seed, photons, samples."""
+    photons = "photons until the verdicts settle" if study.photons is None else \
+        f"{study.photons:,} photons per sample"
+    sets = []
+    for rs in split_rulesets(study.regulation):
+        try:
+            sets.append(f"{rs} ({load_ruleset(rs).version})")
+        except InputError:  # a rule set file gone since the study ran
+            sets.append(rs)
+    return run_text(Path(study.scene).name, "tolerance study, rule set " + "; ".join(sets),
+                    f"seed {study.seed} · {photons} · {len(study.samples) - 1} samples · "
+                    f"error figure: {study.confidence:.0%} intervals per sample")
+
+
 def _plot(study: ToleranceStudy, path: Path) -> None:
     import matplotlib
 
@@ -789,8 +805,9 @@ def _plot(study: ToleranceStudy, path: Path) -> None:
                              f"{len(study.samples) - 1} samples (x = nominal; red fails; "
                              "grey: 95 % interval; blue: least-squares slope)",
                              fontsize=7, loc="left")
-    fig.tight_layout()
+    caption = tolerance_caption(study)
+    add_caption(fig, caption)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.savefig(buf, format="png", dpi=90, metadata=png_metadata(caption))
     plt.close(fig)
     write_bytes(path, buf.getvalue())

@@ -23,11 +23,22 @@ angular one the angle between neighbouring facet normals; both are given in CAD 
 (mm, degrees). The beam error they leave on an exact paraboloid is measured by
 ``tests/io/test_cad.py`` and tabulated in ``docs/guides/cad-lamp.md``.
 
+The XCAF reader runs in a child process (a fresh interpreter, ``python -m
+lightsim.io.cad``): OpenCASCADE's parsers can crash on a damaged file (a segmentation
+fault) or loop on it, and either becomes one line here. The child gets a time limit in
+processor seconds (its own CPU time, ``RLIMIT_CPU``, so that a busy machine does not cut
+a sound read short), and, as a safety net, ``WALL_FACTOR`` times that in wall-clock
+time; a file that is sound but large needs a larger one (``simulate
+--cad-time-limit``). A fresh interpreter rather than a fork: a fork of a process whose
+threads (the tracer's, the plot process's pipes) hold locks can deadlock in the child.
+
 =================  =====  =======  =====================================================
 parameter          unit   default  meaning
 =================  =====  =======  =====================================================
 ``linear_tol``     mm     0.01     largest facet-to-surface distance
 ``angular_tol``    deg    2        largest angle between neighbouring facet normals
+``time_limit``     s      600      processor time a CAD read may use before it is given up
+``WALL_FACTOR``    –      10       wall-clock limit = WALL_FACTOR × time_limit + 60 s
 =================  =====  =======  =====================================================
 """
 
@@ -37,12 +48,20 @@ import faulthandler
 import math
 import os
 import pickle
+import signal
+import subprocess
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+try:  # processor-time limits (POSIX); elsewhere the wall-clock limit alone
+    import resource
+except ImportError:  # pragma: no cover - Windows
+    resource = None  # type: ignore[assignment]
 
 from lightsim.errors import InputError
 from lightsim.io.cad_xcaf import have_ocp, read_xcaf
@@ -53,6 +72,8 @@ IGES_SUFFIXES = (".iges", ".igs")
 CAD_SUFFIXES = STEP_SUFFIXES + IGES_SUFFIXES
 DEFAULT_LINEAR_TOL_MM = 0.01
 DEFAULT_ANGULAR_TOL_DEG = 2.0
+DEFAULT_TIME_LIMIT_S = 600.0
+WALL_FACTOR = 10.0
 # IGES global parameter 14: unit flag → metres per unit
 IGES_UNITS_M = {1: 0.0254, 2: 1e-3, 3: None, 4: 0.3048, 5: 1609.344, 6: 1.0, 7: 1000.0,
                 8: 0.0254e-3, 9: 1e-6, 10: 0.01, 11: 0.0254e-6}
@@ -60,10 +81,11 @@ IGES_UNITS_M = {1: 0.0254, 2: 1e-3, 3: None, 4: 0.3048, 5: 1609.344, 6: 1.0, 7: 
 
 @dataclass(frozen=True)
 class Tessellation:
-    """Mesher tolerances (see the module docstring)."""
+    """Mesher tolerances and the reader's time limit (see the module docstring)."""
 
     linear_tol_mm: float = DEFAULT_LINEAR_TOL_MM
     angular_tol_deg: float = DEFAULT_ANGULAR_TOL_DEG
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.linear_tol_mm) and self.linear_tol_mm > 0):
@@ -72,6 +94,9 @@ class Tessellation:
         if not (math.isfinite(self.angular_tol_deg) and 0 < self.angular_tol_deg < 90):
             raise InputError(f"CAD angular tolerance must lie in (0, 90) degrees, got "
                              f"{self.angular_tol_deg}")
+        if not (math.isfinite(self.time_limit_s) and self.time_limit_s > 0):
+            raise InputError(f"CAD time limit must be a positive number of seconds, got "
+                             f"{self.time_limit_s}")
 
 
 def iges_unit_m(data: bytes) -> float:
@@ -200,36 +225,68 @@ def _read_in_child(path: Path, tess: Tessellation) -> tuple[bool, Any]:
                        f"({type(exc).__name__}: {exc})")
 
 
+def _limit_cpu(seconds: float) -> None:
+    """Let this process use ``seconds`` more processor time, then SIGXCPU ends it."""
+    if resource is None:
+        return
+    use = resource.getrusage(resource.RUSAGE_SELF)
+    soft = math.ceil(use.ru_utime + use.ru_stime + seconds)
+    _, hard = resource.getrlimit(resource.RLIMIT_CPU)
+    if hard != resource.RLIM_INFINITY and soft > hard:
+        return
+    resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
+
+
+def _child_main(argv: list[str]) -> int:
+    """The child process: ``PATH LINEAR_TOL ANGULAR_TOL CPU_LIMIT RESULT``; the parts (or
+    the one-line reason) go pickled to RESULT."""
+    path, lin, ang, cpu, result = argv
+    faulthandler.disable()  # a crash is reported by the parent, in one line
+    _limit_cpu(float(cpu))  # counted from here: the imports are not the reader's
+    payload = _read_in_child(Path(path), Tessellation(float(lin), float(ang)))
+    with open(result, "wb") as fh:
+        pickle.dump(payload, fh, pickle.HIGHEST_PROTOCOL)
+    return 0
+
+
 def read_isolated(path: Path, tess: Tessellation) -> list:
-    """:func:`~lightsim.io.cad_xcaf.read_xcaf` in a forked child process: OpenCASCADE's
-    readers can crash the process on a damaged file (a segmentation fault in the STEP or
-    IGES parser), which becomes one line here. Where fork is not available, in process."""
-    if not hasattr(os, "fork"):
-        return read_xcaf(path, tess)
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: read, send the parts, leave without the parent's clean-up
-        code = 1
+    """:func:`~lightsim.io.cad_xcaf.read_xcaf` in a child process with a time limit
+    (``tess.time_limit_s``): a crash of OpenCASCADE's parser on a damaged file, or a
+    read that does not end, becomes one :class:`InputError` line."""
+    fd, result = tempfile.mkstemp(suffix=".pickle", prefix="lightsim-cad-")
+    os.close(fd)
+    # -P: the working folder is not put on the module path (a folder named like a
+    # package there must not shadow lightsim)
+    cmd = [sys.executable, "-P", "-m", "lightsim.io.cad", str(path), repr(tess.linear_tol_mm),
+           repr(tess.angular_tol_deg), repr(tess.time_limit_s), result]
+    too_long = (f"{path}: OpenCASCADE did not finish reading the file within "
+                f"{tess.time_limit_s:g} s of processor time (a damaged file can make its "
+                "reader loop; for a large sound file raise --cad-time-limit)")
+    wall_s = WALL_FACTOR * tess.time_limit_s + 60.0
+    try:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
         try:
-            os.close(r)
-            faulthandler.disable()  # a crash is reported by the parent, in one line
-            data = pickle.dumps(_read_in_child(path, tess), pickle.HIGHEST_PROTOCOL)
-            view = memoryview(data)
-            while view:
-                view = view[os.write(w, view):]
-            code = 0
-        finally:
-            os._exit(code)
-    os.close(w)
-    chunks = []
-    with os.fdopen(r, "rb") as fh:
-        while block := fh.read(1 << 20):
-            chunks.append(block)
-    _, status = os.waitpid(pid, 0)
-    if not chunks or os.waitstatus_to_exitcode(status) != 0:
-        raise InputError(f"{path}: OpenCASCADE crashed reading the file (exit "
-                         f"{os.waitstatus_to_exitcode(status)}): the file is damaged")
-    ok, value = pickle.loads(b"".join(chunks))
+            code = proc.wait(wall_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            raise InputError(f"{too_long[:-1]}; given up after {wall_s:g} s on the "
+                             "clock)") from None
+        except BaseException:  # Ctrl-C: the child goes too
+            proc.kill()
+            proc.wait()
+            raise
+        raw = Path(result).read_bytes() if code == 0 else b""
+    finally:
+        Path(result).unlink(missing_ok=True)
+    if code == -signal.SIGXCPU:
+        raise InputError(too_long)
+    if not raw:
+        how = f"signal {-code}" if code < 0 else f"exit {code}"
+        raise InputError(f"{path}: OpenCASCADE crashed reading the file ({how}): the file "
+                         f"is damaged")
+    ok, value = pickle.loads(raw)
     if not ok:
         raise InputError(value)
     return value
@@ -285,3 +342,7 @@ def read_cad(path: str | os.PathLike, tess: Tessellation | None = None,
     if not parts:
         raise InputError(f"{p}: no surfaces in this CAD file")
     return parts
+
+
+if __name__ == "__main__":  # the reader's child process (read_isolated)
+    sys.exit(_child_main(sys.argv[1:]))

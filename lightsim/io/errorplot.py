@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from lightsim.io.atomic import atomic_path
+from lightsim.io.caption import png_metadata
 
 
 def _loggable(*values: object) -> bool:
@@ -95,4 +96,4 @@ def error_vs_time_plot(path: str | os.PathLike, log: Sequence[dict[str, Any]],
     fig.subplots_adjust(left=0.062, right=0.988, bottom=bottom,
                         top=0.86 if title else 0.955, wspace=0.19)
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
+        fig.savefig(tmp, format="png", dpi=100, metadata=png_metadata(caption))

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from lightsim.io.atomic import atomic_path
+from lightsim.io.caption import add_caption, png_metadata
 
 __all__ = ["image_problem", "placeholder_png"]
 
@@ -60,8 +61,10 @@ def image_problem(image: ArrayLike, *, what: str = "illuminance", contours: bool
 
 
 def placeholder_png(path: str | os.PathLike, message: str, *, title: str | None = None,
-                    figsize: tuple[float, float] = (8.0, 5.0), dpi: float = 100.0) -> Path:
-    """Write an image that says ``message`` instead of a plot (atomically)."""
+                    figsize: tuple[float, float] = (8.0, 5.0), dpi: float = 100.0,
+                    caption: str | None = None) -> Path:
+    """Write an image that says ``message`` instead of a plot (atomically), with the
+    run's ``caption`` (:mod:`lightsim.io.caption`) when given."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -73,7 +76,10 @@ def placeholder_png(path: str | os.PathLike, message: str, *, title: str | None 
             transform=ax.transAxes, fontsize=12, color="0.3", wrap=True)
     if title:
         ax.set_title(title)
+    add_caption(fig, caption)
     p = Path(path)
+    fmt = p.suffix.lstrip(".").lower() or "png"
     with atomic_path(p, suffix=p.suffix or ".png") as tmp:
-        fig.savefig(tmp, format=(p.suffix.lstrip(".").lower() or "png"), dpi=dpi)
+        fig.savefig(tmp, format=fmt, dpi=dpi,
+                    metadata=png_metadata(caption) if fmt == "png" else None)
     return p

@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import io
 import os
-import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -60,6 +59,7 @@ from numpy.typing import ArrayLike
 import lightsim
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.io.caption import add_caption, png_metadata
 from lightsim.io.contour_noise import smoothed_for_levels
 from lightsim.io.placeholder import image_problem, placeholder_png
 from lightsim.render.road import road_illuminance
@@ -125,17 +125,14 @@ class PlotCaption:
         return cls(**d)
 
 
+def _caption_text(caption: Any) -> str | None:
+    cap = PlotCaption.from_any(caption)
+    return None if cap is None else cap.text()
+
+
 def _caption(fig: Any, caption: Any) -> None:
     """Write ``caption`` under the figure's axes (constrained layout makes room)."""
-    cap = PlotCaption.from_any(caption)
-    if cap is not None:  # lines of 7 pt at the bottom, kept out of the layout's rect
-        width = max(int(fig.get_figwidth() * 17.0), 40)  # characters of 7 pt per line
-        lines = [w for line in cap.text().splitlines()
-                 for w in textwrap.wrap(line, width, subsequent_indent="  ")]
-        frac = (0.06 + 0.14 * len(lines)) / fig.get_figheight()
-        fig.get_layout_engine().set(rect=(0.0, frac, 1.0, 1.0 - 2.0 * frac))
-        fig.text(0.01, 0.008, "\n".join(lines), fontsize=7, color="0.3", ha="left",
-                 va="bottom")
+    add_caption(fig, _caption_text(caption))
 
 
 def place_labels(ax: Any, items: Sequence[tuple[str, float, float, Any]], *,
@@ -309,11 +306,13 @@ def warm_up() -> None:
     fig.savefig(io.BytesIO(), format="png", dpi=50)
 
 
-def _save(fig: Any, path: str | os.PathLike, dpi: int) -> Path:
+def _save(fig: Any, path: str | os.PathLike, dpi: int, caption: Any = None) -> Path:
+    """Save atomically; a PNG carries the caption in its metadata too."""
     p = Path(path)
     fmt = p.suffix.lstrip(".").lower() or "png"
+    meta = png_metadata(_caption_text(caption)) if fmt == "png" else None
     with atomic_path(p) as tmp:
-        fig.savefig(tmp, format=fmt, dpi=dpi)
+        fig.savefig(tmp, format=fmt, dpi=dpi, metadata=meta)
     return p
 
 
@@ -376,7 +375,8 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     problem = image_problem(lux, contours=True)
     if problem is not None:  # a plot that cannot show anything says so
         WallFrame.from_any(frame).check_image(lux)
-        return placeholder_png(path, problem, title=title or "iso-lux on the wall", dpi=dpi)
+        return placeholder_png(path, problem, title=title or "iso-lux on the wall", dpi=dpi,
+                               caption=_caption_text(caption))
     wf = WallFrame.from_any(frame)
     img = np.nan_to_num(wf.check_image(lux), nan=0.0)
     h = wf.h_deg()
@@ -485,7 +485,7 @@ def isolux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     renderer = fig.canvas.get_renderer()
     place_labels(ax, labels, avoid=[b.get_window_extent(renderer)
                                     for b in [*boxes, *line_labels]], halo=halo)
-    return _save(fig, path, dpi)
+    return _save(fig, path, dpi, caption)
 
 
 def _freeze_layout(fig: Any) -> None:
@@ -549,7 +549,7 @@ def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame:
     problem = image_problem(road.lux if road is not None else lux, contours=True)
     if problem is not None and (road is not None or lux is not None):
         placeholder_png(path, problem, title=title or "road illuminance",
-                        figsize=figsize or (6.0, 9.0), dpi=dpi)
+                        figsize=figsize or (6.0, 9.0), dpi=dpi, caption=_caption_text(caption))
         return road
     if road is None:
         road = road_view_data(lux, frame, mount_height_m=mount_height_m,
@@ -609,7 +609,7 @@ def road_view_plot(path: str | os.PathLike, lux: ArrayLike | None = None, frame:
     ax.set_title(title or f"Road illuminance, lamp at {road.mount_height_m:g} m\n{sub}",
                  fontsize=10)
     _caption(fig, caption)
-    _save(fig, path, dpi)
+    _save(fig, path, dpi, caption)
     return road
 
 
@@ -654,7 +654,7 @@ def wall_lux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     if problem is not None:
         WallFrame.from_any(frame).check_image(lux)
         return placeholder_png(path, problem, title=title or "illuminance on the wall",
-                               dpi=dpi)
+                               dpi=dpi, caption=_caption_text(caption))
     wf = WallFrame.from_any(frame)
     img = wf.check_image(lux).astype(np.float64)
     h, v = wf.h_deg(), wf.v_deg()
@@ -712,4 +712,4 @@ def wall_lux_plot(path: str | os.PathLike, lux: ArrayLike, frame: Any,
     _caption(fig, caption)
     _freeze_layout(fig)
     place_labels(ax, labels, halo=halo)
-    return _save(fig, path, dpi)
+    return _save(fig, path, dpi, caption)

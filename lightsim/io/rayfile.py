@@ -179,16 +179,24 @@ def read_tm25(path: str | os.PathLike) -> RayFile:
             raise InputError(f"{p}: TM-25 version {version} (only 2013 is defined)")
         if flags[0] != 1 or flags[1] != 1 or any(x not in (0, 1) for x in flags[2:]):
             raise InputError(f"{p}: corrupt TM-25 data flags {list(flags)}")
-        if n_spectra < 0 or n_extra < 0 or text_bytes < 0 or text_bytes % 32:
+        size = os.fstat(f.fileno()).st_size
+        # counts the file cannot hold are refused before any loop runs over them
+        if (n_spectra < 0 or n_extra < 0 or text_bytes < 0 or text_bytes % 32
+                or n_spectra > size // 12 or n_extra > size // TM25_COLUMN_NAME_BYTES
+                or text_bytes > size):
             raise InputError(f"{p}: corrupt TM-25 header (tables {n_spectra}, extra items "
-                             f"{n_extra}, text {text_bytes} bytes)")
+                             f"{n_extra}, text {text_bytes} bytes, in a file of {size} "
+                             "bytes)")
         rad, wavel, lum, stokes, tri, spec_idx = (bool(x) for x in flags[2:])
         if not (rad or lum):
             raise InputError(f"{p}: TM-25 file has neither radiant nor luminous flux")
         texts = [_utf32(f.read(TM25_TEXT_BYTES)) for _ in range(TM25_TEXTS)]
         nbytes = 0
         for _ in range(n_spectra):  # spectral tables: skipped (one luminous channel)
-            (n_pairs,) = struct.unpack("<i", f.read(4))
+            raw = f.read(4)
+            if len(raw) < 4:
+                raise InputError(f"{p}: TM-25 file ends inside its spectral tables")
+            (n_pairs,) = struct.unpack("<i", raw)
             if n_pairs <= 0:
                 raise InputError(f"{p}: corrupt TM-25 spectral table ({n_pairs} pairs)")
             f.seek(8 * n_pairs, os.SEEK_CUR)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from lightsim.io.atomic import atomic_path
+from lightsim.io.caption import add_caption, png_metadata
 from lightsim.render.road_course import (
     EDGE_LEVELS_LUX,
     LampPair,
@@ -44,8 +45,11 @@ LABELS = {"right_edge": "right edge (0.25 m)", "left_edge": "left edge (0.25 m)"
 
 
 def plot_approach(path: Path, curves: Sequence[SensorCurve], lamps: LampPair,
-                  lane_width: float, glare_limit: float, confidence: float = 0.95) -> Path:
-    """Draw one approach (see the module docstring) to ``path`` atomically."""
+                  lane_width: float, glare_limit: float, confidence: float = 0.95,
+                  caption: str | None = None) -> Path:
+    """Draw one approach (see the module docstring) to ``path`` atomically, with the
+    run's ``caption`` (:class:`lightsim.io.plots.PlotCaption` text) under it and in the
+    PNG's metadata."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -114,7 +118,8 @@ def plot_approach(path: Path, curves: Sequence[SensorCurve], lamps: LampPair,
     ax_e.grid(True, which="both", alpha=0.3)
     ax_e.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
+    add_caption(fig, caption)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=DPI)
+        fig.savefig(tmp, dpi=DPI, metadata=png_metadata(caption))
     plt.close(fig)
     return path

@@ -17,8 +17,10 @@ import pytest
 from lightsim.cli.main import main
 from lightsim.validation.fuzz import (
     SIM_OUTPUTS,
+    CorpusFiles,
     FuzzCase,
     build_corpus,
+    case_argv,
     inspect_output,
     judge,
     kill_during_write,
@@ -163,3 +165,14 @@ def test_fuzz_corpus_of_every_kind_is_built(tmp_path):
                                           "state", "ws"]
     assert files.lamp.is_file() and files.photo.is_file() and files.sim.is_dir()
     assert all(c.data for c in cases if c.kind != "points")
+
+
+def test_cad_cases_give_the_reader_its_own_limit(tmp_path):
+    """A STEP/IGES case's reader is stopped (one line, exit 2) well within the case's own
+    time limit, so a file that keeps OpenCASCADE reading is judged, not timed out."""
+    case = FuzzCase(0, "step", "test", "x.step", b"")
+    files = CorpusFiles(tmp_path, cad_maps={"step": tmp_path / "m.toml"})
+    argv = case_argv(case, tmp_path / "x.step", tmp_path / "out", files, 1000, "16x8",
+                     cad_time_limit_s=90.0)
+    assert argv[argv.index("--cad-time-limit") + 1] == "90"
+    assert argv[:2] == ["simulate", str(tmp_path / "x.step")]
