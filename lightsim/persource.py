@@ -14,12 +14,18 @@ exactly, so it needs nothing from the tracer.
 Each group's wall photons are counted per pixel (:class:`PerSourceSums`: ΣΦ and ΣΦ² per
 group and pixel, float64): the map is the pixel mean ΣΦ / (N·ΔA) — unbiased, no blur —
 and its variance per pixel is (ΣΦ² − (ΣΦ)²/N) / (N·ΔA)², the photons being independent.
-Memory grows with groups × pixels (2 × 8 bytes each), not with photons; only runs that
-ask for it (``--per-source``) keep it.
+Every interleave set also keeps its all-group pixel sums exactly as the binning estimator
+keeps its own (the same additions in the same order). Memory grows with groups × pixels
+(2 × 8 bytes each) plus sets × pixels (8 bytes per channel), not with photons; only runs
+that ask for it (``--per-source``) keep it.
 
 The written maps are float32. The all-on map (channel ``Y`` of ``per_source.exr``) is the
-sum of the group channels as written, in group order, in float32 (:func:`compose` with
-every weight 1): the sum of the channels read back equals it bit for bit.
+map a plain ``--estimator bin`` run of the same photons writes, bit for bit (the session
+repeats that estimator's operations on the sets' sums). The group channels are split from
+it (:func:`split_exactly`): each pixel's shares are whole multiples of the float32 spacing
+at its total, so the channels read back add up to ``Y`` exactly in float32, in any order
+(:func:`compose` with every weight 1), and a share is within that spacing (≈ 6e-8 × the
+pixel's all-on value) of its group's own pixel mean.
 
 =====================  ======  ==========================================================
 quantity               unit    meaning
