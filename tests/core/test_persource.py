@@ -34,11 +34,12 @@ def matrix_scene():
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """The shipped matrix lamp, once with --per-source (kNN map) and once binned, same
-    photons and seed."""
+    photons and seed, in several frames."""
     base = tmp_path_factory.mktemp("persource")
     out = {}
-    for name, per_source, config in (("per_source", True, {}),
-                                     ("binned", False, {"estimator": "bin"})):
+    for name, per_source, config in (("per_source", True, {"frame_photons": 20_000}),
+                                     ("binned", False, {"estimator": "bin",
+                                                        "frame_photons": 20_000})):
         opts = SimulateOptions(scene_path=str(MATRIX), photons=60_000, out_dir=str(base / name),
                                resolution=(64, 32), per_source=per_source,
                                outputs=("exr", "json"), config=config)
@@ -92,7 +93,8 @@ def test_all_on_equals_a_plain_binned_run_bit_for_bit(runs):
     ch, meta = read_exr(runs["per_source"].out_dir / "per_source.exr")
     binned, _ = read_exr(runs["binned"].out_dir / "wall_lux.exr")
     y = binned["Y"]
-    assert y.max() > 10
+    assert y.max() > 10 and runs["binned"].summary["frames"] > 1
+    assert runs["per_source"].summary["photons"] == runs["binned"].summary["photons"]
     assert np.array_equal(ch[ALL_ON], y)
     for order in (meta["groups"], meta["groups"][::-1]):  # any order adds up exactly
         total = np.zeros_like(y)
