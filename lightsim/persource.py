@@ -30,11 +30,13 @@ pixel's all-on value) of its group's own pixel mean.
 =====================  ======  ==========================================================
 quantity               unit    meaning
 =====================  ======  ==========================================================
-``lux``                lx      (G, H, W) per-group pixel means, float32
+``lux``                lx      (G, H, W) per-group pixel means split exactly from the
+                               all-on map (:func:`split_exactly`), float32
 ``variance``           lx²     (G, H, W) their variances, float32
 ``photons``            –       N, photons emitted over all interleave sets
 ``lit_fraction``       –       0.1: a group's error figure covers its pixels ≥ this × its
                                maximum
+``split_cells``        –       2¹⁸: group × pixel cells split at once (bounds the memory)
 =====================  ======  ==========================================================
 
 Files (``simulate --per-source``): ``per_source.exr`` (a channel per group, named as the
@@ -60,6 +62,7 @@ ALL_ON = "Y"
 MAP_FILE = "per_source.exr"
 VARIANCE_FILE = "per_source_var.exr"
 LIT_FRACTION = 0.1
+SPLIT_CELLS = 1 << 18  # group × pixel cells split_exactly handles at once (memory bound)
 
 
 def group_name(part: Any) -> str:
@@ -300,11 +303,21 @@ def split_exactly(parts: np.ndarray, total: np.ndarray) -> np.ndarray:
     the total, so float32 adds them without rounding. A share moves by less than q
     (≈ 6e-8 × the pixel's total) from its part.
     """
-    parts = np.maximum(np.asarray(parts, np.float64), 0.0)
+    parts = np.asarray(parts, np.float64)
     total = np.asarray(total, np.float32)
+    out = np.zeros(parts.shape, np.float32)
+    if parts.shape[0] == 0:
+        return out
+    rows = max(1, SPLIT_CELLS // max(parts.shape[0] * int(np.prod(parts.shape[2:])), 1))
+    for r in range(0, parts.shape[1], rows):  # a block of rows at a time: bounded memory
+        out[:, r:r + rows] = _split_block(np.maximum(parts[:, r:r + rows], 0.0),
+                                          total[r:r + rows])
+    return out
+
+
+def _split_block(parts: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """:func:`split_exactly` of one block of rows."""
     G = parts.shape[0]
-    if G == 0:
-        return np.zeros_like(parts, np.float32)
     q = np.spacing(total).astype(np.float64)  # > 0, also at a zero total
     K = np.where(total > 0, np.round(total.astype(np.float64) / q), 0.0)
     s = parts.sum(axis=0)

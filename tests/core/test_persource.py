@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lightsim import persource
 from lightsim.emitters import EmitterMix
 from lightsim.errors import InputError
 from lightsim.io.exr import read_exr
@@ -101,6 +102,16 @@ def test_all_on_equals_a_plain_binned_run_bit_for_bit(runs):
         for n in order:
             total += ch[n]
         assert np.array_equal(total, y)
+
+
+def test_split_exactly_in_blocks_of_rows(monkeypatch):
+    """Split a block of rows at a time: the same shares as in one block."""
+    rng = np.random.default_rng(5)
+    parts = rng.uniform(0, 1, (16, 12, 9)) ** 3 * 50.0
+    total = parts.sum(axis=0).astype(np.float32)
+    whole = split_exactly(parts, total)
+    monkeypatch.setattr(persource, "SPLIT_CELLS", 100)  # a row per block
+    assert np.array_equal(split_exactly(parts, total), whole)
 
 
 def test_split_exactly_edges():
