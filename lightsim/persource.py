@@ -14,21 +14,29 @@ exactly, so it needs nothing from the tracer.
 Each group's wall photons are counted per pixel (:class:`PerSourceSums`: ΣΦ and ΣΦ² per
 group and pixel, float64): the map is the pixel mean ΣΦ / (N·ΔA) — unbiased, no blur —
 and its variance per pixel is (ΣΦ² − (ΣΦ)²/N) / (N·ΔA)², the photons being independent.
-Memory grows with groups × pixels (2 × 8 bytes each), not with photons; only runs that
-ask for it (``--per-source``) keep it.
+Every interleave set also keeps its all-group pixel sums exactly as the binning estimator
+keeps its own (the same additions in the same order). Memory grows with groups × pixels
+(2 × 8 bytes each) plus sets × pixels (8 bytes per channel), not with photons; only runs
+that ask for it (``--per-source``) keep it.
 
 The written maps are float32. The all-on map (channel ``Y`` of ``per_source.exr``) is the
-sum of the group channels as written, in group order, in float32 (:func:`compose` with
-every weight 1): the sum of the channels read back equals it bit for bit.
+map a plain ``--estimator bin`` run of the same photons writes, bit for bit (the session
+repeats that estimator's operations on the sets' sums). The group channels are split from
+it (:func:`split_exactly`): each pixel's shares are whole multiples of the float32 spacing
+at its total, so the channels read back add up to ``Y`` exactly in float32, in any order
+(:func:`compose` with every weight 1), and a share is within that spacing (≈ 6e-8 × the
+pixel's all-on value) of its group's own pixel mean.
 
 =====================  ======  ==========================================================
 quantity               unit    meaning
 =====================  ======  ==========================================================
-``lux``                lx      (G, H, W) per-group pixel means, float32
+``lux``                lx      (G, H, W) per-group pixel means split exactly from the
+                               all-on map (:func:`split_exactly`), float32
 ``variance``           lx²     (G, H, W) their variances, float32
 ``photons``            –       N, photons emitted over all interleave sets
 ``lit_fraction``       –       0.1: a group's error figure covers its pixels ≥ this × its
                                maximum
+``split_cells``        –       2¹⁸: group × pixel cells split at once (bounds the memory)
 =====================  ======  ==========================================================
 
 Files (``simulate --per-source``): ``per_source.exr`` (a channel per group, named as the
@@ -54,6 +62,7 @@ ALL_ON = "Y"
 MAP_FILE = "per_source.exr"
 VARIANCE_FILE = "per_source_var.exr"
 LIT_FRACTION = 0.1
+SPLIT_CELLS = 1 << 18  # group × pixel cells split_exactly handles at once (memory bound)
 
 
 def group_name(part: Any) -> str:
@@ -168,10 +177,20 @@ class PerSourceSums:
         self.shape = (len(groups), int(H), int(W))
         self.power = np.zeros(int(np.prod(self.shape)))
         self.square = np.zeros_like(self.power)
+        self.sets: dict[int, np.ndarray] = {}  # set → (H, W, C) all-group sums (set_sums)
 
     @property
     def nbytes(self) -> int:
-        return self.power.nbytes + self.square.nbytes
+        return (self.power.nbytes + self.square.nbytes
+                + sum(a.nbytes for a in self.sets.values()))
+
+    def set_sums(self, s: int, channels: int) -> np.ndarray:
+        """Set ``s``'s (H, W, C) pixel sums of every group's wall photons (lm), kept as the
+        binning estimator keeps its own, so the all-on map can be that estimator's."""
+        if s not in self.sets:
+            _, H, W = self.shape
+            self.sets[s] = np.zeros((H, W, int(channels)))
+        return self.sets[s]
 
     def add(self, group: np.ndarray, h: np.ndarray, v: np.ndarray, power: np.ndarray) -> None:
         """Add wall photons: group index (n,), wall coordinates h, v (n,) m, luminous
@@ -189,6 +208,7 @@ class PerSourceSums:
     def reset(self) -> None:
         self.power[:] = 0.0
         self.square[:] = 0.0
+        self.sets.clear()
 
 
 @dataclass
@@ -203,8 +223,11 @@ class PerSourceMaps:
 
     @classmethod
     def from_sums(cls, names: tuple[str, ...], power: np.ndarray, square: np.ndarray,
-                  photons: int, frame: WallFrame) -> PerSourceMaps:
-        """The maps of summed :class:`PerSourceSums` arrays after ``photons`` photons."""
+                  photons: int, frame: WallFrame,
+                  all_on: np.ndarray | None = None) -> PerSourceMaps:
+        """The maps of summed :class:`PerSourceSums` arrays after ``photons`` photons;
+        with ``all_on`` (H, W) float32, the group maps are split from it
+        (:func:`split_exactly`) so that they add up to it exactly."""
         G = len(names)
         W, H = frame.resolution
         dh, dv = frame.pixel_size_m
@@ -214,8 +237,8 @@ class PerSourceMaps:
         q = np.asarray(square, np.float64).reshape(G, H, W)
         lux = p / (n * area)
         var = np.maximum(q - p * p / n, 0.0) / (float(n) * n * area * area)
-        return cls(tuple(names), lux.astype(np.float32), var.astype(np.float32),
-                   int(photons), frame.to_dict())
+        maps = lux.astype(np.float32) if all_on is None else split_exactly(lux, all_on)
+        return cls(tuple(names), maps, var.astype(np.float32), int(photons), frame.to_dict())
 
     def index(self, name: str) -> int:
         if name not in self.names:
@@ -267,6 +290,49 @@ class PerSourceMaps:
                 "estimator": "pixel means (photons counted per pixel: unbiased, no blur)",
                 "photons": self.photons, "all_on_channel": ALL_ON,
                 "groups": self.group_errors()}
+
+
+def split_exactly(parts: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """(G, H, W) float32 shares of ``total`` (H, W) float32 in proportion to ``parts``
+    (G, H, W) float64 (≥ 0), adding up to ``total`` exactly in float32, in any order.
+
+    Each pixel's shares are whole multiples of q, the float32 spacing at the pixel's total
+    (the total is a whole multiple K of q, K < 2²⁴): the parts in units of q, scaled to sum
+    to K, are floored and the missing units go to the largest remainders (then any unit
+    still off to the largest share). Every partial sum is a multiple of q no larger than
+    the total, so float32 adds them without rounding. A share moves by less than q
+    (≈ 6e-8 × the pixel's total) from its part.
+    """
+    parts = np.asarray(parts, np.float64)
+    total = np.asarray(total, np.float32)
+    out = np.zeros(parts.shape, np.float32)
+    if parts.shape[0] == 0:
+        return out
+    rows = max(1, SPLIT_CELLS // max(parts.shape[0] * int(np.prod(parts.shape[2:])), 1))
+    for r in range(0, parts.shape[1], rows):  # a block of rows at a time: bounded memory
+        out[:, r:r + rows] = _split_block(np.maximum(parts[:, r:r + rows], 0.0),
+                                          total[r:r + rows])
+    return out
+
+
+def _split_block(parts: np.ndarray, total: np.ndarray) -> np.ndarray:
+    """:func:`split_exactly` of one block of rows."""
+    G = parts.shape[0]
+    q = np.spacing(total).astype(np.float64)  # > 0, also at a zero total
+    K = np.where(total > 0, np.round(total.astype(np.float64) / q), 0.0)
+    s = parts.sum(axis=0)
+    units = np.where(s > 0, parts * (K / np.where(s > 0, s, 1.0)), 0.0)
+    units[:, (s == 0) & (K > 0)] = K[(s == 0) & (K > 0)] / G  # no part: an even split
+    whole = np.floor(units)
+    missing = K - whole.sum(axis=0)  # 0 ≤ missing ≤ G, up to rounding
+    rank = np.argsort(np.argsort(-(units - whole), axis=0, kind="stable"), axis=0,
+                      kind="stable")
+    whole += rank < np.clip(missing, 0, G)
+    off = K - whole.sum(axis=0)  # what rounding left: onto the largest share
+    if np.any(off != 0):
+        top = np.argmax(whole, axis=0)
+        np.put_along_axis(whole, top[None], np.take_along_axis(whole, top[None], 0) + off, 0)
+    return (whole * q).astype(np.float32)
 
 
 def compose(maps: np.ndarray, weights: np.ndarray) -> np.ndarray:

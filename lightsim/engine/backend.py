@@ -37,8 +37,9 @@ class Backend(Protocol):
     def stats(self) -> dict[int, dict[str, Any]]:
         """Per-set counters and bookkeeping (unnormalised ledger), in set order."""
 
-    def per_source(self) -> list[tuple[np.ndarray, np.ndarray] | None]:
-        """Each client's ΣΦ, ΣΦ² per emitter group and pixel (``--per-source``), or None."""
+    def per_source(self) -> list[tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]] | None]:
+        """Each client's ΣΦ, ΣΦ² per emitter group and pixel and its sets' all-group pixel sums
+        (``--per-source``), or None."""
 
     def apertures(self) -> dict[int, np.ndarray | None]:
         """Per-set detector-aperture counts, in set order."""

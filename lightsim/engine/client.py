@@ -189,10 +189,11 @@ class Client:
     def stats(self) -> dict[int, dict[str, Any]]:
         return self.photons.stats()
 
-    def per_source(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """ΣΦ, ΣΦ² per emitter group and pixel over the owned sets (``--per-source``)."""
+    def per_source(self) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]] | None:
+        """ΣΦ, ΣΦ² per emitter group and pixel over the owned sets, and every owned set's
+        all-group pixel sums as the binning estimator keeps them (``--per-source``)."""
         ps = self.photons.per_source
-        return None if ps is None else (ps.power, ps.square)
+        return None if ps is None else (ps.power, ps.square, dict(ps.sets))
 
     def apertures(self) -> dict[int, np.ndarray | None]:
         return self.photons.apertures()

@@ -52,7 +52,7 @@ class LocalBackend:
             out.update(c.stats())
         return dict(sorted(out.items()))
 
-    def per_source(self) -> list[tuple[np.ndarray, np.ndarray] | None]:
+    def per_source(self) -> list[tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]] | None]:
         return [c.per_source() for c in self.clients]
 
     def apertures(self) -> dict[int, Any]:

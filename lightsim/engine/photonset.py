@@ -472,6 +472,10 @@ class PhotonSets:
         if self.per_source is not None:  # the group from the emitted photon's sample point
             self.per_source.add(self.per_source.groups.of_points(points)[rec.source[wall.index]],
                                 wall.h, wall.v, luminous(rec.power[wall.index]))
+            for g, s in enumerate(self.set_indices):  # the binning estimator's own sums
+                sl, idx = wall.span(int(bounds[g]), int(bounds[g + 1]))
+                self._add_to_pixels(self.per_source.set_sums(s, self.channels), wall.h[sl],
+                                    wall.v[sl], rec.power[idx].astype(np.float64))
         if cells is not None:
             self._guide_learn(rec, bounds, offsets, cells,
                               wall if wall is not None else _WallHits(self, rec))
@@ -723,10 +727,16 @@ class PhotonSets:
                      power: np.ndarray) -> None:
         """Add wall photons (h, v in m; power (n, C) lm) to their pixels (the binning
         estimator)."""
+        self._add_to_pixels(st.bins, h, v, power)
+
+    def _add_to_pixels(self, store: np.ndarray, h: np.ndarray, v: np.ndarray,
+                       power: np.ndarray) -> None:
+        """Add wall photons (h, v in m; power (n, C) lm) to the (H, W, C) pixel sums
+        ``store``: the binning estimator's additions, also kept by ``--per-source`` runs."""
         W, H = self.frame.resolution
         row, col = self.frame.pixel_index(h, v)
         ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
-        add_to_cells(st.bins.reshape(W * H, self.channels), row[ok] * W + col[ok], power[ok])
+        add_to_cells(store.reshape(W * H, self.channels), row[ok] * W + col[ok], power[ok])
 
     def _add_to_lattice(self, st: SetState, h: np.ndarray, v: np.ndarray,
                         power: np.ndarray) -> None:

@@ -293,7 +293,7 @@ def _actor_class():
         def apertures(self) -> dict[int, np.ndarray | None]:
             return self.client.apertures()
 
-        def per_source(self) -> tuple[np.ndarray, np.ndarray] | None:
+        def per_source(self) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]] | None:
             return self.client.per_source()
 
         def paths(self) -> dict[int, Any]:
@@ -490,7 +490,7 @@ class RayBackend:
             out.update(r)
         return dict(sorted(out.items()))
 
-    def per_source(self) -> list[tuple[np.ndarray, np.ndarray] | None]:
+    def per_source(self) -> list[tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]] | None]:
         return list(self._call_all(lambda a: a.per_source.remote()))
 
     def apertures(self) -> dict[int, Any]:

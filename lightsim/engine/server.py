@@ -653,8 +653,32 @@ class Session:
             return None
         power = np.sum([p[0] for p in parts], axis=0) if len(parts) > 1 else parts[0][0]
         square = np.sum([p[1] for p in parts], axis=0) if len(parts) > 1 else parts[0][1]
+        sets = {s: sums for p in parts for s, sums in p[2].items()}
         return PerSourceMaps.from_sums(group_names(self.scene), power, square,
-                                       self.photons_emitted(), self.scene.wall)
+                                       self.photons_emitted(), self.scene.wall,
+                                       all_on=self._binned_map(sets))
+
+    def _binned_map(self, sets: dict[int, np.ndarray]) -> np.ndarray:
+        """(H, W) float32 lx: the map a plain ``--estimator bin`` run of the same photons
+        writes, from every set's pixel sums (H, W, C) by the same operations — each set's
+        estimate at the pixel centres in float32, pooled with the sets' photon counts,
+        luminous — so it equals that run's ``wall_lux.exr`` bit for bit."""
+        frame = self.scene.wall
+        emitted = self.emitted_per_set()
+        dh, dv = frame.pixel_size_m
+        h_all, v_all = frame.pixel_centres()
+        hh, vv = np.meshgrid(h_all, v_all)
+        h, v = frame.to_hv(frame.to_world(hh, vv).reshape(-1, 3))
+        row, col = frame.pixel_index(h, v, clip=True)
+        W, H = frame.resolution
+        C = next(iter(sets.values())).shape[-1] if sets else 1
+        fulls = {}
+        for s in emitted:
+            bins = sets.get(s)
+            full = (np.zeros((H, W, C)) if emitted[s] == 0 or bins is None else
+                    normalise_flux(bins[row, col], emitted[s], dh, dv).reshape(H, W, C))
+            fulls[s] = full.astype(np.float32)  # as a set's frame travels (SetFrame.for_wire)
+        return luminous(pool_full_images(fulls, emitted)).astype(np.float32)
 
     def emitted_per_set(self) -> dict[int, int]:
         """Photons each set has emitted, keyed by set."""

@@ -1,5 +1,5 @@
 """Per-source maps (lightsim.persource, simulate --per-source): the emitter group of every
-photon, superposition bit for bit, agreement with a plain binning run, memory."""
+photon, superposition bit for bit, the all-on map equal to a plain binning run's, memory."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lightsim import persource
 from lightsim.emitters import EmitterMix
 from lightsim.errors import InputError
 from lightsim.io.exr import read_exr
@@ -17,6 +18,7 @@ from lightsim.persource import (
     PerSourceSums,
     compose,
     read_per_source,
+    split_exactly,
 )
 from lightsim.sampling import digit_permutations, halton_points
 from lightsim.scene import SceneSettings, load_scene
@@ -33,11 +35,12 @@ def matrix_scene():
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """The shipped matrix lamp, once with --per-source (kNN map) and once binned, same
-    photons and seed."""
+    photons and seed, in several frames."""
     base = tmp_path_factory.mktemp("persource")
     out = {}
-    for name, per_source, config in (("per_source", True, {}),
-                                     ("binned", False, {"estimator": "bin"})):
+    for name, per_source, config in (("per_source", True, {"frame_photons": 20_000}),
+                                     ("binned", False, {"estimator": "bin",
+                                                        "frame_photons": 20_000})):
         opts = SimulateOptions(scene_path=str(MATRIX), photons=60_000, out_dir=str(base / name),
                                resolution=(64, 32), per_source=per_source,
                                outputs=("exr", "json"), config=config)
@@ -85,14 +88,55 @@ def test_superposition_is_bit_for_bit(runs):
     assert np.array_equal(compose(maps.lux, np.ones(len(names))), ch[ALL_ON])
 
 
-def test_all_on_agrees_with_a_plain_binned_run(runs):
-    """The same photons counted per pixel by the plain binning estimator: the same map to
-    float32 rounding (the sums are only added in another order)."""
-    ch, _ = read_exr(runs["per_source"].out_dir / "per_source.exr")
+def test_all_on_equals_a_plain_binned_run_bit_for_bit(runs):
+    """The same photons counted per pixel by the plain binning estimator: its map, bit for
+    bit, is the all-on channel and the float32 sum of the group channels as read back."""
+    ch, meta = read_exr(runs["per_source"].out_dir / "per_source.exr")
     binned, _ = read_exr(runs["binned"].out_dir / "wall_lux.exr")
     y = binned["Y"]
-    assert y.max() > 10
-    np.testing.assert_allclose(ch[ALL_ON], y, rtol=2e-6, atol=2e-6 * y.max())
+    assert y.max() > 10 and runs["binned"].summary["frames"] > 1
+    assert runs["per_source"].summary["photons"] == runs["binned"].summary["photons"]
+    assert np.array_equal(ch[ALL_ON], y)
+    for order in (meta["groups"], meta["groups"][::-1]):  # any order adds up exactly
+        total = np.zeros_like(y)
+        for n in order:
+            total += ch[n]
+        assert np.array_equal(total, y)
+
+
+def test_split_exactly_in_blocks_of_rows(monkeypatch):
+    """Split a block of rows at a time: the same shares as in one block."""
+    rng = np.random.default_rng(5)
+    parts = rng.uniform(0, 1, (16, 12, 9)) ** 3 * 50.0
+    total = parts.sum(axis=0).astype(np.float32)
+    whole = split_exactly(parts, total)
+    monkeypatch.setattr(persource, "SPLIT_CELLS", 100)  # a row per block
+    assert np.array_equal(split_exactly(parts, total), whole)
+
+
+def test_split_exactly_edges():
+    """Shares add up to the total in float32 whatever the order: zero totals, a zero part,
+    parts that miss the total by rounding, tiny and huge scales, no part at a lit pixel."""
+    rng = np.random.default_rng(3)
+    for scale in (1e-30, 1e-3, 1.0, 97.0, 1e30):
+        parts = rng.uniform(0, 1, (16, 8, 9)) ** 4 * scale
+        parts[3] = 0.0
+        parts[:, 0, 0] = 0.0
+        total = parts.sum(axis=0).astype(np.float32)
+        total[1, 1] = np.nextafter(total[1, 1], np.float32(np.inf))  # one ulp above
+        total[0, 1] = np.float32(scale)  # lit, with no part at all
+        parts[:, 0, 1] = 0.0
+        shares = split_exactly(parts, total)
+        assert shares.dtype == np.float32 and np.all(shares >= 0)
+        for order in (range(16), range(15, -1, -1), rng.permutation(16)):
+            acc = np.zeros_like(total)
+            for g in order:
+                acc += shares[g]
+            assert np.array_equal(acc, total)
+        lit = total > 0
+        err = np.abs(shares.astype(np.float64) - parts)[:, lit] / total[lit].astype(np.float64)
+        assert err[:, 2:].max() < 1e-6
+    assert split_exactly(np.zeros((0, 2, 2)), np.zeros((2, 2), np.float32)).shape == (0, 2, 2)
 
 
 def test_segments_light_their_stripes_left_to_right(runs):

@@ -1,6 +1,7 @@
-"""The view's ADB panel (lightsim.view.adb_panel) in a real browser: a segment toggle is
-re-composed and drawn (the composed map is the weighted sum of the per-source maps, bit for
-bit), dragging the road user brings a new mask; and the /mask route's bad input."""
+"""The view's ADB panel (lightsim.view.adb_panel) in a real browser: a segment toggle and a
+dimming slider are re-composed and drawn (the composed map is the weighted sum of the
+per-source maps, bit for bit), dragging the road user brings a new mask; and the /mask
+route's bad input."""
 
 from __future__ import annotations
 
@@ -122,6 +123,71 @@ def test_toggle_and_drag_recompose_in_the_browser(server, maps):
         assert np.array_equal(got, compose(maps.lux, np.array(dragged["levels"],
                                                               np.float32)).ravel())
         assert dragged["levels"][k] == 0.0  # the toggle holds through new masks
+        assert errors == []
+        browser.close()
+
+
+@pytest.mark.timeout(180)
+def test_dimming_slider_recomposes_with_its_level(server, maps):
+    """A slider held at 0.35 re-composes at once with that weight (before the server
+    answers), goes to the server as a fixed level, and a double-click gives the segment
+    back to the mask."""
+    if sync_playwright is None:
+        pytest.skip("playwright (Python) is not installed")
+    if not Path(CHROMIUM).exists():
+        pytest.skip("Debian's chromium is not installed")
+    k = list(maps.names).index("led_07")
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        page = browser.new_page(viewport={"width": 1300, "height": 800})
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(server.url)
+        page.wait_for_function("window.adb.ready && window.adb.masks >= 1", timeout=60_000)
+
+        def state():
+            return page.evaluate("""() => ({redraws: window.adb.redraws,
+                masks: window.adb.masks,
+                levels: Array.from(window.adb.composedLevels),
+                composed: Array.from(window.adb.composed),
+                mask: window.adb.lastMask.levels_list})""")
+
+        before = state()
+        assert before["levels"][k] > 0.5  # the road user at 3° L leaves led_07 lit
+        page.locator("#dim-led_07").fill("0.35")
+        page.wait_for_function(f"window.adb.redraws > {before['redraws']}", timeout=10_000)
+        after = state()
+        assert after["levels"][k] == np.float32(0.35)
+        composed = np.array(after["composed"], np.float32)
+        assert np.array_equal(composed, compose(maps.lux, np.array(after["levels"],
+                                                                   np.float32)).ravel())
+        assert not np.array_equal(composed, np.array(before["composed"], np.float32))
+        # the map moved by the change of the weighted sum (a mask may have come meanwhile)
+        delta = composed.astype(np.float64) - np.array(before["composed"], np.float64)
+        dw = np.array(after["levels"], np.float64) - np.array(before["levels"], np.float64)
+        np.testing.assert_allclose(delta, np.tensordot(dw, maps.lux.astype(np.float64), 1)
+                                   .ravel(), atol=1e-5 * float(maps.lux.max()) * 16)
+        page.wait_for_function(  # the server's answer with the segment fixed
+            f"Math.abs(window.adb.lastMask.levels_list[{k}] - 0.35) < 1e-9", timeout=30_000)
+        page.wait_for_timeout(300)
+        held = state()
+        assert held["mask"][k] == pytest.approx(0.35)  # the server kept it fixed
+        assert held["levels"][k] == np.float32(0.35)
+        assert page.locator("#seg-led_07").get_attribute("class") == "held"
+        # a double-click gives the segment back to the mask
+        masks = held["masks"]
+        page.locator("#dim-led_07").dblclick()
+        page.wait_for_function(
+            f"window.adb.masks > {masks} && !window.adb.held.has('led_07') && "
+            f"window.adb.composedLevels[{k}] === "
+            f"Math.fround(window.adb.lastMask.levels_list[{k}])", timeout=30_000)
+        page.wait_for_timeout(300)
+        released = state()
+        assert page.locator("#seg-led_07").get_attribute("class") == ""
+        assert released["levels"][k] == np.float32(released["mask"][k])
+        assert np.array_equal(np.array(released["composed"], np.float32),
+                              compose(maps.lux, np.array(released["levels"],
+                                                         np.float32)).ravel())
         assert errors == []
         browser.close()
 

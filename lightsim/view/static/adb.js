@@ -1,9 +1,11 @@
 // The ADB panel: compose the per-source maps with the segments' levels (float32, in
 // segment order, as lightsim.persource.compose does), draw them, and ask the server for the
-// mask of the dragged road user. window.adb exposes the state for tests.
+// mask of the dragged road user. A segment is on (its level from the mask), off (0), or held
+// at its dimming slider's level (0-1); off and held segments go to the server as fixed
+// levels, so the mask works around them. window.adb exposes the state for tests.
 "use strict";
 const adb = window.adb = { ready: false, redraws: 0, masks: 0, lastRedrawMs: null,
-                           levels: null, off: new Set(), composed: null };
+                           levels: null, off: new Set(), held: new Map(), composed: null };
 const canvas = document.getElementById("map");
 const ctx = canvas.getContext("2d");
 const status = document.getElementById("status");
@@ -28,7 +30,11 @@ function compose(levels) {
 }
 
 function effectiveLevels() {
-  return adb.levels.map((w, g) => (adb.off.has(adb.names[g]) ? 0 : w));
+  return adb.levels.map((w, g) => {
+    const name = adb.names[g];
+    if (adb.off.has(name)) return 0;
+    return adb.held.has(name) ? fround32(adb.held.get(name)) : w;
+  });
 }
 
 function colour(t) {  // t in [0, 1] → a dark-to-bright ramp
@@ -84,16 +90,36 @@ function drawVehicle() {
   ctx.strokeRect(x0, y0, Math.max(2, x1 - x0), Math.max(2, y1 - y0));
 }
 
-function renderSegments() {
+function renderSegments() {  // once: a toggle and a dimming slider per segment
   const box = document.getElementById("segments");
   box.innerHTML = "";
-  adb.names.forEach((name, g) => {
+  adb.names.forEach((name) => {
+    const cell = document.createElement("span");
+    cell.className = "seg";
     const b = document.createElement("button");
     b.id = "seg-" + name;
-    b.className = adb.off.has(name) ? "off" : "";
-    b.innerHTML = `${name} <span class="lvl">${adb.levels[g].toFixed(2)}</span>`;
+    b.innerHTML = `${name} <span class="lvl"></span>`;
+    b.title = "on/off";
     b.addEventListener("click", () => toggle(name));
-    box.appendChild(b);
+    const s = document.createElement("input");
+    Object.assign(s, { type: "range", min: "0", max: "1", step: "0.01", id: "dim-" + name });
+    s.title = "dimming level (0-1), held; double-click: back to the mask's level";
+    s.addEventListener("input", () => dim(name, Number(s.value)));
+    s.addEventListener("dblclick", () => release(name));
+    cell.append(b, s);
+    box.appendChild(cell);
+  });
+  updateSegments();
+}
+
+function updateSegments() {  // the shown levels; a slider being dragged keeps its value
+  const lv = effectiveLevels();
+  adb.names.forEach((name, g) => {
+    const b = document.getElementById("seg-" + name);
+    b.className = adb.off.has(name) ? "off" : adb.held.has(name) ? "held" : "";
+    b.querySelector(".lvl").textContent = lv[g].toFixed(2);
+    const s = document.getElementById("dim-" + name);
+    if (!adb.held.has(name)) s.value = String(lv[g]);
   });
 }
 
@@ -101,7 +127,22 @@ function toggle(name) {
   const t0 = performance.now();
   if (adb.off.has(name)) adb.off.delete(name); else adb.off.add(name);
   draw(t0);  // re-composed at once; the new mask follows from the server
-  renderSegments();
+  updateSegments();
+  requestMask();
+}
+
+function dim(name, level) {
+  const t0 = performance.now();
+  adb.held.set(name, Math.min(1, Math.max(0, level)));
+  draw(t0);  // the weighted sum with the slider's level, before the server answers
+  updateSegments();
+  requestMask();
+}
+
+function release(name) {
+  adb.held.delete(name);
+  draw(performance.now());
+  updateSegments();
   requestMask();
 }
 
@@ -111,7 +152,7 @@ function requestMask() {
     vehicles: [{ kind: document.getElementById("kind").value,
                  distance_m: Number(document.getElementById("distance").value),
                  h_deg: vehicle.h_deg }],
-    fixed: Object.fromEntries([...adb.off].map((n) => [n, 0])),
+    fixed: Object.fromEntries([...adb.held, ...[...adb.off].map((n) => [n, 0])]),
   };
   if (!inflight) sendMask();
 }
@@ -130,7 +171,7 @@ async function sendMask() {
     adb.lastMask = res;
     adb.masks += 1;
     draw(performance.now());
-    renderSegments();
+    updateSegments();
     showVerdicts(res);
   } finally {
     inflight = false;
