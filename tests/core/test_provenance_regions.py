@@ -110,8 +110,8 @@ def test_a_box_gives_each_facet_its_geometric_share(facet_store):
         values[:, :, 0].sum(axis=1).mean(), rel=1e-12)
 
 
-def test_the_box_sums_its_cells_and_the_whole_wall_holds_the_wall_flux(facet_store):
-    store, frame = facet_store
+def test_the_whole_raster_and_split_boxes_sum_their_cells(facet_store):
+    store, _ = facet_store
     he, ve = store["h_edges_deg"], store["v_edges_deg"]
     _, values, covered = region_values(store, (he[0], he[-1], ve[-1], ve[0]))
     assert covered == pytest.approx((he[0], he[-1], ve[-1], ve[0]))
