@@ -39,6 +39,7 @@ parameter          unit   default   meaning
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,7 +72,8 @@ from .regulations.check import RegulationAnalysis, regulation_check
 
 __all__ = ["REGIONS_FILE", "SPOTS_FILE", "ProvenanceAnalysis", "draw_region_spots",
            "draw_spots", "failing_breakdowns", "format_breakdown", "format_region",
-           "parse_box", "region_breakdown", "rule_breakdown", "spots_image_name"]
+           "parse_box", "read_regions", "region_breakdown", "region_overview",
+           "region_picture", "rule_breakdown", "spots_image_name"]
 
 SPOTS_FILE = "provenance.npz"
 """Per rule, the lamp triangles its light left from (see the module docstring)."""
@@ -330,8 +332,8 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
 
 
 def region_breakdown(run_dir: Path, box: tuple[float, float, float, float],
-                     confidence: float = 0.95, min_share: float = 0.02, top: int = 8
-                     ) -> dict[str, Any]:
+                     confidence: float = 0.95, min_share: float = 0.02, top: int = 8,
+                     store: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
     """A screen region's light by path class, from a ``--provenance`` run folder.
 
     Returns
@@ -340,9 +342,11 @@ def region_breakdown(run_dir: Path, box: tuple[float, float, float, float],
         ``box_deg`` (asked), ``covered_deg`` (the raster cells' edges), ``value_lx`` (mean
         illuminance over the covered cells, set mean), ``interval_lx`` (its Student-t
         interval over the sets), ``sum_lx`` (the classes' sum), ``classes``
-        (:func:`lightsim.provenance.share_table` rows in lx).
+        (:func:`lightsim.provenance.share_table` rows in lx). ``store``: the run's
+        :func:`read_regions` if already read.
     """
-    store = read_regions(Path(run_dir) / REGIONS_FILE)
+    if store is None:
+        store = read_regions(Path(run_dir) / REGIONS_FILE)
     labels, values, covered = region_values(store, box)
     S = values.shape[0]
     per = values[:, :, 0].sum(axis=1)
@@ -381,11 +385,33 @@ def region_image_name(covered: list[float] | tuple[float, ...]) -> str:
     return "provenance-box-" + "_".join(f"{x:+.2f}" for x in covered) + ".png"
 
 
-def draw_region_spots(run_dir: Path, b: dict[str, Any], path: Path) -> Path:
+def region_overview(store: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The raster's cell edges (deg) and its mean illuminance per cell (lx, set mean,
+    row 0 the top) of :func:`read_regions`: the screen the view draws to pick from."""
+    nr, nc = np.asarray(store["area_m2"]).shape
+    S = max(len(store["emitted"]), 1)
+    flux = np.bincount(store["cell"], store["flux"], nr * nc) / S
+    lx = flux.reshape(nr, nc) / np.maximum(store["area_m2"], 1e-300)
+    return {"h_edges_deg": [float(x) for x in store["h_edges_deg"]],
+            "v_edges_deg": [float(x) for x in store["v_edges_deg"]],
+            "lx": [[float(x) for x in row] for row in lx], "max_lx": float(lx.max(initial=0))}
+
+
+def region_picture(run_dir: Path, b: dict[str, Any],
+                   store: dict[str, np.ndarray] | None = None) -> bytes:
+    """:func:`draw_region_spots`'s PNG as bytes (drawn in a temporary folder)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = draw_region_spots(run_dir, b, Path(tmp) / "lamp.png", store)
+        return path.read_bytes()
+
+
+def draw_region_spots(run_dir: Path, b: dict[str, Any], path: Path,
+                      store: dict[str, np.ndarray] | None = None) -> Path:
     """``provenance-box-….png``: the lamp seen from the screen, every triangle coloured
     by the region's light it sent out (as :func:`draw_spots` for a rule)."""
     run_dir = Path(run_dir)
-    store = read_regions(run_dir / REGIONS_FILE)
+    if store is None:
+        store = read_regions(run_dir / REGIONS_FILE)
     cells, _ = region_cells(store, b["covered_deg"])
     sel = np.isin(store["spot_cell"], cells)
     lamp = _read_lamp(run_dir / SPOTS_FILE)
