@@ -78,6 +78,7 @@ __all__ = [
     "signature_rows",
     "spot_values",
     "step_texts",
+    "unique_rows",
 ]
 
 PATH_LENGTH = 8
@@ -245,6 +246,33 @@ def signature_rows(elements: PathElements, path: np.ndarray, events: np.ndarray,
     return rows
 
 
+_ROW_MIX = np.random.default_rng(0x5EED).integers(1, 2**62, 64, dtype=np.int64) | 1
+"""Odd multipliers of :func:`unique_rows`' row hash (fixed: runs are reproducible)."""
+
+
+def unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(rows, axis=0, return_inverse=True)`` of small-int rows, faster: rows
+    hashed to one int64 (wrapping multiply-add) and the 1-D hashes made unique; every row
+    is checked against its hash's first row, and a collision falls back to the 2-D way.
+    The same unique rows, in the same (lexicographic) order."""
+    r = np.ascontiguousarray(rows, np.int64)
+    if r.ndim != 2 or r.shape[1] > len(_ROW_MIX) or len(r) == 0:
+        uniq, inv = np.unique(rows, axis=0, return_inverse=True)
+        return uniq, inv.reshape(-1)
+    with np.errstate(over="ignore"):
+        h = (r + 1) @ _ROW_MIX[:r.shape[1]]
+    _, first, inv = np.unique(h, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    uniq = r[first]
+    if not np.array_equal(uniq[inv], r):  # a hash collision (never seen): the exact way
+        uniq, inv = np.unique(rows, axis=0, return_inverse=True)
+        return uniq, inv.reshape(-1)
+    order = np.lexsort(uniq.T[::-1])  # the few unique rows in np.unique's order
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    return uniq[order].astype(rows.dtype), rank[inv]
+
+
 def _accumulate(keys: np.ndarray, flux: np.ndarray, new_keys: np.ndarray,
                 new_flux: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sorted unique keys and their summed flux of two sparse stores together."""
@@ -282,7 +310,7 @@ class PathCounter:
         """(n,) this set's signature index of signature rows (n, K + 2)."""
         if len(rows) == 0:
             return np.zeros(0, np.int64)
-        uniq, inv = np.unique(rows, axis=0, return_inverse=True)
+        uniq, inv = unique_rows(rows)
         ids = np.empty(len(uniq), np.int64)
         for i, r in enumerate(map(tuple, uniq.tolist())):
             sid = self.index.get(r)
@@ -514,7 +542,7 @@ class ClassMatcher:
         """(n,) bool for signature rows (n, K + 3) of :func:`signature_rows`."""
         if len(rows) == 0:
             return np.zeros(0, bool)
-        uniq, inv = np.unique(rows[:, :-1], axis=0, return_inverse=True)
+        uniq, inv = unique_rows(rows[:, :-1])
         hit = np.empty(len(uniq), bool)
         for i, r in enumerate(map(tuple, uniq.tolist())):
             got = self.cache.get(r)
@@ -556,6 +584,14 @@ def spot_values(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
     return uniq, out / max(len(emitted), 1)
 
 
+def _cached_label(elements: PathElements, sig: tuple[int, ...],
+                  named: dict[tuple[int, ...], str]) -> str:
+    got = named.get(sig)
+    if got is None:
+        got = named[sig] = class_label(elements, sig)
+    return got
+
+
 def region_store(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
                  elements: PathElements, raster: RegionRaster) -> dict[str, np.ndarray]:
     """The region raster of a run, sets in order, as arrays a file can hold.
@@ -570,13 +606,14 @@ def region_store(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
         raster's ``h_edges_deg``, ``v_edges_deg``, ``area_m2``.
     """
     labels: dict[str, int] = {}
+    named: dict[tuple[int, ...], str] = {}  # the sets share most signatures
     sets, labs, cells, flux = [], [], [], []
     spots, spot_cells, spot_flux = [], [], []
     total = float(np.sum(emitted))
     for s_pos, data in enumerate(per_set.values()):
         if data is None or emitted[s_pos] <= 0 or "cell" not in data:
             continue
-        sig_label = np.asarray([labels.setdefault(class_label(elements, tuple(sig)),
+        sig_label = np.asarray([labels.setdefault(_cached_label(elements, tuple(sig), named),
                                                   len(labels))
                                 for sig in data["signatures"]], np.int64)
         sig = np.asarray(data["cell_signature"], np.int64)
