@@ -300,23 +300,27 @@ class PathCounter:
         self.spot_keys = np.zeros(0, np.int64)  # spot triangle · 2³² + bin, sorted
         self.spot_flux = np.zeros((0, channels))
         # region raster (RegionRaster): luminous flux per signature · 2³² + cell, and per
-        # spot triangle · 2³² + cell
+        # spot triangle · 2³² + cell; its own numbering (the apertures' stays as it was)
+        self.cell_index: dict[tuple[int, ...], int] = {}
+        self.cell_signatures: list[tuple[int, ...]] = []
         self.cell_keys = np.zeros(0, np.int64)
         self.cell_flux = np.zeros((0, 1))
         self.spot_cell_keys = np.zeros(0, np.int64)
         self.spot_cell_flux = np.zeros((0, 1))
 
-    def _signature_ids(self, rows: np.ndarray) -> np.ndarray:
-        """(n,) this set's signature index of signature rows (n, K + 2)."""
+    def _signature_ids(self, rows: np.ndarray, index: dict[tuple[int, ...], int],
+                       signatures: list[tuple[int, ...]]) -> np.ndarray:
+        """(n,) signature index of signature rows (n, K + 2) in ``index``/``signatures``
+        (new ones appended)."""
         if len(rows) == 0:
             return np.zeros(0, np.int64)
         uniq, inv = unique_rows(rows)
         ids = np.empty(len(uniq), np.int64)
         for i, r in enumerate(map(tuple, uniq.tolist())):
-            sid = self.index.get(r)
+            sid = index.get(r)
             if sid is None:
-                sid = self.index[r] = len(self.signatures)
-                self.signatures.append(r)
+                sid = index[r] = len(signatures)
+                signatures.append(r)
             ids[i] = sid
         return ids[inv.reshape(-1)]
 
@@ -328,7 +332,7 @@ class PathCounter:
             return
         lum = luminous(np.asarray(power, np.float64).reshape(len(power), -1)[ok])[:, None]
         cell = np.asarray(cells, np.int64)[ok]
-        sid = self._signature_ids(rows[ok, :-1])
+        sid = self._signature_ids(rows[ok, :-1], self.cell_index, self.cell_signatures)
         self.cell_keys, self.cell_flux = _accumulate(self.cell_keys, self.cell_flux,
                                                      sid * 2**32 + cell, lum)
         spot = rows[ok, -1].astype(np.int64)
@@ -350,7 +354,8 @@ class PathCounter:
         self.spot_keys, self.spot_flux = _accumulate(
             self.spot_keys, self.spot_flux, spot[placed] * 2**32 + where[placed], pw[placed])
         self.keys, self.flux = _accumulate(self.keys, self.flux,
-                                           self._signature_ids(rows[who, :-1]) * 2**32
+                                           self._signature_ids(rows[who, :-1], self.index,
+                                                               self.signatures) * 2**32
                                            + where, pw)
 
     def export(self) -> dict[str, Any]:
@@ -358,11 +363,12 @@ class PathCounter:
         strip bin, "flux": (n, C) unnormalised photon power; "spot", "spot_bin",
         "spot_flux": the same per triangle where the light left the lamp; "cell_signature",
         "cell", "cell_flux" (n,) luminous, and "cell_spot", "spot_cell", "spot_cell_flux":
-        the same on the region raster}."""
+        the same on the region raster, "cell_signatures" its numbering}."""
         return {"signatures": list(self.signatures), "signature": self.keys // 2**32,
                 "bin": self.keys % 2**32, "flux": self.flux.copy(),
                 "spot": self.spot_keys // 2**32, "spot_bin": self.spot_keys % 2**32,
                 "spot_flux": self.spot_flux.copy(),
+                "cell_signatures": list(self.cell_signatures),
                 "cell_signature": self.cell_keys // 2**32, "cell": self.cell_keys % 2**32,
                 "cell_flux": self.cell_flux[:, 0].copy(),
                 "cell_spot": self.spot_cell_keys // 2**32,
@@ -615,7 +621,7 @@ def region_store(per_set: dict[int, dict[str, Any]], emitted: np.ndarray,
             continue
         sig_label = np.asarray([labels.setdefault(_cached_label(elements, tuple(sig), named),
                                                   len(labels))
-                                for sig in data["signatures"]], np.int64)
+                                for sig in data["cell_signatures"]], np.int64)
         sig = np.asarray(data["cell_signature"], np.int64)
         labs.append(sig_label[sig] if len(sig) else np.zeros(0, np.int64))
         cells.append(np.asarray(data["cell"], np.int64))
