@@ -119,8 +119,13 @@ class RegionRaster:
 
     def cell(self, h: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(n,) int64 flat cell of wall points (h, v in m), −1 outside the image."""
-        row, col = self.frame.pixel_index(h, v)
-        ok = self.frame.inside(row, col)
+        h, v = np.asarray(h, np.float64), np.asarray(v, np.float64)
+        finite = np.isfinite(h) & np.isfinite(v)
+        # off the image by far: clamped before the cast, so no integer overflows
+        lim = 4.0 * max(abs(x) for x in (*self.frame.h_range_m, *self.frame.v_range_m)) + 1.0
+        row, col = self.frame.pixel_index(np.clip(np.where(finite, h, 0.0), -lim, lim),
+                                          np.clip(np.where(finite, v, 0.0), -lim, lim))
+        ok = self.frame.inside(row, col) & finite
         out = (row // self.factor[1]) * self.shape[1] + col // self.factor[0]
         return np.where(ok, out, -1).astype(np.int64)
 

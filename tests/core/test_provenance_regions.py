@@ -133,3 +133,38 @@ def test_bad_boxes_are_refused(facet_store, box):
     store, _ = facet_store
     with pytest.raises(InputError, match="region box"):
         region_cells(store, box)
+
+
+def test_raster_cells_edges_and_empty_input():
+    """Partial cells at the image's edge, points off the image, empty frames, huge and
+    tiny coordinates: the raster and the counter take them."""
+    from lightsim.provenance import PathCounter, unique_rows
+    from lightsim.wall import WallFrame
+
+    frame = WallFrame.from_any({"distance_m": 25.0, "h_range_m": [-10.0, 10.0],
+                                 "v_range_m": [-3.0, 2.0], "resolution": [101, 23]})
+    raster = RegionRaster.of(frame, 0.5)
+    nr, nc = raster.shape
+    g = raster.geometry()
+    assert g["h_edges_deg"].shape == (nc + 1,) and g["v_edges_deg"].shape == (nr + 1,)
+    assert g["area_m2"].sum() == pytest.approx(20.0 * 5.0)  # partial cells included
+    cells = raster.cell(np.array([0.0, 1e30, -1e30, 9.999, 1e-30, np.nan]),
+                        np.array([0.0, 0.0, 0.0, -2.999, 1e-30, 0.0]))
+    assert cells[0] >= 0 and cells[1] == -1 and cells[2] == -1 and cells[5] == -1
+    assert cells[3] == nr * nc - 1 and cells[4] == cells[0]
+    assert RegionRaster.of(frame, 1e-30).factor == (1, 1)
+    assert RegionRaster.of(frame, 1e30).shape == (1, 1)
+    counter = PathCounter(3)
+    counter.add_cells(np.zeros((0, PATH_LENGTH + 3), np.int32), np.zeros(0, np.int64),
+                      np.zeros((0, 3)))
+    rows = np.full((3, PATH_LENGTH + 3), -1, np.int32)
+    rows[:, 0] = 0
+    counter.add_cells(rows, np.array([-1, 4, 4]), np.ones((3, 3)))
+    out = counter.export()
+    assert out["cell"].tolist() == [4] and len(out["cell_signatures"]) == 1
+    assert out["signatures"] == []  # the apertures' numbering is untouched
+    for r in (np.zeros((0, 4), np.int32), np.array([[3, -1]], np.int32),
+              np.random.default_rng(2).integers(-1, 900, (4000, 10)).astype(np.int32)):
+        u, i = unique_rows(r)
+        uu, ii = np.unique(r, axis=0, return_inverse=True)
+        assert np.array_equal(u, uu) and np.array_equal(i, ii.reshape(-1))
