@@ -58,3 +58,15 @@ def test_bad_boxes_and_runs_without_provenance(lowbeam_run, tmp_path, capsys):
     code, _, err = run_cli(["report", "--provenance-box", "-8,-1,0.5,2", str(plain)], capsys)
     assert code == 2 and "without --provenance" in err and len(err.strip().splitlines()) == 1
     assert not list(plain.glob("provenance-box-*.png"))
+
+
+def test_view_and_report_refuse_a_corrupt_region_file(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / REGIONS_FILE).write_bytes(b"not an npz file")
+    (run / "summary.json").write_text(json.dumps({"provenance": {"rulesets": {}}}))
+    for argv in (["view", str(run)], ["report", "--provenance-box=-1,1,-1,1", str(run)]):
+        code, _, err = run_cli(argv, capsys)
+        assert code == 2 and "corrupt provenance file" in err, err
+        assert len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in run.iterdir()) == [REGIONS_FILE, "summary.json"]
