@@ -16,8 +16,13 @@ from lightsim.io.summary import read_json, write_json
 from lightsim.luminaires import regulations
 from lightsim.luminaires.provenance_report import (
     SPOTS_FILE,
+    draw_region_spots,
     draw_spots,
     format_breakdown,
+    format_region,
+    parse_box,
+    region_breakdown,
+    region_image_name,
     rule_breakdown,
     spots_image_name,
 )
@@ -40,14 +45,34 @@ from lightsim.luminaires.regulations import check
               "seen from the screen, coloured by how much of RULE's light left each spot.")
 @click.option("--part", metavar="NAME",
               help="With --provenance: only the path classes that meet part NAME.")
+@click.option("--provenance-box", "provenance_box", metavar="H0,H1,V0,V1",
+              help="Print where the light of a screen region (a box in H/V degrees) comes "
+              "from, of a run made with simulate --provenance: its mean illuminance split "
+              "by path class with intervals, and draw provenance-box-….png.")
 def report(result_dir: str | None, regulation: str | None, confidence: float,
            mount_height: float, log_scale: bool, list_rulesets: bool,
-           provenance_rule: str | None, part: str | None) -> None:
+           provenance_rule: str | None, part: str | None,
+           provenance_box: str | None) -> None:
     """Rebuild wall_lux.png, isolux.png, road.png, error_vs_time.png and the regulation
     table of RESULT_DIR from its wall_lux.exr, summary.json and probes.npz."""
     console = Console(width=None if sys.stdout.isatty() else 160)
     if part is not None and provenance_rule is None:
         raise InputError("--part goes with --provenance RULE")
+    if provenance_box is not None:
+        if result_dir is None:
+            raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
+        if not 0 < confidence < 1:
+            raise InputError(f"--confidence must lie in (0, 1), got {confidence}")
+        out = Path(result_dir)
+        summary = read_json(out / "summary.json")
+        if not isinstance(summary.get("provenance"), dict):
+            raise InputError("this run was made without --provenance: run lightsim simulate "
+                             "--provenance --regulation … to break its screen down by path")
+        b = region_breakdown(out, parse_box(provenance_box), confidence)
+        console.print(format_region(b))
+        path = draw_region_spots(out, b, out / region_image_name(b["covered_deg"]))
+        click.echo(f"wrote {path}")
+        return
     if provenance_rule is not None:
         if result_dir is None:
             raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")

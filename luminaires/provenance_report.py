@@ -39,12 +39,14 @@ parameter          unit   default   meaning
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rich.table import Table
+from scipy.special import stdtrit
 
 from lightsim.analysis import AnalysisReport, FinishedRun
 from lightsim.engine.apertures import layout_from_config
@@ -54,8 +56,12 @@ from lightsim.io.exr import write_exr
 from lightsim.provenance import (
     PATH_LENGTH,
     PathElements,
+    RegionRaster,
     class_values,
     element_table,
+    region_cells,
+    region_store,
+    region_values,
     share_table,
     spot_values,
     step_texts,
@@ -64,11 +70,15 @@ from lightsim.render.frame import luminous
 
 from .regulations.check import RegulationAnalysis, regulation_check
 
-__all__ = ["SPOTS_FILE", "ProvenanceAnalysis", "draw_spots", "failing_breakdowns",
-           "format_breakdown", "rule_breakdown", "spots_image_name"]
+__all__ = ["REGIONS_FILE", "SPOTS_FILE", "ProvenanceAnalysis", "draw_region_spots",
+           "draw_spots", "failing_breakdowns", "format_breakdown", "format_region",
+           "parse_box", "read_regions", "region_breakdown", "region_overview",
+           "region_picture", "rule_breakdown", "spots_image_name"]
 
 SPOTS_FILE = "provenance.npz"
 """Per rule, the lamp triangles its light left from (see the module docstring)."""
+REGIONS_FILE = "provenance-regions.npz"
+"""Every class's and spot's flux on the coarse wall raster, per set (region breakdowns)."""
 MAX_RUN_IMAGES = 8
 """Lamp pictures a run draws at most (its failing rules, in table order)."""
 
@@ -164,7 +174,10 @@ class ProvenanceAnalysis:
                                    | set(elements.emitters)),
                    "rulesets": rulesets}
         self.tables = summary
-        files = [write_spots(out / SPOTS_FILE, session.scene, spot_rows)]
+        files = [write_spots(out / SPOTS_FILE, session.scene, spot_rows),
+                 write_regions(out / REGIONS_FILE, region_store(
+                     {s: per_set.get(s) for s in sets}, emitted, elements,
+                     RegionRaster.of(session.scene.wall)))]
         first = self.regulations[0].rules.id if self.regulations else ""
         failing = [(rs, name) for rs, rules in rulesets.items() for name, b in rules.items()
                    if b["verdict"] == "fail"][:MAX_RUN_IMAGES]
@@ -282,6 +295,145 @@ def write_spots(path: Path, scene: Any, rows: list[tuple[str, str, np.ndarray, n
     return Path(path)
 
 
+def write_regions(path: Path, store: dict[str, np.ndarray]) -> Path:
+    """``provenance-regions.npz``: :func:`lightsim.provenance.region_store`'s arrays."""
+    with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **store)
+    return Path(path)
+
+
+def read_regions(path: Path) -> dict[str, np.ndarray]:
+    """The region raster a ``--provenance`` run wrote."""
+    if not Path(path).exists():
+        raise InputError(f"{path}: missing (a run made with --provenance writes it)")
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            data = {k: d[k] for k in d.files}
+        need = ("labels", "set", "label", "cell", "flux", "emitted", "spot", "spot_cell",
+                "spot_flux", "h_edges_deg", "v_edges_deg", "area_m2")
+        missing = [k for k in need if k not in data]
+        if missing:
+            raise KeyError(", ".join(missing))
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        raise InputError(f"{path}: corrupt provenance file ({exc})") from None
+    return data
+
+
+def parse_box(text: str) -> tuple[float, float, float, float]:
+    """``H0,H1,V0,V1`` (deg) → four floats (checked by :func:`region_breakdown`)."""
+    try:
+        parts = [float(x) for x in str(text).split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 4:
+        raise InputError(f"region box must be H0,H1,V0,V1 in degrees (e.g. -8,-1,0.5,2), "
+                         f"got '{text}'")
+    return parts[0], parts[1], parts[2], parts[3]
+
+
+def region_breakdown(run_dir: Path, box: tuple[float, float, float, float],
+                     confidence: float = 0.95, min_share: float = 0.02, top: int = 8,
+                     store: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+    """A screen region's light by path class, from a ``--provenance`` run folder.
+
+    Returns
+    -------
+    dict
+        ``box_deg`` (asked), ``covered_deg`` (the raster cells' edges), ``value_lx`` (mean
+        illuminance over the covered cells, set mean), ``interval_lx`` (its Student-t
+        interval over the sets), ``sum_lx`` (the classes' sum), ``classes``
+        (:func:`lightsim.provenance.share_table` rows in lx). ``store``: the run's
+        :func:`read_regions` if already read.
+    """
+    if store is None:
+        store = read_regions(Path(run_dir) / REGIONS_FILE)
+    labels, values, covered = region_values(store, box)
+    S = values.shape[0]
+    per = values[:, :, 0].sum(axis=1)
+    mu = float(per.mean()) if S else 0.0
+    t = float(stdtrit(S - 1, 0.5 + confidence / 2)) if S >= 2 else 0.0
+    half = t * float(per.std(ddof=1)) / np.sqrt(S) if S >= 2 else 0.0
+    classes = share_table(labels, values, 0, confidence, min_share, top, unit="lx")
+    return {"box_deg": [float(x) for x in box], "covered_deg": list(covered),
+            "value_lx": mu, "interval_lx": [max(mu - half, 0.0), mu + half],
+            "sum_lx": float(sum(c["value_lx"] for c in classes)), "sets": S,
+            "classes": classes}
+
+
+def format_region(b: dict[str, Any]) -> Table:
+    """A rich table of one region's path classes."""
+    h0, h1, v0, v1 = b["covered_deg"]
+    lo, hi = b["interval_lx"]
+    title = (f"region H {h0:.2f}..{h1:.2f}°, V {v0:.2f}..{v1:.2f}°: mean "
+             f"{_cd(b['value_lx'])} lx [{_cd(lo)}, {_cd(hi)}]; classes add up to "
+             f"{_cd(b['sum_lx'])} lx")
+    t = Table(title=title, title_justify="left")
+    t.add_column("path class")
+    t.add_column("lx", justify="right")
+    t.add_column("interval (lx)", justify="right")
+    t.add_column("share", justify="right")
+    for c in b["classes"]:
+        name = c["class"] + (f" ({c['classes']} classes)" if "classes" in c else "")
+        t.add_row(name, _cd(c["value_lx"]),
+                  f"[{_cd(c['interval_lx'][0])}, {_cd(c['interval_lx'][1])}]",
+                  f"{c['share']:.1%}")
+    return t
+
+
+def region_image_name(covered: list[float] | tuple[float, ...]) -> str:
+    """``provenance-box-H0_H1_V0_V1.png`` (the covered box, 0.01° steps)."""
+    return "provenance-box-" + "_".join(f"{x:+.2f}" for x in covered) + ".png"
+
+
+def region_overview(store: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The raster's cell edges (deg) and its mean illuminance per cell (lx, set mean,
+    row 0 the top) of :func:`read_regions`: the screen the view draws to pick from."""
+    nr, nc = np.asarray(store["area_m2"]).shape
+    S = max(len(store["emitted"]), 1)
+    flux = np.bincount(store["cell"], store["flux"], nr * nc) / S
+    lx = flux.reshape(nr, nc) / np.maximum(store["area_m2"], 1e-300)
+    return {"h_edges_deg": [float(x) for x in store["h_edges_deg"]],
+            "v_edges_deg": [float(x) for x in store["v_edges_deg"]],
+            "lx": [[float(x) for x in row] for row in lx], "max_lx": float(lx.max(initial=0))}
+
+
+def region_picture(run_dir: Path, b: dict[str, Any],
+                   store: dict[str, np.ndarray] | None = None) -> bytes:
+    """:func:`draw_region_spots`'s PNG as bytes (drawn in a temporary folder)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = draw_region_spots(run_dir, b, Path(tmp) / "lamp.png", store)
+        return path.read_bytes()
+
+
+def draw_region_spots(run_dir: Path, b: dict[str, Any], path: Path,
+                      store: dict[str, np.ndarray] | None = None) -> Path:
+    """``provenance-box-….png``: the lamp seen from the screen, every triangle coloured
+    by the region's light it sent out (as :func:`draw_spots` for a rule)."""
+    run_dir = Path(run_dir)
+    if store is None:
+        store = read_regions(run_dir / REGIONS_FILE)
+    cells, _ = region_cells(store, b["covered_deg"])
+    sel = np.isin(store["spot_cell"], cells)
+    lamp = _read_lamp(run_dir / SPOTS_FILE)
+    h0, h1, v0, v1 = b["covered_deg"]
+    head = b["classes"][0]["class"] if b.get("classes") else "no photons"
+    title = (f"H {h0:.2f}..{h1:.2f}°, V {v0:.2f}..{v1:.2f}°: {_cd(b['value_lx'])} lx"
+             f"\nlargest class: {head}")
+    return _draw_lamp(lamp, store["spot"][sel], store["spot_flux"][sel], title, path,
+                      "flux sent out per projected area (lm/mm², log scale)")
+
+
+def _read_lamp(path: Path) -> dict[str, np.ndarray]:
+    if not Path(path).exists():
+        raise InputError(f"{path}: missing (a run made with --provenance writes it)")
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            return {"triangles": d["triangles"], "part": d["part"],
+                    "part_names": d["part_names"]}
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        raise InputError(f"{path}: corrupt provenance file ({exc})") from None
+
+
 def read_spots(path: Path, ruleset: str, rule: str) -> dict[str, np.ndarray]:
     """One rule's spots from ``provenance.npz``."""
     if not Path(path).exists():
@@ -306,19 +458,30 @@ def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
     world +X to the right), every triangle coloured by the rule's intensity it sent out
     (its last reflection or scattering) per unit of its projected area (cd/mm², log
     scale), drawn over the unlit parts (grey: a clear lens shows what lies behind it)."""
+    d = read_spots(spots_file, ruleset, rule)
+    head = (breakdown["classes"][0]["class"] if breakdown.get("classes") else "no photons")
+    title = (f"{ruleset} {rule}: {_cd(breakdown['value_cd'])} cd ({breakdown['verdict']})"
+             f"\nlargest class: {head}")
+    return _draw_lamp(d, d["spot"], d["cd"], title, path,
+                      "intensity sent out per projected area (cd/mm²)")
+
+
+def _draw_lamp(d: dict[str, np.ndarray], spot: np.ndarray, amount: np.ndarray, title: str,
+               path: Path, label: str) -> Path:
+    """The lamp's triangles ``d`` seen from the screen, ``amount`` of each ``spot``
+    triangle per its projected area (log colour scale) over the unlit parts in grey."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
     from matplotlib.colors import LogNorm
 
-    d = read_spots(spots_file, ruleset, rule)
     tri = d["triangles"].astype(np.float64)
     xy = tri[:, :, :2] * 1e3  # mm, seen from the screen: +X right, +Y up
     e1, e2 = xy[:, 1] - xy[:, 0], xy[:, 2] - xy[:, 0]
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     dens = np.zeros(len(tri))
-    np.add.at(dens, d["spot"], d["cd"])
+    np.add.at(dens, spot, amount)
     lit = (dens > 0) & (area > 1e-12)
     dens = np.where(lit, dens / np.maximum(area, 1e-12), 0.0)
     order = np.argsort(tri[:, :, 2].mean(axis=1), kind="stable")  # far from the screen first
@@ -333,15 +496,14 @@ def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
         coll = PolyCollection(xy[li], array=np.maximum(dens[li], norm.vmin), cmap="inferno",
                               norm=norm, edgecolors="none")
         ax.add_collection(coll)
-        fig.colorbar(coll, ax=ax, label="intensity sent out per projected area (cd/mm²)")
-    ax.set_xlim(xy[..., 0].min(), xy[..., 0].max())
-    ax.set_ylim(xy[..., 1].min(), xy[..., 1].max())
+        fig.colorbar(coll, ax=ax, label=label)
+    if len(xy):
+        ax.set_xlim(xy[..., 0].min(), xy[..., 0].max())
+        ax.set_ylim(xy[..., 1].min(), xy[..., 1].max())
     ax.set_aspect("equal")
     ax.set_xlabel("X (mm), lamp seen from the screen")
     ax.set_ylabel("Y (mm)")
-    head = (breakdown["classes"][0]["class"] if breakdown.get("classes") else "no photons")
-    ax.set_title(f"{ruleset} {rule}: {_cd(breakdown['value_cd'])} cd ({breakdown['verdict']})"
-                 f"\nlargest class: {head}", fontsize=8)
+    ax.set_title(title, fontsize=8)
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)

@@ -60,6 +60,7 @@ from lightsim.provenance import (
     ClassMatcher,
     PathCounter,
     PathElements,
+    RegionRaster,
     emitter_index,
     signature_rows,
 )
@@ -331,6 +332,7 @@ class PhotonSets:
         self._elements = (PathElements.from_scene(scene) if self.config.path_length
                           else None)
         self._rows = np.zeros((0, 0), np.int32)  # the frame's path signatures
+        self._raster = RegionRaster.of(scene.wall)  # where region breakdowns are counted
         self._match = (ClassMatcher(self._elements, self.config.path_map)
                        if self._elements is not None and self.config.path_map else None)
         self._matched = np.zeros(0, bool)  # the frame's records in the mapped class
@@ -625,6 +627,8 @@ class PhotonSets:
                         if st.paths is not None:
                             st.paths.add(self._rows[idx], st.apertures.locate(h[sl], v[sl]),
                                          rec.power[idx])
+                            st.paths.add_cells(self._rows[idx],
+                                               self._raster.cell(h[sl], v[sl]), rec.power[idx])
                             self._add_to_path_map(st, h[sl], v[sl], idx, rec.power)
             return out[:3]
 
@@ -694,6 +698,7 @@ class PhotonSets:
             st.aperture_hits = rec.source[idx][hit] - first
             if st.paths is not None and len(self._rows):
                 st.paths.add(self._rows[idx], st.apertures.locate(h, v), rec.power[idx])
+                st.paths.add_cells(self._rows[idx], self._raster.cell(h, v), rec.power[idx])
                 self._add_to_path_map(st, h, v, idx, rec.power)
         if st.bins is not None:
             self._add_to_bins(st, h, v, rec.power[idx].astype(np.float64))
