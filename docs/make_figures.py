@@ -28,6 +28,8 @@ run               commands                               pictures (docs/img/…)
 ``led-lamps``     ``simulate`` the shipped LED           led-projector-isolux,
                   projector (R149 class B passing) and   led-matrix-isolux
                   matrix high beam (class B driving)
+``adb``           ``simulate --per-source`` the matrix   led-adb-isolux
+                  beam, ``adb`` with two road users
 ``road``          ``simulate --road`` the shipped low    road-right-250
                   beam (the road guide's run)
 ================  =====================================  ====================================
@@ -168,6 +170,31 @@ def led_lamps(work: Path) -> dict[str, Path]:
             "led-matrix-isolux": work / "matrix" / "isolux.png"}
 
 
+ADB_TRAFFIC = """[road]
+mount_height_m = 0.65
+
+[[vehicle]]
+name = "oncoming car"
+kind = "oncoming"
+distance_m = 30.0
+
+[[vehicle]]
+name = "car ahead"
+kind = "preceding"
+distance_m = 80.0
+"""
+
+
+def adb(work: Path) -> dict[str, Path]:
+    """The LED guide's masking picture: the matrix beam with per-source maps, masked for an
+    oncoming car at 30 m and a car ahead at 80 m."""
+    run(["simulate", str(MATRIX), "--photons", "16000000", "--resolution", "320x128",
+         "--per-source", "--outputs", "json", "--out", "matrix-ps", "--quiet"], work)
+    (work / "traffic.toml").write_text(ADB_TRAFFIC, encoding="utf-8")
+    run(["adb", "matrix-ps", "--traffic", "traffic.toml"], work)
+    return {"led-adb-isolux": work / "matrix-ps" / "adb" / "adb_isolux.png"}
+
+
 def road(work: Path) -> dict[str, Path]:
     """The road guide's run: the shipped low beam with the road evaluation; its plot of the
     250 m right curve."""
@@ -284,6 +311,7 @@ RUNS = (
     Run("tolerance", tolerance, ("tolerance",)),
     Run("design", design, ("design-isolux",)),
     Run("led-lamps", led_lamps, ("led-projector-isolux", "led-matrix-isolux")),
+    Run("adb", adb, ("led-adb-isolux",)),
     Run("road", road, ("road-right-250",)),
     Run("view", view, ("view-interaction", "view-converged", "view-camera")),
 )
