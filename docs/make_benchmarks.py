@@ -80,6 +80,17 @@ BENCHES = (
           ("--changes", "2", "--drag-seconds", "2", "--converge-timeout", "15"),
           "The live view in Chromium: latency of a change, drag frames per second, time "
           "to a 5 % and a 2 % error."),
+    Bench("verdicts", ("bench", "verdicts", "--photons", "8000000"), ("--photons", "1000000"),
+          "Seconds and photons until every verdict is decided, with and without guiding "
+          "(capped at the photons shown)."),
+    Bench("adb", ("bench", "adb", "--memory-photons", "2000000"), ("--frames", "100"),
+          "A 1,000-frame traffic sequence composed and judged from per-source maps, against "
+          "re-tracing one frame; the memory of --per-source against a plain run."),
+    Bench("provenance", ("bench", "provenance"), ("--photons", "200000", "--repeats", "1"),
+          "Time and memory of a run with --provenance against the same run without."),
+    Bench("memory", ("bench", "memory", "--photons", "4000000,16000000,48000000",
+                     "--keep-all-max", "16000000"), ("--quick",),
+          "Peak memory against photons: the default run (bounded) and --keep-photons."),
     Bench("peer", ("bench", "peer"), ("--max-seconds", "60"),
           "Time to a true 2 % error against Mitsuba 3's particle tracer, whole processes.",
           needs="mitsuba"),
