@@ -3,14 +3,18 @@ traffic scene, composed from a ``simulate --per-source`` run (:mod:`lightsim.lum
 
 from __future__ import annotations
 
+import json
+from dataclasses import replace
 from pathlib import Path
 
 import click
 
 from lightsim.luminaires.adb import AdbComposer, AdbSettings, read_traffic, run_adb
 from lightsim.luminaires.adb_outputs import write_adb
+from lightsim.luminaires.regulations.ruleset import load_ruleset
 from lightsim.options import click_options
 from lightsim.persource import read_per_source
+from lightsim.report import plot_caption
 
 
 @click.command()
@@ -36,7 +40,8 @@ def adb(run_dir: str, traffic_file: str, out_dir: str | None, shown: int | None,
     traffic = read_traffic(traffic_file)
     result = run_adb(maps, traffic, settings, shown)
     out = Path(out_dir) if out_dir else Path(run_dir) / "adb"
-    written = write_adb(out, result, AdbComposer(maps, traffic, settings), plots=not no_plots)
+    written = write_adb(out, result, AdbComposer(maps, traffic, settings), plots=not no_plots,
+                        caption=_caption(Path(run_dir), result.limits.ruleset))
     s = result.summary()
     c = s["verdict_counts"]
     click.echo(f"{s['frames']} frame(s) of {len(maps.names)} segments composed and judged in "
@@ -60,3 +65,16 @@ def adb(run_dir: str, traffic_file: str, out_dir: str | None, shown: int | None,
         click.echo(f"  residual in {r['user']}'s outline: {r['mean_cd']:.0f} cd [{lo:.0f}, "
                    f"{hi:.0f}]" + ("" if frac is None else f", {frac:.1%} of all-on"))
     click.echo("wrote " + ", ".join(str(p) for p in written))
+
+
+def _caption(run_dir: Path, ruleset: str) -> str | None:
+    """The plots' caption: the run's lamp, seed, photons and error figure, the ADB rule set
+    with its version, lightsim's version (None when the run has no readable summary)."""
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    cap = plot_caption(summary)
+    if cap is None:
+        return None
+    return replace(cap, rulesets=((ruleset, load_ruleset(ruleset).version),)).text()

@@ -54,12 +54,15 @@ class FinishedRun:
         ``right`` or ``left``.
     cutoff : dict
         The run's cut-off summary (``summary.json["cutoff"]``).
+    caption : lightsim.io.plots.PlotCaption or None
+        What the analyses' plots say of the run (lamp, seed, photons, error figure).
     """
 
     session: Any
     lux: np.ndarray
     traffic: str = "right"
     cutoff: dict[str, Any] = field(default_factory=dict)
+    caption: Any = None
 
     @property
     def frame(self) -> Any:

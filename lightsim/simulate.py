@@ -751,7 +751,8 @@ def _engineering_outputs(out: Path, opts: SimulateOptions, session, lux: np.ndar
     """Cut-off, the analyses (regulation table, far-field files), isolux and road plots."""
     frame = session.scene.wall
     summary["cutoff"] = _cutoff(lux, frame, opts.traffic, session)
-    run = FinishedRun(session, lux, opts.traffic, summary["cutoff"])
+    run = FinishedRun(session, lux, opts.traffic, summary["cutoff"],
+                      caption=report.plot_caption(summary))
     marks: list[dict[str, Any]] | None = None
     for analysis in analyses:
         result = analysis.report(run, out)

@@ -29,6 +29,7 @@ from scipy.ndimage import uniform_filter
 
 from lightsim import __version__
 from lightsim.io.atomic import OutputSet
+from lightsim.io.caption import add_caption, png_metadata
 from lightsim.io.exr import wall_metadata, write_exr
 from lightsim.io.summary import write_json
 from lightsim.render.road import road_illuminance
@@ -64,8 +65,10 @@ def adb_json(result: AdbResult) -> dict[str, Any]:
 
 
 def write_adb(out: Path, result: AdbResult, composer: AdbComposer,
-              plots: bool = True) -> list[Path]:
-    """Write the set into ``out`` (created); returns the files written."""
+              plots: bool = True, caption: str | None = None) -> list[Path]:
+    """Write the set into ``out`` (created); returns the files written. ``caption``: the
+    text under every plot and in its PNG metadata (the run's lamp, seed, photons, error
+    figure, the ADB rule set and lightsim's version)."""
     out.mkdir(parents=True, exist_ok=True)
     shown = result.frames[result.shown]
     lux = composer.composed(shown.levels)
@@ -78,11 +81,11 @@ def write_adb(out: Path, result: AdbResult, composer: AdbComposer,
                                 lightsim_version=__version__))
         if plots:
             users = result.traffic.frames[result.shown]
-            isolux_with_users(d / "adb_isolux.png", lux, result.wall, shown, users)
+            isolux_with_users(d / "adb_isolux.png", lux, result.wall, shown, users, caption)
             road_with_users(d / "adb_road.png", lux, result.wall, users,
-                            result.traffic.mount_height_m)
+                            result.traffic.mount_height_m, caption)
             if len(result.frames) > 1:
-                levels_plot(d / "adb_levels.png", result)
+                levels_plot(d / "adb_levels.png", result, caption)
         write_json(d / "adb.json", adb_json(result))
         names = sorted(p.name for p in d.iterdir() if p.is_file())
         staged.commit()
@@ -90,7 +93,7 @@ def write_adb(out: Path, result: AdbResult, composer: AdbComposer,
 
 
 def isolux_with_users(path: Path, lux: np.ndarray, wall: dict[str, Any], frame: Any,
-                      users: list[Any]) -> None:
+                      users: list[Any], caption: str | None = None) -> None:
     """Iso-lux lines of the composed map, each road user's outline and glare positions."""
     import matplotlib
 
@@ -130,11 +133,11 @@ def isolux_with_users(path: Path, lux: np.ndarray, wall: dict[str, Any], frame: 
     ax.set_title("ADB composed map: road users' outlines, glare positions (green pass, "
                  "red fail, orange undecided)", fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, caption)
 
 
 def road_with_users(path: Path, lux: np.ndarray, wall: dict[str, Any], users: list[Any],
-                    mount_height_m: float) -> None:
+                    mount_height_m: float, caption: str | None = None) -> None:
     """Bird's-eye road view of the composed map (lx on the road) with the road users."""
     import matplotlib
 
@@ -165,10 +168,10 @@ def road_with_users(path: Path, lux: np.ndarray, wall: dict[str, Any], users: li
     ax.set_ylabel("distance ahead (m)")
     ax.set_title("ADB road view (lamp at 0, 0)", fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, caption)
 
 
-def levels_plot(path: Path, result: AdbResult) -> None:
+def levels_plot(path: Path, result: AdbResult, caption: str | None = None) -> None:
     """Each segment's level against the frame (and the first road user's distance)."""
     import matplotlib
 
@@ -184,11 +187,12 @@ def levels_plot(path: Path, result: AdbResult) -> None:
     ax.set_xlabel("frame")
     ax.set_title("ADB segment levels over the traffic sequence", fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, caption)
 
 
-def _save(fig: Any, path: Path) -> None:
+def _save(fig: Any, path: Path, caption: str | None = None) -> None:
     import matplotlib.pyplot as plt
 
-    fig.savefig(path)
+    add_caption(fig, caption)
+    fig.savefig(path, metadata=png_metadata(caption))
     plt.close(fig)

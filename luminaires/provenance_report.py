@@ -40,7 +40,7 @@ parameter          unit   default   meaning
 from __future__ import annotations
 
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +52,7 @@ from lightsim.analysis import AnalysisReport, FinishedRun
 from lightsim.engine.apertures import layout_from_config
 from lightsim.errors import InputError
 from lightsim.io.atomic import atomic_path
+from lightsim.io.caption import add_caption, png_metadata
 from lightsim.io.exr import write_exr
 from lightsim.provenance import (
     PATH_LENGTH,
@@ -67,6 +68,7 @@ from lightsim.provenance import (
     step_texts,
 )
 from lightsim.render.frame import luminous
+from lightsim.road_evaluation import run_caption
 
 from .regulations.check import RegulationAnalysis, regulation_check
 
@@ -178,16 +180,20 @@ class ProvenanceAnalysis:
                  write_regions(out / REGIONS_FILE, region_store(
                      {s: per_set.get(s) for s in sets}, emitted, elements,
                      RegionRaster.of(session.scene.wall)))]
+        caption = None
+        if run.caption is not None:  # the run's caption naming the rule sets it breaks down
+            caption = replace(run.caption, rulesets=tuple(
+                (r.rules.id, r.rules.version) for r in self.regulations)).text()
         first = self.regulations[0].rules.id if self.regulations else ""
         failing = [(rs, name) for rs, rules in rulesets.items() for name, b in rules.items()
                    if b["verdict"] == "fail"][:MAX_RUN_IMAGES]
         for rs, name in failing:
             path = out / spots_image_name(name, rs, first)
-            draw_spots(out / SPOTS_FILE, rs, name, path, rulesets[rs][name])
+            draw_spots(out / SPOTS_FILE, rs, name, path, rulesets[rs][name], caption)
             files.append(path)
         if self.map_text:
             files += write_path_map(out, session.scene.wall, self.map_text, per_set, emitted,
-                                    sets)
+                                    sets, caption)
             summary["map"] = {"class": self.map_text, "files": [p.name for p in files[-2:]]}
         return AnalysisReport(summary, files=files)
 
@@ -420,7 +426,8 @@ def draw_region_spots(run_dir: Path, b: dict[str, Any], path: Path,
     title = (f"H {h0:.2f}..{h1:.2f}°, V {v0:.2f}..{v1:.2f}°: {_cd(b['value_lx'])} lx"
              f"\nlargest class: {head}")
     return _draw_lamp(lamp, store["spot"][sel], store["spot_flux"][sel], title, path,
-                      "flux sent out per projected area (lm/mm², log scale)")
+                      "flux sent out per projected area (lm/mm², log scale)",
+                      run_caption(run_dir))
 
 
 def _read_lamp(path: Path) -> dict[str, np.ndarray]:
@@ -453,7 +460,7 @@ def read_spots(path: Path, ruleset: str, rule: str) -> dict[str, np.ndarray]:
 
 
 def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
-               breakdown: dict[str, Any]) -> Path:
+               breakdown: dict[str, Any], caption: str | None = None) -> Path:
     """``provenance-<RULE>.png``: the lamp seen from the screen (looking back along −z,
     world +X to the right), every triangle coloured by the rule's intensity it sent out
     (its last reflection or scattering) per unit of its projected area (cd/mm², log
@@ -462,12 +469,14 @@ def draw_spots(spots_file: Path, ruleset: str, rule: str, path: Path,
     head = (breakdown["classes"][0]["class"] if breakdown.get("classes") else "no photons")
     title = (f"{ruleset} {rule}: {_cd(breakdown['value_cd'])} cd ({breakdown['verdict']})"
              f"\nlargest class: {head}")
+    if caption is None:  # drawn after the run: its own summary says what it was
+        caption = run_caption(Path(spots_file).parent)
     return _draw_lamp(d, d["spot"], d["cd"], title, path,
-                      "intensity sent out per projected area (cd/mm²)")
+                      "intensity sent out per projected area (cd/mm²)", caption)
 
 
 def _draw_lamp(d: dict[str, np.ndarray], spot: np.ndarray, amount: np.ndarray, title: str,
-               path: Path, label: str) -> Path:
+               path: Path, label: str, caption: str | None = None) -> Path:
     """The lamp's triangles ``d`` seen from the screen, ``amount`` of each ``spot``
     triangle per its projected area (log colour scale) over the unlit parts in grey."""
     import matplotlib
@@ -504,14 +513,16 @@ def _draw_lamp(d: dict[str, np.ndarray], spot: np.ndarray, amount: np.ndarray, t
     ax.set_xlabel("X (mm), lamp seen from the screen")
     ax.set_ylabel("Y (mm)")
     ax.set_title(title, fontsize=8)
+    add_caption(fig, caption)
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
+        fig.savefig(tmp, format="png", metadata=png_metadata(caption))
     plt.close(fig)
     return Path(path)
 
 
 def write_path_map(out: Path, frame: Any, text: str, per_set: dict[int, Any],
-                   emitted: np.ndarray, sets: list[int]) -> list[Path]:
+                   emitted: np.ndarray, sets: list[int], caption: str | None = None
+                   ) -> list[Path]:
     """``provenance-map.exr`` (channel Y, lx: the wall illuminance of the photons whose
     class name holds ``text``, the sets' binned flux over their emitted photons per pixel
     area) and ``provenance-map.png`` (false colour, log scale)."""
@@ -543,7 +554,8 @@ def write_path_map(out: Path, frame: Any, text: str, per_set: dict[int, Any],
     ax.set_xlabel("H (°)")
     ax.set_ylabel("V (°)")
     ax.set_title(f"light of path classes naming '{text}': max {top:.4g} lx", fontsize=9)
+    add_caption(fig, caption)
     with atomic_path(png, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
+        fig.savefig(tmp, format="png", metadata=png_metadata(caption))
     plt.close(fig)
     return [exr, png]

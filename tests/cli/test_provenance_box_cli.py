@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from lightsim.cli.main import main
+from lightsim.io.caption import read_caption
 from lightsim.luminaires.provenance_report import REGIONS_FILE, region_breakdown
 
 from support import run_cli
@@ -38,6 +39,7 @@ def test_box_prints_classes_adding_up_and_draws_the_lamp(lowbeam_run, capsys):
     assert lo <= b["sum_lx"] <= hi
     png = list(lowbeam_run.glob("provenance-box-*.png"))
     assert len(png) == 1 and png[0].stat().st_size > 1000
+    assert "photons" in (read_caption(png[0]) or ""), read_caption(png[0])
     # the whole raster holds the wall's flux the run reports
     s = json.loads((lowbeam_run / "summary.json").read_text())
     with np.load(lowbeam_run / REGIONS_FILE) as d:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from lightsim.io.caption import read_caption
+
 from support import run_cli
 
 EXAMPLES = Path(__file__).parents[2] / "luminaires" / "examples"
@@ -62,6 +64,9 @@ def test_lowbeam_classes_add_up_at_every_point_and_report_prints_them(tmp_path, 
     assert img.ndim == 3 and img.shape[0] > 100
     assert (tmp_path / "provenance-r149-b-passing-50R.png").exists()
     assert (tmp_path / "provenance-B50L.png").exists()
+    for p in tmp_path.glob("provenance-*.png"):  # each says which run and rule set it shows
+        cap = read_caption(p)
+        assert cap is not None and "photons" in cap and "lightsim" in cap, (p.name, cap)
     for p in tmp_path.glob("provenance-*.png"):
         p.unlink()
     assert {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()} == before
@@ -112,7 +117,8 @@ def test_path_map_holds_its_class_and_all_classes_hold_the_wall_flux(tmp_path, c
             * (w["v_range_m"][1] - w["v_range_m"][0]) / w["resolution"][1])
     assert float(ch["Y"].astype(float).sum()) * area == pytest.approx(
         s["energy_lm"]["wall"], rel=1e-4)
-    assert (tmp_path / "all" / "provenance-map.png").exists()
+    cap = read_caption(tmp_path / "all" / "provenance-map.png")
+    assert cap is not None and "lowbeam.glb" in cap and "r112-b-passing" in cap, cap
     s2 = _simulate(tmp_path / "shield", "lowbeam.glb", 50_000, capsys, "--provenance-map",
                    "shield (diffuse)")
     ch2, _ = read_exr(tmp_path / "shield" / "provenance-map.exr")

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lightsim.io.caption import read_caption
 from lightsim.io.exr import read_exr
 from lightsim.luminaires.adb import (
     AdbComposer,
@@ -185,6 +186,9 @@ def test_cli_writes_the_set(run_dir, approach, capsys, tmp_path):
     maps = read_per_source(run_dir)
     w = np.array([doc["frames"][-1]["levels"][n] for n in maps.names])
     assert np.array_equal(ch["Y"], AdbComposer(maps, read_traffic(approach)).composed(w))
+    for png in ("adb_isolux.png", "adb_levels.png", "adb_road.png"):  # said what they show
+        cap = read_caption(out / png)
+        assert cap is not None and "photons" in cap and "r149-adb" in cap, (png, cap)
 
 
 @pytest.mark.parametrize("body, why", [
