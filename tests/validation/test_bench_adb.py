@@ -1,5 +1,5 @@
 """lightsim bench adb: its rows (a short sequence on a small per-source run; the figures
-themselves are the lead's to measure, not asserted here)."""
+themselves belong to the benchmarks page, not to a test)."""
 
 from __future__ import annotations
 
