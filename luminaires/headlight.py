@@ -85,6 +85,7 @@ import numpy as np
 from lightsim.errors import InputError
 from lightsim.io.atomic import write_bytes
 
+from .asphere import revolve
 from .bulbs import BulbSpec, ShieldCupSpec, get_bulb
 from .filament import EMISSION_MODES, filament_part
 from .gltf_writer import GltfMaterial, GltfPart, glb_bytes
@@ -236,47 +237,6 @@ def _reflector_mesh(
 # ---------------------------------------------------------------------------------------
 
 
-def _revolve(
-    r: np.ndarray, z: np.ndarray, nr: np.ndarray, nz: np.ndarray, sectors: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Revolve a profile (r, z) with normals (nr, nz) about the Z axis.
-
-    Points with r = 0 become single pole vertices. Traversed upwards (from the bottom pole
-    over the outside to the top pole) the faces point away from the axis, i.e. outwards.
-    """
-    phi = 2 * np.pi * np.arange(sectors) / sectors
-    c, s = np.cos(phi), np.sin(phi)
-    verts: list[np.ndarray] = []
-    norms: list[np.ndarray] = []
-    rows: list[np.ndarray] = []  # vertex indices of each profile point (len 1 for a pole)
-    count = 0
-    for ri, zi, nri, nzi in zip(r, z, nr, nz):
-        if ri == 0.0:
-            verts.append(np.array([[0.0, 0.0, zi]]))
-            norms.append(np.array([[0.0, 0.0, math.copysign(1.0, nzi)]]))
-            rows.append(np.array([count]))
-            count += 1
-        else:
-            verts.append(np.column_stack([ri * c, ri * s, np.full(sectors, zi)]))
-            norms.append(np.column_stack([nri * c, nri * s, np.full(sectors, nzi)]))
-            rows.append(count + np.arange(sectors))
-            count += sectors
-    faces: list[np.ndarray] = []
-    j = np.arange(sectors)
-    jn = (j + 1) % sectors
-    for lo, hi in itertools.pairwise(rows):
-        if len(lo) == 1:  # bottom pole fan
-            faces.append(np.column_stack([np.full(sectors, lo[0]), hi[jn], hi[j]]))
-        elif len(hi) == 1:  # top pole fan
-            faces.append(np.column_stack([lo[j], lo[jn], np.full(sectors, hi[0])]))
-        else:
-            faces.append(np.column_stack([lo[j], lo[jn], hi[jn]]))
-            faces.append(np.column_stack([lo[j], hi[jn], hi[j]]))
-    n = np.vstack(norms)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    return np.vstack(verts), np.vstack(faces).astype(np.int64), n
-
-
 def _capsule_profile(
     radius: float, z_base: float, z_apex: float, dome_steps: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -301,8 +261,8 @@ def _bulb_envelope(
     ro = 0.5 * env.outer_diameter_m
     ri = ro - env.wall_m
     apex = focus_z + env.apex_z_m
-    vo, fo, no = _revolve(*_capsule_profile(ro, z_base, apex, dome_steps), sectors)
-    vi, fi, ni = _revolve(
+    vo, fo, no = revolve(*_capsule_profile(ro, z_base, apex, dome_steps), sectors)
+    vi, fi, ni = revolve(
         *_capsule_profile(ri, z_base + env.wall_m, apex - env.wall_m, dome_steps), sectors
     )
     # the inner surface bounds the glass from the cavity side: reversed winding, normals
@@ -322,7 +282,7 @@ def _tip_cap(
     t = np.linspace(0.0, 0.5 * np.pi, dome_steps + 1)
     r = ro * np.cos(t)
     r[-1] = 0.0
-    v, f, _ = _revolve(r, zd + ro * np.sin(t), np.cos(t), np.sin(t), sectors)
+    v, f, _ = revolve(r, zd + ro * np.sin(t), np.cos(t), np.sin(t), sectors)
     return v, f
 
 
