@@ -240,21 +240,27 @@ def _cd(x: float) -> str:
     return f"{x:,.4g}" if abs(x) < 1e4 else f"{x:,.0f}"
 
 
+def _class_table(title: str, classes: list[dict[str, Any]], unit: str) -> Table:
+    """A rich table of path classes: value and interval in ``unit`` (cd or lx), share."""
+    t = Table(title=title, title_justify="left")
+    t.add_column("path class")
+    t.add_column(unit, justify="right")
+    t.add_column(f"interval ({unit})", justify="right")
+    t.add_column("share", justify="right")
+    for c in classes:
+        name = c["class"] + (f" ({c['classes']} classes)" if "classes" in c else "")
+        lo, hi = c[f"interval_{unit}"]
+        t.add_row(name, _cd(c[f"value_{unit}"]), f"[{_cd(lo)}, {_cd(hi)}]",
+                  f"{c['share']:.1%}")
+    return t
+
+
 def format_breakdown(ruleset: str, rule: str, b: dict[str, Any]) -> Table:
     """A rich table of one rule's path classes."""
     lo, hi = b.get("interval_cd") or (float("nan"), float("nan"))
     title = (f"{ruleset} {rule}: {_cd(b['value_cd'])} cd [{_cd(lo)}, {_cd(hi)}] "
              f"({b.get('verdict')}); classes add up to {_cd(b['sum_cd'])} cd")
-    t = Table(title=title, title_justify="left")
-    t.add_column("path class")
-    t.add_column("cd", justify="right")
-    t.add_column("interval (cd)", justify="right")
-    t.add_column("share", justify="right")
-    for c in b["classes"]:
-        name = c["class"] + (f" ({c['classes']} classes)" if "classes" in c else "")
-        t.add_row(name, _cd(c["value_cd"]),
-                  f"[{_cd(c['interval_cd'][0])}, {_cd(c['interval_cd'][1])}]",
-                  f"{c['share']:.1%}")
+    t = _class_table(title, b["classes"], "cd")
     for f in b.get("facets", []):  # the facets a design would move, by their light here
         t.add_row(f"[dim]every path via {f['element']}[/dim]", _cd(f["value_cd"]),
                   f"[{_cd(f['interval_cd'][0])}, {_cd(f['interval_cd'][1])}]",
@@ -373,17 +379,7 @@ def format_region(b: dict[str, Any]) -> Table:
     title = (f"region H {h0:.2f}..{h1:.2f}°, V {v0:.2f}..{v1:.2f}°: mean "
              f"{_cd(b['value_lx'])} lx [{_cd(lo)}, {_cd(hi)}]; classes add up to "
              f"{_cd(b['sum_lx'])} lx")
-    t = Table(title=title, title_justify="left")
-    t.add_column("path class")
-    t.add_column("lx", justify="right")
-    t.add_column("interval (lx)", justify="right")
-    t.add_column("share", justify="right")
-    for c in b["classes"]:
-        name = c["class"] + (f" ({c['classes']} classes)" if "classes" in c else "")
-        t.add_row(name, _cd(c["value_lx"]),
-                  f"[{_cd(c['interval_lx'][0])}, {_cd(c['interval_lx'][1])}]",
-                  f"{c['share']:.1%}")
-    return t
+    return _class_table(title, b["classes"], "lx")
 
 
 def region_image_name(covered: list[float] | tuple[float, ...]) -> str:
