@@ -97,6 +97,9 @@ class Analysis(Protocol):
     # Optional: ``reads_photons`` (str or None), the option that makes the analysis read
     # kNN estimates (``session.probe``) after the run; None: it reads none, so the run
     # may drop its photons. An analysis without it counts as reading them.
+    # Optional: ``probe_points(scene)`` → (n, 2) wall points (h, v in m) it reads with
+    # ``session.probe`` after the run; known before it, the sets accumulate them frame by
+    # frame, so reading them needs no photon kept.
 
     def prepare(self, config: Any, scene: Any) -> Any:
         """The run's :class:`~lightsim.engine.config.RunConfig` with what this analysis

@@ -230,18 +230,25 @@ def load_far_field(run_dir: str | Path) -> FarField:
     return FarField(lux, frame, sets, sets_frame, str(out))
 
 
-def save_wall_sets(out: Path, session: Any, stride: int = WALL_SETS_STRIDE) -> Path:
-    """Every interleave set's wall map at every ``stride``-th pixel, as ``wall_sets.npz``.
-
-    The sets' estimates at the pixel centres come from :meth:`Session.probe` (per-set
-    density estimates at any wall point), so that a later ``lightsim road`` has intervals.
-    """
-    frame = session.scene.wall
+def wall_sets_points(frame: WallFrame, stride: int = WALL_SETS_STRIDE
+                     ) -> tuple[WallFrame, np.ndarray]:
+    """The frame of every ``stride``-th pixel and its pixel centres (wall h, v in m,
+    (P, 2), rows from the top): the points :func:`save_wall_sets` reads, known before
+    the run so that the sets accumulate them and drop their photons."""
     sub = frame.with_resolution(max(2, -(-frame.width // stride)),
                                 max(2, -(-frame.height // stride)))
     h, v = sub.pixel_centres()
     H, V = np.meshgrid(h, v)
-    pts = np.column_stack([H.ravel(), V.ravel()])  # wall coordinates, as probe takes them
+    return sub, np.column_stack([H.ravel(), V.ravel()])  # wall coordinates, as probe takes
+
+
+def save_wall_sets(out: Path, session: Any, stride: int = WALL_SETS_STRIDE) -> Path:
+    """Every interleave set's wall map at every ``stride``-th pixel, as ``wall_sets.npz``.
+
+    The sets' estimates at the pixel centres come from :meth:`Session.probe` (per-set
+    density estimates at wall points), so that a later ``lightsim road`` has intervals.
+    """
+    sub, pts = wall_sets_points(session.scene.wall, stride)
     values = luminous(session.probe(pts).values)  # (S, P)
     maps = values.reshape(values.shape[0], sub.height, sub.width).astype(np.float32)
     path = out / WALL_SETS_FILE
@@ -474,8 +481,13 @@ class RoadAnalysis:
 
     settings: RoadSettings = field(default_factory=RoadSettings)
     name: str = "road_evaluation"
-    #: the per-set maps (``wall_sets.npz``) are kNN estimates at every few pixels
-    reads_photons = "--road"
+    #: the per-set maps (``wall_sets.npz``) are kNN estimates at every few pixels, at
+    #: points known before the run (:meth:`probe_points`): no photon need be kept
+    reads_photons = None
+
+    def probe_points(self, scene: Any) -> np.ndarray:
+        """Wall points (h, v in m) read after the run: :func:`wall_sets_points`."""
+        return wall_sets_points(WallFrame.from_any(scene.wall))[1]
 
     def prepare(self, config: Any, scene: Any) -> Any:
         """Check the road lies on the wall before any photon (the maps are read after the

@@ -392,7 +392,8 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     config = config.with_(keep_photons=keeper is not None)
     # the kNN estimates read after the run: the cut-off scans (accumulated per frame at
     # these points when no photon is kept)
-    extra = cutoff_points(scene.wall, opts.traffic, config)
+    extra = np.vstack([cutoff_points(scene.wall, opts.traffic, config)]
+                      + analysis_points(analyses, scene, config))
     channels = scene.channels or 3
     points = len(extra)  # the stores' points (the error grid reads the ICI lattice)
     estimate = check_fits(opts.photons, scene.wall.resolution, config, channels,  # pre-flight
@@ -487,6 +488,16 @@ def cutoff_points(frame: Any, traffic: str, config: RunConfig) -> np.ndarray:
         return np.zeros((0, 2))
     hv, _, _ = scan_sample_points(frame.to_dict(), traffic)
     return np.asarray(hv, dtype=np.float64).reshape(-1, 2)
+
+
+def analysis_points(analyses: Sequence[Analysis], scene: Scene, config: RunConfig
+                    ) -> list[np.ndarray]:
+    """The wall points (h, v in m, (n, 2) each) the analyses read after the run (their
+    optional ``probe_points``; none with a single set, which has no spread to read)."""
+    if config.n_sets < 2:
+        return []
+    return [np.asarray(a.probe_points(scene), dtype=np.float64).reshape(-1, 2)
+            for a in analyses if hasattr(a, "probe_points")]
 
 
 def check_until(opts: SimulateOptions, config: RunConfig) -> None:

@@ -19,6 +19,20 @@ import pytest
 RAY_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
            "PYTHONUNBUFFERED": "1"}
 
+#: the start of a Ray test's script: ``scene()``, a point source at a paraboloid's focus
+#: lighting a 64 × 64 wall 2 m away
+SCENE_SCRIPT = """
+import numpy as np
+from lightsim.scene import Scene, make_wall
+from lightsim.validation.scenes import primitives as prim
+
+def scene():
+    wall, frame = make_wall(2.0, (4.0, 4.0), resolution=(64, 64))
+    mirror = prim.paraboloid(0.5, 0.6, 0.9, radial=24, azimuthal=96)
+    src = prim.point_source(1000.0, radius=1e-3, centre=(0, 0, 0.5))
+    return Scene([src, mirror, wall], frame)
+"""
+
 
 def _unshare_prefix() -> list[str]:
     if shutil.which("unshare") is None:

@@ -203,6 +203,15 @@ class DeferredPhotonMap:
         return sub, bounds
 
 
+def kept_records(st: SetState) -> int:
+    """Wall records the set's map holds now: every one a photon map took, the pool of a
+    point store (:attr:`PointStore.kept`), none for bins."""
+    pm = st.photonmap
+    if pm is None:
+        return 0
+    return int(pm.kept) if isinstance(pm, PointStore) else len(pm)
+
+
 @dataclass
 class SetState:
     """Accumulated state of one interleave set (stores: see the module table).
@@ -792,7 +801,8 @@ class PhotonSets:
     def stats(self) -> dict[int, dict[str, Any]]:
         """Per-set counters and bookkeeping (unnormalised ledger)."""
         return {s: {"emitted": st.emitted, "frames": st.frames, "caustic": st.caustic,
-                    "records": st.records, "ledger": st.ledger.copy(),
+                    "records": st.records, "kept": kept_records(st),
+                    "ledger": st.ledger.copy(),
                     "emitted_power": st.emitted_power.copy()}
                 for s, st in self.sets.items()}
 

@@ -48,10 +48,13 @@ from lightsim.photonmap.common import R_FLOOR_REL, Estimate, as_unit_normals
 from lightsim.photonmap.density import PhotonMap
 
 POOL_SLACK = 2.0
-#: photons the pool may gain before it is cut back (per set; 3.8 MB of pool): the cut's
-#: kNN queries cost about one frame's insertion, so they run every few hundred frames
-#: (the README lamp's scan points gain ~1 700 pooled photons per set and million shot)
-POOL_MIN = 2**17
+#: photons the pool may gain before it is cut back (per set; 0.9 MB of pool). Small
+#: enough that a run's first cut comes early (the README lamp's sets pool ~16 000
+#: photons each per 10 M shot), so the pool's peak is the same at 50 M and 500 M
+#: photons; each cut's kNN queries cost about one frame's insertion
+POOL_MIN = 2**15
+#: points whose r_lo-sums are added at once: bounds the (point, photon) pairs in memory
+SUM_POINTS = 512
 #: bytes one pooled photon takes (position, normal, power per channel: float32)
 POOL_PHOTON_BYTES = 24
 KERNELS = ("box", "cone", "epanechnikov")
@@ -246,24 +249,30 @@ class PointStore:
     def _sum_within_r_lo(self, pm: PhotonMap, pts: np.ndarray, pw: np.ndarray) -> None:
         """Add the photons of ``pm`` (positions ``pts``, powers ``pw``, in its insertion
         order) to the r_lo-sums of every point (the density kernels' test: the photon
-        map's radius search, d² ≤ r_lo², the normal filter)."""
-        nb = pm.query_radius(self.points, self.r_lo,
-                             normals=np.broadcast_to(self._normal32, self.points.shape),
-                             normal_cos=self.normal_cos)
-        if len(nb.indices) == 0:
-            return
+        map's radius search, d² ≤ r_lo², the normal filter). Points go in blocks of
+        ``SUM_POINTS``, so the (point, photon) pairs held at once stay bounded whatever
+        the pool; each point's sum is added in the same order either way."""
         P = len(self.points)
-        qi = np.repeat(np.arange(P), np.diff(nb.offsets))
-        pj = nb.indices
-        if self.kernel == "box":
-            w = np.ones(len(pj))
-        else:  # the weight from the float64 distance, as the estimate computes it
-            dx = pts[pj].astype(np.float64) - self.points[qi]
-            w = kernel_weight(self.kernel, dx[:, 0] * dx[:, 0] + dx[:, 1] * dx[:, 1]
-                              + dx[:, 2] * dx[:, 2], self.r_lo)
-        for c in range(self.channels):
-            self.acc[:, c] += np.bincount(qi, w * pw[pj, c].astype(np.float64), minlength=P)
-        self.count += np.bincount(qi, minlength=P)
+        for i0 in range(0, P, SUM_POINTS):
+            at = self.points[i0:i0 + SUM_POINTS]
+            nb = pm.query_radius(at, self.r_lo,
+                                 normals=np.broadcast_to(self._normal32, at.shape),
+                                 normal_cos=self.normal_cos)
+            if len(nb.indices) == 0:
+                continue
+            qi = np.repeat(np.arange(len(at)), np.diff(nb.offsets))
+            pj = nb.indices
+            if self.kernel == "box":
+                w = None
+            else:  # the weight from the float64 distance, as the estimate computes it
+                dx = pts[pj].astype(np.float64) - at[qi]
+                w = kernel_weight(self.kernel, dx[:, 0] * dx[:, 0] + dx[:, 1] * dx[:, 1]
+                                  + dx[:, 2] * dx[:, 2], self.r_lo)
+            for c in range(self.channels):
+                pc = pw[pj, c].astype(np.float64)
+                self.acc[i0:i0 + len(at), c] += np.bincount(
+                    qi, pc if w is None else w * pc, minlength=len(at))
+            self.count[i0:i0 + len(at)] += np.bincount(qi, minlength=len(at))
 
     # -- estimates --------------------------------------------------------------------------
     def lookup(self, points: np.ndarray) -> np.ndarray:

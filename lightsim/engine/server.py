@@ -803,10 +803,11 @@ class Session:
         return written if written is not None and satisfied(written) else None
 
     def kept_photons(self) -> int:
-        """Photon records the sets' maps keep (0 for the ``bin`` estimator's bins)."""
+        """Photon records the sets' maps keep now (0 for the ``bin`` estimator's bins; a
+        point store's pool when no photon is kept)."""
         if self.config.estimator == "bin":
             return 0
-        return sum(int(st.get("records", 0)) for st in self.backend.stats().values())
+        return sum(int(st.get("kept", 0)) for st in self.backend.stats().values())
 
     def photon_budget(self) -> float | None:
         """Bytes the photon maps may take in all (:func:`~lightsim.engine.memory.

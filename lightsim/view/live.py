@@ -684,7 +684,7 @@ class LiveSession:
         if self._memory_budget is None:
             return False
         stats = self.session.backend.stats()
-        records = sum(int(st.get("records", 0)) for st in stats.values())
+        records = sum(int(st.get("kept", 0)) for st in stats.values())
         full = records * bytes_per_photon(self.session.plan.channels or 1, peak=True) \
             >= self._memory_budget
         if full and not self._memory_said:

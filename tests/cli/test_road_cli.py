@@ -144,6 +144,28 @@ def test_simulate_road_stores_sets_and_table(tmp_path: Path, capsys) -> None:
     assert "from 4 interleave sets" in text or "interleave sets" in text
 
 
+def test_simulate_road_keeps_no_photon(tmp_path: Path, capsys) -> None:
+    """``--road`` reads its per-set maps at points known before the run: the run keeps no
+    photon, and the maps and the table equal those of a run keeping every photon, bit for
+    bit."""
+    lamp = write_point_lamp(tmp_path / "lamp.glb")
+    maps, tables = {}, {}
+    for extra in ([], ["--keep-photons"]):
+        out = tmp_path / f"out{len(extra)}"
+        code, _, err = run_cli(["simulate", str(lamp), "-n", "40000", "--road", "--out",
+                                str(out), "--outputs", "exr,json", *extra], capsys)
+        assert code == 0, err
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["config"]["keep_photons"] is bool(extra)
+        table = summary["road_evaluation"]
+        table.pop("seconds", None)
+        tables[bool(extra)] = table
+        with np.load(out / WALL_SETS_FILE) as data:
+            maps[bool(extra)] = data["lux"]
+    assert maps[False].max() > 0 and np.array_equal(maps[False], maps[True])
+    assert tables[False] == tables[True]
+
+
 def test_left_lamp_from_a_second_run(tmp_path: Path, capsys) -> None:
     """``--left-run``: a dark left lamp leaves only the right lamp's light."""
     run = write_run(tmp_path / "right")

@@ -157,7 +157,7 @@ def test_session_without_kept_photons_probes_as_one_that_keeps_them():
 
 class _Reads:
     name = "reads"
-    reads_photons = "--road"
+    reads_photons = "--aperture 0"
 
 
 class _ReadsNone:
@@ -174,7 +174,7 @@ def test_photon_keeper_names_the_option_that_keeps_photons():
     cfg = opts.run_config()
     assert photon_keeper(opts, cfg, []) is None
     assert photon_keeper(opts, cfg, [_ReadsNone()]) is None
-    assert photon_keeper(opts, cfg, [_ReadsNone(), _Reads()]) == "--road"
+    assert photon_keeper(opts, cfg, [_ReadsNone(), _Reads()]) == "--aperture 0"
     assert photon_keeper(opts, cfg, [_Unknown()]) == "the custom analysis"
     keep = SimulateOptions(scene_path="x.glb", keep_all_photons=True)
     assert photon_keeper(keep, cfg, []) == "--keep-photons"

@@ -19,22 +19,9 @@ import trimesh
 from lightsim.io.exr import read_exr
 from lightsim.luminaires.gltf_writer import GltfMaterial, GltfPart, write_glb
 
-from netns import run_in_netns
+from netns import SCENE_SCRIPT, run_in_netns
 
 pytestmark = pytest.mark.ray
-
-SCENE_SCRIPT = """
-import numpy as np
-from lightsim.scene import Scene, make_wall
-from lightsim.validation.scenes import primitives as prim
-
-def scene():
-    wall, frame = make_wall(2.0, (4.0, 4.0), resolution=(64, 64))
-    mirror = prim.paraboloid(0.5, 0.6, 0.9, radial=24, azimuthal=96)
-    src = prim.point_source(1000.0, radius=1e-3, centre=(0, 0, 0.5))
-    return Scene([src, mirror, wall], frame)
-"""
-
 
 def test_backends_identical_and_actor_fault_replayed(tmp_path):
     script = tmp_path / "ray_check.py"
