@@ -10,6 +10,7 @@ appended to.
 
     python docs/make_benchmarks.py              # the figures (a quiet machine: an hour or more)
     python docs/make_benchmarks.py --quick      # fewer repeats and photons: checks the page only
+    python docs/make_benchmarks.py --only memory  # one benchmark's section run anew, in place
 
 ``bench peer`` (against Mitsuba 3) runs only where ``mitsuba`` is installed.
 
@@ -21,6 +22,9 @@ name        unit    default              meaning
 --quick     –       off                  fewer repeats and photons (the page says so)
 --out       –       docs/benchmarks.md   the page written
 --keep      –       none                 folder for the JSON files (kept)
+--only      –       every benchmark      comma-separated names: run only these and replace
+                                         their sections of the existing page (each then
+                                         says when and under what load it was made)
 ==========  ======  ===================  ===========================================
 """
 
@@ -202,8 +206,9 @@ def tables(rows: list[dict[str, Any]]) -> list[str]:
     return out
 
 
-def section(o: Outcome) -> str:
-    """One benchmark's section: what it measures, the command, its tables."""
+def section(o: Outcome, stamp: str | None = None) -> str:
+    """One benchmark's section: what it measures, the command, its tables (``stamp``: when
+    and under what load a section made alone was generated)."""
     parts = [f"## {o.bench.name}", o.bench.about, f"```bash\n{o.command}\n```"]
     if o.doc is None:
         if o.error.startswith("skipped"):
@@ -215,8 +220,24 @@ def section(o: Outcome) -> str:
     meta = o.doc.get("meta") or {}
     facts = [f"{k}: {_cell(v)}" for k, v in meta.items() if not isinstance(v, list | dict)]
     facts.append(f"whole command: {o.seconds:.0f} s")
+    if stamp:
+        facts.append(stamp)
     parts.append("*" + "; ".join(facts) + ".*")
     return "\n\n".join(parts)
+
+
+def replace_sections(text: str, new: dict[str, str]) -> str:
+    """``text`` (the page) with the sections named in ``new`` replaced (a section runs
+    from its ``## name`` heading to the next heading of that level)."""
+    head, *rest = text.split("\n## ")
+    sections = {part.split("\n", 1)[0].strip(): part for part in rest}
+    missing = sorted(set(new) - set(sections))
+    if missing:
+        raise SystemExit(f"--only: no section {', '.join(missing)} on the page; run the whole "
+                         "page instead")
+    parts = [new[name][3:].rstrip("\n") + "\n" if name in new else part
+             for name, part in sections.items()]
+    return "\n## ".join([head, *parts])
 
 
 def page(outcomes: list[Outcome], facts: dict[str, str], quick: bool, started: str,
@@ -251,7 +272,14 @@ def main(argv: list[str] | None = None) -> None:
                         help="fewer repeats and photons: for checking the page only")
     parser.add_argument("--out", default=str(PAGE), help="the page to write")
     parser.add_argument("--keep", metavar="DIR", help="run in DIR and keep the JSON files")
+    parser.add_argument("--only", metavar="NAMES",
+                        help="comma-separated benchmarks to run anew, their sections "
+                             "replaced in the existing page")
     args = parser.parse_args(argv)
+    only = [n.strip() for n in (args.only or "").split(",") if n.strip()]
+    unknown = sorted(set(only) - {b.name for b in BENCHES})
+    if unknown:
+        parser.error(f"--only: unknown benchmark {', '.join(unknown)}")
     started = datetime.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
     load_before = load_average()
     facts = machine()
@@ -260,6 +288,8 @@ def main(argv: list[str] | None = None) -> None:
     outcomes = []
     try:
         for bench in BENCHES:
+            if only and bench.name not in only:
+                continue
             if bench.needs and importlib.util.find_spec(bench.needs) is None:
                 shown = "lightsim " + " ".join(bench.args)
                 print(f"{bench.name}: skipped ({bench.needs} is not installed)", flush=True)
@@ -270,8 +300,13 @@ def main(argv: list[str] | None = None) -> None:
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    text = page(outcomes, facts, args.quick, started, (load_before, load_average()))
     out = Path(args.out)
+    if only:
+        stamp = f"generated {started}, load average {load_before} before, {load_average()} after"
+        text = replace_sections(out.read_text(encoding="utf-8"),
+                                {o.bench.name: section(o, stamp) for o in outcomes})
+    else:
+        text = page(outcomes, facts, args.quick, started, (load_before, load_average()))
     tmp = out.with_suffix(".tmp")
     tmp.write_text(text, encoding="utf-8")
     os.replace(tmp, out)
