@@ -78,16 +78,21 @@ class _Progress:
 
 
 def until_text(until: dict[str, Any]) -> str:
-    """``--until decided``: what stopped the run and what is still open."""
+    """``--until decided`` / ``verdict``: what stopped the run and what is still open."""
     looks = until.get("looks") or []
-    head = (f"until decided: {len(looks)} looks of {until.get('looks_planned')} planned "
+    head = (f"until {until.get('rule', 'decided')}: {len(looks)} looks of "
+            f"{until.get('looks_planned')} planned "
             f"(each at {until.get('look_level', 0):.2%}, so that every verdict holds at "
             f"{until.get('confidence', 0.95):.0%} over all looks)")
     if until.get("decided"):
         return f"{head}; every verdict decided at {until.get('photons', 0):,} photons"
+    opened = [f"{o['ruleset']} {o['name']}" for o in until.get("undecided", [])]
+    if until.get("stopped_by") == "verdict" and until.get("lamp_verdict") == "fail":
+        return (f"{head}; the lamp fails, decided at {until.get('photons', 0):,} photons "
+                f"(a rule decided fail); {len(opened)} rules left undecided: "
+                f"{', '.join(opened) or '-'}")
     cap = {"photons": "the photon cap", "time": "the time cap",
            "memory": "the memory"}.get(str(until.get("stopped_by")), "a cap")
-    opened = [f"{o['ruleset']} {o['name']}" for o in until.get("undecided", [])]
     notes = "; ".join(f"{k}: {v}" for k, v in (until.get("notes") or {}).items())
     return (f"{head}; stopped by {cap} at {until.get('photons', 0):,} photons with "
             f"{len(opened)} rules undecided: {', '.join(opened) or '-'}"

@@ -94,9 +94,11 @@ class SimulateOptions:
     until: str | None = option(
         None, "decided: stop as soon as every rule of every --regulation rule set is pass "
         "or fail at its confidence, with a sequential rule that keeps wrong verdicts at "
-        "their nominal rate however often it looks; --photons (default "
+        "their nominal rate however often it looks; verdict: stop as soon as the lamp's "
+        "verdict is decided (a rule surely fails, or every rule is decided; rules still "
+        "open read uncertain); --photons (default "
         f"{UNTIL_CAP_PHOTONS:,}) and --time cap the run, which then reports what is still "
-        "undecided.", flag=("--until",), choices=(None, "decided"), resume=True,
+        "undecided.", flag=("--until",), choices=(None, "decided", "verdict"), resume=True,
         default_text="the photon or time budget")
     out_dir: str = option("lightsim-out", "Output folder.", flag=("--out",), kind="dir")
     resolution: tuple[int, int] = option((640, 256), "Wall pixels WxH.", unit="px",
@@ -534,8 +536,8 @@ def until_summary(opts: SimulateOptions, session, summary: dict[str, Any],
     ``time`` or ``photons``."""
     for analysis in analyses:
         if isinstance(analysis, StopsRun) and (rec := analysis.stop_summary()) is not None:
-            if rec.get("stopped") == "decided":
-                why = "decided"
+            if rec.get("stopped") in ("decided", "verdict"):
+                why = str(rec["stopped"])
             elif session.memory_stop is not None:
                 why = "memory"
             elif opts.seconds is not None and summary["seconds"] >= opts.seconds:

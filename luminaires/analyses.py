@@ -56,8 +56,8 @@ def for_options(opts: Any) -> list[Analysis]:
             check_step(step, kind, flag)
     out: list[Analysis] = []
     if opts.regulation is not None:
-        # --until decided: one stopping rule over every rule set's verdicts
-        until = VerdictRule() if opts.until == "decided" else None
+        # --until decided/verdict: one stopping rule over every rule set's verdicts
+        until = VerdictRule(stop=opts.until) if opts.until is not None else None
         # `a,b`: one table per rule set, the first named "regulation"
         for i, rs in enumerate(split_rulesets(opts.regulation)):
             analysis = RegulationAnalysis(rs, opts.traffic, opts.aim, opts.aperture,

@@ -290,7 +290,7 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
     rule, photons = None, opts.photons
     if opts.until is not None:  # each sample stops when its verdicts are decided
         photons = opts.photons if opts.photons is not None else UNTIL_CAP_PHOTONS
-        rule = VerdictRule()
+        rule = VerdictRule(stop=opts.until)
         for rs, off in zip(rulesets, offsets, strict=True):
             rule.add(rs, opts.traffic, opts.aim, off)
         rule.bind(session, photons)

@@ -91,8 +91,8 @@ from .ruleset import RuleSet, load_ruleset
 __all__ = ["DEFAULT_CAP_PHOTONS", "UNTIL_CHOICES", "GuideTargets", "LookSchedule", "OpenRule",
            "VerdictRule", "merge_row", "probe_regions"]
 
-UNTIL_CHOICES = ("decided",)
-"""What ``--until`` may name."""
+UNTIL_CHOICES = ("decided", "verdict")
+"""What ``--until`` may name (:class:`VerdictRule`'s ``stop``)."""
 DEFAULT_CAP_PHOTONS = UNTIL_CAP_PHOTONS
 """Photon cap of ``--until decided`` without ``--photons``: the looks are counted up to it
 (a rule exactly at its limit never decides; the cap ends the run)."""
@@ -266,11 +266,20 @@ class VerdictRule:
         Every verdict is wrong with probability at most (1 − confidence)/2 over all looks.
     growth : float
         Photons between planned looks grow by this factor.
+    stop : str
+        ``decided``: the run stops when every rule is decided. ``verdict``: when the
+        lamp's verdict over every rule set is decided — some rule decided "fail" (the lamp
+        fails whatever the others read), or every rule decided; the rules still open then
+        read "uncertain".
     """
 
-    def __init__(self, confidence: float = 0.95, growth: float = GROWTH) -> None:
+    def __init__(self, confidence: float = 0.95, growth: float = GROWTH,
+                 stop: str = "decided") -> None:
         if not (0.0 < confidence < 1.0):
             raise InputError(f"confidence must lie in (0, 1), got {confidence}")
+        if stop not in UNTIL_CHOICES:
+            raise InputError(f"--until: choose one of {', '.join(UNTIL_CHOICES)}, not {stop!r}")
+        self.stop = stop
         self.confidence = float(confidence)
         self.growth = float(growth)
         self.checks: list[_Check] = []
@@ -331,7 +340,7 @@ class VerdictRule:
             if any(c.aim for c in self.checks) and est.lux is None:
                 return True  # the session draws the written map and asks again: the look
             self.look(photons, None if est.lux is None else luminous(est.lux))
-        return self.decided()
+        return self.finished()
 
     # -- looks ---------------------------------------------------------------------------
     def due(self, photons: int) -> bool:
@@ -345,6 +354,21 @@ class VerdictRule:
         return bool(self.looks) and all(
             chk.note is None and chk.rows and all(r["decided"] for r in chk.rows.values())
             for chk in self.checks)
+
+    def lamp_verdict(self) -> str | None:
+        """The lamp's verdict over every rule set at the last look: "fail" once some rule
+        is decided fail, "pass" once every rule is decided pass, else None (open)."""
+        rows = [r for chk in self.checks for r in chk.rows.values()]
+        if any(r["decided"] and r["verdict"] == "fail" for r in rows):
+            return "fail"
+        return "pass" if self.decided() else None
+
+    def finished(self) -> bool:
+        """Whether the run may stop: every rule decided (``stop="decided"``), or the
+        lamp's verdict decided (``stop="verdict"``)."""
+        if self.stop == "verdict":
+            return bool(self.looks) and self.lamp_verdict() is not None
+        return self.decided()
 
     def level(self) -> float:
         """Two-sided level of every look's intervals (1 − α/K)."""
@@ -511,9 +535,10 @@ class VerdictRule:
     def summary(self) -> dict[str, Any]:
         """``summary.json["until"]``: the budget, every look and the rules still open."""
         sch = self.schedule
-        return {"rule": "decided", "decided": self.decided(),
-                # the run itself stopped on a look that decided everything
-                "stopped": "decided" if self.decided() and not self.final_done else None,
+        return {"rule": self.stop, "decided": self.decided(),
+                "lamp_verdict": self.lamp_verdict(),
+                # the run itself stopped on a look that decided what it waits for
+                "stopped": self.stop if self.finished() and not self.final_done else None,
                 "confidence": self.confidence,
                 "method": "error budget α split evenly over the planned looks "
                           "(Bonferroni); running intersection of every look's intervals",

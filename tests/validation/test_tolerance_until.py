@@ -23,11 +23,11 @@ def lamp(tmp_path_factory) -> Path:
     return write_point_lamp(tmp_path_factory.mktemp("lamp") / "lamp.glb")
 
 
-def _opts(lamp: Path, out: Path, photons: int) -> SimulateOptions:
+def _opts(lamp: Path, out: Path, photons: int, until: str = "decided") -> SimulateOptions:
     # 1.5° apertures: the isotropic source's few photons per aperture decide within ~2 M
     return SimulateOptions(str(lamp), out_dir=str(out), photons=photons, resolution=(80, 32),
                            regulation=RULES, aperture=1.5,
-                           config={"seed": 3, "frame_photons": FRAME}, until="decided")
+                           config={"seed": 3, "frame_photons": FRAME}, until=until)
 
 
 def test_a_sample_stops_when_decided_or_reports_its_cap(lamp, tmp_path):
@@ -56,3 +56,17 @@ def test_study_records_the_photons_each_sample_took(lamp, tmp_path):
     assert used["max"] <= 2 * FRAME
     assert used["total"] == sum(s["photons"] for s in doc["samples"])
     assert all(s["decided"] is False for s in doc["samples"])
+
+
+def test_until_verdict_stops_a_failing_sample_at_its_first_sure_fail(lamp, tmp_path):
+    """``--until verdict``: the isotropic lamp fails 75R (79.6 cd ≪ 10 100) at the first
+    look, so the sample stops there; its fails are true ones."""
+    s = run_sample(_opts(lamp, tmp_path, 64 * FRAME, until="verdict"), np.zeros(5))
+    assert s.photons == FRAME
+    truth = 1000.0 / (4 * np.pi)
+    verdicts = dict(zip(s.names, s.verdicts, strict=True))
+    assert verdicts["75R"] == "fail"
+    for name, verdict, lim in zip(s.names, s.verdicts, s.limits, strict=True):
+        if verdict == "fail" and (name.isdigit() or len(name) <= 4):
+            assert (lim.get("min") is not None and truth < lim["min"]) or (
+                lim.get("max") is not None and truth > lim["max"]), name

@@ -119,6 +119,40 @@ def test_guided_until_steers_to_the_open_rules_and_decides_truly(tmp_path, capsy
             assert a[name][0] == b[name][0], name
 
 
+def test_until_verdict_stops_at_the_first_sure_fail(tmp_path, capsys):
+    """``--until verdict`` on a 1000 lm isotropic source (79.6 cd everywhere, far below
+    75R's 10 100 cd): the lamp's verdict is decided — fail — at the first look, with the
+    rule that decided it true and the rules still open reading uncertain; ``--until
+    decided`` on the same lamp runs on."""
+    glb = write_point_lamp(tmp_path / "lamp.glb")
+    truth = 1000.0 / (4 * math.pi)
+    got = {}
+    for mode in ("verdict", "decided"):
+        out = tmp_path / mode
+        code, text, err = run_cli(["simulate", str(glb), "--until", mode, "--regulation",
+                                   "r112-b-passing", "--photons", "1600000",
+                                   "--frame-photons", "100000", "--resolution", "80x32",
+                                   "--seed", "3", "--out", str(out)], capsys)
+        assert code == 0, err
+        got[mode] = (json.loads((out / "summary.json").read_text()), text)
+    summary, text = got["verdict"]
+    until = summary["until"]
+    assert until["rule"] == "verdict" and until["stopped_by"] == "verdict"
+    assert until["lamp_verdict"] == "fail" and until["photons"] == 100_000
+    assert "the lamp fails, decided at 100,000 photons" in text
+    rows = {r["name"]: r for r in summary["regulation"]["results"]}
+    assert rows["75R"]["verdict"] == "fail" and rows["75R"]["interval_cd"][1] < 10_100
+    for r in rows.values():
+        if r.get("kind") == "point" and r["verdict"] in ("pass", "fail"):
+            lim = r["limit"]
+            ok = (lim.get("min") is None or truth >= lim["min"]) and (
+                lim.get("max") is None or truth <= lim["max"])
+            assert r["verdict"] == ("pass" if ok else "fail"), r
+    assert until["undecided"] and all(rows[o["name"]]["verdict"] == "uncertain"
+                                      for o in until["undecided"])
+    assert got["decided"][0]["until"]["photons"] > until["photons"]
+
+
 @pytest.mark.parametrize("guide", [False, True])
 def test_traced_lamps_decide_wrongly_no_more_than_nominal(guide):
     """Synthetic Type A lamps of known intensities, traced with --until decided (and with
