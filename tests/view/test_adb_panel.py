@@ -6,7 +6,6 @@ route's bad input."""
 from __future__ import annotations
 
 import json
-import shutil
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -19,12 +18,8 @@ from lightsim.persource import compose, read_per_source
 from lightsim.simulate import SimulateOptions, run_simulation
 from lightsim.view.adb_panel import maps_payload, serve_adb
 
-try:
-    from playwright.sync_api import sync_playwright
-except ImportError:  # pragma: no cover - the browser test is skipped
-    sync_playwright = None
+from support import browser_page
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 MATRIX = Path(__file__).resolve().parents[2] / "luminaires" / "examples" / "matrix.glb"
 
 
@@ -79,16 +74,7 @@ def test_mask_route(server, maps):
 
 @pytest.mark.timeout(180)
 def test_toggle_and_drag_recompose_in_the_browser(server, maps):
-    if sync_playwright is None:
-        pytest.skip("playwright (Python) is not installed")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("Debian's chromium is not installed")
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        page = browser.new_page(viewport={"width": 1300, "height": 800})
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(server.url)
+    with browser_page(server.url, (1300, 800)) as (page, errors):
         page.wait_for_function("window.adb.ready && window.adb.masks >= 1", timeout=60_000)
 
         def state():
@@ -124,7 +110,6 @@ def test_toggle_and_drag_recompose_in_the_browser(server, maps):
                                                               np.float32)).ravel())
         assert dragged["levels"][k] == 0.0  # the toggle holds through new masks
         assert errors == []
-        browser.close()
 
 
 @pytest.mark.timeout(180)
@@ -132,17 +117,8 @@ def test_dimming_slider_recomposes_with_its_level(server, maps):
     """A slider held at 0.35 re-composes at once with that weight (before the server
     answers), goes to the server as a fixed level, and a double-click gives the segment
     back to the mask."""
-    if sync_playwright is None:
-        pytest.skip("playwright (Python) is not installed")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("Debian's chromium is not installed")
     k = list(maps.names).index("led_07")
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        page = browser.new_page(viewport={"width": 1300, "height": 800})
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(server.url)
+    with browser_page(server.url, (1300, 800)) as (page, errors):
         page.wait_for_function("window.adb.ready && window.adb.masks >= 1", timeout=60_000)
 
         def state():
@@ -189,7 +165,6 @@ def test_dimming_slider_recomposes_with_its_level(server, maps):
                               compose(maps.lux, np.array(released["levels"],
                                                          np.float32)).ravel())
         assert errors == []
-        browser.close()
 
 
 def test_panel_needs_the_access_token(server):

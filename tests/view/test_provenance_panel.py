@@ -6,7 +6,6 @@ access token on its routes."""
 from __future__ import annotations
 
 import json
-import shutil
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -23,12 +22,8 @@ from lightsim.luminaires.provenance_report import (
 )
 from lightsim.view.provenance_panel import serve_provenance
 
-try:
-    from playwright.sync_api import sync_playwright
-except ImportError:  # pragma: no cover - the browser test is skipped
-    sync_playwright = None
+from support import browser_page
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 LOWBEAM = Path(__file__).resolve().parents[2] / "luminaires" / "examples" / "lowbeam.glb"
 
 
@@ -91,16 +86,7 @@ def test_panel_needs_the_access_token(server):
 
 @pytest.mark.timeout(180)
 def test_click_and_drag_show_the_breakdown_in_the_browser(server, run_dir):
-    if sync_playwright is None:
-        pytest.skip("playwright (Python) is not installed")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("Debian's chromium is not installed")
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        page = browser.new_page(viewport={"width": 1400, "height": 900})
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(str(e)))
-        page.goto(server.url)
+    with browser_page(server.url, (1400, 900)) as (page, errors):
         page.wait_for_function("window.prov.ready", timeout=60_000)
         screen = page.evaluate("window.prov.screen")
         he, ve = screen["h_edges_deg"], screen["v_edges_deg"]
@@ -153,4 +139,3 @@ def test_click_and_drag_show_the_breakdown_in_the_browser(server, run_dir):
         assert "lx" in title and "classes add up to" in title
         assert page.evaluate("document.getElementById('lamp').naturalWidth") > 200
         assert errors == []
-        browser.close()
