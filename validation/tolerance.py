@@ -240,7 +240,8 @@ class SampleResult:
         ``--until decided``: photons the sample took until every verdict was decided (or
         its cap); None without it.
     decided : bool or None
-        ``--until decided``: every verdict decided (False: the cap came first).
+        ``--until``: what the rule waits for was decided — every verdict (``decided``),
+        the lamp's verdict (``verdict``); False: the cap came first.
     """
 
     offset: list[float]
@@ -315,7 +316,7 @@ def run_sample(opts: Any, offset: np.ndarray, scene: Any = None) -> SampleResult
             rows += [dict(r, name=prefix + str(r["name"])) for r in reg["results"]
                      if r.get("limit") and r.get("verdict") != "info"]
         used = int(session.photons_emitted()) if rule is not None else None
-        decided = (failed is None and rule.decided()) if rule is not None else None
+        decided = (failed is None and rule.finished()) if rule is not None else None
     finally:
         session.close()
     if failed is not None:

@@ -62,7 +62,7 @@ def test_until_verdict_stops_a_failing_sample_at_its_first_sure_fail(lamp, tmp_p
     """``--until verdict``: the isotropic lamp fails 75R (79.6 cd ≪ 10 100) at the first
     look, so the sample stops there; its fails are true ones."""
     s = run_sample(_opts(lamp, tmp_path, 64 * FRAME, until="verdict"), np.zeros(5))
-    assert s.photons == FRAME
+    assert s.photons == FRAME and s.decided
     truth = 1000.0 / (4 * np.pi)
     verdicts = dict(zip(s.names, s.verdicts, strict=True))
     assert verdicts["75R"] == "fail"
