@@ -392,8 +392,8 @@ def _run(opts: SimulateOptions, progress, should_stop, on_plan, resume,
     check_until(opts, config)
     keeper = photon_keeper(opts, config, analyses)
     config = config.with_(keep_photons=keeper is not None)
-    # the kNN estimates read after the run: the cut-off scans (accumulated per frame at
-    # these points when no photon is kept)
+    # the kNN estimates read after the run: the cut-off scans and the analyses' points
+    # (e.g. --road's per-set maps), accumulated per frame there when no photon is kept
     extra = np.vstack([cutoff_points(scene.wall, opts.traffic, config)]
                       + analysis_points(analyses, scene, config))
     channels = scene.channels or 3
