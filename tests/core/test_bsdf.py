@@ -265,10 +265,15 @@ def test_one_bounce_of_the_tracer_equals_the_kernel(material, below):
                              keys)
     p, taken = 0.5 * p, 0.5 * taken  # flux factors: the kernel ran with flux 1
     assert len(res.escaped_power) == n  # one bounce each, then out
-    np.testing.assert_array_equal(res.escaped_power[:, 0], p)
+    if below:  # exp(−σ t) reads embree's float32 hit distance, which is 0.25 to within
+        # one float32 step depending on the CPU's instruction set: the same to 2 ulp
+        np.testing.assert_allclose(res.escaped_power[:, 0], p, rtol=2.0 ** -22, atol=0)
+    else:
+        np.testing.assert_array_equal(res.escaped_power[:, 0], p)
     np.testing.assert_array_equal(res.escaped_dir, w.astype(np.float32))
     col = {DIFFUSE: "absorbed_diffuse", MIRROR: "absorbed_mirror",
            DIELECTRIC: "absorbed_volume"}[material.kind]
-    assert res.ledger[0, LEDGER.index(col), 0] == pytest.approx(taken.sum(), rel=1e-12)
+    assert res.ledger[0, LEDGER.index(col), 0] == pytest.approx(
+        taken.sum(), rel=2.0 ** -22 if below else 1e-12)
     if material.kind == DIELECTRIC:
         assert 0.0 < (side == 1.0).mean() < 0.2  # both branches of the Fresnel choice ran
