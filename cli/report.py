@@ -59,12 +59,7 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
     if part is not None and provenance_rule is None:
         raise InputError("--part goes with --provenance RULE")
     if provenance_box is not None:
-        if result_dir is None:
-            raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
-        if not 0 < confidence < 1:
-            raise InputError(f"--confidence must lie in (0, 1), got {confidence}")
-        out = Path(result_dir)
-        summary = read_json(out / "summary.json")
+        out, summary = _run_folder(result_dir, confidence)
         if not isinstance(summary.get("provenance"), dict):
             raise InputError("this run was made without --provenance: run lightsim simulate "
                              "--provenance --regulation … to break its screen down by path")
@@ -98,12 +93,7 @@ def report(result_dir: str | None, regulation: str | None, confidence: float,
             click.echo(f"{'':<20} version: {rs.get('version', '')}")
             click.echo(f"{'':<20} source: {rs.get('source', '')}")
         return
-    if result_dir is None:
-        raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
-    if not 0 < confidence < 1:
-        raise InputError(f"--confidence must lie in (0, 1), got {confidence}")
-    out = Path(result_dir)
-    summary = read_json(out / "summary.json")
+    out, summary = _run_folder(result_dir, confidence)
     channels, _ = read_exr(out / "wall_lux.exr")
     if "Y" not in channels:
         raise InputError(f"{out / 'wall_lux.exr'} has no Y (illuminance) channel")
@@ -157,3 +147,13 @@ def _tables_and_plots(out: Path, summary: dict, lux, wall, regulation: str | Non
                                    log=log_scale)
     write_json(out / "summary.json", summary)  # noise floor and road reach
     return written
+
+
+def _run_folder(result_dir: str | None, confidence: float) -> tuple[Path, dict]:
+    """The run folder and its summary.json, after checking the arguments (one line)."""
+    if result_dir is None:
+        raise InputError("missing RESULT_DIR (a folder written by lightsim simulate)")
+    if not 0 < confidence < 1:
+        raise InputError(f"--confidence must lie in (0, 1), got {confidence}")
+    out = Path(result_dir)
+    return out, read_json(out / "summary.json")
