@@ -121,6 +121,9 @@ class ProvenanceAnalysis:
     top: int = 8
     map_text: str = ""
     tables: dict[str, Any] = field(default_factory=dict, init=False)
+    #: the class counts are accumulated per frame in every set (apertures, the region
+    #: raster, the class map): no photon need be kept
+    reads_photons = None
 
     def prepare(self, config: Any, scene: Any) -> Any:
         """Path signatures kept and counted per aperture (and the ``map_text`` class

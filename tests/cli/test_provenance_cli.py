@@ -130,3 +130,15 @@ def test_path_map_holds_its_class_and_all_classes_hold_the_wall_flux(tmp_path, c
                             "--quiet"], capsys)
     assert code == 2 and "housing" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "bad").exists()
+
+
+def test_provenance_keeps_no_photon_and_reads_as_a_keep_all_run(tmp_path, capsys):
+    """The class counts are accumulated per frame: a --provenance run keeps no photon, and
+    its tables equal a --keep-photons run's."""
+    plain = _simulate(tmp_path / "plain", "lowbeam.glb", 200_000, capsys)
+    kept = _simulate(tmp_path / "kept", "lowbeam.glb", 200_000, capsys, "--keep-photons")
+    assert plain["config"]["keep_photons"] is False and kept["config"]["keep_photons"]
+    for summary in (plain, kept):
+        summary["provenance"].pop("seconds", None)
+    assert plain["provenance"] == kept["provenance"]
+    assert plain["regulation"]["results"] == kept["regulation"]["results"]

@@ -130,7 +130,7 @@ def test_until_verdict_stops_at_the_first_sure_fail(tmp_path, capsys):
     for mode in ("verdict", "decided"):
         out = tmp_path / mode
         code, text, err = run_cli(["simulate", str(glb), "--until", mode, "--regulation",
-                                   "r112-b-passing", "--photons", "1600000",
+                                   "r112-b-passing", "--photons", "400000",
                                    "--frame-photons", "100000", "--resolution", "80x32",
                                    "--seed", "3", "--out", str(out)], capsys)
         assert code == 0, err
