@@ -567,6 +567,8 @@ class GuideTargets:
     traffic: str = "right"
     name: str = "guide"
     regions: list[tuple[float, float, float, float]] = field(default_factory=list)
+    #: it reads no estimate after the run, so the run keeps no photon for it
+    reads_photons = None
 
     def prepare(self, config: Any, scene: Any) -> Any:
         if config.guide != "points" or config.guide_targets or not config.apertures:
