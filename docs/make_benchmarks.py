@@ -84,9 +84,10 @@ BENCHES = (
           ("--changes", "2", "--drag-seconds", "2", "--converge-timeout", "15"),
           "The live view in Chromium: latency of a change, drag frames per second, time "
           "to a 5 % and a 2 % error."),
-    Bench("verdicts", ("bench", "verdicts", "--photons", "8000000"), ("--photons", "1000000"),
+    Bench("verdicts", ("bench", "verdicts", "--photons", "400000000"),
+          ("--photons", "1000000"),
           "Seconds and photons until every verdict is decided, with and without guiding "
-          "(capped at the photons shown)."),
+          "(at most the photons shown: the cap of `simulate --until decided`)."),
     Bench("adb", ("bench", "adb", "--memory-photons", "2000000"), ("--frames", "100"),
           "A 1,000-frame traffic sequence composed and judged from per-source maps, against "
           "re-tracing one frame; the memory of --per-source against a plain run."),
