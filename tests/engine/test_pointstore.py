@@ -10,7 +10,6 @@ from lightsim.engine.config import RunConfig
 from lightsim.engine.pointstore import PointStore, floor_holds
 from lightsim.engine.server import Session
 from lightsim.errors import InputError
-from lightsim.luminaires.analyses import for_options
 from lightsim.photonmap.density import PhotonMap
 from lightsim.simulate import SimulateOptions, photon_keeper
 from lightsim.validation.bench.peer import CASES
@@ -183,16 +182,6 @@ def test_photon_keeper_names_the_option_that_keeps_photons():
     assert photon_keeper(opts, cfg.with_(final="interleaved"), []) == \
         "--final interleaved"
     assert photon_keeper(keep, cfg.with_(estimator="bin"), []) is None  # no map at all
-
-
-def test_guided_verdict_runs_keep_no_photon():
-    """--guide points with --until decided reads detector apertures only: its photons
-    need not be kept, so a large cap fits in memory."""
-    opts = SimulateOptions(scene_path="x.glb", regulation="r112-b-passing,r149-b-passing",
-                           until="decided", config={"guide": "points"})
-    analyses = for_options(opts)
-    assert "guide" in [a.name for a in analyses]
-    assert photon_keeper(opts, opts.run_config(), analyses) is None
 
 
 def test_explain_says_what_grows_with_photons(tmp_path, capsys):

@@ -8,7 +8,9 @@ import math
 import pytest
 
 from lightsim.errors import InputError
+from lightsim.luminaires.analyses import for_options
 from lightsim.luminaires.regulations.sequential import LookSchedule, merge_row
+from lightsim.simulate import SimulateOptions, photon_keeper
 from lightsim.validation.sequential_study import simulated_looks, until_study
 from tests.support import run_cli, write_point_lamp
 
@@ -169,3 +171,13 @@ def test_traced_lamps_decide_wrongly_no_more_than_nominal(guide):
 def test_traced_lamps_many_seeds(guide):
     study = until_study(6, 3, cap_photons=4_000_000, guide=guide, seed=4)
     assert study.wrong <= study.allowed(), study.to_dict()
+
+
+def test_guided_verdict_runs_keep_no_photon():
+    """--guide points with --until decided reads detector apertures only: its photons
+    need not be kept, so a large cap fits in memory."""
+    opts = SimulateOptions(scene_path="x.glb", regulation="r112-b-passing,r149-b-passing",
+                           until="decided", config={"guide": "points"})
+    analyses = for_options(opts)
+    assert "guide" in [a.name for a in analyses]
+    assert photon_keeper(opts, opts.run_config(), analyses) is None
